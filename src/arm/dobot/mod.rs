@@ -1,0 +1,1 @@
+//! Dobot MG400: wire protocol (`proto`) and TCP client (`client`).

@@ -1,0 +1,20 @@
+//! rig: a controller for tactile-robotics labs.
+//!
+//! Data flow: a [`plan`] of contact poses drives the collection job ([`collect`]) which moves
+//! an [`arm`], captures [`camera`] frames and writes a [`dataset`]. [`geometry`] renders
+//! pose-aligned depth maps of the object, [`calibration`] maps robot mm to image pixels, and
+//! [`synth`] fills the poses not collected through an ONNX diffusion model. [`sim`] provides
+//! the simulated MG400 and sensors behind the same seams.
+
+pub mod arm;
+pub mod camera;
+pub mod cli;
+pub mod clock;
+pub mod geometry;
+pub mod pose;
+pub mod sim;
+
+/// rig's version, written into manifests.
+pub fn version() -> &'static str {
+    env!("CARGO_PKG_VERSION")
+}
