@@ -10,6 +10,7 @@ pub mod arm;
 pub mod camera;
 pub mod cli;
 pub mod clock;
+pub mod config;
 pub mod geometry;
 pub mod pose;
 pub mod sim;

@@ -1,0 +1,142 @@
+//! `rig collect`: wires the configuration, the plan, the arm, the cameras and the datasets to
+//! the collection job.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use clap::Args;
+
+use crate::collect::{CollectJob, SensorStream, check_plan};
+use crate::config::RigConfig;
+use crate::dataset::{DatasetWriter, Manifest};
+use crate::plan::PlanSpec;
+use crate::rigs::{Rig, SensorChoice};
+
+/// Arguments of `rig collect`.
+#[derive(Debug, Args)]
+pub struct CollectArgs {
+    /// Object name from the object library (`datasets/objects/<name>.stl`).
+    #[arg(long, default_value = "sphere")]
+    pub object: String,
+    /// Object STL file instead of a library name.
+    #[arg(long)]
+    pub stl: Option<PathBuf>,
+    /// Sensor(s) to capture: tactip, vitac, vitactip or all.
+    #[arg(long, default_value = "all")]
+    pub sensor: String,
+    /// Plan file (TOML); flags below override its fields.
+    #[arg(long)]
+    pub plan: Option<PathBuf>,
+    /// Number of poses to sample from the grid.
+    #[arg(long)]
+    pub poses: Option<usize>,
+    /// Seed of the sampling (and of the simulated sensors' noise).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output root; datasets go to `<out>/<object>/<sensor>/`.
+    #[arg(long, default_value = "datasets")]
+    pub out: PathBuf,
+    /// Continue a killed run (or start one when none exists).
+    #[arg(long)]
+    pub resume: bool,
+    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print the plan and check it against the workspace, move nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+}
+
+/// Runs `rig collect`.
+pub fn run(args: CollectArgs) -> anyhow::Result<()> {
+    let config = RigConfig::discover(args.config.as_deref())?;
+    println!("{}", config.describe());
+    let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+    runtime.block_on(run_async(args, config))
+}
+
+async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
+    let mut spec = match &args.plan {
+        Some(p) => PlanSpec::load(p).with_context(|| format!("reading plan {}", p.display()))?,
+        None => PlanSpec::default(),
+    };
+    if let Some(n) = args.poses {
+        spec.n_poses = n;
+    }
+    if let Some(s) = args.seed {
+        spec.seed = s;
+    }
+    spec.validate().context("checking the plan")?;
+    let sensors = SensorChoice::parse(&args.sensor)?;
+    let object = crate::rigs::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
+
+    let profile = crate::rigs::profile_for(&config)?;
+    let plan = spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b));
+    println!(
+        "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
+        plan.poses.len(),
+        spec.grid_len(),
+        plan.motion_time_before_s,
+        plan.motion_time_after_s
+    );
+    check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
+    if args.dry_run {
+        println!("dry run: plan checked against the workspace, nothing moved");
+        return Ok(());
+    }
+
+    let clock = crate::rigs::clock_for(&config);
+    let mut rig = Rig::open(&config, &object, &sensors, spec.seed, clock.clone()).await?;
+    let mut streams = Vec::new();
+    for camera in rig.cameras.drain(..) {
+        let dir = args.out.join(&object.name).join(camera.sensor_dir());
+        let manifest = Manifest::new(&spec, &object.name, &object.path, &object.sha256, camera.sensor_dir(), profile.name(), camera.calibration_name());
+        let writer = if args.resume {
+            DatasetWriter::resume(&dir, manifest)
+        } else {
+            DatasetWriter::create(&dir, manifest)
+        }
+        .with_context(|| format!("opening dataset {}", dir.display()))?;
+        streams.push(SensorStream { camera, writer });
+    }
+
+    let (cancel_tx, cancel_rx) = tokio::sync::watch::channel(false);
+    tokio::spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            eprintln!("interrupt: finishing the current pose, then retracting and disabling the arm");
+            let _ = cancel_tx.send(true);
+        }
+    });
+    let progress = indicatif::ProgressBar::new(plan.poses.len() as u64);
+    progress.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let job = CollectJob {
+        arm: &mut rig.arm,
+        sensors: streams,
+        work_frame: config.work_frame,
+        options: config.collect.clone(),
+        clock: Arc::clone(&clock),
+        cancel: cancel_rx,
+        progress,
+    };
+    let summary = job.run(&plan.poses).await?;
+    rig.shutdown().await;
+    if summary.interrupted {
+        println!(
+            "interrupted: {} poses captured, {} left; continue with --resume",
+            summary.captured, summary.remaining
+        );
+        bail!(crate::cli::ExitStatus(4));
+    }
+    println!(
+        "collected {} poses ({} already present, {} arm faults recovered) into {}",
+        summary.captured,
+        summary.skipped,
+        summary.recovered_faults,
+        args.out.join(&object.name).display()
+    );
+    Ok(())
+}

@@ -1,0 +1,280 @@
+//! The collection job: plan x arm x cameras x dataset.
+//!
+//! For every planned pose not yet in every sensor's dataset, the job moves the sensor above the
+//! pose at the approach height (MovJ), descends to the contact depth (MovL), waits for arrival
+//! (Sync plus the feedback pose), waits the settle time, captures frames exposed after that
+//! instant from each sensor that still lacks the pose, writes image and row durably, and
+//! retracts. A no-contact reference frame is taken first. A recoverable arm fault (alarm,
+//! timeout, dropped socket) is cleared and the pose retried; a cancel request (Ctrl-C) retracts,
+//! disables the arm and leaves every dataset consistent for `--resume`.
+//!
+//! The job only sees the [`Arm`] and [`Camera`] traits: the same code drives the real and the
+//! simulated rig.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use image::RgbImage;
+use tokio::sync::watch;
+use tracing::{info, warn};
+
+use crate::arm::{Arm, ArmError, MoveKind};
+use crate::camera::{Camera, CameraError, Frame};
+use crate::clock::Clock;
+use crate::config::CollectConfig;
+use crate::dataset::{DatasetError, DatasetWriter, PoseRow, Source};
+use crate::plan::PlannedPose;
+use crate::pose::{Pose, WorkFrame};
+
+/// Errors that end a collection.
+#[derive(Debug, thiserror::Error)]
+pub enum CollectError {
+    #[error(transparent)]
+    Arm(#[from] ArmError),
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
+    RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
+    #[error("plan pose {pose_id} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}")]
+    Unreachable { pose_id: u32, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
+    #[error("{what} must be the same for every sensor")]
+    Mismatch { what: &'static str },
+}
+
+/// One sensor of the job: where its frames come from and where they go.
+pub struct SensorStream<C: Camera> {
+    pub camera: C,
+    pub writer: DatasetWriter,
+}
+
+/// What a finished (or interrupted) collection did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollectSummary {
+    /// Poses captured in this run.
+    pub captured: usize,
+    /// Poses that were already complete in every dataset (resume).
+    pub skipped: usize,
+    /// Poses left when the run was interrupted.
+    pub remaining: usize,
+    /// Arm faults cleared and retried.
+    pub recovered_faults: usize,
+    pub interrupted: bool,
+}
+
+/// Checks every pose of the plan (contact and approach) against the workspace before anything
+/// moves. `check` is the firmware profile's reachability test.
+pub fn check_plan(
+    plan: &[PlannedPose],
+    work_frame: &WorkFrame,
+    check: impl Fn(&Pose) -> Result<(), ArmError>,
+) -> Result<(), CollectError> {
+    let reference = PlannedPose { pose_id: u32::MAX, pose: Pose::default() };
+    for p in std::iter::once(&reference).chain(plan.iter()) {
+        for (which, base_pose) in
+            [("approach", work_frame.approach_pose(&p.pose)), ("contact", work_frame.contact_pose(&p.pose))]
+        {
+            let limit = match check(&base_pose) {
+                Ok(()) => continue,
+                Err(ArmError::Unreachable { limit, .. }) => limit,
+                Err(other) => other.to_string(),
+            };
+            return Err(CollectError::Unreachable { pose_id: p.pose_id, plan_pose: p.pose, base_pose, which, limit });
+        }
+    }
+    Ok(())
+}
+
+/// The collection job. Borrow the arm; own the sensor streams.
+pub struct CollectJob<'a, A: Arm, C: Camera> {
+    pub arm: &'a mut A,
+    pub sensors: Vec<SensorStream<C>>,
+    pub work_frame: WorkFrame,
+    pub options: CollectConfig,
+    pub clock: Arc<dyn Clock>,
+    /// Set to `true` to ask the job to stop after the current step.
+    pub cancel: watch::Receiver<bool>,
+    /// Progress display (hidden when not attached to a terminal).
+    pub progress: indicatif::ProgressBar,
+}
+
+impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
+    fn cancelled(&self) -> bool {
+        *self.cancel.borrow()
+    }
+
+    fn move_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.options.move_timeout_s)
+    }
+
+    /// Moves to `target` and waits for arrival.
+    async fn go(&mut self, target: Pose, kind: MoveKind) -> Result<crate::arm::Arrival, ArmError> {
+        self.arm.move_to(target, kind).await?;
+        let timeout = self.move_timeout();
+        self.arm.wait_arrived(target, timeout).await
+    }
+
+    /// Runs the plan. Poses already present in every sensor's dataset are skipped.
+    pub async fn run(mut self, plan: &[PlannedPose]) -> Result<CollectSummary, CollectError> {
+        let mut summary = CollectSummary { captured: 0, skipped: 0, remaining: 0, recovered_faults: 0, interrupted: false };
+        let todo: Vec<&PlannedPose> = plan
+            .iter()
+            .filter(|p| self.sensors.iter().any(|s| !s.writer.done_ids().contains(&p.pose_id)))
+            .collect();
+        summary.skipped = plan.len() - todo.len();
+        self.progress.set_length(plan.len() as u64);
+        self.progress.set_position(summary.skipped as u64);
+        info!(total = plan.len(), todo = todo.len(), "collection starting");
+
+        self.arm.enable().await?;
+        let origin = Pose::default();
+        let above_origin = self.work_frame.approach_pose(&origin);
+
+        // The no-contact reference frame, for every sensor that has none yet.
+        if self.sensors.iter().any(|s| !s.writer.has_reference()) {
+            let arrival = self.go(above_origin, MoveKind::Joint).await?;
+            let not_before = arrival.t_s + self.options.settle_s;
+            for s in self.sensors.iter_mut().filter(|s| !s.writer.has_reference()) {
+                let (image, _) = capture(&mut s.camera, not_before, &self.options).await?;
+                s.writer.write_reference(&image)?;
+            }
+        }
+
+        for (k, planned) in todo.iter().enumerate() {
+            if self.cancelled() {
+                summary.remaining = todo.len() - k;
+                summary.interrupted = true;
+                break;
+            }
+            let mut attempt = 0u32;
+            loop {
+                attempt += 1;
+                match self.one_pose(planned).await {
+                    Ok(()) => break,
+                    Err(CollectError::Arm(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
+                        warn!(pose_id = planned.pose_id, attempt, error = %e, "arm fault; clearing and retrying the pose");
+                        self.progress.println(format!("pose {}: {e}; clearing and retrying", planned.pose_id));
+                        let alarms = self.arm.clear_error().await?;
+                        if !alarms.is_empty() {
+                            info!(?alarms, "cleared alarms");
+                        }
+                        summary.recovered_faults += 1;
+                    }
+                    Err(CollectError::Arm(e)) if e.is_recoverable() => {
+                        return Err(CollectError::RetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e });
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+            summary.captured += 1;
+            self.progress.inc(1);
+        }
+
+        // Leave the arm above the object, disabled; close the datasets.
+        let end = self.go(above_origin, MoveKind::Linear).await;
+        if let Err(e) = &end {
+            warn!(error = %e, "could not retract at the end");
+        }
+        self.arm.disable().await?;
+        for s in self.sensors.iter_mut() {
+            s.writer.finish()?;
+        }
+        self.progress.finish_and_clear();
+        end?;
+        info!(?summary, "collection finished");
+        Ok(summary)
+    }
+
+    /// Approach, descend, settle, capture, write, retract: one pose.
+    async fn one_pose(&mut self, planned: &PlannedPose) -> Result<(), CollectError> {
+        let above = self.work_frame.approach_pose(&planned.pose);
+        let contact = self.work_frame.contact_pose(&planned.pose);
+        self.go(above, MoveKind::Joint).await?;
+        let arrival = self.go(contact, MoveKind::Linear).await?;
+        let not_before = arrival.t_s + self.options.settle_s;
+        let measured = self.work_frame.plan_pose(&arrival.measured);
+        for s in self.sensors.iter_mut().filter(|s| !s.writer.done_ids().contains(&planned.pose_id)) {
+            let (image, t_capture_s) = capture(&mut s.camera, not_before, &self.options).await?;
+            let row = PoseRow::real(planned.pose_id, planned.pose, measured, t_capture_s);
+            s.writer.append(row, &image)?;
+        }
+        self.go(above, MoveKind::Linear).await?;
+        Ok(())
+    }
+}
+
+/// Captures `frames_per_pose` frames exposed after `not_before_s`; returns the last frame (or the
+/// pixel mean when averaging) and the mean capture time.
+async fn capture<C: Camera>(
+    camera: &mut C,
+    not_before_s: f64,
+    options: &CollectConfig,
+) -> Result<(RgbImage, f64), CameraError> {
+    let n = options.frames_per_pose.max(1);
+    let mut frames: Vec<Frame> = Vec::with_capacity(n as usize);
+    let mut after = not_before_s;
+    for _ in 0..n {
+        let f = camera.frame_after(after).await?;
+        after = f.t_capture_s;
+        frames.push(f);
+    }
+    let t_mean = frames.iter().map(|f| f.t_capture_s).sum::<f64>() / frames.len() as f64;
+    if options.average_frames && frames.len() > 1 {
+        Ok((average(&frames), t_mean))
+    } else {
+        let last = frames.pop().map(|f| f.image).unwrap_or_default();
+        Ok((last, t_mean))
+    }
+}
+
+/// Pixel-wise mean of frames of equal size (frames of another size than the first are skipped).
+pub fn average(frames: &[Frame]) -> RgbImage {
+    let Some(first) = frames.first() else { return RgbImage::new(0, 0) };
+    let (w, h) = first.image.dimensions();
+    let mut acc = vec![0u32; (w * h * 3) as usize];
+    let mut n = 0u32;
+    for f in frames.iter().filter(|f| f.image.dimensions() == (w, h)) {
+        for (a, &p) in acc.iter_mut().zip(f.image.as_raw()) {
+            *a += p as u32;
+        }
+        n += 1;
+    }
+    let data = acc.iter().map(|&a| ((a + n / 2) / n) as u8).collect();
+    RgbImage::from_raw(w, h, data).unwrap_or_else(|| first.image.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(v: u8) -> Frame {
+        Frame { image: RgbImage::from_pixel(2, 2, image::Rgb([v, v, v])), t_capture_s: 0.0, seq: 0 }
+    }
+
+    #[test]
+    fn average_rounds_the_mean() {
+        let a = average(&[frame(10), frame(21)]);
+        assert_eq!(a.get_pixel(1, 1).0, [16, 16, 16]);
+    }
+
+    #[test]
+    fn plan_check_names_the_pose() {
+        let wf = WorkFrame::default();
+        let plan = vec![
+            PlannedPose { pose_id: 3, pose: Pose::new(0.0, 0.0, 0.0, 0.0) },
+            PlannedPose { pose_id: 7, pose: Pose::new(0.0, 0.0, 0.5, 0.0) },
+        ];
+        // A stand-in workspace: nothing below z = -21.9 mm.
+        let check = |p: &Pose| {
+            if p.z_mm < -21.9 {
+                Err(ArmError::Unreachable { pose: *p, limit: "z below -21.9 mm".into() })
+            } else {
+                Ok(())
+            }
+        };
+        let e = check_plan(&plan, &wf, check).unwrap_err();
+        assert!(matches!(e, CollectError::Unreachable { pose_id: 7, which: "contact", .. }), "{e}");
+        assert!(e.to_string().contains("z below"));
+    }
+}

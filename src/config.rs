@@ -1,0 +1,350 @@
+//! The rig configuration file (`rig.toml`), in two stages.
+//!
+//! [`RawConfig`] is what serde reads from TOML, every field optional; [`RigConfig::resolve`]
+//! validates it once and fills defaults into the types the program uses. With no file at all,
+//! rig runs on the built-in simulated rig ([`ArmBackend::Simulated`], simulated sensors).
+//!
+//! Lookup order: `--config FILE`, then `$RIG_CONFIG`, then `./rig.toml`.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::pose::{Pose, WorkFrame};
+
+/// Errors reading or validating the rig configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read rig config {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("rig config {path} is not valid: {source}")]
+    Parse {
+        path: PathBuf,
+        #[source]
+        source: toml::de::Error,
+    },
+    #[error("rig config {path}: {field} {problem}")]
+    Invalid { path: PathBuf, field: &'static str, problem: String },
+}
+
+/// `[arm]` as written in the file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawArm {
+    /// `sim` (default) or `mg400`.
+    pub backend: Option<String>,
+    pub host: Option<String>,
+    pub dashboard_port: Option<u16>,
+    pub motion_port: Option<u16>,
+    pub feedback_port: Option<u16>,
+    /// Firmware profile name (`firmware-profiles/<name>.toml`) or path.
+    pub profile: Option<String>,
+    /// Global speed factor, percent.
+    pub speed_factor: Option<u8>,
+    /// Simulated rig only: how much faster than real time the simulation runs.
+    pub sim_time_scale: Option<f64>,
+}
+
+/// `[collect]` as written in the file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCollect {
+    pub settle_s: Option<f64>,
+    pub frames_per_pose: Option<u32>,
+    pub average_frames: Option<bool>,
+    pub move_timeout_s: Option<f64>,
+    pub retries_per_pose: Option<u32>,
+}
+
+/// `[sensors.<name>]` as written in the file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSensor {
+    /// `sim` (default), `v4l2` or `nokhwa`.
+    pub backend: Option<String>,
+    /// `/dev/videoN`, a USB port path or a serial number (hardware backends).
+    pub device: Option<String>,
+    /// Calibration file (robot mm to image pixels).
+    pub calibration: Option<PathBuf>,
+    /// Simulated sensors: scene preset name (see `sim::sensor::Scene`).
+    pub scene: Option<String>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+}
+
+/// The whole file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    #[serde(default)]
+    pub arm: RawArm,
+    pub work_frame: Option<WorkFrame>,
+    #[serde(default)]
+    pub collect: RawCollect,
+    #[serde(default)]
+    pub sensors: std::collections::BTreeMap<String, RawSensor>,
+}
+
+/// Which arm to drive.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ArmBackend {
+    /// Start the simulated MG400 in-process on loopback and drive it over TCP.
+    Simulated { time_scale: f64 },
+    /// A real MG400 at `host`.
+    Mg400 { host: String, dashboard_port: u16, motion_port: u16, feedback_port: u16 },
+}
+
+/// The validated `[arm]` section.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArmConfig {
+    pub backend: ArmBackend,
+    pub profile: Option<String>,
+    pub speed_factor: u8,
+}
+
+/// The validated `[collect]` section.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollectConfig {
+    pub settle_s: f64,
+    pub frames_per_pose: u32,
+    pub average_frames: bool,
+    pub move_timeout_s: f64,
+    pub retries_per_pose: u32,
+}
+
+impl Default for CollectConfig {
+    fn default() -> Self {
+        Self { settle_s: 0.2, frames_per_pose: 1, average_frames: false, move_timeout_s: 30.0, retries_per_pose: 3 }
+    }
+}
+
+/// The validated `[sensors.<name>]` section.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorConfig {
+    pub name: String,
+    pub backend: SensorBackend,
+    pub calibration: Option<PathBuf>,
+    pub scene: String,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Where a sensor's frames come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorBackend {
+    Simulated,
+    V4l2 { device: String },
+    Nokhwa { device: String },
+}
+
+/// The resolved configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RigConfig {
+    /// The file it came from; `None` for the built-in simulated rig.
+    pub source: Option<PathBuf>,
+    pub arm: ArmConfig,
+    pub work_frame: WorkFrame,
+    pub collect: CollectConfig,
+    /// Configured sensors by name; empty means "the three simulated sensors".
+    pub sensors: Vec<SensorConfig>,
+}
+
+/// Default time scale of the built-in simulated rig.
+pub const DEFAULT_SIM_TIME_SCALE: f64 = 20.0;
+
+impl RigConfig {
+    /// The built-in simulated rig used when no configuration file exists.
+    pub fn builtin_sim() -> Self {
+        Self {
+            source: None,
+            arm: ArmConfig {
+                backend: ArmBackend::Simulated { time_scale: DEFAULT_SIM_TIME_SCALE },
+                profile: None,
+                speed_factor: 100,
+            },
+            work_frame: WorkFrame::default(),
+            collect: CollectConfig::default(),
+            sensors: Vec::new(),
+        }
+    }
+
+    /// Finds and reads the configuration: `explicit`, then `$RIG_CONFIG`, then `./rig.toml`;
+    /// the built-in simulated rig when none exists.
+    pub fn discover(explicit: Option<&Path>) -> Result<Self, ConfigError> {
+        if let Some(p) = explicit {
+            return Self::load(p);
+        }
+        if let Some(p) = std::env::var_os("RIG_CONFIG") {
+            return Self::load(Path::new(&p));
+        }
+        let local = Path::new("rig.toml");
+        if local.is_file() {
+            return Self::load(local);
+        }
+        Ok(Self::builtin_sim())
+    }
+
+    /// Reads and validates one file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates TOML text; `path` is only used in messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let raw: RawConfig =
+            toml::from_str(text).map_err(|source| ConfigError::Parse { path: path.to_path_buf(), source })?;
+        Self::resolve(raw, path)
+    }
+
+    /// Validates a raw configuration and fills in defaults.
+    pub fn resolve(raw: RawConfig, path: &Path) -> Result<Self, ConfigError> {
+        let invalid = |field: &'static str, problem: String| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            field,
+            problem,
+        };
+        let backend = match raw.arm.backend.as_deref().unwrap_or("sim") {
+            "sim" | "simulated" => {
+                let time_scale = raw.arm.sim_time_scale.unwrap_or(DEFAULT_SIM_TIME_SCALE);
+                if !(time_scale.is_finite() && time_scale > 0.0 && time_scale <= 1000.0) {
+                    return Err(invalid("arm.sim_time_scale", format!("must be in (0, 1000], got {time_scale}")));
+                }
+                ArmBackend::Simulated { time_scale }
+            }
+            "mg400" => {
+                let host = raw
+                    .arm
+                    .host
+                    .clone()
+                    .ok_or_else(|| invalid("arm.host", "is required for backend mg400 (e.g. 192.168.1.6)".into()))?;
+                ArmBackend::Mg400 {
+                    host,
+                    dashboard_port: raw.arm.dashboard_port.unwrap_or(29999),
+                    motion_port: raw.arm.motion_port.unwrap_or(30003),
+                    feedback_port: raw.arm.feedback_port.unwrap_or(30004),
+                }
+            }
+            other => return Err(invalid("arm.backend", format!("must be sim or mg400, got {other:?}"))),
+        };
+        let speed_factor = raw.arm.speed_factor.unwrap_or(100);
+        if !(1..=100).contains(&speed_factor) {
+            return Err(invalid("arm.speed_factor", format!("must be 1..100 percent, got {speed_factor}")));
+        }
+        let work_frame = raw.work_frame.unwrap_or_default();
+        if !work_frame.origin.is_finite()
+            || !work_frame.contact_depth_mm.is_finite()
+            || !work_frame.approach_mm.is_finite()
+            || !work_frame.tool_offset_mm.is_finite()
+        {
+            return Err(invalid("work_frame", "has a non-finite value".into()));
+        }
+        if work_frame.approach_mm <= 0.0 {
+            return Err(invalid("work_frame.approach_mm", format!("must be above 0 mm, got {}", work_frame.approach_mm)));
+        }
+        let d = CollectConfig::default();
+        let collect = CollectConfig {
+            settle_s: raw.collect.settle_s.unwrap_or(d.settle_s),
+            frames_per_pose: raw.collect.frames_per_pose.unwrap_or(d.frames_per_pose),
+            average_frames: raw.collect.average_frames.unwrap_or(d.average_frames),
+            move_timeout_s: raw.collect.move_timeout_s.unwrap_or(d.move_timeout_s),
+            retries_per_pose: raw.collect.retries_per_pose.unwrap_or(d.retries_per_pose),
+        };
+        if !(collect.settle_s.is_finite() && collect.settle_s >= 0.0 && collect.settle_s <= 60.0) {
+            return Err(invalid("collect.settle_s", format!("must be in [0, 60] s, got {}", collect.settle_s)));
+        }
+        if collect.frames_per_pose == 0 || collect.frames_per_pose > 100 {
+            return Err(invalid("collect.frames_per_pose", format!("must be 1..100, got {}", collect.frames_per_pose)));
+        }
+        if !(collect.move_timeout_s.is_finite() && collect.move_timeout_s > 0.0) {
+            return Err(invalid("collect.move_timeout_s", format!("must be above 0 s, got {}", collect.move_timeout_s)));
+        }
+        let mut sensors = Vec::new();
+        for (name, s) in raw.sensors {
+            let backend = match s.backend.as_deref().unwrap_or("sim") {
+                "sim" | "simulated" => SensorBackend::Simulated,
+                "v4l2" => SensorBackend::V4l2 {
+                    device: s.device.clone().ok_or_else(|| invalid("sensors.*.device", format!("is required for v4l2 sensor {name}")))?,
+                },
+                "nokhwa" => SensorBackend::Nokhwa {
+                    device: s.device.clone().ok_or_else(|| invalid("sensors.*.device", format!("is required for nokhwa sensor {name}")))?,
+                },
+                other => return Err(invalid("sensors.*.backend", format!("sensor {name}: must be sim, v4l2 or nokhwa, got {other:?}"))),
+            };
+            sensors.push(SensorConfig {
+                name,
+                backend,
+                calibration: s.calibration,
+                scene: s.scene.unwrap_or_else(|| "full".into()),
+                width: s.width.unwrap_or(512),
+                height: s.height.unwrap_or(512),
+            });
+        }
+        Ok(Self {
+            source: Some(path.to_path_buf()),
+            arm: ArmConfig { backend, profile: raw.arm.profile, speed_factor },
+            work_frame,
+            collect,
+            sensors,
+        })
+    }
+
+    /// One line saying what rig will drive, printed first by commands that move hardware.
+    pub fn describe(&self) -> String {
+        match (&self.source, &self.arm.backend) {
+            (None, _) => "no rig config found (--config, $RIG_CONFIG, ./rig.toml): using the built-in simulated rig (simulated MG400 over TCP on loopback, simulated sensors)".to_string(),
+            (Some(p), ArmBackend::Simulated { time_scale }) => {
+                format!("rig config {}: simulated MG400 ({time_scale}x real time)", p.display())
+            }
+            (Some(p), ArmBackend::Mg400 { host, dashboard_port, .. }) => {
+                format!("rig config {}: MG400 at {host}:{dashboard_port}", p.display())
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_file_is_the_simulated_rig() {
+        let c = RigConfig::parse("", Path::new("rig.toml")).unwrap();
+        assert_eq!(c.arm.backend, ArmBackend::Simulated { time_scale: DEFAULT_SIM_TIME_SCALE });
+        assert_eq!(c.collect, CollectConfig::default());
+    }
+
+    #[test]
+    fn real_arm_needs_a_host() {
+        let e = RigConfig::parse("[arm]\nbackend = \"mg400\"\n", Path::new("x.toml")).unwrap_err();
+        assert!(e.to_string().contains("arm.host"), "{e}");
+        let c = RigConfig::parse("[arm]\nbackend = \"mg400\"\nhost = \"192.168.1.6\"\n", Path::new("x.toml")).unwrap();
+        assert!(matches!(c.arm.backend, ArmBackend::Mg400 { dashboard_port: 29999, .. }));
+    }
+
+    #[test]
+    fn unknown_fields_and_bad_values_are_refused() {
+        assert!(matches!(RigConfig::parse("[arm]\nspeed = 3\n", Path::new("x")), Err(ConfigError::Parse { .. })));
+        let e = RigConfig::parse("[collect]\nframes_per_pose = 0\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("frames_per_pose"));
+        let e = RigConfig::parse("[arm]\nspeed_factor = 0\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("speed_factor"));
+    }
+
+    #[test]
+    fn work_frame_is_read() {
+        let c = RigConfig::parse(
+            "[work_frame]\norigin = { x_mm = 250.0, y_mm = 10.0, z_mm = -30.0, yaw_deg = 5.0 }\napproach_mm = 8.0\n",
+            Path::new("x"),
+        )
+        .unwrap();
+        assert_eq!(c.work_frame.origin, Pose::new(250.0, 10.0, -30.0, 5.0));
+        assert_eq!(c.work_frame.approach_mm, 8.0);
+        assert_eq!(c.work_frame.contact_depth_mm, 1.5);
+    }
+}
