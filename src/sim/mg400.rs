@@ -27,6 +27,7 @@
 
 use std::collections::VecDeque;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -583,6 +584,24 @@ struct Shared {
     shutdown_tx: watch::Sender<bool>,
     epoch_unix_ms: u64,
     stats_connections: Mutex<u64>,
+    /// Connections open now, per port.
+    open: [AtomicUsize; 3],
+}
+
+/// Counts a connection as open for as long as its handler runs.
+struct OpenGuard<'a>(&'a AtomicUsize);
+
+impl<'a> OpenGuard<'a> {
+    fn new(counter: &'a AtomicUsize) -> Self {
+        counter.fetch_add(1, Ordering::SeqCst);
+        Self(counter)
+    }
+}
+
+impl Drop for OpenGuard<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 impl Shared {
@@ -644,6 +663,7 @@ impl SimMg400 {
             shutdown_tx: watch::Sender::new(false),
             epoch_unix_ms,
             stats_connections: Mutex::new(0),
+            open: std::array::from_fn(|_| AtomicUsize::new(0)),
         });
         let sim = SimMg400 {
             dashboard_addr: dashboard.local_addr()?,
@@ -699,6 +719,11 @@ impl SimMg400 {
     /// The tool pose now.
     pub fn pose(&self) -> Pose {
         self.shared.controller().pose()
+    }
+
+    /// Connections open now on `port`.
+    pub fn open_connections(&self, port: SimPort) -> usize {
+        self.shared.open[port_index(port)].load(Ordering::SeqCst)
     }
 
     /// Counters since start.
@@ -779,6 +804,7 @@ async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: SimPort) 
 /// Serves one dashboard or motion connection until it closes, is dropped, or the sim stops.
 async fn serve_commands(shared: Arc<Shared>, mut stream: TcpStream, port: Port) {
     let sim_port = if port == Port::Dashboard { SimPort::Dashboard } else { SimPort::Motion };
+    let _open = OpenGuard::new(&shared.open[port_index(sim_port)]);
     let mut drop_rx = shared.drop_tx[port_index(sim_port)].subscribe();
     let mut shutdown = shared.shutdown_tx.subscribe();
     let mut framer = RequestFramer::new();
@@ -851,6 +877,7 @@ async fn serve_commands(shared: Arc<Shared>, mut stream: TcpStream, port: Port) 
 
 /// Streams feedback frames on one connection.
 async fn serve_feedback(shared: Arc<Shared>, mut stream: TcpStream) {
+    let _open = OpenGuard::new(&shared.open[port_index(SimPort::Feedback)]);
     let mut drop_rx = shared.drop_tx[port_index(SimPort::Feedback)].subscribe();
     let mut shutdown = shared.shutdown_tx.subscribe();
     let mut sent = 0u64;
