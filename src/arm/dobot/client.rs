@@ -260,6 +260,10 @@ async fn connect_tcp(host: &str, port: u16, timeout: Duration, role: &str) -> Re
     }
 }
 
+/// How many consecutive feedback frames must agree before a state seen right after a command
+/// is believed (earlier frames may have been sent before the command took effect).
+const STALE_FRAMES: u32 = 5;
+
 /// One decoded feedback frame and when it arrived.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FeedbackSample {
@@ -520,9 +524,13 @@ impl Mg400Client {
         self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await?;
         let deadline = Instant::now() + self.cfg.enable_timeout;
         let seq = self.latest_seq();
+        // Frames already in flight may still show the state from before ClearError, so an
+        // alarm counts only when several frames in a row report it.
+        let mut alarm_frames = 0;
         let sample = self
             .wait_feedback(seq, deadline, "waiting for the MG400 to report enabled (mode 5)", |s| {
-                s.frame.in_alarm() || matches!(s.frame.mode(), RobotMode::Enabled | RobotMode::Running)
+                alarm_frames = if s.frame.in_alarm() { alarm_frames + 1 } else { 0 };
+                alarm_frames >= STALE_FRAMES || matches!(s.frame.mode(), RobotMode::Enabled | RobotMode::Running)
             })
             .await?;
         if sample.frame.in_alarm() {
