@@ -9,6 +9,8 @@
 //! itself before sending ([`ArmError::Unreachable`]).
 
 pub mod dobot;
+pub mod kinematics;
+pub mod profile;
 
 use std::future::Future;
 use std::time::Duration;

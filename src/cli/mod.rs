@@ -5,6 +5,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod sim;
+
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
 #[derive(Debug, Parser)]
@@ -21,6 +23,8 @@ pub struct Cli {
 pub enum Command {
     /// Print the version and the configuration rig would use.
     Info,
+    /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
+    Sim(sim::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -34,6 +38,7 @@ pub fn main() -> ExitCode {
             println!("rig {}", crate::version());
             Ok(())
         }
+        Command::Sim(args) => sim::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

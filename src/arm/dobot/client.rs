@@ -1,0 +1,681 @@
+//! The MG400 TCP client: a thin tokio shell around the sans-io codec in `proto`.
+//!
+//! [`Mg400Client`] owns three connections:
+//!
+//! - dashboard (29999) and motion (30003): each a [`CommandLink`] that writes one request,
+//!   feeds the bytes it reads into a [`ReplyFramer`] and returns the reply whose echo names
+//!   the request (a late reply to an abandoned request is recognised and skipped). A dropped
+//!   socket is reconnected and the request sent again; a timed-out link is closed so the next
+//!   request starts clean.
+//! - feedback (30004): a background task decodes frames with [`FeedbackDecoder`] and
+//!   publishes the newest one on a `watch` channel, reconnecting when the stream drops.
+//!
+//! Arrival ([`Arm::wait_arrived`]) combines both completion signals of the fact sheet
+//! (section 5): `Sync()` returns once the queue has drained, then feedback frames received
+//! after that reply must show mode 5 and the tool within the arrival tolerance of the target.
+//! A move to the current pose therefore returns as soon as Sync answers. An alarm (mode 9 or
+//! ErrorStatus in the feedback, or a refused command while in alarm) becomes
+//! [`ArmError::Fault`] with the named alarm ids from GetErrorID, kept apart from I/O errors
+//! and timeouts; [`Arm::clear_error`] runs the recovery flow (GetErrorID, ClearError,
+//! Continue, EnableRobot when the arm dropped to mode 4).
+//!
+//! The client never keeps more than `max_queued_commands` moves queued on the controller:
+//! past that it waits for Sync before sending more (the real controller freezes past ~50).
+//! Socket timeouts run on real time; [`Arrival::t_s`] is stamped from the [`Clock`] passed in.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+use crate::arm::dobot::alarms;
+use crate::arm::dobot::proto::{ErrorId, FeedbackDecoder, FeedbackFrame, Reply, ReplyFramer, Request, RobotMode};
+use crate::arm::profile::FirmwareProfile;
+use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
+use crate::clock::Clock;
+use crate::pose::Pose;
+
+/// A byte stream the client can run a link over (a `TcpStream`, a duplex pipe in tests).
+pub trait ByteStream: AsyncRead + AsyncWrite + Unpin + Send + 'static {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send + 'static> ByteStream for T {}
+
+/// Settings of an [`Mg400Client`].
+#[derive(Debug, Clone)]
+pub struct Mg400Config {
+    /// Controller address (LAN1 of a real MG400 is 192.168.1.6).
+    pub host: String,
+    pub dashboard_port: u16,
+    pub motion_port: u16,
+    pub feedback_port: u16,
+    /// Limit on establishing each TCP connection and on the first feedback frame.
+    pub connect_timeout: Duration,
+    /// Limit on a reply to an immediate command.
+    pub reply_timeout: Duration,
+    /// Limit on EnableRobot and the wait for mode 5 afterwards ([CPP] allows 20 s).
+    pub enable_timeout: Duration,
+    /// Limit on draining the queue when the queued-command bound is reached.
+    pub drain_timeout: Duration,
+    /// Global speed, 1..=100 %.
+    pub speed_factor_pct: u8,
+    /// Arrival tolerance on position, mm.
+    pub arrival_tolerance_mm: f64,
+    /// Arrival tolerance on yaw, degrees.
+    pub arrival_tolerance_deg: f64,
+    /// Most moves kept queued on the controller at once.
+    pub max_queued_commands: usize,
+    /// User frame and tool indices selected on enable.
+    pub user_index: u8,
+    pub tool_index: u8,
+    /// Reconnection attempts after a dropped socket, per request.
+    pub reconnect_attempts: u32,
+    pub profile: FirmwareProfile,
+}
+
+impl Mg400Config {
+    /// Settings for the controller at `host`, ports and queue bound from `profile`.
+    pub fn new(host: impl Into<String>, profile: FirmwareProfile) -> Self {
+        Self {
+            host: host.into(),
+            dashboard_port: profile.transport.dashboard_port,
+            motion_port: profile.transport.motion_port,
+            feedback_port: profile.transport.feedback_port,
+            connect_timeout: Duration::from_secs(3),
+            reply_timeout: Duration::from_secs(5),
+            enable_timeout: Duration::from_secs(20),
+            drain_timeout: Duration::from_secs(120),
+            speed_factor_pct: 50,
+            arrival_tolerance_mm: 0.1,
+            arrival_tolerance_deg: 0.1,
+            max_queued_commands: profile.transport.max_queued_commands,
+            user_index: 0,
+            tool_index: 0,
+            reconnect_attempts: 3,
+            profile,
+        }
+    }
+
+    /// Same settings with explicit ports (e.g. a simulator on ephemeral ports).
+    pub fn with_ports(mut self, dashboard: u16, motion: u16, feedback: u16) -> Self {
+        self.dashboard_port = dashboard;
+        self.motion_port = motion;
+        self.feedback_port = feedback;
+        self
+    }
+}
+
+impl Default for Mg400Config {
+    /// A real MG400 on LAN1 with the default profile.
+    fn default() -> Self {
+        Self::new("192.168.1.6", FirmwareProfile::default_mg400())
+    }
+}
+
+fn io_err(context: String, source: std::io::Error) -> ArmError {
+    ArmError::Io { context, source }
+}
+
+/// One request/reply connection (dashboard or motion).
+struct CommandLink {
+    /// "dashboard" or "motion", for messages.
+    role: &'static str,
+    /// Where to reconnect; `None` for an attached stream, which cannot be reopened.
+    addr: Option<(String, u16)>,
+    stream: Option<Box<dyn ByteStream>>,
+    framer: ReplyFramer,
+    /// Names of requests abandoned on this stream whose replies are still due, oldest first.
+    abandoned: VecDeque<&'static str>,
+    connect_timeout: Duration,
+}
+
+impl CommandLink {
+    fn where_(&self) -> String {
+        match &self.addr {
+            Some((h, p)) => format!("{} port {h}:{p}", self.role),
+            None => format!("{} stream", self.role),
+        }
+    }
+
+    async fn open(&mut self) -> Result<(), ArmError> {
+        if self.stream.is_some() {
+            return Ok(());
+        }
+        let Some((host, port)) = self.addr.clone() else {
+            return Err(io_err(
+                format!("using the {} (attached stream closed, cannot reconnect)", self.where_()),
+                std::io::ErrorKind::NotConnected.into(),
+            ));
+        };
+        let stream = connect_tcp(&host, port, self.connect_timeout, self.role).await?;
+        self.stream = Some(Box::new(stream));
+        self.framer.clear();
+        self.abandoned.clear();
+        Ok(())
+    }
+
+    /// Forgets the stream after trouble, so the next request reconnects (when it can) instead
+    /// of reading replies meant for requests nobody waits for any more.
+    fn reset(&mut self) {
+        if self.addr.is_some() {
+            self.stream = None;
+            self.framer.clear();
+            self.abandoned.clear();
+        }
+    }
+
+    /// Marks `name` as abandoned after its reply was not awaited to the end.
+    fn abandon(&mut self, name: &'static str) {
+        if self.addr.is_some() {
+            self.reset();
+        } else {
+            self.abandoned.push_back(name);
+        }
+    }
+
+    /// One attempt: write the request, read until its reply arrives or the deadline passes.
+    async fn exchange(&mut self, req: &Request, timeout: Duration) -> Result<Reply, ArmError> {
+        self.open().await?;
+        let text = req.encode();
+        let where_ = self.where_();
+        let Some(stream) = self.stream.as_mut() else {
+            return Err(io_err(format!("sending {text} on the {where_}"), std::io::ErrorKind::NotConnected.into()));
+        };
+        if let Err(e) = stream.write_all(text.as_bytes()).await {
+            self.reset();
+            return Err(io_err(format!("sending {text} on the {where_}"), e));
+        }
+        let deadline = Instant::now() + timeout;
+        let mut buf = [0u8; 4096];
+        loop {
+            loop {
+                let reply = match self.framer.next_reply() {
+                    Ok(Some(r)) => r,
+                    Ok(None) => break,
+                    Err(e) => return Err(ArmError::Protocol(format!("{where_} answered {text}: {e}"))),
+                };
+                let name = reply.echo_name();
+                if self.abandoned.front().is_some_and(|a| a.eq_ignore_ascii_case(name)) {
+                    self.abandoned.pop_front();
+                    continue;
+                }
+                if name.eq_ignore_ascii_case(req.name()) {
+                    return Ok(reply);
+                }
+                tracing::debug!(reply = %reply.encode(), waiting_for = %text, "skipping an unexpected reply");
+            }
+            let Some(stream) = self.stream.as_mut() else {
+                return Err(io_err(format!("reading the reply to {text}"), std::io::ErrorKind::NotConnected.into()));
+            };
+            match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
+                Ok(Ok(0)) => {
+                    self.reset();
+                    return Err(io_err(
+                        format!("reading the reply to {text} on the {where_}"),
+                        std::io::ErrorKind::UnexpectedEof.into(),
+                    ));
+                }
+                Ok(Ok(n)) => self.framer.push(&buf[..n]),
+                Ok(Err(e)) => {
+                    self.reset();
+                    return Err(io_err(format!("reading the reply to {text} on the {where_}"), e));
+                }
+                Err(_) => {
+                    self.abandon(req.name());
+                    return Err(ArmError::Timeout { what: format!("waiting for the reply to {text} on the {where_}"), after: timeout });
+                }
+            }
+        }
+    }
+
+    /// Sends `req` and returns its reply, reconnecting and resending after a dropped socket.
+    /// Resending is safe for what rig sends: queries, setters, and moves to absolute targets.
+    async fn request(&mut self, req: &Request, timeout: Duration, attempts: u32) -> Result<Reply, ArmError> {
+        let mut tries = 0;
+        loop {
+            match self.exchange(req, timeout).await {
+                Err(ArmError::Io { context, source }) if self.addr.is_some() && tries < attempts => {
+                    tries += 1;
+                    tracing::warn!(%context, error = %source, attempt = tries, "reconnecting the MG400 {}", self.role);
+                    tokio::time::sleep(Duration::from_millis(20 << tries.min(5))).await;
+                }
+                other => return other,
+            }
+        }
+    }
+}
+
+async fn connect_tcp(host: &str, port: u16, timeout: Duration, role: &str) -> Result<TcpStream, ArmError> {
+    match tokio::time::timeout(timeout, TcpStream::connect((host, port))).await {
+        Ok(Ok(s)) => {
+            // Commands are small and latency matters more than throughput.
+            let _ = s.set_nodelay(true);
+            Ok(s)
+        }
+        Ok(Err(e)) => Err(io_err(format!("connecting to the MG400 {role} port at {host}:{port}"), e)),
+        Err(_) => Err(ArmError::Timeout { what: format!("connecting to the MG400 {role} port at {host}:{port}"), after: timeout }),
+    }
+}
+
+/// How many consecutive feedback frames must agree before a state seen right after a command
+/// is believed (earlier frames may have been sent before the command took effect).
+const STALE_FRAMES: u32 = 5;
+
+/// One decoded feedback frame and when it arrived.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeedbackSample {
+    pub frame: FeedbackFrame,
+    /// Counts frames received since the client started (1 = first).
+    pub seq: u64,
+    /// Arrival time on the client's clock, s.
+    pub t_s: f64,
+}
+
+/// Reads the feedback stream, publishing each frame; reconnects when `addr` is known.
+async fn feedback_task(
+    first: Option<Box<dyn ByteStream>>,
+    addr: Option<(String, u16)>,
+    connect_timeout: Duration,
+    clock: Arc<dyn Clock>,
+    tx: watch::Sender<Option<FeedbackSample>>,
+) {
+    let mut stream = first;
+    let mut seq = 0u64;
+    let mut buf = vec![0u8; 16 * 1024];
+    loop {
+        let mut s = match stream.take() {
+            Some(s) => s,
+            None => {
+                let Some((host, port)) = addr.as_ref() else { return };
+                match connect_tcp(host, *port, connect_timeout, "feedback").await {
+                    Ok(s) => Box::new(s) as Box<dyn ByteStream>,
+                    Err(e) => {
+                        tracing::warn!(error = %e, "MG400 feedback reconnect failed; retrying");
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                        continue;
+                    }
+                }
+            }
+        };
+        let mut decoder = FeedbackDecoder::new();
+        loop {
+            match s.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => {
+                    decoder.push(&buf[..n]);
+                    while let Some(frame) = decoder.next_frame() {
+                        seq += 1;
+                        tx.send_replace(Some(FeedbackSample { frame, seq, t_s: clock.now_s() }));
+                    }
+                }
+            }
+            if tx.is_closed() {
+                return;
+            }
+        }
+        if decoder.skipped_bytes() > 0 {
+            tracing::debug!(skipped = decoder.skipped_bytes(), "feedback resynchronised");
+        }
+        tracing::warn!("MG400 feedback stream closed");
+    }
+}
+
+/// The MG400 client. See the module docs.
+pub struct Mg400Client {
+    cfg: Mg400Config,
+    clock: Arc<dyn Clock>,
+    dashboard: CommandLink,
+    motion: CommandLink,
+    feedback: watch::Receiver<Option<FeedbackSample>>,
+    feedback_task: JoinHandle<()>,
+    /// Moves sent since the queue was last known to be empty.
+    queued_moves: usize,
+}
+
+impl Drop for Mg400Client {
+    fn drop(&mut self) {
+        self.feedback_task.abort();
+    }
+}
+
+impl Mg400Client {
+    /// Connects the three sockets and waits for the first valid feedback frame.
+    pub async fn connect(cfg: Mg400Config, clock: Arc<dyn Clock>) -> Result<Mg400Client, ArmError> {
+        let t = cfg.connect_timeout;
+        let dashboard = connect_tcp(&cfg.host, cfg.dashboard_port, t, "dashboard").await?;
+        let motion = connect_tcp(&cfg.host, cfg.motion_port, t, "motion").await?;
+        let feedback = connect_tcp(&cfg.host, cfg.feedback_port, t, "feedback").await?;
+        let addrs = (
+            Some((cfg.host.clone(), cfg.dashboard_port)),
+            Some((cfg.host.clone(), cfg.motion_port)),
+            Some((cfg.host.clone(), cfg.feedback_port)),
+        );
+        let mut client = Self::build(cfg, clock, Box::new(dashboard), Box::new(motion), Box::new(feedback), addrs);
+        client.first_feedback().await?;
+        Ok(client)
+    }
+
+    /// Runs the client over already-open streams (duplex pipes, sockets set up elsewhere).
+    /// Attached streams are not reconnected when they drop.
+    pub fn attach(
+        cfg: Mg400Config,
+        clock: Arc<dyn Clock>,
+        dashboard: impl ByteStream,
+        motion: impl ByteStream,
+        feedback: impl ByteStream,
+    ) -> Mg400Client {
+        Self::build(cfg, clock, Box::new(dashboard), Box::new(motion), Box::new(feedback), (None, None, None))
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn build(
+        cfg: Mg400Config,
+        clock: Arc<dyn Clock>,
+        dashboard: Box<dyn ByteStream>,
+        motion: Box<dyn ByteStream>,
+        feedback: Box<dyn ByteStream>,
+        addrs: (Option<(String, u16)>, Option<(String, u16)>, Option<(String, u16)>),
+    ) -> Mg400Client {
+        let link = |role, addr, stream| CommandLink {
+            role,
+            addr,
+            stream: Some(stream),
+            framer: ReplyFramer::new(),
+            abandoned: VecDeque::new(),
+            connect_timeout: cfg.connect_timeout,
+        };
+        let (tx, rx) = watch::channel(None);
+        let feedback_task =
+            tokio::spawn(feedback_task(Some(feedback), addrs.2, cfg.connect_timeout, clock.clone(), tx));
+        Mg400Client {
+            dashboard: link("dashboard", addrs.0, dashboard),
+            motion: link("motion", addrs.1, motion),
+            feedback: rx,
+            feedback_task,
+            queued_moves: 0,
+            clock,
+            cfg,
+        }
+    }
+
+    /// The settings in use.
+    pub fn config(&self) -> &Mg400Config {
+        &self.cfg
+    }
+
+    /// Moves sent and not yet known to be finished.
+    pub fn queued_moves(&self) -> usize {
+        self.queued_moves
+    }
+
+    /// The newest feedback frame, if any arrived.
+    pub fn latest_feedback(&self) -> Option<FeedbackSample> {
+        *self.feedback.borrow()
+    }
+
+    async fn first_feedback(&mut self) -> Result<FeedbackSample, ArmError> {
+        let deadline = Instant::now() + self.cfg.connect_timeout;
+        self.wait_feedback(0, deadline, "waiting for the first MG400 feedback frame", |_| true).await
+    }
+
+    /// Waits for a feedback sample newer than `after_seq` that satisfies `pred`.
+    async fn wait_feedback(
+        &mut self,
+        after_seq: u64,
+        deadline: Instant,
+        what: &str,
+        mut pred: impl FnMut(&FeedbackSample) -> bool,
+    ) -> Result<FeedbackSample, ArmError> {
+        let start = Instant::now();
+        loop {
+            if let Some(s) = *self.feedback.borrow_and_update()
+                && s.seq > after_seq
+                && pred(&s)
+            {
+                return Ok(s);
+            }
+            match tokio::time::timeout_at(deadline, self.feedback.changed()).await {
+                Ok(Ok(())) => {}
+                Ok(Err(_)) => {
+                    return Err(io_err(what.to_string(), std::io::Error::other("the feedback reader stopped")));
+                }
+                Err(_) => {
+                    return Err(ArmError::Timeout { what: what.to_string(), after: deadline.saturating_duration_since(start) });
+                }
+            }
+        }
+    }
+
+    fn latest_seq(&self) -> u64 {
+        self.feedback.borrow().map(|s| s.seq).unwrap_or(0)
+    }
+
+    /// Sends a dashboard command; a non-zero ErrorID becomes [`ArmError::Refused`].
+    pub async fn dashboard(&mut self, req: &Request) -> Result<Reply, ArmError> {
+        let timeout = match req {
+            Request::EnableRobot { .. } | Request::DisableRobot | Request::ClearError | Request::ResetRobot => {
+                self.cfg.enable_timeout
+            }
+            _ => self.cfg.reply_timeout,
+        };
+        let reply = self.dashboard.request(req, timeout, self.cfg.reconnect_attempts).await?;
+        accepted(req, reply)
+    }
+
+    /// The robot mode, asked on the dashboard.
+    pub async fn robot_mode(&mut self) -> Result<RobotMode, ArmError> {
+        let reply = self.dashboard(&Request::RobotMode).await?;
+        let code = reply.integer().map_err(|e| ArmError::Protocol(e.to_string()))?;
+        Ok(RobotMode::from_code(u64::try_from(code).unwrap_or(0)))
+    }
+
+    /// The active alarms (GetErrorID), named.
+    pub async fn read_alarms(&mut self) -> Result<Vec<Alarm>, ArmError> {
+        let reply = self.dashboard(&Request::GetErrorId).await?;
+        let lists = reply.error_id_lists().map_err(|e| ArmError::Protocol(e.to_string()))?;
+        Ok(alarms::from_lists(&lists))
+    }
+
+    /// The fault the robot is in, as an error value.
+    async fn fault(&mut self) -> ArmError {
+        match self.read_alarms().await {
+            Ok(alarms) => ArmError::Fault { alarms },
+            Err(e) => e,
+        }
+    }
+
+    fn feedback_in_alarm(&self) -> bool {
+        self.latest_feedback().is_some_and(|s| s.frame.in_alarm())
+    }
+
+    /// Blocks until the motion queue has drained (Sync), failing early with
+    /// [`ArmError::Fault`] when the feedback shows an alarm meanwhile.
+    pub async fn sync(&mut self, timeout: Duration) -> Result<(), ArmError> {
+        if self.feedback_in_alarm() {
+            return Err(self.fault().await);
+        }
+        let mut feedback = self.feedback.clone();
+        let attempts = self.cfg.reconnect_attempts;
+        let outcome = tokio::select! {
+            r = self.motion.request(&Request::Sync, timeout, attempts) => Some(r),
+            () = wait_for_alarm(&mut feedback) => None,
+        };
+        match outcome {
+            Some(reply) => {
+                accepted(&Request::Sync, reply?)?;
+                self.queued_moves = 0;
+                Ok(())
+            }
+            None => {
+                // The Sync reply will still come (the controller empties its queue on an
+                // alarm); it must not be taken for the reply to a later Sync.
+                self.motion.abandon(Request::Sync.name());
+                self.queued_moves = 0;
+                Err(self.fault().await)
+            }
+        }
+    }
+
+    async fn enable_inner(&mut self) -> Result<(), ArmError> {
+        self.dashboard(&Request::ClearError).await?;
+        self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await?;
+        let deadline = Instant::now() + self.cfg.enable_timeout;
+        let seq = self.latest_seq();
+        // Frames already in flight may still show the state from before ClearError, so an
+        // alarm counts only when several frames in a row report it.
+        let mut alarm_frames = 0;
+        let sample = self
+            .wait_feedback(seq, deadline, "waiting for the MG400 to report enabled (mode 5)", |s| {
+                alarm_frames = if s.frame.in_alarm() { alarm_frames + 1 } else { 0 };
+                alarm_frames >= STALE_FRAMES || matches!(s.frame.mode(), RobotMode::Enabled | RobotMode::Running)
+            })
+            .await?;
+        if sample.frame.in_alarm() {
+            return Err(self.fault().await);
+        }
+        self.dashboard(&Request::SpeedFactor { percent: i64::from(self.cfg.speed_factor_pct) }).await?;
+        self.dashboard(&Request::User { index: i64::from(self.cfg.user_index) }).await?;
+        self.dashboard(&Request::Tool { index: i64::from(self.cfg.tool_index) }).await?;
+        // The official demos restart a stopped queue runner the same way.
+        if self.latest_feedback().is_some_and(|s| !s.frame.run_queued_cmd) {
+            self.dashboard(&Request::Continue).await?;
+        }
+        self.queued_moves = 0;
+        Ok(())
+    }
+}
+
+/// Resolves once a feedback frame shows an alarm (never, if the feedback stops).
+async fn wait_for_alarm(feedback: &mut watch::Receiver<Option<FeedbackSample>>) {
+    loop {
+        if feedback.borrow_and_update().is_some_and(|s| s.frame.in_alarm()) {
+            return;
+        }
+        if feedback.changed().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    }
+}
+
+/// Turns a non-zero ErrorID into [`ArmError::Refused`].
+fn accepted(req: &Request, reply: Reply) -> Result<Reply, ArmError> {
+    if reply.error_id == ErrorId::Accepted {
+        Ok(reply)
+    } else {
+        Err(ArmError::Refused { command: req.encode(), error_id: reply.error_id.code(), meaning: reply.error_id.meaning() })
+    }
+}
+
+impl Arm for Mg400Client {
+    async fn enable(&mut self) -> Result<(), ArmError> {
+        self.enable_inner().await
+    }
+
+    async fn move_to(&mut self, target: Pose, kind: MoveKind) -> Result<(), ArmError> {
+        // The fence comes first: nothing is sent for a target outside the profile.
+        self.cfg.profile.check_reachable(&target)?;
+        if self.feedback_in_alarm() {
+            return Err(self.fault().await);
+        }
+        if self.queued_moves >= self.cfg.max_queued_commands {
+            self.sync(self.cfg.drain_timeout).await?;
+        }
+        let req = match kind {
+            MoveKind::Joint => Request::MovJ { target },
+            MoveKind::Linear => Request::MovL { target },
+        };
+        let reply = self.motion.request(&req, self.cfg.reply_timeout, self.cfg.reconnect_attempts).await?;
+        if let Err(refused) = accepted(&req, reply) {
+            // A controller in alarm refuses motion with -1: report the alarm, not the refusal.
+            if self.feedback_in_alarm() || matches!(self.robot_mode().await, Ok(RobotMode::Error)) {
+                return Err(self.fault().await);
+            }
+            return Err(refused);
+        }
+        self.queued_moves += 1;
+        Ok(())
+    }
+
+    async fn wait_arrived(&mut self, target: Pose, timeout: Duration) -> Result<Arrival, ArmError> {
+        let deadline = Instant::now() + timeout;
+        self.sync(timeout).await?;
+        let after = self.latest_seq();
+        let (tol_mm, tol_deg) = (self.cfg.arrival_tolerance_mm, self.cfg.arrival_tolerance_deg);
+        let what = format!("waiting for the feedback to show the arm at rest at {target}");
+        let sample = self
+            .wait_feedback(after, deadline, &what, |s| {
+                let p = s.frame.actual_pose();
+                s.frame.in_alarm()
+                    || (s.frame.mode() == RobotMode::Enabled
+                        && p.distance_mm(&target) <= tol_mm
+                        && p.yaw_error_deg(&target) <= tol_deg)
+            })
+            .await;
+        let sample = match sample {
+            Ok(s) => s,
+            Err(ArmError::Timeout { what, after }) => {
+                let last = self.latest_feedback().map(|s| (s.frame.actual_pose(), s.frame.mode()));
+                let what = match last {
+                    Some((pose, mode)) => format!("{what} (last feedback: {pose}, mode {mode:?})"),
+                    None => format!("{what} (no feedback)"),
+                };
+                return Err(ArmError::Timeout { what, after });
+            }
+            Err(e) => return Err(e),
+        };
+        if sample.frame.in_alarm() {
+            return Err(self.fault().await);
+        }
+        let measured = sample.frame.actual_pose();
+        Ok(Arrival { measured, error_mm: measured.distance_mm(&target), t_s: self.clock.now_s() })
+    }
+
+    async fn pose(&mut self) -> Result<Pose, ArmError> {
+        if let Some(s) = self.latest_feedback() {
+            return Ok(s.frame.actual_pose());
+        }
+        let reply = self.dashboard(&Request::GetPose).await?;
+        reply.pose().map_err(|e| ArmError::Protocol(e.to_string()))
+    }
+
+    async fn stop(&mut self) -> Result<(), ArmError> {
+        self.dashboard(&Request::ResetRobot).await?;
+        self.queued_moves = 0;
+        Ok(())
+    }
+
+    async fn clear_error(&mut self) -> Result<Vec<Alarm>, ArmError> {
+        let alarms = self.read_alarms().await?;
+        // Some alarms need more than one ClearError ([WS] retries 2-3 times).
+        let mut cleared = false;
+        for _ in 0..3 {
+            self.dashboard(&Request::ClearError).await?;
+            self.dashboard(&Request::Continue).await?;
+            let deadline = Instant::now() + self.cfg.reply_timeout;
+            let seq = self.latest_seq();
+            if self.wait_feedback(seq, deadline, "waiting for the alarm to clear", |s| !s.frame.in_alarm()).await.is_ok() {
+                cleared = true;
+                break;
+            }
+        }
+        if !cleared {
+            return Err(self.fault().await);
+        }
+        self.queued_moves = 0;
+        // After a collision or emergency stop the arm sits disabled (mode 4).
+        let disabled = self.latest_feedback().is_some_and(|s| !s.frame.enable_status);
+        if disabled {
+            self.enable_inner().await?;
+        }
+        Ok(alarms)
+    }
+
+    async fn disable(&mut self) -> Result<(), ArmError> {
+        self.dashboard(&Request::DisableRobot).await?;
+        self.queued_moves = 0;
+        Ok(())
+    }
+}
