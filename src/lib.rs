@@ -11,6 +11,7 @@ pub mod camera;
 pub mod cli;
 pub mod clock;
 pub mod geometry;
+pub mod plan;
 pub mod pose;
 pub mod sim;
 
