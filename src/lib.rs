@@ -10,6 +10,7 @@ pub mod arm;
 pub mod camera;
 pub mod cli;
 pub mod clock;
+pub mod dataset;
 pub mod geometry;
 pub mod plan;
 pub mod pose;
