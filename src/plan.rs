@@ -68,6 +68,51 @@ impl AxisRange {
     }
 }
 
+/// Error parsing an axis written `min:max:step`, a sampling or an order name.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanParseError {
+    #[error("an axis range is written min:max:step (e.g. -5:5:1); got {text:?}")]
+    Axis { text: String },
+    #[error("unknown {what} {text:?}; expected one of {expected}")]
+    Name { what: &'static str, text: String, expected: &'static str },
+}
+
+impl std::str::FromStr for AxisRange {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let err = || PlanParseError::Axis { text: s.to_string() };
+        let parts: Vec<f64> = s.split(':').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|_| err())?;
+        match parts[..] {
+            [min, max, step] => Ok(AxisRange::new(min, max, step)),
+            _ => Err(err()),
+        }
+    }
+}
+
+impl std::str::FromStr for Sampling {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "full" => Ok(Sampling::Full),
+            "random" => Ok(Sampling::Random),
+            "lhs" | "latin-hypercube" => Ok(Sampling::Lhs),
+            _ => Err(PlanParseError::Name { what: "sampling", text: s.to_string(), expected: "full, random, lhs" }),
+        }
+    }
+}
+
+impl std::str::FromStr for Order {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "as-sampled" => Ok(Order::AsSampled),
+            "random" => Ok(Order::Random),
+            "optimised" | "optimized" => Ok(Order::Optimised),
+            _ => Err(PlanParseError::Name { what: "order", text: s.to_string(), expected: "as-sampled, random, optimised" }),
+        }
+    }
+}
+
 /// How the poses of a plan are drawn from the grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

@@ -5,6 +5,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod dataset;
+pub mod plan;
+
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
 #[derive(Debug, Parser)]
@@ -21,6 +24,10 @@ pub struct Cli {
 pub enum Command {
     /// Print the version and the configuration rig would use.
     Info,
+    /// Pose plans: show a plan's grid, sampled poses and motion time.
+    Plan(plan::Args),
+    /// Datasets: verify, export, import, merge.
+    Dataset(dataset::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -34,6 +41,8 @@ pub fn main() -> ExitCode {
             println!("rig {}", crate::version());
             Ok(())
         }
+        Command::Plan(args) => plan::run(args),
+        Command::Dataset(args) => dataset::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
