@@ -11,7 +11,9 @@ pub mod camera;
 pub mod cli;
 pub mod clock;
 pub mod config;
+pub mod dataset;
 pub mod geometry;
+pub mod plan;
 pub mod pose;
 pub mod sim;
 

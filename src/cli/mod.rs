@@ -6,6 +6,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 pub mod sim;
+pub mod dataset;
+pub mod plan;
 
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
@@ -25,6 +27,10 @@ pub enum Command {
     Info,
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
     Sim(sim::Args),
+    /// Pose plans: show a plan's grid, sampled poses and motion time.
+    Plan(plan::Args),
+    /// Datasets: verify, export, import, merge.
+    Dataset(dataset::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -39,6 +45,8 @@ pub fn main() -> ExitCode {
             Ok(())
         }
         Command::Sim(args) => sim::run(args),
+        Command::Plan(args) => plan::run(args),
+        Command::Dataset(args) => dataset::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

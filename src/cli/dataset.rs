@@ -1,0 +1,184 @@
+//! `rig dataset verify|export|import|merge`: wiring over [`crate::dataset`].
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+
+use crate::dataset::export::{
+    export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds,
+};
+use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, merge, read_rows, verify};
+
+/// `rig dataset ...`
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub command: DatasetCommand,
+}
+
+/// Export dialects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// MultiDiffSense / Lepora lab: image_name,data_name,obj_id,pose_id,pose_1..6,move_1..6.
+    Mds,
+    /// tactile-bench: sensor_image,object_label,pose_x..pose_Rz,pose_id,source.
+    TactileBench,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum DatasetCommand {
+    /// Report missing images, orphan images, duplicated or malformed rows and leftovers of a
+    /// killed run; exits 1 when the dataset is not clean. Changes nothing.
+    Verify { dir: PathBuf },
+    /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect.
+    Export {
+        dir: PathBuf,
+        #[arg(long, value_enum)]
+        format: Format,
+        /// Output CSV (default: standard output).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// MDS obj_id column.
+        #[arg(long, default_value = "1")]
+        obj_id: String,
+        /// MDS only: also copy images to DIR as <obj_id>_<sensor>_<i>.png (MultiDiffSense's
+        /// tactile/<obj>/<Sensor>/target/ naming).
+        #[arg(long, value_name = "DIR")]
+        images_out: Option<PathBuf>,
+    },
+    /// Read an MDS CSV. With --out, write a rig dataset of the rows whose image is found in
+    /// --images (as <image_name> or <obj_id>_<sensor>_<i>.png); the MDS pose_id becomes the
+    /// dataset's pose_id. Without --out, print the poses.
+    Import {
+        csv: PathBuf,
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Folder holding the images.
+        #[arg(long)]
+        images: Option<PathBuf>,
+        /// Sensor name, as in the image file names (TacTip, ViTac, ViTacTip).
+        #[arg(long, default_value = "TacTip")]
+        sensor: String,
+        /// Object name for the manifest (default: the obj_id column).
+        #[arg(long)]
+        object: Option<String>,
+        /// STL file of the object (hashed into the manifest).
+        #[arg(long)]
+        stl: Option<PathBuf>,
+    },
+    /// Join datasets (e.g. synth shards) into OUT, refusing conflicting rows.
+    Merge {
+        /// Output dataset (created when absent).
+        #[arg(long)]
+        out: PathBuf,
+        /// Input datasets.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+    },
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    match args.command {
+        DatasetCommand::Verify { dir } => {
+            let report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
+            println!("{}: {report}", dir.display());
+            if !report.is_clean() {
+                bail!("{} is not clean ({} issues)", dir.display(), report.issues.len());
+            }
+            Ok(())
+        }
+        DatasetCommand::Export { dir, format, out, obj_id, images_out } => {
+            export(&dir, format, out.as_deref(), &obj_id, images_out.as_deref())
+        }
+        DatasetCommand::Import { csv, out, images, sensor, object, stl } => {
+            import(&csv, out.as_deref(), images.as_deref(), &sensor, object.as_deref(), stl.as_deref())
+        }
+        DatasetCommand::Merge { out, inputs } => {
+            let report = merge(&inputs, &out).with_context(|| format!("merging into {}", out.display()))?;
+            println!(
+                "merged {} datasets into {}: {} rows appended, {} already present",
+                report.inputs,
+                out.display(),
+                report.appended,
+                report.already_present
+            );
+            Ok(())
+        }
+    }
+}
+
+fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_out: Option<&Path>) -> anyhow::Result<()> {
+    let manifest = Manifest::load(dir)?;
+    let mut rows = read_rows(dir)?;
+    rows.sort_by_key(|r| r.pose_id);
+    let mut buf = Vec::new();
+    match format {
+        Format::Mds => {
+            export_mds(&mds_rows_from(&rows, obj_id), &mut buf)?;
+            if let Some(img_dir) = images_out {
+                std::fs::create_dir_all(img_dir).with_context(|| format!("creating {}", img_dir.display()))?;
+                for (i, r) in rows.iter().enumerate() {
+                    let dest = img_dir.join(format!("{obj_id}_{}_{i}.png", manifest.sensor));
+                    std::fs::copy(dir.join(&r.image), &dest).with_context(|| format!("copying to {}", dest.display()))?;
+                }
+            }
+        }
+        Format::TactileBench => export_tactile_bench(&rows, &manifest.object.name, &mut buf)?,
+    }
+    match out {
+        Some(path) => {
+            std::fs::write(path, &buf).with_context(|| format!("writing {}", path.display()))?;
+            eprintln!("wrote {} rows to {}", rows.len(), path.display());
+        }
+        None => std::io::stdout().write_all(&buf)?,
+    }
+    Ok(())
+}
+
+fn import(
+    csv: &Path,
+    out: Option<&Path>,
+    images: Option<&Path>,
+    sensor: &str,
+    object: Option<&str>,
+    stl: Option<&Path>,
+) -> anyhow::Result<()> {
+    let rows = import_mds(csv)?;
+    println!("{}: {} filled rows", csv.display(), rows.len());
+    let Some(out) = out else {
+        println!("{:>8} {:>12} {:>12} {:>12} {:>12}  image_name", "pose_id", "x_mm", "y_mm", "z_mm", "yaw_deg");
+        for r in &rows {
+            let p = r.work_pose();
+            println!("{:>8} {:>12.6} {:>12.6} {:>12.6} {:>12.6}  {}", r.pose_id, p.x_mm, p.y_mm, p.z_mm, p.yaw_deg, r.image_name);
+        }
+        return Ok(());
+    };
+    let Some(images) = images else { bail!("--out needs --images: a dataset row needs its image") };
+    let obj_name = object.map(str::to_string).or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
+    let object = match stl {
+        Some(stl) => ObjectInfo::with_stl(&obj_name, stl)?,
+        None => ObjectInfo::named(&obj_name),
+    };
+    let mut writer = DatasetWriter::create(out, Manifest::new(sensor, object, None))?;
+    let (mut written, mut skipped) = (0, Vec::new());
+    for r in &rows {
+        let mut candidates = vec![images.join(&r.image_name)];
+        if let Some(i) = r.frame_index() {
+            candidates.push(images.join(format!("{}_{sensor}_{i}.png", r.obj_id)));
+        }
+        let Some(path) = candidates.into_iter().find(|p| p.is_file()) else {
+            skipped.push(r.image_name.clone());
+            continue;
+        };
+        let image = image::open(&path).with_context(|| format!("decoding {}", path.display()))?.to_rgb8();
+        writer.append(pose_row_from_mds(r), &image)?;
+        written += 1;
+    }
+    writer.finish()?;
+    println!("wrote {written} rows to {}", out.display());
+    if !skipped.is_empty() {
+        println!("{} rows without an image were left out: {}", skipped.len(), skipped.join(", "));
+    }
+    Ok(())
+}

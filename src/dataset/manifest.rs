@@ -1,0 +1,204 @@
+//! `manifest.toml`: what a dataset is (plan, object, sensor) and how it was made (calibration,
+//! firmware profile, rig version, times). Written atomically (temp file, fsync, rename).
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::DatasetError;
+use crate::plan::PlanSpec;
+use crate::pose::WorkFrame;
+
+/// The object pressed by the sensor.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ObjectInfo {
+    /// Short name used in paths (`datasets/<name>/...`).
+    pub name: String,
+    /// STL file the control images are rendered from, as given by the user.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stl_path: Option<String>,
+    /// Hex sha256 of the STL file's bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stl_sha256: Option<String>,
+}
+
+impl ObjectInfo {
+    /// An object without geometry.
+    pub fn named(name: &str) -> Self {
+        Self { name: name.to_string(), stl_path: None, stl_sha256: None }
+    }
+
+    /// An object with its STL file, hashing the file.
+    pub fn with_stl(name: &str, stl: &Path) -> Result<Self, DatasetError> {
+        Ok(Self {
+            name: name.to_string(),
+            stl_path: Some(stl.display().to_string()),
+            stl_sha256: Some(sha256_file(stl)?),
+        })
+    }
+}
+
+/// Hex sha256 of a file.
+pub fn sha256_file(path: &Path) -> Result<String, DatasetError> {
+    let mut f = std::fs::File::open(path).map_err(DatasetError::io("opening", path))?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf).map_err(DatasetError::io("reading", path))?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(hex::encode(hasher.finalize()))
+}
+
+/// Contents of `manifest.toml`. Unknown keys are ignored when reading, so manifests written by
+/// later rig versions stay readable.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub rig_version: String,
+    /// Sensor name (`tactip`, `vitac`, `vitactip`, ...).
+    pub sensor: String,
+    /// Calibration file used, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<String>,
+    /// Firmware profile name or path, if an arm was used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub firmware_profile: Option<String>,
+    /// UTC start of the first run, RFC 3339 (`2026-11-22T11:46:33Z`).
+    pub started_utc: String,
+    /// UTC starts of resumed runs.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub resumed_utc: Vec<String>,
+    /// UTC end of the last run that finished.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ended_utc: Option<String>,
+    pub object: ObjectInfo,
+    /// The plan the pose ids refer to; absent for imported datasets whose ids are the source's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plan: Option<PlanSpec>,
+    /// The work frame of the collection, if an arm was used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub work_frame: Option<WorkFrame>,
+}
+
+impl Manifest {
+    /// A manifest for a new run starting now.
+    pub fn new(sensor: &str, object: ObjectInfo, plan: Option<PlanSpec>) -> Self {
+        Self {
+            rig_version: crate::version().to_string(),
+            sensor: sensor.to_string(),
+            calibration: None,
+            firmware_profile: None,
+            started_utc: utc_now(),
+            resumed_utc: Vec::new(),
+            ended_utc: None,
+            object,
+            plan,
+            work_frame: None,
+        }
+    }
+
+    /// Reads `dir/manifest.toml`.
+    pub fn load(dir: &Path) -> Result<Self, DatasetError> {
+        let path = dir.join(super::MANIFEST_FILE);
+        let text = std::fs::read_to_string(&path).map_err(DatasetError::io("reading", &path))?;
+        toml::from_str(&text).map_err(|source| DatasetError::ManifestParse { path, source: Box::new(source) })
+    }
+
+    /// Writes `dir/manifest.toml` atomically.
+    pub fn store(&self, dir: &Path) -> Result<(), DatasetError> {
+        let text = toml::to_string(self).map_err(|source| DatasetError::ManifestWrite { source })?;
+        super::writer::write_atomic(dir, super::MANIFEST_FILE, text.as_bytes())
+    }
+
+    /// The first field that makes `requested` a different dataset from `self` (plan, object,
+    /// sensor), as a [`DatasetError::ManifestMismatch`].
+    pub fn check_same_dataset(&self, requested: &Manifest, dir: &Path) -> Result<(), DatasetError> {
+        let mismatch = |field: &'static str, existing: String, requested: String| DatasetError::ManifestMismatch {
+            dir: dir.to_path_buf(),
+            field,
+            existing,
+            requested,
+        };
+        if self.sensor != requested.sensor {
+            return Err(mismatch("sensor", self.sensor.clone(), requested.sensor.clone()));
+        }
+        if self.object.name != requested.object.name {
+            return Err(mismatch("object", self.object.name.clone(), requested.object.name.clone()));
+        }
+        if self.object.stl_sha256 != requested.object.stl_sha256 {
+            return Err(mismatch(
+                "object STL (sha256)",
+                format!("{:?}", self.object.stl_sha256),
+                format!("{:?}", requested.object.stl_sha256),
+            ));
+        }
+        if self.plan != requested.plan {
+            let show = |p: &Option<PlanSpec>| match p {
+                Some(p) => toml::to_string(p).unwrap_or_else(|_| format!("{p:?}")).replace('\n', "; "),
+                None => "no plan".to_string(),
+            };
+            return Err(mismatch("plan", show(&self.plan), show(&requested.plan)));
+        }
+        Ok(())
+    }
+}
+
+/// Where the manifest of a dataset directory lives.
+pub fn manifest_path(dir: &Path) -> PathBuf {
+    dir.join(super::MANIFEST_FILE)
+}
+
+/// Current UTC time as RFC 3339 with seconds (`2026-11-22T11:46:33Z`).
+pub fn utc_now() -> String {
+    let s = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    utc_string(s)
+}
+
+/// Formats seconds since the Unix epoch as RFC 3339 UTC.
+pub fn utc_string(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let rem = unix_s % 86_400;
+    // Howard Hinnant's civil_from_days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
+    format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem / 60 % 60, rem % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_formatting() {
+        assert_eq!(utc_string(0), "1970-01-01T00:00:00Z");
+        assert_eq!(utc_string(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(utc_string(1_795_347_993), "2026-11-22T11:46:33Z");
+    }
+
+    #[test]
+    fn manifest_toml_round_trip() {
+        let mut m = Manifest::new("tactip", ObjectInfo::named("edge"), Some(PlanSpec::default()));
+        m.work_frame = Some(WorkFrame::default());
+        m.firmware_profile = Some("mg400-v1.6".into());
+        let text = toml::to_string(&m).unwrap();
+        let back: Manifest = toml::from_str(&text).unwrap();
+        assert_eq!(back, m);
+        let mut other = m.clone();
+        other.plan.as_mut().unwrap().seed = 5;
+        let err = m.check_same_dataset(&other, Path::new("d")).unwrap_err();
+        assert!(matches!(err, DatasetError::ManifestMismatch { field: "plan", .. }), "{err}");
+    }
+}

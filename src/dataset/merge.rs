@@ -1,0 +1,94 @@
+//! Joining datasets: shards written by `rig synth --fill-missing --shard i/n` (each its own
+//! dataset directory) into one. Every input must verify clean and describe the same dataset
+//! (sensor, object, plan). A pose id present in several places must carry the same row and
+//! the same image bytes there, otherwise nothing is written and the conflict is reported.
+//! Merging again is harmless: rows already in the output are skipped.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::writer::write_atomic;
+use super::{DatasetError, DatasetWriter, Manifest, PoseRow, REFERENCE_FILE, read_rows, verify};
+
+/// What [`merge`] did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MergeReport {
+    pub inputs: usize,
+    /// Rows appended to the output.
+    pub appended: usize,
+    /// Rows the output (or an earlier input) already had, identical.
+    pub already_present: usize,
+}
+
+/// Merges the datasets `inputs` into `out` (created from the first input's manifest when
+/// absent, appended to under its own manifest otherwise).
+pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError> {
+    let mut manifests = Vec::with_capacity(inputs.len());
+    for dir in inputs {
+        let report = verify(dir)?;
+        if !report.is_clean() {
+            return Err(DatasetError::Unclean { dir: dir.clone(), issues: report.issues.len() });
+        }
+        manifests.push(Manifest::load(dir)?);
+    }
+    let Some(first) = manifests.first().cloned() else {
+        return Ok(MergeReport { inputs: 0, appended: 0, already_present: 0 });
+    };
+    let mut writer = if out.join(super::MANIFEST_FILE).exists() {
+        DatasetWriter::open(out)?
+    } else {
+        DatasetWriter::create(out, first)?
+    };
+    for (dir, m) in inputs.iter().zip(&manifests) {
+        writer.manifest().check_same_dataset(m, dir)?;
+    }
+
+    // Decide everything before writing anything.
+    let mut chosen: BTreeMap<u32, (PathBuf, PoseRow, Vec<u8>)> = BTreeMap::new();
+    for row in read_rows(out)? {
+        let png = read_image(out, &row)?;
+        chosen.insert(row.pose_id, (out.to_path_buf(), row, png));
+    }
+    let mut already_present = 0;
+    let mut new_ids = Vec::new();
+    for dir in inputs {
+        for row in read_rows(dir)? {
+            let png = read_image(dir, &row)?;
+            match chosen.get(&row.pose_id) {
+                Some((first_dir, first_row, first_png)) => {
+                    if *first_row != row || *first_png != png {
+                        return Err(DatasetError::MergeConflict {
+                            pose_id: row.pose_id,
+                            first: first_dir.clone(),
+                            second: dir.clone(),
+                        });
+                    }
+                    already_present += 1;
+                }
+                None => {
+                    new_ids.push(row.pose_id);
+                    chosen.insert(row.pose_id, (dir.clone(), row, png));
+                }
+            }
+        }
+    }
+    new_ids.sort_unstable();
+    for id in &new_ids {
+        if let Some((_, row, png)) = chosen.remove(id) {
+            writer.append_png(row, &png)?;
+        }
+    }
+    if !out.join(REFERENCE_FILE).exists() {
+        if let Some(src) = inputs.iter().map(|d| d.join(REFERENCE_FILE)).find(|p| p.is_file()) {
+            let bytes = std::fs::read(&src).map_err(DatasetError::io("reading", &src))?;
+            write_atomic(out, REFERENCE_FILE, &bytes)?;
+        }
+    }
+    writer.finish()?;
+    Ok(MergeReport { inputs: inputs.len(), appended: new_ids.len(), already_present })
+}
+
+fn read_image(dir: &Path, row: &PoseRow) -> Result<Vec<u8>, DatasetError> {
+    let path = dir.join(&row.image);
+    std::fs::read(&path).map_err(DatasetError::io("reading", path))
+}

@@ -1,0 +1,422 @@
+//! Datasets on disk: layout, CSV rows, the crash-safe writer, verification, export dialects
+//! and merging of shards.
+//!
+//! Layout of one dataset directory (default `datasets/<object>/<sensor>/`):
+//!
+//! ```text
+//! manifest.toml          plan, object (STL path + sha256), sensor, calibration, firmware profile,
+//!                        rig version, start/resume/end times (see [`Manifest`])
+//! poses.csv              one row per captured or synthesised pose (see [`PoseRow`])
+//! images/<pose_id>.png   the frame of that pose
+//! reference.png          the no-contact frame
+//! ```
+//!
+//! Durability ([`DatasetWriter`]): an image is written to a temporary name in `images/`,
+//! fsynced and renamed (and the directory fsynced) before its CSV row is appended with one
+//! `write` of the whole line and fsynced. So at any instant the CSV lists only images that
+//! exist, and the only damage a kill can leave is a torn last line, a temporary file, or an
+//! image whose row was never written; [`DatasetWriter::resume`] repairs all three and takes
+//! the set of done pose ids from the CSV. [`verify()`] reports what is wrong without touching
+//! anything; [`export`] writes the MultiDiffSense (MDS) and tactile-bench CSV dialects and
+//! reads the MDS one; [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
+
+pub mod export;
+pub mod manifest;
+pub mod merge;
+pub mod verify;
+pub mod writer;
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::pose::Pose;
+
+pub use manifest::{Manifest, ObjectInfo};
+pub use merge::{MergeReport, merge};
+pub use verify::{VerifyIssue, VerifyReport, verify};
+pub use writer::DatasetWriter;
+
+/// File names inside a dataset directory.
+pub const MANIFEST_FILE: &str = "manifest.toml";
+pub const POSES_FILE: &str = "poses.csv";
+pub const IMAGES_DIR: &str = "images";
+pub const REFERENCE_FILE: &str = "reference.png";
+
+/// The columns of `poses.csv`, in order (the header line).
+pub const COLUMNS: [&str; 17] = [
+    "pose_id",
+    "x_mm",
+    "y_mm",
+    "z_mm",
+    "yaw_deg",
+    "meas_x_mm",
+    "meas_y_mm",
+    "meas_z_mm",
+    "meas_yaw_deg",
+    "image",
+    "source",
+    "t_capture_s",
+    "model",
+    "seed",
+    "steps",
+    "guidance",
+    "n_frames",
+];
+
+/// Where a row's image came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Source {
+    /// Captured by a sensor on the rig.
+    Real,
+    /// Synthesised by the diffusion model.
+    Synthetic,
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Source::Real => "real",
+            Source::Synthetic => "synthetic",
+        })
+    }
+}
+
+/// One row of `poses.csv`. Poses are in the work frame (z is extra indentation).
+///
+/// Columns beyond the contract: `steps` and `guidance` (diffusion steps and guidance scale of
+/// a synthetic image), `n_frames` (frames averaged into a real image; empty when one).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseRow {
+    /// Stable grid id of the pose (see [`crate::plan`]).
+    pub pose_id: u32,
+    /// Commanded pose.
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub z_mm: f64,
+    pub yaw_deg: f64,
+    /// Measured pose from the arm's feedback at capture; empty for synthetic rows.
+    pub meas_x_mm: Option<f64>,
+    pub meas_y_mm: Option<f64>,
+    pub meas_z_mm: Option<f64>,
+    pub meas_yaw_deg: Option<f64>,
+    /// Image path relative to the dataset directory, always `images/<pose_id>.png` (the writer
+    /// sets it).
+    pub image: String,
+    pub source: Source,
+    /// Capture time on the rig clock, s; empty for synthetic rows.
+    pub t_capture_s: Option<f64>,
+    /// Model package name of a synthetic image.
+    pub model: Option<String>,
+    /// Sampler seed of a synthetic image.
+    pub seed: Option<u64>,
+    /// Diffusion steps of a synthetic image.
+    pub steps: Option<u32>,
+    /// Classifier-free guidance scale of a synthetic image.
+    pub guidance: Option<f64>,
+    /// Frames averaged into a real image.
+    pub n_frames: Option<u32>,
+}
+
+impl PoseRow {
+    /// A captured row: commanded and measured work-frame poses and the capture time.
+    pub fn real(pose_id: u32, commanded: Pose, measured: Pose, t_capture_s: f64) -> Self {
+        Self {
+            pose_id,
+            x_mm: commanded.x_mm,
+            y_mm: commanded.y_mm,
+            z_mm: commanded.z_mm,
+            yaw_deg: commanded.yaw_deg,
+            meas_x_mm: Some(measured.x_mm),
+            meas_y_mm: Some(measured.y_mm),
+            meas_z_mm: Some(measured.z_mm),
+            meas_yaw_deg: Some(measured.yaw_deg),
+            image: image_rel_path(pose_id),
+            source: Source::Real,
+            t_capture_s: Some(t_capture_s),
+            model: None,
+            seed: None,
+            steps: None,
+            guidance: None,
+            n_frames: None,
+        }
+    }
+
+    /// A synthesised row with its provenance.
+    pub fn synthetic(pose_id: u32, commanded: Pose, model: &str, seed: u64, steps: u32, guidance: f64) -> Self {
+        Self {
+            pose_id,
+            x_mm: commanded.x_mm,
+            y_mm: commanded.y_mm,
+            z_mm: commanded.z_mm,
+            yaw_deg: commanded.yaw_deg,
+            meas_x_mm: None,
+            meas_y_mm: None,
+            meas_z_mm: None,
+            meas_yaw_deg: None,
+            image: image_rel_path(pose_id),
+            source: Source::Synthetic,
+            t_capture_s: None,
+            model: Some(model.to_string()),
+            seed: Some(seed),
+            steps: Some(steps),
+            guidance: Some(guidance),
+            n_frames: None,
+        }
+    }
+
+    /// The commanded work-frame pose.
+    pub fn commanded(&self) -> Pose {
+        Pose::new(self.x_mm, self.y_mm, self.z_mm, self.yaw_deg)
+    }
+
+    /// The measured work-frame pose, when all four components are present.
+    pub fn measured(&self) -> Option<Pose> {
+        Some(Pose::new(self.meas_x_mm?, self.meas_y_mm?, self.meas_z_mm?, self.meas_yaw_deg?))
+    }
+
+    /// Why this row is not acceptable in a dataset, if it is not.
+    pub fn problem(&self) -> Option<RowProblem> {
+        if !self.commanded().is_finite() {
+            return Some(RowProblem::NonFinitePose);
+        }
+        let meas = [self.meas_x_mm, self.meas_y_mm, self.meas_z_mm, self.meas_yaw_deg];
+        if meas.iter().flatten().any(|v| !v.is_finite()) || self.t_capture_s.is_some_and(|t| !t.is_finite()) {
+            return Some(RowProblem::NonFiniteMeasurement);
+        }
+        if self.image != image_rel_path(self.pose_id) {
+            return Some(RowProblem::ImagePath { expected: image_rel_path(self.pose_id), found: self.image.clone() });
+        }
+        None
+    }
+}
+
+/// What is wrong with a row's content.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RowProblem {
+    #[error("commanded pose is not finite")]
+    NonFinitePose,
+    #[error("measured pose or capture time is not finite")]
+    NonFiniteMeasurement,
+    #[error("image column is {found:?}, expected {expected:?}")]
+    ImagePath { expected: String, found: String },
+    #[error("a text field contains a line break")]
+    Multiline,
+}
+
+/// The image path of a pose relative to the dataset directory.
+pub fn image_rel_path(pose_id: u32) -> String {
+    format!("{IMAGES_DIR}/{pose_id}.png")
+}
+
+/// Errors of the dataset module.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("{op} {path}: {source}")]
+    Io {
+        op: &'static str,
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{dir} already holds a dataset (or other files); refusing to overwrite it. Use --resume to continue it")]
+    NotEmpty { dir: PathBuf },
+    #[error("{dir} is not a dataset: {missing} is missing")]
+    NotADataset { dir: PathBuf, missing: &'static str },
+    #[error("dataset {dir} was written with a different {field}: it has {existing}, this run asks for {requested}")]
+    ManifestMismatch { dir: PathBuf, field: &'static str, existing: String, requested: String },
+    #[error("cannot read manifest {path}: {source}")]
+    ManifestParse {
+        path: PathBuf,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+    #[error("cannot write manifest: {source}")]
+    ManifestWrite {
+        #[source]
+        source: toml::ser::Error,
+    },
+    #[error("{path} has an unexpected header {found:?}; expected {expected:?}")]
+    BadHeader { path: PathBuf, found: String, expected: String },
+    #[error("{path} line {line}: malformed row: {reason}")]
+    MalformedRow { path: PathBuf, line: u64, reason: String },
+    #[error("{path} line {line}: pose_id {pose_id} already has a row (line {first_line})")]
+    DuplicateRow { path: PathBuf, line: u64, first_line: u64, pose_id: u32 },
+    #[error("pose_id {pose_id} already has a row in this dataset")]
+    DuplicatePose { pose_id: u32 },
+    #[error("row for pose_id {pose_id} is invalid: {problem}")]
+    InvalidRow { pose_id: u32, problem: RowProblem },
+    #[error("row for pose_id {pose_id} names {path} but the image is missing; run `rig dataset verify`")]
+    MissingImage { pose_id: u32, path: PathBuf },
+    #[error("cannot encode image for pose_id {pose_id}: {source}")]
+    Encode {
+        pose_id: u32,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("{path} is being written by another process (lock held)")]
+    Locked { path: PathBuf },
+    #[error("{path} line {line}: malformed MDS row: {reason}")]
+    MalformedMds { path: PathBuf, line: u64, reason: String },
+    #[error("cannot write CSV: {source}")]
+    CsvWrite {
+        #[source]
+        source: csv::Error,
+    },
+    #[error("{dir} does not verify clean ({issues} issues); run `rig dataset verify` on it")]
+    Unclean { dir: PathBuf, issues: usize },
+    #[error("merge conflict on pose_id {pose_id}: {first} and {second} disagree")]
+    MergeConflict { pose_id: u32, first: PathBuf, second: PathBuf },
+}
+
+impl DatasetError {
+    pub(crate) fn io(op: &'static str, path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
+        let path = path.into();
+        move |source| DatasetError::Io { op, path, source }
+    }
+}
+
+/// Reads every row of `dir/poses.csv`, failing on a malformed or duplicated row (a torn last
+/// line is ignored, as resume would truncate it). Rows come in file order.
+pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
+    let path = dir.join(POSES_FILE);
+    let bytes = std::fs::read(&path).map_err(DatasetError::io("reading", &path))?;
+    let parsed = parse_csv(&bytes);
+    let expected = COLUMNS.join(",");
+    if parsed.header.as_deref() != Some(expected.as_str()) {
+        return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected });
+    }
+    strict_rows(parsed.lines, &path)
+}
+
+/// The rows of parsed lines, failing on the first malformed or duplicated one.
+pub(crate) fn strict_rows(lines: Vec<ParsedLine>, path: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
+    let mut first_line = std::collections::BTreeMap::new();
+    let mut rows = Vec::with_capacity(lines.len());
+    for l in lines {
+        let row = l
+            .row
+            .map_err(|reason| DatasetError::MalformedRow { path: path.to_path_buf(), line: l.line, reason })?;
+        if let Some(&first) = first_line.get(&row.pose_id) {
+            return Err(DatasetError::DuplicateRow {
+                path: path.to_path_buf(),
+                line: l.line,
+                first_line: first,
+                pose_id: row.pose_id,
+            });
+        }
+        first_line.insert(row.pose_id, l.line);
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Serialises one row as a complete CSV line (with its trailing newline).
+pub(crate) fn row_line(row: &PoseRow) -> Result<Vec<u8>, DatasetError> {
+    let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
+    w.serialize(row).map_err(|source| DatasetError::CsvWrite { source })?;
+    w.into_inner().map_err(|e| DatasetError::CsvWrite { source: csv::Error::from(e.into_error()) })
+}
+
+/// The header line of `poses.csv` (with its newline).
+pub(crate) fn header_line() -> String {
+    format!("{}\n", COLUMNS.join(","))
+}
+
+/// One parsed line of `poses.csv`.
+#[derive(Debug)]
+pub(crate) struct ParsedLine {
+    /// 1-based line number in the file.
+    pub line: u64,
+    pub row: Result<PoseRow, String>,
+}
+
+/// The parse of a `poses.csv` body: the header, the complete lines, and the length of a torn
+/// tail (bytes after the last newline; a kill mid-write leaves one).
+#[derive(Debug)]
+pub(crate) struct ParsedCsv {
+    pub header: Option<String>,
+    pub lines: Vec<ParsedLine>,
+    pub complete_len: u64,
+    pub torn_bytes: u64,
+}
+
+/// Parses `poses.csv` bytes; never fails, problems are per line.
+pub(crate) fn parse_csv(bytes: &[u8]) -> ParsedCsv {
+    let complete_len = bytes.iter().rposition(|&b| b == b'\n').map(|i| i + 1).unwrap_or(0);
+    let torn_bytes = (bytes.len() - complete_len) as u64;
+    let complete = &bytes[..complete_len];
+    let mut header = None;
+    let mut lines = Vec::new();
+    for (i, raw) in complete.split(|&b| b == b'\n').enumerate() {
+        let line = i as u64 + 1;
+        let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
+        if i == 0 {
+            header = Some(String::from_utf8_lossy(raw).into_owned());
+            continue;
+        }
+        if raw.is_empty() {
+            continue; // the split after the final newline, or a blank line
+        }
+        lines.push(ParsedLine { line, row: parse_row(raw) });
+    }
+    ParsedCsv { header, lines, complete_len: complete_len as u64, torn_bytes }
+}
+
+fn parse_row(raw: &[u8]) -> Result<PoseRow, String> {
+    let mut rdr = csv::ReaderBuilder::new().has_headers(false).from_reader(raw);
+    let mut record = csv::StringRecord::new();
+    match rdr.read_record(&mut record) {
+        Ok(true) => {}
+        Ok(false) => return Err("empty line".to_string()),
+        Err(e) => return Err(e.to_string()),
+    }
+    if record.len() != COLUMNS.len() {
+        return Err(format!("{} fields, expected {}", record.len(), COLUMNS.len()));
+    }
+    let headers = csv::StringRecord::from(COLUMNS.to_vec());
+    let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| e.to_string())?;
+    if let Some(p) = row.problem() {
+        return Err(p.to_string());
+    }
+    Ok(row)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn row_round_trip_and_torn_tail() {
+        let a = PoseRow::real(3, Pose::new(1.0, -2.5, 0.5, 15.0), Pose::new(1.01, -2.49, 0.52, 15.1), 12.25);
+        let b = PoseRow::synthetic(4, Pose::new(0.0, 0.0, -1.0, -90.0), "mds-v1", 42, 50, 1.0);
+        let mut bytes = header_line().into_bytes();
+        bytes.extend(row_line(&a).unwrap());
+        bytes.extend(row_line(&b).unwrap());
+        let full = bytes.len() as u64;
+        bytes.extend(&row_line(&a).unwrap()[..10]);
+        let p = parse_csv(&bytes);
+        assert_eq!(p.header.as_deref(), Some(COLUMNS.join(",").as_str()));
+        assert_eq!(p.complete_len, full);
+        assert_eq!(p.torn_bytes, 10);
+        assert_eq!(p.lines.len(), 2);
+        assert_eq!(p.lines[0].row.as_ref().unwrap(), &a);
+        assert_eq!(p.lines[1].row.as_ref().unwrap(), &b);
+        assert_eq!(p.lines[1].line, 3);
+    }
+
+    #[test]
+    fn bad_rows_are_reported_not_panicked() {
+        let mut bytes = header_line().into_bytes();
+        bytes.extend(b"1,2,3\n");
+        bytes.extend(b"x,0,0,0,0,,,,,images/x.png,real,,,,,,\n");
+        bytes.extend(b"5,0,0,0,0,,,,,images/6.png,real,,,,,,\n");
+        bytes.extend(b"5,0,0,0,NaN,,,,,images/5.png,real,,,,,,\n");
+        bytes.extend(b"\xff\xfe,\"\n");
+        let p = parse_csv(&bytes);
+        assert_eq!(p.lines.len(), 5);
+        assert!(p.lines.iter().all(|l| l.row.is_err()), "{:?}", p.lines);
+    }
+}

@@ -1,0 +1,195 @@
+//! Read-only check of a dataset directory: rows against images, duplicates, malformed lines,
+//! leftovers of a killed run. Nothing is modified; [`super::DatasetWriter::resume`] repairs.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use super::writer::{image_file_pose_id, is_temp_name};
+use super::{COLUMNS, DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, parse_csv};
+
+/// One problem found by [`verify`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum VerifyIssue {
+    /// A row whose image file does not exist.
+    MissingImage { pose_id: u32, path: PathBuf },
+    /// An image (or other file) in `images/` that no row names.
+    OrphanImage { path: PathBuf },
+    /// A pose id with more than one row.
+    DuplicateRow { pose_id: u32, first_line: u64, line: u64 },
+    /// A line that does not parse as a row (wrong field count, bad number, bad image path...).
+    MalformedRow { line: u64, reason: String },
+    /// Bytes after the last newline: an append interrupted mid-line.
+    TornLastLine { bytes: u64 },
+    /// A temporary file left by an interrupted write.
+    TempFile { path: PathBuf },
+    /// The header line is not rig's.
+    BadHeader { found: String },
+    /// The manifest is missing or unreadable.
+    BadManifest { reason: String },
+}
+
+impl fmt::Display for VerifyIssue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            VerifyIssue::MissingImage { pose_id, path } => {
+                write!(f, "missing image: pose_id {pose_id} has a row but {} does not exist", path.display())
+            }
+            VerifyIssue::OrphanImage { path } => write!(f, "orphan image: no row names {}", path.display()),
+            VerifyIssue::DuplicateRow { pose_id, first_line, line } => {
+                write!(f, "duplicated row: pose_id {pose_id} on line {line} (first on line {first_line})")
+            }
+            VerifyIssue::MalformedRow { line, reason } => write!(f, "malformed row on line {line}: {reason}"),
+            VerifyIssue::TornLastLine { bytes } => {
+                write!(f, "torn last line: {bytes} bytes without a newline (an interrupted append)")
+            }
+            VerifyIssue::TempFile { path } => write!(f, "temporary file left behind: {}", path.display()),
+            VerifyIssue::BadHeader { found } => write!(f, "unexpected header {found:?}"),
+            VerifyIssue::BadManifest { reason } => write!(f, "manifest: {reason}"),
+        }
+    }
+}
+
+/// What [`verify`] found. Counts are of distinct problems; `issues` has the details.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct VerifyReport {
+    /// Complete, well-formed rows (duplicates included).
+    pub rows: usize,
+    /// Files named `<pose_id>.png` in `images/`.
+    pub images: usize,
+    /// Rows of source `real` / `synthetic`.
+    pub real: usize,
+    pub synthetic: usize,
+    pub missing: usize,
+    pub orphan: usize,
+    pub duplicated: usize,
+    /// Malformed lines, the torn last line included.
+    pub malformed: usize,
+    pub temp_files: usize,
+    pub has_reference: bool,
+    pub issues: Vec<VerifyIssue>,
+}
+
+impl VerifyReport {
+    /// True when nothing is wrong (a missing `reference.png` is allowed: synthetic-only
+    /// datasets have none).
+    pub fn is_clean(&self) -> bool {
+        self.issues.is_empty()
+    }
+}
+
+impl fmt::Display for VerifyReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "rows {} ({} real, {} synthetic), images {}, reference.png {}",
+            self.rows,
+            self.real,
+            self.synthetic,
+            self.images,
+            if self.has_reference { "present" } else { "absent" }
+        )?;
+        writeln!(
+            f,
+            "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}",
+            self.missing, self.orphan, self.duplicated, self.malformed, self.temp_files
+        )?;
+        for issue in &self.issues {
+            writeln!(f, "  {issue}")?;
+        }
+        write!(f, "{}", if self.is_clean() { "clean" } else { "NOT clean" })
+    }
+}
+
+/// Checks the dataset in `dir` without modifying it. Fails only when `dir` has no
+/// `poses.csv` or cannot be read.
+pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
+    let csv_path = dir.join(POSES_FILE);
+    if !csv_path.is_file() {
+        return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: POSES_FILE });
+    }
+    let bytes = std::fs::read(&csv_path).map_err(DatasetError::io("reading", &csv_path))?;
+    let parsed = parse_csv(&bytes);
+    let mut report = VerifyReport { has_reference: dir.join(REFERENCE_FILE).is_file(), ..Default::default() };
+
+    if !dir.join(MANIFEST_FILE).is_file() {
+        report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") });
+    } else if let Err(e) = Manifest::load(dir) {
+        report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() });
+    }
+    let expected = COLUMNS.join(",");
+    if parsed.header.as_deref() != Some(expected.as_str()) {
+        report.issues.push(VerifyIssue::BadHeader { found: parsed.header.clone().unwrap_or_default() });
+    }
+
+    let mut first_line: BTreeMap<u32, u64> = BTreeMap::new();
+    for l in &parsed.lines {
+        match &l.row {
+            Ok(row) => {
+                report.rows += 1;
+                match row.source {
+                    super::Source::Real => report.real += 1,
+                    super::Source::Synthetic => report.synthetic += 1,
+                }
+                if let Some(&first) = first_line.get(&row.pose_id) {
+                    report.duplicated += 1;
+                    report.issues.push(VerifyIssue::DuplicateRow { pose_id: row.pose_id, first_line: first, line: l.line });
+                } else {
+                    first_line.insert(row.pose_id, l.line);
+                }
+            }
+            Err(reason) => {
+                report.malformed += 1;
+                report.issues.push(VerifyIssue::MalformedRow { line: l.line, reason: reason.clone() });
+            }
+        }
+    }
+    if parsed.torn_bytes > 0 {
+        report.malformed += 1;
+        report.issues.push(VerifyIssue::TornLastLine { bytes: parsed.torn_bytes });
+    }
+
+    for name in list_names(dir)? {
+        if is_temp_name(&name) {
+            report.temp_files += 1;
+            report.issues.push(VerifyIssue::TempFile { path: dir.join(name) });
+        }
+    }
+    let images_dir = dir.join(IMAGES_DIR);
+    let mut present = BTreeSet::new();
+    if images_dir.is_dir() {
+        for name in list_names(&images_dir)? {
+            let path = images_dir.join(&name);
+            if is_temp_name(&name) {
+                report.temp_files += 1;
+                report.issues.push(VerifyIssue::TempFile { path });
+            } else if let Some(id) = image_file_pose_id(&name) {
+                report.images += 1;
+                present.insert(id);
+                if !first_line.contains_key(&id) {
+                    report.orphan += 1;
+                    report.issues.push(VerifyIssue::OrphanImage { path });
+                }
+            } else {
+                report.orphan += 1;
+                report.issues.push(VerifyIssue::OrphanImage { path });
+            }
+        }
+    }
+    for &id in first_line.keys() {
+        if !present.contains(&id) {
+            report.missing += 1;
+            report.issues.push(VerifyIssue::MissingImage { pose_id: id, path: dir.join(super::image_rel_path(id)) });
+        }
+    }
+    Ok(report)
+}
+
+fn list_names(dir: &Path) -> Result<Vec<String>, DatasetError> {
+    let mut names = Vec::new();
+    for e in std::fs::read_dir(dir).map_err(DatasetError::io("listing", dir))? {
+        names.push(e.map_err(DatasetError::io("listing", dir))?.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    Ok(names)
+}

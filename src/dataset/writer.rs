@@ -1,0 +1,446 @@
+//! The crash-safe, append-only dataset writer.
+//!
+//! Order of durable steps for one pose (a SIGKILL may land between any two):
+//!
+//! 1. encode the PNG in memory, write it to `images/.<pose_id>.png.tmp`, fsync the file;
+//! 2. rename it to `images/<pose_id>.png`, fsync `images/`;
+//! 3. append the CSV line to `poses.csv` with one `write` call, fsync the file.
+//!
+//! What each kill point leaves, and what [`DatasetWriter::resume`] does with it:
+//! before 2, a temp file (deleted); between 2 and 3, an image without a row (an orphan,
+//! deleted so the pose is captured again); during 3, a torn last line without its newline
+//! (truncated away, and its image becomes an orphan). The set of done pose ids is the set of
+//! complete CSV rows, each of which names an image that was durable before the row was.
+//!
+//! A writer holds an exclusive `flock` on `poses.csv`, so two processes never append to one
+//! dataset at once; the kernel drops the lock when the process dies, so a killed run never
+//! blocks its resume.
+
+use std::collections::BTreeSet;
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Write};
+use std::os::fd::AsRawFd;
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+
+use super::manifest::{Manifest, utc_now};
+use super::{
+    COLUMNS, DatasetError, IMAGES_DIR, MANIFEST_FILE, POSES_FILE, PoseRow, REFERENCE_FILE, RowProblem, header_line,
+    image_rel_path, parse_csv, row_line, strict_rows,
+};
+
+/// Appends rows and images to one dataset directory. See the module docs for the guarantees.
+#[derive(Debug)]
+pub struct DatasetWriter {
+    dir: PathBuf,
+    manifest: Manifest,
+    csv: File,
+    /// Length of `poses.csv` after the last complete line, to undo a failed partial append.
+    csv_len: u64,
+    done: BTreeSet<u32>,
+}
+
+impl DatasetWriter {
+    /// Starts a new dataset in `dir` (created if absent). Refuses a directory that holds
+    /// anything, so an existing dataset is never overwritten.
+    pub fn create(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
+        if !dir_is_empty(dir)? {
+            return Err(DatasetError::NotEmpty { dir: dir.to_path_buf() });
+        }
+        let images = dir.join(IMAGES_DIR);
+        std::fs::create_dir_all(&images).map_err(DatasetError::io("creating", &images))?;
+        manifest.store(dir)?;
+        write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
+        if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+            fsync_dir(parent)?;
+        }
+        Self::open_existing(dir, manifest, false)
+    }
+
+    /// Continues the dataset in `dir` exactly where a previous (possibly killed) run stopped,
+    /// or creates it when `dir` is absent or empty. Refuses when the existing manifest's
+    /// sensor, object or plan differ from `manifest`'s, naming the field. The existing
+    /// manifest is kept (its start time included) and this run's start is added to
+    /// `resumed_utc`.
+    pub fn resume(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
+        if dir_is_empty(dir)? {
+            return Self::create(dir, manifest);
+        }
+        if remove_creation_stub(dir)? {
+            return Self::create(dir, manifest);
+        }
+        let existing = Manifest::load(dir)?;
+        existing.check_same_dataset(&manifest, dir)?;
+        Self::open_existing(dir, existing, true)
+    }
+
+    /// Opens an existing dataset to append to it under its own manifest (what
+    /// `rig synth --fill-missing` does), repairing it as [`resume`](Self::resume) does.
+    pub fn open(dir: &Path) -> Result<Self, DatasetError> {
+        if !dir.join(MANIFEST_FILE).exists() {
+            return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: MANIFEST_FILE });
+        }
+        let existing = Manifest::load(dir)?;
+        Self::open_existing(dir, existing, true)
+    }
+
+    fn open_existing(dir: &Path, mut manifest: Manifest, resumed: bool) -> Result<Self, DatasetError> {
+        let csv_path = dir.join(POSES_FILE);
+        if !csv_path.exists() {
+            // Killed between the manifest and the header of a new dataset.
+            write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
+        }
+        let mut csv = OpenOptions::new()
+            .read(true)
+            .append(true)
+            .open(&csv_path)
+            .map_err(DatasetError::io("opening", &csv_path))?;
+        lock_exclusive(&csv, &csv_path)?;
+
+        let mut bytes = Vec::new();
+        csv.read_to_end(&mut bytes).map_err(DatasetError::io("reading", &csv_path))?;
+        let parsed = parse_csv(&bytes);
+        let expected = COLUMNS.join(",");
+        match parsed.header.as_deref() {
+            Some(h) if h == expected => {
+                if parsed.torn_bytes > 0 {
+                    tracing::warn!(bytes = parsed.torn_bytes, "truncating a torn last line of {}", csv_path.display());
+                    csv.set_len(parsed.complete_len).map_err(DatasetError::io("truncating", &csv_path))?;
+                    csv.sync_all().map_err(DatasetError::io("syncing", &csv_path))?;
+                }
+            }
+            None if parsed.lines.is_empty() => {
+                csv.set_len(0).map_err(DatasetError::io("truncating", &csv_path))?;
+                csv.write_all(header_line().as_bytes()).map_err(DatasetError::io("writing", &csv_path))?;
+                csv.sync_all().map_err(DatasetError::io("syncing", &csv_path))?;
+            }
+            found => {
+                return Err(DatasetError::BadHeader {
+                    path: csv_path,
+                    found: found.unwrap_or_default().to_string(),
+                    expected,
+                });
+            }
+        }
+
+        let done: BTreeSet<u32> = strict_rows(parsed.lines, &csv_path)?.iter().map(|r| r.pose_id).collect();
+
+        remove_temp_files(dir)?;
+        let images = dir.join(IMAGES_DIR);
+        std::fs::create_dir_all(&images).map_err(DatasetError::io("creating", &images))?;
+        remove_temp_files(&images)?;
+        let mut present = BTreeSet::new();
+        for entry in std::fs::read_dir(&images).map_err(DatasetError::io("listing", &images))? {
+            let entry = entry.map_err(DatasetError::io("listing", &images))?;
+            let Some(id) = image_file_pose_id(&entry.file_name().to_string_lossy()) else { continue };
+            if done.contains(&id) {
+                present.insert(id);
+            } else {
+                // Its row never became durable: capture this pose again.
+                tracing::info!(pose_id = id, "removing orphan image");
+                std::fs::remove_file(entry.path()).map_err(DatasetError::io("removing", entry.path()))?;
+            }
+        }
+        fsync_dir(&images)?;
+        if let Some(&pose_id) = done.difference(&present).next() {
+            return Err(DatasetError::MissingImage { pose_id, path: dir.join(image_rel_path(pose_id)) });
+        }
+
+        if resumed {
+            manifest.resumed_utc.push(utc_now());
+            manifest.store(dir)?;
+        }
+        let csv_len = csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len();
+        Ok(Self { dir: dir.to_path_buf(), manifest, csv, csv_len, done })
+    }
+
+    /// The dataset directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The manifest in force (the existing one when resumed).
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Pose ids that have a durable row.
+    pub fn done_ids(&self) -> &BTreeSet<u32> {
+        &self.done
+    }
+
+    /// Writes (or replaces) `reference.png` atomically.
+    pub fn write_reference(&mut self, image: &RgbImage) -> Result<(), DatasetError> {
+        let png = encode_png(image, u32::MAX)?;
+        write_atomic(&self.dir, REFERENCE_FILE, &png)
+    }
+
+    /// Durably appends one pose: image first, then its row. Sets `row.image` to
+    /// `images/<pose_id>.png`. Refuses a pose id that already has a row.
+    pub fn append(&mut self, row: PoseRow, image: &RgbImage) -> Result<(), DatasetError> {
+        if self.done.contains(&row.pose_id) {
+            return Err(DatasetError::DuplicatePose { pose_id: row.pose_id });
+        }
+        let png = encode_png(image, row.pose_id)?;
+        self.append_png(row, &png)
+    }
+
+    /// [`append`](Self::append) with an already encoded PNG (merging copies files unchanged).
+    pub(crate) fn append_png(&mut self, mut row: PoseRow, png: &[u8]) -> Result<(), DatasetError> {
+        let pose_id = row.pose_id;
+        if self.done.contains(&pose_id) {
+            return Err(DatasetError::DuplicatePose { pose_id });
+        }
+        row.image = image_rel_path(pose_id);
+        if let Some(problem) = row.problem() {
+            return Err(DatasetError::InvalidRow { pose_id, problem });
+        }
+        let line = row_line(&row)?;
+        if line.iter().filter(|&&b| b == b'\n').count() != 1 {
+            return Err(DatasetError::InvalidRow { pose_id, problem: RowProblem::Multiline });
+        }
+
+        let images = self.dir.join(IMAGES_DIR);
+        write_atomic(&images, &format!("{pose_id}.png"), png)?;
+
+        let csv_path = self.dir.join(POSES_FILE);
+        // One write call of the whole line: a kill leaves either nothing or a prefix of it.
+        let result = match self.csv.write(&line) {
+            Ok(n) if n == line.len() => Ok(()),
+            Ok(n) => self.csv.write_all(&line[n..]),
+            Err(e) => Err(e),
+        }
+        .and_then(|()| self.csv.sync_data());
+        if let Err(e) = result {
+            // Undo a partial line so later appends do not glue onto it.
+            let _ = self.csv.set_len(self.csv_len);
+            return Err(DatasetError::Io { op: "appending to", path: csv_path, source: e });
+        }
+        self.csv_len += line.len() as u64;
+        self.done.insert(pose_id);
+        Ok(())
+    }
+
+    /// Records the end time in the manifest and releases the dataset.
+    pub fn finish(mut self) -> Result<Manifest, DatasetError> {
+        self.manifest.ended_utc = Some(utc_now());
+        self.manifest.store(&self.dir)?;
+        Ok(self.manifest)
+    }
+}
+
+fn encode_png(image: &RgbImage, pose_id: u32) -> Result<Vec<u8>, DatasetError> {
+    let mut png = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|source| DatasetError::Encode { pose_id, source })?;
+    Ok(png)
+}
+
+/// The pose id of an image file name `<pose_id>.png`.
+pub(crate) fn image_file_pose_id(name: &str) -> Option<u32> {
+    let stem = name.strip_suffix(".png")?;
+    if stem.is_empty() || !stem.bytes().all(|b| b.is_ascii_digit()) || (stem.len() > 1 && stem.starts_with('0')) {
+        return None;
+    }
+    stem.parse().ok()
+}
+
+/// True for the writer's temporary files (`.<name>.tmp`).
+pub(crate) fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
+/// Writes `dir/name` atomically: temp file in the same directory, fsync, rename, fsync dir.
+pub(crate) fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), DatasetError> {
+    let tmp = dir.join(format!(".{name}.tmp"));
+    let dest = dir.join(name);
+    {
+        let mut f = File::create(&tmp).map_err(DatasetError::io("creating", &tmp))?;
+        f.write_all(bytes).map_err(DatasetError::io("writing", &tmp))?;
+        f.sync_all().map_err(DatasetError::io("syncing", &tmp))?;
+    }
+    std::fs::rename(&tmp, &dest).map_err(DatasetError::io("renaming into place", &dest))?;
+    fsync_dir(dir)
+}
+
+/// Makes renames and removals in `dir` durable.
+pub(crate) fn fsync_dir(dir: &Path) -> Result<(), DatasetError> {
+    File::open(dir)
+        .and_then(|d| d.sync_all())
+        .map_err(DatasetError::io("syncing directory", dir))
+}
+
+fn dir_is_empty(dir: &Path) -> Result<bool, DatasetError> {
+    match std::fs::read_dir(dir) {
+        Ok(mut entries) => Ok(entries.next().is_none()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(true),
+        Err(e) => Err(DatasetError::Io { op: "listing", path: dir.to_path_buf(), source: e }),
+    }
+}
+
+/// A creation killed before the manifest landed leaves only temp files and an empty
+/// `images/`; removes them and reports true. Anything else is left alone (false).
+fn remove_creation_stub(dir: &Path) -> Result<bool, DatasetError> {
+    let listing = |d: &Path| -> Result<Vec<String>, DatasetError> {
+        let mut names = Vec::new();
+        for e in std::fs::read_dir(d).map_err(DatasetError::io("listing", d))? {
+            names.push(e.map_err(DatasetError::io("listing", d))?.file_name().to_string_lossy().into_owned());
+        }
+        Ok(names)
+    };
+    let top = listing(dir)?;
+    let images = dir.join(IMAGES_DIR);
+    let stub_top = top.iter().all(|n| (n == IMAGES_DIR && images.is_dir()) || is_temp_name(n));
+    if !stub_top || (images.is_dir() && !listing(&images)?.iter().all(|n| is_temp_name(n))) {
+        return Ok(false);
+    }
+    if images.is_dir() {
+        std::fs::remove_dir_all(&images).map_err(DatasetError::io("removing", &images))?;
+    }
+    remove_temp_files(dir)?;
+    Ok(true)
+}
+
+fn remove_temp_files(dir: &Path) -> Result<(), DatasetError> {
+    let mut removed = false;
+    for entry in std::fs::read_dir(dir).map_err(DatasetError::io("listing", dir))? {
+        let entry = entry.map_err(DatasetError::io("listing", dir))?;
+        if is_temp_name(&entry.file_name().to_string_lossy()) && entry.path().is_file() {
+            std::fs::remove_file(entry.path()).map_err(DatasetError::io("removing", entry.path()))?;
+            removed = true;
+        }
+    }
+    if removed {
+        fsync_dir(dir)?;
+    }
+    Ok(())
+}
+
+fn lock_exclusive(file: &File, path: &Path) -> Result<(), DatasetError> {
+    // SAFETY: flock on a file descriptor we own; no memory is involved.
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if rc == 0 {
+        return Ok(());
+    }
+    let err = std::io::Error::last_os_error();
+    if err.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Err(DatasetError::Locked { path: path.to_path_buf() })
+    } else {
+        Err(DatasetError::Io { op: "locking", path: path.to_path_buf(), source: err })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::{ObjectInfo, Source};
+    use crate::pose::Pose;
+
+    fn manifest() -> Manifest {
+        Manifest::new("tactip", ObjectInfo::named("edge"), Some(crate::plan::PlanSpec::default()))
+    }
+
+    fn img(v: u8) -> RgbImage {
+        RgbImage::from_fn(8, 6, |x, y| image::Rgb([v, x as u8, y as u8]))
+    }
+
+    fn row(id: u32) -> PoseRow {
+        PoseRow::real(id, Pose::new(id as f64, 0.0, 0.0, 0.0), Pose::new(id as f64 + 0.01, 0.0, 0.0, 0.0), id as f64)
+    }
+
+    #[test]
+    fn create_refuses_non_empty_and_resume_repairs() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+        w.write_reference(&img(0)).unwrap();
+        for id in [4, 9, 2] {
+            w.append(row(id), &img(id as u8)).unwrap();
+        }
+        assert!(matches!(w.append(row(9), &img(1)), Err(DatasetError::DuplicatePose { pose_id: 9 })));
+        // A second writer is locked out while the first is open.
+        assert!(matches!(DatasetWriter::open(&dir), Err(DatasetError::Locked { .. })));
+        drop(w);
+        assert!(matches!(DatasetWriter::create(&dir, manifest()), Err(DatasetError::NotEmpty { .. })));
+
+        // Simulate a kill: orphan image, temp file, torn line.
+        std::fs::write(dir.join("images/7.png"), b"x").unwrap();
+        std::fs::write(dir.join("images/.8.png.tmp"), b"x").unwrap();
+        let mut f = OpenOptions::new().append(true).open(dir.join(POSES_FILE)).unwrap();
+        f.write_all(&row_line(&row(7)).unwrap()[..12]).unwrap();
+        drop(f);
+
+        let w = DatasetWriter::resume(&dir, manifest()).unwrap();
+        assert_eq!(w.done_ids().iter().copied().collect::<Vec<_>>(), vec![2, 4, 9]);
+        assert!(!dir.join("images/7.png").exists());
+        assert!(!dir.join("images/.8.png.tmp").exists());
+        assert_eq!(w.manifest().resumed_utc.len(), 1);
+        let text = std::fs::read_to_string(dir.join(POSES_FILE)).unwrap();
+        assert!(text.ends_with('\n') && text.lines().count() == 4, "{text}");
+        let m = w.finish().unwrap();
+        assert!(m.ended_utc.is_some());
+        let back = image::open(dir.join("images/9.png")).unwrap().to_rgb8();
+        assert_eq!(back, img(9));
+    }
+
+    #[test]
+    fn resume_refuses_other_dataset_and_creates_when_absent() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("a/b");
+        let w = DatasetWriter::resume(&dir, manifest()).unwrap();
+        assert!(w.done_ids().is_empty());
+        drop(w);
+        let mut other = manifest();
+        other.sensor = "vitac".into();
+        let err = DatasetWriter::resume(&dir, other).unwrap_err();
+        assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
+        let mut other = manifest();
+        other.plan.as_mut().unwrap().n_poses = Some(10);
+        let err = DatasetWriter::resume(&dir, other).unwrap_err();
+        assert!(matches!(err, DatasetError::ManifestMismatch { field: "plan", .. }), "{err}");
+    }
+
+    #[test]
+    fn synthetic_rows_and_invalid_rows() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+        w.append(PoseRow::synthetic(1, Pose::default(), "mds", 5, 50, 1.0), &img(1)).unwrap();
+        let mut bad = row(2);
+        bad.x_mm = f64::NAN;
+        assert!(matches!(w.append(bad, &img(2)), Err(DatasetError::InvalidRow { pose_id: 2, .. })));
+        let mut multi = PoseRow::synthetic(3, Pose::default(), "a\nb", 5, 50, 1.0);
+        assert!(matches!(w.append(multi.clone(), &img(3)), Err(DatasetError::InvalidRow { pose_id: 3, .. })));
+        multi.model = Some("ok".into());
+        w.append(multi, &img(3)).unwrap();
+        drop(w);
+        let w = DatasetWriter::open(&dir).unwrap();
+        assert_eq!(w.done_ids().len(), 2);
+        let text = std::fs::read_to_string(dir.join(POSES_FILE)).unwrap();
+        assert!(text.contains(",synthetic,"));
+        assert!(matches!(Source::Real.to_string().as_str(), "real"));
+    }
+
+    #[test]
+    fn resume_after_kill_during_creation() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        std::fs::create_dir_all(dir.join(IMAGES_DIR)).unwrap();
+        std::fs::write(dir.join(".manifest.toml.tmp"), b"partial").unwrap();
+        let w = DatasetWriter::resume(&dir, manifest()).unwrap();
+        assert!(w.done_ids().is_empty());
+        assert!(!dir.join(".manifest.toml.tmp").exists());
+    }
+
+    #[test]
+    fn image_names() {
+        assert_eq!(image_file_pose_id("12.png"), Some(12));
+        assert_eq!(image_file_pose_id("0.png"), Some(0));
+        assert_eq!(image_file_pose_id("012.png"), None);
+        assert_eq!(image_file_pose_id(".12.png.tmp"), None);
+        assert_eq!(image_file_pose_id("a.png"), None);
+        assert_eq!(image_file_pose_id("99999999999.png"), None);
+    }
+}

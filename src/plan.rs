@@ -1,0 +1,717 @@
+//! Pose plans: which contact poses a collection visits, and in which order.
+//!
+//! Data flow: a [`PlanSpec`] (read from TOML or built from CLI flags) is validated once, then
+//! [`PlanSpec::grid`] enumerates the regular grid of work-frame poses it spans, each with a
+//! stable `pose_id`, and [`PlanSpec::build`] samples `n_poses` of them ([`Sampling`]) and
+//! orders them ([`Order`]) into a [`Plan`], reporting the total motion time before and after
+//! ordering under the arm's motion-time model (passed in as a cost function).
+//!
+//! # Stable pose ids
+//!
+//! The grid is the Cartesian product of four axes, each `min, min + step, ..., <= max`
+//! (`n_x, n_y, n_z, n_yaw` values; `max` itself is included when `max - min` is a whole
+//! number of steps). A grid point with axis indices `(ix, iy, iz, iyaw)` has the mixed-radix
+//! index
+//!
+//! ```text
+//! pose_id = ((ix * n_y + iy) * n_z + iz) * n_yaw + iyaw
+//! ```
+//!
+//! so x is the most significant digit and yaw the least. The id depends only on the ranges
+//! and steps, never on sampling, seed or order: a later `rig synth --fill-missing` recomputes
+//! the grid from the manifest's plan and knows exactly which ids were not collected.
+//!
+//! # Ordering
+//!
+//! [`Order::Optimised`] builds a nearest-neighbour path and improves it with 2-opt moves over
+//! the k nearest neighbours of each pose (the path is open: it is closed through a zero-cost
+//! virtual node so the cyclic 2-opt applies). 2-opt assumes the cost is symmetric, which holds
+//! for trapezoidal per-axis motion models; the reported totals always use the directed cost.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use rand::seq::SliceRandom;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::pose::Pose;
+
+/// Largest grid rig enumerates (ids are `u32`; the sampler keeps a flag per point).
+pub const MAX_GRID_POINTS: u64 = 20_000_000;
+
+/// One axis of the grid: values `min, min + step, ...` up to and including `max`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisRange {
+    pub min: f64,
+    pub max: f64,
+    pub step: f64,
+}
+
+impl AxisRange {
+    pub const fn new(min: f64, max: f64, step: f64) -> Self {
+        Self { min, max, step }
+    }
+
+    /// Number of grid values on this axis (assumes a validated range).
+    pub fn count(&self) -> u64 {
+        // The small slack keeps `max` when (max - min) / step is whole but not exact in f64.
+        ((self.max - self.min) / self.step + 1e-9).floor() as u64 + 1
+    }
+
+    /// The `i`-th value, rounded to 1e-9 so steps like 0.1 do not print as 0.30000000000000004.
+    pub fn value(&self, i: u64) -> f64 {
+        let v = self.min + i as f64 * self.step;
+        (v * 1e9).round() / 1e9
+    }
+}
+
+/// Error parsing an axis written `min:max:step`, a sampling or an order name.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanParseError {
+    #[error("an axis range is written min:max:step (e.g. -5:5:1); got {text:?}")]
+    Axis { text: String },
+    #[error("unknown {what} {text:?}; expected one of {expected}")]
+    Name { what: &'static str, text: String, expected: &'static str },
+}
+
+impl std::str::FromStr for AxisRange {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let err = || PlanParseError::Axis { text: s.to_string() };
+        let parts: Vec<f64> = s.split(':').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|_| err())?;
+        match parts[..] {
+            [min, max, step] => Ok(AxisRange::new(min, max, step)),
+            _ => Err(err()),
+        }
+    }
+}
+
+impl std::str::FromStr for Sampling {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "full" => Ok(Sampling::Full),
+            "random" => Ok(Sampling::Random),
+            "lhs" | "latin-hypercube" => Ok(Sampling::Lhs),
+            _ => Err(PlanParseError::Name { what: "sampling", text: s.to_string(), expected: "full, random, lhs" }),
+        }
+    }
+}
+
+impl std::str::FromStr for Order {
+    type Err = PlanParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "as-sampled" => Ok(Order::AsSampled),
+            "random" => Ok(Order::Random),
+            "optimised" | "optimized" => Ok(Order::Optimised),
+            _ => Err(PlanParseError::Name { what: "order", text: s.to_string(), expected: "as-sampled, random, optimised" }),
+        }
+    }
+}
+
+/// How the poses of a plan are drawn from the grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sampling {
+    /// Every grid point (`n_poses` must be absent).
+    Full,
+    /// `n_poses` distinct grid points, uniformly at random.
+    Random,
+    /// `n_poses` distinct grid points by Latin hypercube: each axis's range is cut into
+    /// `n_poses` equal strata and each stratum is used exactly once per axis; points that land
+    /// on an already chosen grid point move to the nearest free one.
+    Lhs,
+}
+
+/// The order in which the sampled poses are visited.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Order {
+    /// The sampler's order (grid order for `full`).
+    AsSampled,
+    /// A seeded shuffle.
+    Random,
+    /// Nearest neighbour plus 2-opt over the motion-time model.
+    Optimised,
+}
+
+impl std::fmt::Display for Sampling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Sampling::Full => "full",
+            Sampling::Random => "random",
+            Sampling::Lhs => "lhs",
+        })
+    }
+}
+
+impl std::fmt::Display for Order {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Order::AsSampled => "as-sampled",
+            Order::Random => "random",
+            Order::Optimised => "optimised",
+        })
+    }
+}
+
+/// A plan as written in a TOML file (see `plans/default.toml`). Poses are in the work frame:
+/// x, y offsets from the contact point, z extra indentation, yaw relative to the frame's yaw.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanSpec {
+    pub x_mm: AxisRange,
+    pub y_mm: AxisRange,
+    pub z_mm: AxisRange,
+    pub yaw_deg: AxisRange,
+    pub sampling: Sampling,
+    /// How many poses to sample; required for `random` and `lhs`, absent for `full`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub n_poses: Option<usize>,
+    /// Seed of the sampler and of the random order.
+    #[serde(default)]
+    pub seed: u64,
+    pub order: Order,
+}
+
+impl Default for PlanSpec {
+    /// The MultiDiffSense ranges (x, y in [-5, 5] mm, z in [-1, 1] mm, yaw in [-90, 90] deg) on
+    /// a 1 mm / 0.5 mm / 15 deg grid (7865 points), 500 poses by Latin hypercube, optimised order.
+    fn default() -> Self {
+        Self {
+            x_mm: AxisRange::new(-5.0, 5.0, 1.0),
+            y_mm: AxisRange::new(-5.0, 5.0, 1.0),
+            z_mm: AxisRange::new(-1.0, 1.0, 0.5),
+            yaw_deg: AxisRange::new(-90.0, 90.0, 15.0),
+            sampling: Sampling::Lhs,
+            n_poses: Some(500),
+            seed: 0,
+            order: Order::Optimised,
+        }
+    }
+}
+
+/// Errors reading or validating a plan.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    #[error("plan axis {axis}: {field} is not a finite number ({value})")]
+    NotFinite { axis: &'static str, field: &'static str, value: f64 },
+    #[error("plan axis {axis}: empty range, min {min} > max {max}")]
+    EmptyRange { axis: &'static str, min: f64, max: f64 },
+    #[error("plan axis {axis}: step must be positive, got {step}")]
+    BadStep { axis: &'static str, step: f64 },
+    #[error("plan grid has {points} points, more than the {max} rig enumerates; use larger steps")]
+    GridTooLarge { points: u128, max: u64 },
+    #[error("plan asks for {requested} poses but the grid has only {grid} points")]
+    TooManyPoses { requested: usize, grid: u64 },
+    #[error("plan sampling `{sampling}` needs n_poses")]
+    MissingCount { sampling: Sampling },
+    #[error("plan sampling `full` takes every grid point; remove n_poses ({n_poses})")]
+    CountWithFull { n_poses: usize },
+    #[error("plan asks for 0 poses")]
+    ZeroPoses,
+    #[error("cannot read plan {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("plan {path} is not a valid plan: {source}")]
+    Parse {
+        path: PathBuf,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+}
+
+/// One pose of a plan: its stable grid id and its work-frame pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PlannedPose {
+    pub pose_id: u32,
+    pub pose: Pose,
+}
+
+/// A sampled and ordered plan, with the total motion time (sum of the cost between
+/// consecutive poses) of the sampler's order and of the final order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    pub poses: Vec<PlannedPose>,
+    pub motion_time_before_s: f64,
+    pub motion_time_after_s: f64,
+}
+
+impl PlanSpec {
+    /// Reads and validates a TOML plan file.
+    pub fn load(path: &Path) -> Result<Self, PlanError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
+        let spec = Self::from_toml_str(&text)
+            .map_err(|source| PlanError::Parse { path: path.to_path_buf(), source: Box::new(source) })?;
+        spec.validate()?;
+        Ok(spec)
+    }
+
+    /// Parses TOML without validating.
+    pub fn from_toml_str(text: &str) -> Result<Self, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    fn axes(&self) -> [(&'static str, &AxisRange); 4] {
+        [("x_mm", &self.x_mm), ("y_mm", &self.y_mm), ("z_mm", &self.z_mm), ("yaw_deg", &self.yaw_deg)]
+    }
+
+    /// Checks ranges, steps, grid size and the pose count.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        let mut points: u128 = 1;
+        for (axis, r) in self.axes() {
+            for (field, value) in [("min", r.min), ("max", r.max), ("step", r.step)] {
+                if !value.is_finite() {
+                    return Err(PlanError::NotFinite { axis, field, value });
+                }
+            }
+            if r.min > r.max {
+                return Err(PlanError::EmptyRange { axis, min: r.min, max: r.max });
+            }
+            if r.step <= 0.0 {
+                return Err(PlanError::BadStep { axis, step: r.step });
+            }
+            let per_axis = ((r.max - r.min) / r.step + 1e-9).floor();
+            if per_axis >= MAX_GRID_POINTS as f64 {
+                return Err(PlanError::GridTooLarge { points: u128::MAX, max: MAX_GRID_POINTS });
+            }
+            points *= per_axis as u128 + 1;
+        }
+        if points > MAX_GRID_POINTS as u128 {
+            return Err(PlanError::GridTooLarge { points, max: MAX_GRID_POINTS });
+        }
+        let grid = points as u64;
+        match (self.sampling, self.n_poses) {
+            (Sampling::Full, Some(n_poses)) => Err(PlanError::CountWithFull { n_poses }),
+            (Sampling::Full, None) => Ok(()),
+            (sampling, None) => Err(PlanError::MissingCount { sampling }),
+            (_, Some(0)) => Err(PlanError::ZeroPoses),
+            (_, Some(n)) if n as u64 > grid => Err(PlanError::TooManyPoses { requested: n, grid }),
+            (_, Some(_)) => Ok(()),
+        }
+    }
+
+    /// Values per axis `[n_x, n_y, n_z, n_yaw]` (assumes a validated spec).
+    pub fn axis_counts(&self) -> [u64; 4] {
+        [self.x_mm.count(), self.y_mm.count(), self.z_mm.count(), self.yaw_deg.count()]
+    }
+
+    /// Number of grid points (assumes a validated spec).
+    pub fn grid_len(&self) -> u64 {
+        self.axis_counts().iter().product()
+    }
+
+    /// How many poses [`build`](Self::build) returns.
+    pub fn planned_len(&self) -> u64 {
+        match self.sampling {
+            Sampling::Full => self.grid_len(),
+            _ => self.n_poses.unwrap_or(0) as u64,
+        }
+    }
+
+    fn indices_of(&self, pose_id: u32) -> [u64; 4] {
+        let [_, ny, nz, nyaw] = self.axis_counts();
+        let mut rest = pose_id as u64;
+        let iyaw = rest % nyaw;
+        rest /= nyaw;
+        let iz = rest % nz;
+        rest /= nz;
+        let iy = rest % ny;
+        let ix = rest / ny;
+        [ix, iy, iz, iyaw]
+    }
+
+    fn id_of(&self, idx: [u64; 4]) -> u32 {
+        let [_, ny, nz, nyaw] = self.axis_counts();
+        (((idx[0] * ny + idx[1]) * nz + idx[2]) * nyaw + idx[3]) as u32
+    }
+
+    /// The work-frame pose of a grid id, `None` outside the grid.
+    pub fn pose_of(&self, pose_id: u32) -> Option<Pose> {
+        if pose_id as u64 >= self.grid_len() {
+            return None;
+        }
+        let [ix, iy, iz, iyaw] = self.indices_of(pose_id);
+        Some(Pose::new(self.x_mm.value(ix), self.y_mm.value(iy), self.z_mm.value(iz), self.yaw_deg.value(iyaw)))
+    }
+
+    /// The grid id of a pose lying on the grid (within `tol` of a grid value on every axis,
+    /// in the axis's own unit); `None` when it is off the grid.
+    pub fn pose_id_of(&self, pose: &Pose, tol: f64) -> Option<u32> {
+        let comps = [pose.x_mm, pose.y_mm, pose.z_mm, pose.yaw_deg];
+        let mut idx = [0u64; 4];
+        for (k, (_, r)) in self.axes().into_iter().enumerate() {
+            let f = (comps[k] - r.min) / r.step;
+            if !f.is_finite() {
+                return None;
+            }
+            let i = f.round();
+            if i < 0.0 || i >= r.count() as f64 || (r.value(i as u64) - comps[k]).abs() > tol {
+                return None;
+            }
+            idx[k] = i as u64;
+        }
+        Some(self.id_of(idx))
+    }
+
+    /// Every grid point in `pose_id` order (assumes a validated spec).
+    pub fn grid(&self) -> Vec<PlannedPose> {
+        (0..self.grid_len() as u32)
+            .filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose }))
+            .collect()
+    }
+
+    /// Validates, samples and orders. `cost(a, b)` is the motion time in seconds from pose `a`
+    /// to pose `b` (work frame), e.g. the firmware profile's motion-time model.
+    pub fn build(&self, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Result<Plan, PlanError> {
+        self.validate()?;
+        let ids = self.sample_ids();
+        let sampled: Vec<PlannedPose> = ids
+            .into_iter()
+            .filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose }))
+            .collect();
+        let motion_time_before_s = path_cost(&sampled, cost);
+        let poses = match self.order {
+            Order::AsSampled => sampled,
+            Order::Random => {
+                let mut rng = ChaCha8Rng::seed_from_u64(derived_seed(self.seed, 1));
+                let mut v = sampled;
+                v.shuffle(&mut rng);
+                v
+            }
+            Order::Optimised => {
+                let ordered = optimise_order(&sampled, cost);
+                // Never hand back a worse order than the sampler's (possible only with
+                // strongly asymmetric costs, which 2-opt does not model).
+                if path_cost(&ordered, cost) <= motion_time_before_s { ordered } else { sampled }
+            }
+        };
+        let motion_time_after_s = path_cost(&poses, cost);
+        Ok(Plan { poses, motion_time_before_s, motion_time_after_s })
+    }
+
+    fn sample_ids(&self) -> Vec<u32> {
+        let grid = self.grid_len();
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        match self.sampling {
+            Sampling::Full => (0..grid as u32).collect(),
+            Sampling::Random => {
+                let n = self.n_poses.unwrap_or(0);
+                rand::seq::index::sample(&mut rng, grid as usize, n).into_iter().map(|i| i as u32).collect()
+            }
+            Sampling::Lhs => self.sample_lhs(&mut rng),
+        }
+    }
+
+    fn sample_lhs(&self, rng: &mut ChaCha8Rng) -> Vec<u32> {
+        let n = self.n_poses.unwrap_or(0);
+        let counts = self.axis_counts();
+        // One stratum permutation per axis; point k takes stratum perm[a][k] on axis a.
+        let mut strata: Vec<Vec<usize>> = Vec::with_capacity(4);
+        for _ in 0..4 {
+            let mut perm: Vec<usize> = (0..n).collect();
+            perm.shuffle(rng);
+            strata.push(perm);
+        }
+        let mut used = vec![false; self.grid_len() as usize];
+        let mut ids = Vec::with_capacity(n);
+        for k in 0..n {
+            let mut idx = [0u64; 4];
+            for a in 0..4 {
+                let u = (strata[a][k] as f64 + rng.random::<f64>()) / n as f64;
+                idx[a] = ((u * counts[a] as f64).floor() as u64).min(counts[a] - 1);
+            }
+            let mut id = self.id_of(idx);
+            if used[id as usize] {
+                id = self.nearest_free(idx, &used);
+            }
+            used[id as usize] = true;
+            ids.push(id);
+        }
+        ids
+    }
+
+    /// The free grid point nearest to `idx` in index space normalised by the axis counts
+    /// (ties: lowest id). Linear in the grid size; only collisions call it.
+    fn nearest_free(&self, idx: [u64; 4], used: &[bool]) -> u32 {
+        let counts = self.axis_counts();
+        let mut best = (f64::INFINITY, 0u32);
+        for (id, _) in used.iter().enumerate().filter(|(_, u)| !**u) {
+            let other = self.indices_of(id as u32);
+            let d: f64 = (0..4)
+                .map(|a| ((other[a] as f64 - idx[a] as f64) / counts[a] as f64).powi(2))
+                .sum();
+            if d < best.0 {
+                best = (d, id as u32);
+            }
+        }
+        best.1
+    }
+}
+
+fn derived_seed(seed: u64, stream: u64) -> u64 {
+    seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+}
+
+/// Total motion time of visiting `poses` in order (sum over consecutive pairs), seconds.
+pub fn path_cost(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> f64 {
+    poses.windows(2).map(|w| cost(&w[0].pose, &w[1].pose)).sum()
+}
+
+/// Neighbours examined per pose by 2-opt.
+const NEIGHBOURS: usize = 16;
+
+/// Nearest neighbour then 2-opt over k-nearest-neighbour candidate lists. Open path: node `n`
+/// is a virtual node at zero cost from and to every pose, which turns the path into a cycle.
+fn optimise_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> Vec<PlannedPose> {
+    let n = poses.len();
+    if n < 3 {
+        return poses.to_vec();
+    }
+    let virt = n;
+    let d = |a: usize, b: usize| -> f64 {
+        if a == virt || b == virt { 0.0 } else { cost(&poses[a].pose, &poses[b].pose) }
+    };
+
+    // Nearest neighbour from the pose closest to the work-frame origin.
+    let origin = Pose::default();
+    let start = (0..n)
+        .min_by(|&a, &b| cost(&origin, &poses[a].pose).total_cmp(&cost(&origin, &poses[b].pose)))
+        .unwrap_or(0);
+    let mut visited = vec![false; n];
+    let mut tour = Vec::with_capacity(n + 1);
+    tour.push(virt);
+    let mut cur = start;
+    visited[cur] = true;
+    tour.push(cur);
+    for _ in 1..n {
+        let next = (0..n)
+            .filter(|&j| !visited[j])
+            .min_by(|&a, &b| d(cur, a).total_cmp(&d(cur, b)))
+            .unwrap_or(cur);
+        visited[next] = true;
+        tour.push(next);
+        cur = next;
+    }
+
+    let k = NEIGHBOURS.min(n - 1);
+    let knn: Vec<Vec<(f64, usize)>> = (0..n)
+        .map(|a| {
+            let mut v: Vec<(f64, usize)> = (0..n).filter(|&b| b != a).map(|b| (d(a, b), b)).collect();
+            v.sort_by(|x, y| x.0.total_cmp(&y.0));
+            v.truncate(k);
+            v
+        })
+        .collect();
+
+    let m = n + 1;
+    let mut pos = vec![0usize; m];
+    for (i, &node) in tour.iter().enumerate() {
+        pos[node] = i;
+    }
+    let succ = |tour: &[usize], pos: &[usize], x: usize| tour[(pos[x] + 1) % m];
+    let pred = |tour: &[usize], pos: &[usize], x: usize| tour[(pos[x] + m - 1) % m];
+    const EPS: f64 = 1e-12;
+    let mut improved = true;
+    let mut passes = 0;
+    while improved && passes < 1000 {
+        improved = false;
+        passes += 1;
+        for a in 0..n {
+            for forward in [true, false] {
+                let b = if forward { succ(&tour, &pos, a) } else { pred(&tour, &pos, a) };
+                let d_ab = d(a, b);
+                for &(d_ac, c) in &knn[a] {
+                    if d_ab - d_ac <= EPS {
+                        break; // candidates are sorted: no later c can gain
+                    }
+                    let dd = if forward { succ(&tour, &pos, c) } else { pred(&tour, &pos, c) };
+                    if dd == a || c == b {
+                        continue;
+                    }
+                    let delta = d_ac + d(b, dd) - d_ab - d(c, dd);
+                    if delta < -EPS {
+                        // Remove the edges leaving positions i and j, reconnect by reversal.
+                        let (i, j) = if forward { (pos[a], pos[c]) } else { (pos[b], pos[dd]) };
+                        let (lo, hi) = if i < j { (i + 1, j) } else { (j + 1, i) };
+                        tour[lo..=hi].reverse();
+                        for (p, &node) in tour.iter().enumerate().take(hi + 1).skip(lo) {
+                            pos[node] = p;
+                        }
+                        improved = true;
+                        break;
+                    }
+                }
+            }
+        }
+    }
+
+    // Open the cycle at the virtual node; keep the cheaper direction for asymmetric costs.
+    let at = pos[virt];
+    let path: Vec<PlannedPose> = (1..m).map(|s| poses[tour[(at + s) % m]]).collect();
+    let mut reversed = path.clone();
+    reversed.reverse();
+    if path_cost(&reversed, cost) < path_cost(&path, cost) { reversed } else { path }
+}
+
+/// A simple motion-time model: every axis moves at once with a trapezoidal velocity profile,
+/// the slowest axis sets the travel time, and each pose adds a constant for the descent,
+/// press and retract. Stand-in for the firmware profile's model in `rig plan show`, tests and
+/// benchmarks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrapezoidMotionModel {
+    pub speed_mm_s: f64,
+    pub accel_mm_s2: f64,
+    pub yaw_speed_deg_s: f64,
+    pub yaw_accel_deg_s2: f64,
+    /// Time per pose for approach-descend-press-retract, s (order-independent).
+    pub per_pose_s: f64,
+}
+
+impl Default for TrapezoidMotionModel {
+    /// 100 mm/s, 1000 mm/s^2, 180 deg/s, 720 deg/s^2; 0.4 s per pose (two 10 mm moves).
+    fn default() -> Self {
+        Self { speed_mm_s: 100.0, accel_mm_s2: 1000.0, yaw_speed_deg_s: 180.0, yaw_accel_deg_s2: 720.0, per_pose_s: 0.4 }
+    }
+}
+
+fn trapezoid_s(dist: f64, v: f64, a: f64) -> f64 {
+    let dist = dist.abs();
+    if dist * a < v * v { 2.0 * (dist / a).sqrt() } else { dist / v + v / a }
+}
+
+impl TrapezoidMotionModel {
+    /// Time from `from` to `to` (work frame) including the per-pose constant, s.
+    pub fn time_s(&self, from: &Pose, to: &Pose) -> f64 {
+        let lin = [to.x_mm - from.x_mm, to.y_mm - from.y_mm, to.z_mm - from.z_mm]
+            .into_iter()
+            .map(|dx| trapezoid_s(dx, self.speed_mm_s, self.accel_mm_s2))
+            .fold(0.0, f64::max);
+        // Raw difference, not wrapped: the wrist turns through the angle, joint limits forbid
+        // the short way round.
+        let yaw = trapezoid_s(to.yaw_deg - from.yaw_deg, self.yaw_speed_deg_s, self.yaw_accel_deg_s2);
+        self.per_pose_s + lin.max(yaw)
+    }
+}
+
+/// Pose ids of `planned` not present in `done` (what `--fill-missing` has to produce).
+pub fn missing_ids<'a>(planned: impl IntoIterator<Item = &'a PlannedPose>, done: &BTreeSet<u32>) -> Vec<u32> {
+    planned.into_iter().map(|p| p.pose_id).filter(|id| !done.contains(id)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model() -> impl Fn(&Pose, &Pose) -> f64 {
+        let m = TrapezoidMotionModel::default();
+        move |a: &Pose, b: &Pose| m.time_s(a, b)
+    }
+
+    #[test]
+    fn default_grid_size_and_ids() {
+        let s = PlanSpec::default();
+        s.validate().unwrap();
+        assert_eq!(s.axis_counts(), [11, 11, 5, 13]);
+        assert_eq!(s.grid_len(), 7865);
+        let g = s.grid();
+        assert_eq!(g[0].pose, Pose::new(-5.0, -5.0, -1.0, -90.0));
+        assert_eq!(g[1].pose, Pose::new(-5.0, -5.0, -1.0, -75.0));
+        assert_eq!(g[13].pose, Pose::new(-5.0, -5.0, -0.5, -90.0));
+        assert_eq!(g[7864].pose, Pose::new(5.0, 5.0, 1.0, 90.0));
+        for p in &g {
+            assert_eq!(s.pose_id_of(&p.pose, 1e-6), Some(p.pose_id));
+        }
+        assert_eq!(s.pose_id_of(&Pose::new(0.5, 0.0, 0.0, 0.0), 1e-6), None);
+    }
+
+    #[test]
+    fn validation_errors() {
+        let mut s = PlanSpec::default();
+        s.x_mm.step = 0.0;
+        assert!(matches!(s.validate(), Err(PlanError::BadStep { axis: "x_mm", .. })));
+        let mut s = PlanSpec::default();
+        s.yaw_deg.min = f64::NAN;
+        assert!(matches!(s.validate(), Err(PlanError::NotFinite { axis: "yaw_deg", field: "min", .. })));
+        let mut s = PlanSpec::default();
+        s.z_mm = AxisRange::new(1.0, -1.0, 0.5);
+        assert!(matches!(s.validate(), Err(PlanError::EmptyRange { axis: "z_mm", .. })));
+        let mut s = PlanSpec::default();
+        s.n_poses = Some(7866);
+        assert!(matches!(s.validate(), Err(PlanError::TooManyPoses { requested: 7866, grid: 7865 })));
+        let mut s = PlanSpec::default();
+        s.sampling = Sampling::Full;
+        assert!(matches!(s.validate(), Err(PlanError::CountWithFull { .. })));
+        let mut s = PlanSpec::default();
+        s.n_poses = None;
+        assert!(matches!(s.validate(), Err(PlanError::MissingCount { sampling: Sampling::Lhs })));
+        let mut s = PlanSpec::default();
+        s.x_mm.step = 1e-9;
+        assert!(matches!(s.validate(), Err(PlanError::GridTooLarge { .. })));
+    }
+
+    #[test]
+    fn optimised_order_is_a_permutation_and_not_worse() {
+        let cost = model();
+        for sampling in [Sampling::Random, Sampling::Lhs] {
+            let s = PlanSpec { sampling, n_poses: Some(120), seed: 3, ..PlanSpec::default() };
+            let plan = s.build(&cost).unwrap();
+            let mut ids: Vec<u32> = plan.poses.iter().map(|p| p.pose_id).collect();
+            assert_eq!(ids.len(), 120);
+            ids.sort();
+            ids.dedup();
+            assert_eq!(ids.len(), 120, "duplicated pose ids");
+            assert!(plan.motion_time_after_s < plan.motion_time_before_s);
+            assert!((path_cost(&plan.poses, &cost) - plan.motion_time_after_s).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn lhs_balances_every_axis() {
+        // With n equal to the axis count, each axis value is drawn once per stratum, so before
+        // collisions every value appears n / count times; collisions move few points.
+        let s = PlanSpec {
+            x_mm: AxisRange::new(0.0, 9.0, 1.0),
+            y_mm: AxisRange::new(0.0, 9.0, 1.0),
+            z_mm: AxisRange::new(0.0, 9.0, 1.0),
+            yaw_deg: AxisRange::new(0.0, 90.0, 10.0),
+            sampling: Sampling::Lhs,
+            n_poses: Some(100),
+            seed: 9,
+            order: Order::AsSampled,
+        };
+        let plan = s.build(&model()).unwrap();
+        let mut per_x = [0usize; 10];
+        for p in &plan.poses {
+            per_x[p.pose.x_mm as usize] += 1;
+        }
+        assert!(per_x.iter().all(|&c| (8..=12).contains(&c)), "{per_x:?}");
+    }
+
+    #[test]
+    fn seeded_and_reproducible() {
+        let cost = model();
+        let a = PlanSpec { seed: 7, ..PlanSpec::default() }.build(&cost).unwrap();
+        let b = PlanSpec { seed: 7, ..PlanSpec::default() }.build(&cost).unwrap();
+        let c = PlanSpec { seed: 8, ..PlanSpec::default() }.build(&cost).unwrap();
+        assert_eq!(a, b);
+        assert_ne!(a.poses, c.poses);
+    }
+
+    #[test]
+    fn trapezoid_model() {
+        let m = TrapezoidMotionModel { per_pose_s: 0.0, ..Default::default() };
+        // 10 mm at 1000 mm/s^2 never reaches 100 mm/s: t = 2 sqrt(d / a) = 0.2 s.
+        assert!((m.time_s(&Pose::default(), &Pose::new(10.0, 0.0, 0.0, 0.0)) - 0.2).abs() < 1e-9);
+        // 180 deg: cruise, 180/180 + 180/720 = 1.25 s.
+        assert!((m.time_s(&Pose::default(), &Pose::new(0.0, 0.0, 0.0, 180.0)) - 1.25).abs() < 1e-9);
+    }
+}
