@@ -5,6 +5,8 @@
 //! the simulated controller on a `tokio::sync::watch` channel and read by the sensors at
 //! capture time.
 
+pub mod sensor;
+
 use crate::pose::Pose;
 
 /// The simulated arm's true state at one instant.
