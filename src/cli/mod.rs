@@ -5,6 +5,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod sensor;
+
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
 #[derive(Debug, Parser)]
@@ -21,6 +23,8 @@ pub struct Cli {
 pub enum Command {
     /// Print the version and the configuration rig would use.
     Info,
+    /// Simulated tactile sensors: render frames for checking their look.
+    Sensor(sensor::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -34,6 +38,7 @@ pub fn main() -> ExitCode {
             println!("rig {}", crate::version());
             Ok(())
         }
+        Command::Sensor(args) => sensor::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

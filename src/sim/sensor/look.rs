@@ -68,8 +68,8 @@ impl Look {
                     (0.6, [9.0, 8.0, 9.0]),
                     (0.97, [8.0, 8.0, 8.0]),
                     (1.0, [10.0, 10.0, 11.0]),
-                    (1.03, outside[0]),
-                    (1.08, outside[1]),
+                    (1.03, [7.0, 7.0, 8.0]),
+                    (1.08, [5.0, 4.0, 6.0]),
                 ],
                 ring_texture: 0.25,
                 markers: Some(MarkerLook { rgb: [188.0, 198.0, 202.0], opacity: 1.0, radius_px: 5.0, halo: -0.5 }),
@@ -78,35 +78,36 @@ impl Look {
             },
             SensorKind::ViTac => Look {
                 profile: vec![
-                    (0.0, [168.0, 158.0, 142.0]),
-                    (0.4, [152.0, 142.0, 124.0]),
-                    (0.6, [136.0, 125.0, 105.0]),
-                    (0.72, [120.0, 108.0, 88.0]),
-                    (0.8, [106.0, 97.0, 81.0]),
-                    (0.88, [93.0, 90.0, 77.0]),
-                    (0.96, [76.0, 75.0, 63.0]),
-                    (1.0, [45.0, 45.0, 42.0]),
-                    (1.03, outside[0]),
+                    (0.0, [172.0, 164.0, 150.0]),
+                    (0.3, [160.0, 148.0, 130.0]),
+                    (0.5, [150.0, 126.0, 98.0]),
+                    (0.65, [132.0, 108.0, 80.0]),
+                    (0.78, [114.0, 100.0, 78.0]),
+                    (0.88, [96.0, 92.0, 78.0]),
+                    (0.96, [78.0, 77.0, 65.0]),
+                    (0.995, [60.0, 60.0, 54.0]),
+                    (1.01, outside[0]),
                     (1.08, outside[1]),
                 ],
-                ring_texture: 0.03,
+                ring_texture: 0.025,
                 markers: None,
                 object_rgb: Some([252.0, 254.0, 254.0]),
-                glow_rgb: [236.0, 236.0, 230.0],
+                glow_rgb: [240.0, 240.0, 234.0],
             },
             SensorKind::ViTacTip => Look {
                 profile: vec![
-                    (0.0, [152.0, 147.0, 134.0]),
-                    (0.4, [140.0, 135.0, 120.0]),
-                    (0.56, [116.0, 110.0, 99.0]),
-                    (0.72, [103.0, 94.0, 78.0]),
-                    (0.88, [81.0, 80.0, 68.0]),
+                    (0.0, [160.0, 156.0, 146.0]),
+                    (0.3, [150.0, 142.0, 126.0]),
+                    (0.5, [132.0, 116.0, 94.0]),
+                    (0.65, [116.0, 100.0, 78.0]),
+                    (0.78, [102.0, 92.0, 76.0]),
+                    (0.88, [84.0, 82.0, 70.0]),
                     (0.96, [68.0, 68.0, 60.0]),
-                    (1.0, [40.0, 41.0, 40.0]),
-                    (1.03, outside[0]),
+                    (0.995, [52.0, 52.0, 48.0]),
+                    (1.01, outside[0]),
                     (1.08, outside[1]),
                 ],
-                ring_texture: 0.03,
+                ring_texture: 0.025,
                 markers: Some(MarkerLook { rgb: [38.0, 35.0, 37.0], opacity: 0.92, radius_px: 4.7, halo: 0.08 }),
                 object_rgb: Some([235.0, 242.0, 240.0]),
                 glow_rgb: [225.0, 228.0, 222.0],
@@ -203,12 +204,13 @@ impl StaticLook {
         }
         // Dust and scratches: short bright streaks, mostly towards the rim, as in the real images.
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_5bec);
-        for _ in 0..70 {
-            let rho: f32 = 0.25 + 0.85 * rng.random::<f32>().sqrt();
+        for k in 0..40 {
+            // Two thirds on the tube rim, the rest scattered over the skin.
+            let rho: f32 = if k % 3 == 0 { 0.2 + 0.75 * rng.random::<f32>() } else { 0.97 + 0.12 * rng.random::<f32>() };
             let a: f32 = rng.random::<f32>() * std::f32::consts::TAU;
             let len = (2.0 + 8.0 * rng.random::<f32>()) * s;
             let dir: f32 = rng.random::<f32>() * std::f32::consts::TAU;
-            let gain = 40.0 + 110.0 * rng.random::<f32>();
+            let gain = if rho < 0.97 { 15.0 + 35.0 * rng.random::<f32>() } else { 40.0 + 120.0 * rng.random::<f32>() };
             let (x0, y0) = (cx + rho * fov_r * a.cos(), cy + rho * fov_r * a.sin());
             let steps = len.ceil() as usize + 1;
             for k in 0..steps {

@@ -154,10 +154,12 @@ mod skin {
     pub const SEE_THROUGH_GAP_MM: f32 = 0.6;
     /// Indentation at which the scattered glow saturates, mm.
     pub const GLOW_FULL_MM: f32 = 0.2;
-    /// Reach of the glow at 512x512, px.
-    pub const GLOW_REACH_PX: f32 = 36.0;
+    /// Reach of the tight glow hugging the contact at 512x512, px.
+    pub const GLOW_NEAR_PX: f32 = 14.0;
+    /// Reach of the broad haze around the contact at 512x512, px.
+    pub const GLOW_FAR_PX: f32 = 70.0;
     /// Shading gain per unit slope.
-    pub const SHADING_GAIN: f32 = 0.9;
+    pub const SHADING_GAIN: f32 = 0.3;
     /// Direction the light comes from in the image (unit vector; up-left).
     pub const LIGHT: [f32; 2] = [-0.6, -0.8];
 }
@@ -286,12 +288,18 @@ impl SensorSim {
         let mut buf = self.fixed.background.clone();
         if let Some(object_rgb) = self.look.object_rgb {
             self.stage(Stage::SeeThrough, || {
-                let mut glow = raw.clone();
-                for v in &mut glow.v {
+                let mut near = raw.clone();
+                for v in &mut near.v {
                     *v = (*v / skin::GLOW_FULL_MM).min(1.0);
                 }
+                let mut glow = near.clone();
                 if touching {
-                    glow.blur(((skin::GLOW_REACH_PX * s) / cell as f32).round().max(1.0) as usize, 3);
+                    let cells = |px: f32| ((px * s) / cell as f32).round().max(1.0) as usize;
+                    near.blur(cells(skin::GLOW_NEAR_PX), 2);
+                    glow.blur(cells(skin::GLOW_FAR_PX), 3);
+                    for (g, n) in glow.v.iter_mut().zip(&near.v) {
+                        *g = (1.0 - (-(1.2 * n + 5.0 * *g)).exp()).min(1.0);
+                    }
                 }
                 stages::see_through(
                     &mut buf,

@@ -233,7 +233,7 @@ pub fn shading(buf: &mut [f32], width: usize, height: usize, indent: &CellField,
         for cx in 0..indent.w {
             let g = indent.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
             let slope = [g[0] * px_per_mm, g[1] * px_per_mm];
-            factor.v[cy * indent.w + cx] = (gain * (slope[0] * light[0] + slope[1] * light[1])).clamp(-0.8, 2.0);
+            factor.v[cy * indent.w + cx] = (gain * (slope[0] * light[0] + slope[1] * light[1])).clamp(-0.3, 0.3);
         }
     }
     factor.for_each_pixel(width, height, 0.0, |i, f| {
