@@ -36,6 +36,8 @@ pub type DepthSource = Box<dyn Fn(&Pose) -> DepthMap + Send + Sync>;
 const DEFAULT_TIMEOUT: Duration = Duration::from_secs(30);
 /// Longest single real-time sleep while waiting on the clock (a mock clock may jump).
 const POLL: Duration = Duration::from_millis(2);
+/// Real waits shorter than this are not worth a timer (tokio's resolution is 1 ms).
+const MIN_SLEEP: Duration = Duration::from_micros(50);
 
 /// A simulated tactile camera.
 pub struct SimCamera {
@@ -136,7 +138,12 @@ impl SimCamera {
                 return Err(CameraError::Timeout { camera: self.name.clone(), timeout_ms: self.timeout.as_millis() as u64 });
             }
             let real = self.clock.real_duration(Duration::from_secs_f64(t_s - now));
-            tokio::time::sleep(real.clamp(Duration::from_micros(50), POLL)).await;
+            if real < MIN_SLEEP {
+                // A virtual clock (no real time behind it) moves when polled: just yield.
+                tokio::task::yield_now().await;
+            } else {
+                tokio::time::sleep(real.min(POLL)).await;
+            }
         }
     }
 
