@@ -329,7 +329,8 @@ impl SensorSim {
             stages::noise(&mut buf, self.scene.noise_sigma_levels, stages::mix64(self.seed) ^ frame_key)
         });
 
-        let bytes: Vec<u8> = buf.iter().map(|v| v.round().clamp(0.0, 255.0) as u8).collect();
+        // `as u8` saturates (and maps NaN to 0), so adding 0.5 rounds and clamps in one step.
+        let bytes: Vec<u8> = buf.iter().map(|v| (v + 0.5) as u8).collect();
         // The buffer has exactly w * h * 3 values by construction.
         RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_else(|| RgbImage::new(self.width, self.height))
     }

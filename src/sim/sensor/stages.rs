@@ -260,11 +260,22 @@ pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f
             let sy = (y as isize + dy).clamp(0, height as isize - 1) as usize;
             let src = &buf[sy * width * 3..(sy + 1) * width * 3];
             let dst = &mut out[y * width * 3..(y + 1) * width * 3];
-            for x in 0..width {
+            // Interior columns read a contiguous shifted slice; only the edges clamp.
+            let lo = (-dx).clamp(0, width as isize) as usize;
+            let hi = (width as isize - dx).clamp(lo as isize, width as isize) as usize;
+            for x in (0..lo).chain(hi..width) {
                 let sx = (x as isize + dx).clamp(0, width as isize - 1) as usize;
-                dst[x * 3] += src[sx * 3] * norm;
-                dst[x * 3 + 1] += src[sx * 3 + 1] * norm;
-                dst[x * 3 + 2] += src[sx * 3 + 2] * norm;
+                for ch in 0..3 {
+                    dst[x * 3 + ch] += src[sx * 3 + ch] * norm;
+                }
+            }
+            if hi > lo {
+                // Here 0 <= lo + dx and hi + dx <= width.
+                let shift = (lo as isize + dx) as usize;
+                let (d, s) = (&mut dst[lo * 3..hi * 3], &src[shift * 3..(shift + hi - lo) * 3]);
+                for (o, i) in d.iter_mut().zip(s) {
+                    *o += i * norm;
+                }
             }
         }
     }
@@ -331,6 +342,12 @@ mod tests {
         assert_eq!(lit, 9, "{row:?}");
         assert!(buf[(9 * w + 10) * 3] == 0.0);
         assert!((row.iter().sum::<f32>() - 90.0).abs() < 1e-3);
+        // Streaks longer than the image only clamp at the edges.
+        for (w, h) in [(1, 1), (3, 2), (5, 40)] {
+            let mut b = vec![10.0f32; w * h * 3];
+            motion_blur(&mut b, w, h, 60.0, 2.0);
+            assert!(b.iter().all(|v| (v - 10.0).abs() < 1e-4));
+        }
     }
 
     #[test]
