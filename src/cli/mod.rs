@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 pub mod sim;
 pub mod dataset;
 pub mod plan;
+pub mod sensor;
 
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
@@ -31,6 +32,8 @@ pub enum Command {
     Plan(plan::Args),
     /// Datasets: verify, export, import, merge.
     Dataset(dataset::Args),
+    /// Simulated tactile sensors: render frames for checking their look.
+    Sensor(sensor::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -47,6 +50,7 @@ pub fn main() -> ExitCode {
         Command::Sim(args) => sim::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),
+        Command::Sensor(args) => sensor::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,6 +6,7 @@
 //! capture time.
 
 pub mod mg400;
+pub mod sensor;
 
 use crate::pose::Pose;
 

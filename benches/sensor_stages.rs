@@ -1,0 +1,68 @@
+//! Milliseconds per frame of the simulated sensors with each stage on and off, at 640x480
+//! and 512x512. `cargo bench --bench sensor_stages` (release); add `--profile dev` for a
+//! quick debug-profile run. Set `SENSOR_BENCH_MS` to change the time spent per cell
+//! (default 300 ms).
+//!
+//! Columns: `alone` = a scene with only that stage; `full` = every stage; `full - stage` =
+//! every stage but that one; `cost` = full minus (full - stage). Stale frames are applied by
+//! the camera, not the renderer, so they cost nothing here.
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, Stage, shapes};
+
+fn ms_per_frame(sim: &SensorSim, depth: &rig::geometry::DepthMap, motion: &MotionState, budget: Duration) -> f64 {
+    // Warm up, then time frames until the budget is spent; report the median.
+    for k in 0..2 {
+        black_box(sim.render(depth, motion, k));
+    }
+    let mut times = Vec::new();
+    let start = Instant::now();
+    let mut key = 2;
+    while (start.elapsed() < budget || times.len() < 5) && times.len() < 200 {
+        let t = Instant::now();
+        black_box(sim.render(depth, motion, key));
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        key += 1;
+    }
+    times.sort_by(|a, b| a.total_cmp(b));
+    times[times.len() / 2]
+}
+
+fn main() {
+    let budget = Duration::from_millis(std::env::var("SENSOR_BENCH_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(300));
+    let motion = MotionState { speed_px_per_s: 400.0, direction_rad: 0.4, exposure_s: 0.016 };
+    let px_per_mm = 8.5;
+    println!("sensor_stages: median ms/frame; object: 33 x 4 mm bar pressed 1 mm; motion 400 px/s x 16 ms");
+    for (w, h) in [(640u32, 480u32), (512, 512)] {
+        let depth = shapes::bar(w, h, px_per_mm, 0.5, 1.0, 10.0, 33.0, 4.0, 1.0);
+        for kind in SensorKind::ALL {
+            let full = Scene::preset("full").expect("preset");
+            let sim = |scene: Scene| SensorSim::new(kind, scene, w, h, px_per_mm, 1);
+            let t_full = ms_per_frame(&sim(full.clone()), &depth, &motion, budget);
+            let t_none = ms_per_frame(&sim(Scene::preset("none").expect("preset")), &depth, &motion, budget);
+            let t_fast = ms_per_frame(&sim(Scene::preset("fast").expect("preset")), &depth, &motion, budget);
+            println!();
+            println!("{} {w}x{h}: none {t_none:.2}  fast {t_fast:.2}  full {t_full:.2}", kind.label());
+            println!("  {:<20} {:>9} {:>9} {:>13} {:>8}", "stage", "alone", "full", "full - stage", "cost");
+            for stage in Stage::ALL {
+                if !kind.supports(stage) {
+                    println!("  {:<20} {:>9}", stage.name(), "n/a");
+                    continue;
+                }
+                let alone = ms_per_frame(&sim(Scene::with_stages("alone", &[stage])), &depth, &motion, budget);
+                let without: Vec<Stage> = full.stages.iter().copied().filter(|s| *s != stage).collect();
+                let t_without = ms_per_frame(&sim(Scene::with_stages("without", &without)), &depth, &motion, budget);
+                println!(
+                    "  {:<20} {:>9.2} {:>9.2} {:>13.2} {:>8.2}",
+                    stage.name(),
+                    alone,
+                    t_full,
+                    t_without,
+                    t_full - t_without
+                );
+            }
+        }
+    }
+}

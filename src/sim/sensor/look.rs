@@ -1,0 +1,254 @@
+//! The static look of each sensor kind, measured on the real images of
+//! `real-sample/multidiffsense-example` (512x512) and scaled to other sizes by
+//! `min(width, height) / 512`.
+//!
+//! Measured facts (see `docs/sensor.md`): the markers sit in concentric rings of
+//! 1, 8, 16, 16, 32, 32, 32 (137 in all) with a 25.2 px pitch, ring 1 turned by 30 deg and the
+//! others by 7.5 deg; pins are about 10 px across. The field of view is a circle of radius
+//! about 250 px, dark (near black, slightly blue) outside. TacTip: light grey pins on a black
+//! skin. ViTac and ViTacTip: a warm beige-to-brown skin, darker and greyer towards the rim;
+//! ViTacTip adds dark markers on the same lattice.
+//!
+//! [`StaticLook`] precomputes everything that does not change between frames: the skin
+//! background (illumination, concentric texture, specks), the vignetting gain and the rest
+//! positions of the markers.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::SensorKind;
+
+/// Reference image size the constants below were measured at, px.
+pub const REFERENCE_SIZE_PX: f32 = 512.0;
+/// Markers per ring, from the centre out (137 in all).
+pub const RING_COUNTS: [usize; 7] = [1, 8, 16, 16, 32, 32, 32];
+/// Radial pitch of the marker rings at 512x512, px.
+pub const RING_PITCH_PX: f32 = 25.2;
+/// Radius of the circular field of view at 512x512, px.
+pub const FOV_RADIUS_PX: f32 = 250.0;
+/// Strength of the vignetting: gain = 1 - a * (r / fov radius)^2.
+pub const VIGNETTE_STRENGTH: f32 = 0.3;
+
+/// Marker appearance.
+#[derive(Debug, Clone, Copy)]
+pub struct MarkerLook {
+    /// Colour at the marker centre, 8-bit linear-ish RGB.
+    pub rgb: [f32; 3],
+    /// Opacity at the centre.
+    pub opacity: f32,
+    /// Radius at 512x512, px.
+    pub radius_px: f32,
+    /// Relative brightness change of the ring just outside the marker (negative: darker).
+    pub halo: f32,
+}
+
+/// Appearance constants of one sensor kind.
+#[derive(Debug, Clone)]
+pub struct Look {
+    /// Skin colour as seen through the vignetting, at fractions of the field-of-view radius.
+    pub profile: Vec<(f32, [f32; 3])>,
+    /// Amplitude of the concentric ring texture (relative).
+    pub ring_texture: f32,
+    /// Markers, if the sensor has them.
+    pub markers: Option<MarkerLook>,
+    /// Colour of the object seen through the skin when pressed, if the skin is transparent.
+    pub object_rgb: Option<[f32; 3]>,
+    /// Colour of the glow the pressed object scatters into the skin.
+    pub glow_rgb: [f32; 3],
+}
+
+impl Look {
+    /// The measured look of `kind`.
+    pub fn of(kind: SensorKind) -> Self {
+        let outside = [[14.0, 19.0, 26.0], [10.0, 14.0, 20.0]];
+        match kind {
+            SensorKind::TacTip => Look {
+                profile: vec![
+                    (0.0, [9.0, 8.0, 9.0]),
+                    (0.6, [9.0, 8.0, 9.0]),
+                    (0.97, [8.0, 8.0, 8.0]),
+                    (1.0, [10.0, 10.0, 11.0]),
+                    (1.03, [8.0, 8.0, 9.0]),
+                    (1.08, [8.0, 8.0, 9.0]),
+                ],
+                ring_texture: 0.25,
+                markers: Some(MarkerLook { rgb: [188.0, 198.0, 202.0], opacity: 1.0, radius_px: 5.0, halo: -0.5 }),
+                object_rgb: None,
+                glow_rgb: [0.0; 3],
+            },
+            SensorKind::ViTac => Look {
+                profile: vec![
+                    (0.0, [168.0, 166.0, 158.0]),
+                    (0.3, [156.0, 150.0, 138.0]),
+                    (0.5, [150.0, 126.0, 98.0]),
+                    (0.65, [120.0, 100.0, 77.0]),
+                    (0.78, [104.0, 94.0, 76.0]),
+                    (0.88, [90.0, 86.0, 74.0]),
+                    (0.96, [74.0, 73.0, 62.0]),
+                    (0.995, [60.0, 60.0, 54.0]),
+                    (1.01, outside[0]),
+                    (1.08, outside[1]),
+                ],
+                ring_texture: 0.025,
+                markers: None,
+                object_rgb: Some([252.0, 254.0, 254.0]),
+                glow_rgb: [240.0, 240.0, 234.0],
+            },
+            SensorKind::ViTacTip => Look {
+                profile: vec![
+                    (0.0, [156.0, 155.0, 148.0]),
+                    (0.3, [146.0, 142.0, 132.0]),
+                    (0.5, [132.0, 116.0, 94.0]),
+                    (0.65, [104.0, 92.0, 74.0]),
+                    (0.78, [94.0, 85.0, 70.0]),
+                    (0.88, [78.0, 76.0, 65.0]),
+                    (0.96, [64.0, 64.0, 57.0]),
+                    (0.995, [52.0, 52.0, 48.0]),
+                    (1.01, outside[0]),
+                    (1.08, outside[1]),
+                ],
+                ring_texture: 0.025,
+                markers: Some(MarkerLook { rgb: [38.0, 35.0, 37.0], opacity: 0.92, radius_px: 4.7, halo: 0.08 }),
+                object_rgb: Some([235.0, 242.0, 240.0]),
+                glow_rgb: [225.0, 228.0, 222.0],
+            },
+        }
+    }
+
+    /// Skin colour at `rho` (fraction of the field-of-view radius), linear between the stops.
+    pub fn profile_at(&self, rho: f32) -> [f32; 3] {
+        let p = &self.profile;
+        let Some(first) = p.first() else { return [0.0; 3] };
+        if rho <= first.0 {
+            return first.1;
+        }
+        for w in p.windows(2) {
+            let ((r0, c0), (r1, c1)) = (w[0], w[1]);
+            if rho <= r1 {
+                let t = if r1 > r0 { (rho - r0) / (r1 - r0) } else { 1.0 };
+                return [c0[0] + t * (c1[0] - c0[0]), c0[1] + t * (c1[1] - c0[1]), c0[2] + t * (c1[2] - c0[2])];
+            }
+        }
+        p.last().map(|l| l.1).unwrap_or([0.0; 3])
+    }
+}
+
+/// Vignetting gain at `rho` (fraction of the field-of-view radius).
+pub fn vignette_gain(rho: f32) -> f32 {
+    1.0 - VIGNETTE_STRENGTH * rho.min(1.1).powi(2)
+}
+
+/// Rest positions of the markers for an image of `width` x `height`, px (image x right, y down).
+pub fn marker_lattice(width: u32, height: u32) -> Vec<[f32; 2]> {
+    let s = scale(width, height);
+    // The lattice centre sits slightly up-left of the image centre in the real images.
+    let cx = width as f32 / 2.0 - 1.2 * s;
+    let cy = height as f32 / 2.0 - 2.6 * s;
+    let mut out = Vec::with_capacity(RING_COUNTS.iter().sum());
+    for (ring, &count) in RING_COUNTS.iter().enumerate() {
+        let r = ring as f32 * RING_PITCH_PX * s;
+        let offset_deg = if ring == 1 { 30.0 } else { 7.5 };
+        for k in 0..count {
+            let a = (offset_deg + 360.0 * k as f32 / count as f32).to_radians();
+            out.push([cx + r * a.cos(), cy + r * a.sin()]);
+        }
+    }
+    out
+}
+
+/// Pixel scale relative to the 512x512 reference.
+pub fn scale(width: u32, height: u32) -> f32 {
+    width.min(height).max(1) as f32 / REFERENCE_SIZE_PX
+}
+
+/// The precomputed, frame-independent part of a sensor image.
+#[derive(Debug, Clone)]
+pub struct StaticLook {
+    /// Skin background before vignetting, RGB interleaved, 8-bit scale as f32.
+    pub background: Vec<f32>,
+    /// Vignetting gain per pixel.
+    pub vignette: Vec<f32>,
+    /// 1 inside the field of view, 0 outside, soft at the rim.
+    pub fov: Vec<f32>,
+    /// Marker rest positions, px.
+    pub markers: Vec<[f32; 2]>,
+}
+
+impl StaticLook {
+    /// Builds the static look of `look` at `width` x `height`; `seed` places the specks.
+    pub fn build(look: &Look, width: u32, height: u32, seed: u64) -> Self {
+        let (w, h) = (width as usize, height as usize);
+        let s = scale(width, height);
+        let (cx, cy) = (width as f32 / 2.0, height as f32 / 2.0);
+        let fov_r = FOV_RADIUS_PX * s;
+        let ring_period = 7.0 * s;
+        let mut background = vec![0.0f32; w * h * 3];
+        let mut vignette = vec![1.0f32; w * h];
+        let mut fov = vec![0.0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (dx, dy) = (x as f32 + 0.5 - cx, y as f32 + 0.5 - cy);
+                let r = (dx * dx + dy * dy).sqrt();
+                let rho = r / fov_r;
+                let g = vignette_gain(rho);
+                let base = look.profile_at(rho);
+                // Concentric texture of the moulded skin and the tube, strongest at the rim.
+                let tex = 1.0 + look.ring_texture * (0.3 + 0.7 * rho.min(1.0)) * (r / ring_period * std::f32::consts::TAU).sin();
+                let i = y * w + x;
+                for c in 0..3 {
+                    background[i * 3 + c] = base[c] * tex / g;
+                }
+                vignette[i] = g;
+                fov[i] = ((fov_r - r) / (1.5 * s)).clamp(0.0, 1.0);
+            }
+        }
+        // Dust and scratches: short bright streaks, mostly towards the rim, as in the real images.
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_5bec);
+        for k in 0..40 {
+            // Two thirds on the tube rim, the rest scattered over the skin.
+            let rho: f32 = if k % 3 == 0 { 0.2 + 0.75 * rng.random::<f32>() } else { 0.97 + 0.12 * rng.random::<f32>() };
+            let a: f32 = rng.random::<f32>() * std::f32::consts::TAU;
+            let len = (2.0 + 8.0 * rng.random::<f32>()) * s;
+            let dir: f32 = rng.random::<f32>() * std::f32::consts::TAU;
+            let gain = if rho < 0.97 { 15.0 + 35.0 * rng.random::<f32>() } else { 40.0 + 120.0 * rng.random::<f32>() };
+            let (x0, y0) = (cx + rho * fov_r * a.cos(), cy + rho * fov_r * a.sin());
+            let steps = len.ceil() as usize + 1;
+            for k in 0..steps {
+                let t = k as f32 / steps as f32 * len;
+                let (px, py) = (x0 + t * dir.cos(), y0 + t * dir.sin());
+                if px < 0.0 || py < 0.0 || px >= width as f32 || py >= height as f32 {
+                    continue;
+                }
+                let i = py as usize * w + px as usize;
+                let g = vignette[i].max(0.1);
+                for c in 0..3 {
+                    background[i * 3 + c] = (background[i * 3 + c] + gain / g).min(255.0 / g);
+                }
+            }
+        }
+        Self { background, vignette, fov, markers: marker_lattice(width, height) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lattice_has_the_measured_rings() {
+        let m = marker_lattice(512, 512);
+        assert_eq!(m.len(), 137);
+        let outer = m.iter().map(|p| ((p[0] - 254.8).powi(2) + (p[1] - 253.4).powi(2)).sqrt()).fold(0.0, f32::max);
+        assert!((outer - 151.2).abs() < 1.0, "outer ring at {outer}");
+        assert_eq!(marker_lattice(640, 480).len(), 137);
+    }
+
+    #[test]
+    fn profile_interpolates_and_clamps() {
+        let l = Look::of(SensorKind::ViTac);
+        assert_eq!(l.profile_at(-1.0), l.profile[0].1);
+        assert_eq!(l.profile_at(9.0), l.profile.last().unwrap().1);
+        let mid = l.profile_at(0.2);
+        assert!(mid[0] < 168.0 && mid[0] > 152.0);
+    }
+}

@@ -1,0 +1,384 @@
+//! Simulated vision-based tactile sensors: TacTip, ViTac and ViTacTip.
+//!
+//! Data flow per frame: a [`DepthMap`] (object height over the undeformed skin, mm) and a
+//! [`MotionState`] go into [`SensorSim::render`], which starts from the precomputed static
+//! look ([`look::StaticLook`]: skin, illumination, field of view, marker lattice) and runs the
+//! effect stages the [`Scene`] lists, in a fixed order:
+//!
+//! ```text
+//! indentation field ─► contact_deformation ─► marker_displacement ─► see_through ─► markers
+//!   ─► shading ─► motion_blur ─► vignetting ─► noise ─► 8-bit image
+//! ```
+//!
+//! A stage runs only when the scene lists it and it applies to the kind (TacTip has an opaque
+//! skin, so no see-through; ViTac has no markers, so no marker displacement). Every run of a
+//! stage is counted ([`SensorSim::stage_counts`]), so tests can show that a scene without a
+//! stage never runs it. [`SimCamera`] puts a simulator behind the [`crate::camera::Camera`]
+//! seam, reading the simulated arm's truth; it applies the `stale_frame` stage.
+//!
+//! Everything is deterministic for a seed: the static look is seeded by `seed`, the noise by
+//! `seed` and the `frame_key` of each render.
+
+mod camera;
+pub mod look;
+mod scene;
+pub mod shapes;
+pub mod stages;
+
+use std::borrow::Cow;
+use std::fmt;
+use std::str::FromStr;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use image::RgbImage;
+
+pub use camera::{DepthSource, SimCamera};
+pub use scene::{Scene, SceneError, SceneLoadError, Stage};
+
+use crate::geometry::DepthMap;
+use look::{Look, StaticLook};
+use stages::CellField;
+
+/// The three sensor kinds of the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum SensorKind {
+    /// White pins on an opaque black skin.
+    TacTip,
+    /// Transparent skin: the pressed object is seen directly.
+    ViTac,
+    /// Transparent skin with dark markers.
+    ViTacTip,
+}
+
+impl SensorKind {
+    /// All kinds, in the order the rig collects them.
+    pub const ALL: [SensorKind; 3] = [SensorKind::TacTip, SensorKind::ViTac, SensorKind::ViTacTip];
+
+    /// The name as the papers and the real dataset spell it (`TacTip`, `ViTac`, `ViTacTip`).
+    pub fn label(&self) -> &'static str {
+        match self {
+            SensorKind::TacTip => "TacTip",
+            SensorKind::ViTac => "ViTac",
+            SensorKind::ViTacTip => "ViTacTip",
+        }
+    }
+
+    /// True when `stage` has any effect on this kind.
+    pub fn supports(&self, stage: Stage) -> bool {
+        match stage {
+            Stage::SeeThrough => *self != SensorKind::TacTip,
+            Stage::MarkerDisplacement => *self != SensorKind::ViTac,
+            _ => true,
+        }
+    }
+}
+
+impl fmt::Display for SensorKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.label().to_ascii_lowercase())
+    }
+}
+
+/// Error parsing a sensor kind.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("unknown sensor {text:?} (expected tactip, vitac or vitactip)")]
+pub struct SensorKindParseError {
+    pub text: String,
+}
+
+impl FromStr for SensorKind {
+    type Err = SensorKindParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "tactip" => Ok(SensorKind::TacTip),
+            "vitac" => Ok(SensorKind::ViTac),
+            "vitactip" => Ok(SensorKind::ViTacTip),
+            _ => Err(SensorKindParseError { text: s.to_string() }),
+        }
+    }
+}
+
+/// Motion of the contact in the image during the exposure (for motion blur).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MotionState {
+    /// Image-space speed of the contact, px/s.
+    pub speed_px_per_s: f32,
+    /// Direction of the motion in the image, rad (0 = +x, pi/2 = +y, image y down).
+    pub direction_rad: f32,
+    /// Exposure time, s.
+    pub exposure_s: f32,
+}
+
+impl MotionState {
+    /// No motion.
+    pub const STILL: MotionState = MotionState { speed_px_per_s: 0.0, direction_rad: 0.0, exposure_s: 0.0 };
+
+    /// Length of the blur streak, px (0 for non-finite or negative inputs).
+    pub fn streak_px(&self) -> f32 {
+        let l = self.speed_px_per_s * self.exposure_s;
+        if l.is_finite() && l > 0.0 { l } else { 0.0 }
+    }
+}
+
+/// How many times each stage has run, a snapshot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StageCounts {
+    counts: [u64; Stage::COUNT],
+}
+
+impl StageCounts {
+    /// Runs of `stage`.
+    pub fn get(&self, stage: Stage) -> u64 {
+        self.counts[stage.index()]
+    }
+    /// Runs of all stages together.
+    pub fn total(&self) -> u64 {
+        self.counts.iter().sum()
+    }
+}
+
+impl fmt::Display for StageCounts {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let parts: Vec<String> = Stage::ALL.iter().map(|s| format!("{s}={}", self.get(*s))).collect();
+        f.write_str(&parts.join(" "))
+    }
+}
+
+/// Physical constants of the simulated skin.
+mod skin {
+    /// Lateral reach of the elastic deformation around the contact, mm.
+    pub const SPREAD_MM: f32 = 2.0;
+    /// Marker travel per unit slope of the skin, mm.
+    pub const LATERAL_MM: f32 = 1.2;
+    /// Below this gap the object starts to show through a transparent skin, mm.
+    pub const SEE_THROUGH_GAP_MM: f32 = 0.6;
+    /// Indentation at which the scattered glow saturates, mm.
+    pub const GLOW_FULL_MM: f32 = 0.2;
+    /// Reach of the tight glow hugging the contact at 512x512, px.
+    pub const GLOW_NEAR_PX: f32 = 14.0;
+    /// Reach of the broad haze around the contact at 512x512, px.
+    pub const GLOW_FAR_PX: f32 = 70.0;
+    /// Shading gain per unit slope.
+    pub const SHADING_GAIN: f32 = 0.3;
+    /// Direction the light comes from in the image (unit vector; up-left).
+    pub const LIGHT: [f32; 2] = [-0.6, -0.8];
+}
+
+/// Cell size of the coarse fields at 512x512, px.
+const CELL_PX: f32 = 4.0;
+
+/// A simulated tactile sensor of one kind, one image size and one scene.
+#[derive(Debug)]
+pub struct SensorSim {
+    kind: SensorKind,
+    scene: Scene,
+    width: u32,
+    height: u32,
+    px_per_mm: f32,
+    seed: u64,
+    look: Look,
+    fixed: StaticLook,
+    active: [bool; Stage::COUNT],
+    counts: [AtomicU64; Stage::COUNT],
+}
+
+impl SensorSim {
+    /// A simulator for `kind` rendering `width` x `height` images with the stages of `scene`.
+    /// `px_per_mm` scales physical lengths (marker travel, deformation reach) to pixels; a
+    /// non-finite or non-positive value falls back to 8.5 px/mm (the rig's usual scale).
+    /// The static look is precomputed here.
+    pub fn new(kind: SensorKind, scene: Scene, width: u32, height: u32, px_per_mm: f32, seed: u64) -> Self {
+        let px_per_mm = if px_per_mm.is_finite() && px_per_mm > 0.0 {
+            px_per_mm
+        } else {
+            tracing::warn!(px_per_mm, "invalid px/mm for the simulated sensor, using 8.5");
+            8.5
+        };
+        let (width, height) = (width.max(1), height.max(1));
+        let look = Look::of(kind);
+        let fixed = StaticLook::build(&look, width, height, seed);
+        let mut active = [false; Stage::COUNT];
+        for s in &scene.stages {
+            active[s.index()] = kind.supports(*s);
+        }
+        Self {
+            kind,
+            scene,
+            width,
+            height,
+            px_per_mm,
+            seed,
+            look,
+            fixed,
+            active,
+            counts: std::array::from_fn(|_| AtomicU64::new(0)),
+        }
+    }
+
+    pub fn kind(&self) -> SensorKind {
+        self.kind
+    }
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+    pub fn px_per_mm(&self) -> f32 {
+        self.px_per_mm
+    }
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// True when `stage` runs for this sensor (listed by the scene and applicable to the kind).
+    pub fn runs(&self, stage: Stage) -> bool {
+        self.active[stage.index()]
+    }
+
+    /// How many times each stage has run since this simulator was made.
+    pub fn stage_counts(&self) -> StageCounts {
+        StageCounts { counts: std::array::from_fn(|i| self.counts[i].load(Ordering::Relaxed)) }
+    }
+
+    /// Records a run of `stage` done outside `render` (the camera's stale frames).
+    pub(crate) fn count(&self, stage: Stage) {
+        self.counts[stage.index()].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Runs `stage` if active, counting it.
+    fn stage(&self, stage: Stage, f: impl FnOnce()) {
+        if self.runs(stage) {
+            self.count(stage);
+            f();
+        }
+    }
+
+    /// The no-contact frame (all stages of the scene, still, no object, frame key 0).
+    pub fn reference(&self) -> RgbImage {
+        self.render(&DepthMap::empty(self.width, self.height), &MotionState::STILL, 0)
+    }
+
+    /// Renders one frame. `depth` is resampled (nearest) when its size differs from the
+    /// sensor's; a map whose buffer does not match its size counts as empty. The same depth
+    /// map, motion, `frame_key` and seed always give the same image.
+    pub fn render(&self, depth: &DepthMap, motion: &MotionState, frame_key: u64) -> RgbImage {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let s = look::scale(self.width, self.height);
+        let depth = self.fit_depth(depth);
+        let cell = (CELL_PX * s).round().max(1.0) as usize;
+        let raw = CellField::from_depth(&depth, cell, |d| d.max(0.0));
+        let touching = raw.max() > 0.0;
+
+        let mut indent = raw.clone();
+        self.stage(Stage::ContactDeformation, || {
+            stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm)
+        });
+
+        let mut markers = self.fixed.markers.clone();
+        if self.look.markers.is_some() {
+            self.stage(Stage::MarkerDisplacement, || {
+                stages::marker_displacement(&mut markers, &indent, self.px_per_mm, skin::LATERAL_MM)
+            });
+        }
+
+        let mut buf = self.fixed.background.clone();
+        if let Some(object_rgb) = self.look.object_rgb {
+            self.stage(Stage::SeeThrough, || {
+                let mut near = raw.clone();
+                for v in &mut near.v {
+                    *v = (*v / skin::GLOW_FULL_MM).min(1.0);
+                }
+                let mut glow = near.clone();
+                if touching {
+                    let cells = |px: f32| ((px * s) / cell as f32).round().max(1.0) as usize;
+                    near.blur(cells(skin::GLOW_NEAR_PX), 2);
+                    glow.blur(cells(skin::GLOW_FAR_PX), 3);
+                    for (g, n) in glow.v.iter_mut().zip(&near.v) {
+                        *g = (1.0 - (-(1.2 * n + 5.0 * *g)).exp()).min(1.0);
+                    }
+                }
+                stages::see_through(
+                    &mut buf,
+                    &depth,
+                    &self.fixed.fov,
+                    object_rgb,
+                    self.look.glow_rgb,
+                    &glow,
+                    skin::SEE_THROUGH_GAP_MM,
+                );
+            });
+        }
+
+        if let Some(m) = self.look.markers {
+            stages::draw_markers(&mut buf, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
+        }
+
+        self.stage(Stage::Shading, || {
+            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, skin::SHADING_GAIN)
+        });
+        self.stage(Stage::MotionBlur, || {
+            let len = motion.streak_px().min(self.scene.max_blur_px);
+            stages::motion_blur(&mut buf, w, h, len, motion.direction_rad)
+        });
+        self.stage(Stage::Vignetting, || stages::vignetting(&mut buf, &self.fixed.vignette));
+        self.stage(Stage::Noise, || {
+            stages::noise(&mut buf, self.scene.noise_sigma_levels, stages::mix64(self.seed) ^ frame_key)
+        });
+
+        // `as u8` saturates (and maps NaN to 0), so adding 0.5 rounds and clamps in one step.
+        let bytes: Vec<u8> = buf.iter().map(|v| (v + 0.5) as u8).collect();
+        // The buffer has exactly w * h * 3 values by construction.
+        RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_else(|| RgbImage::new(self.width, self.height))
+    }
+
+    /// The depth map at the sensor's size (nearest-neighbour resampling when it differs).
+    fn fit_depth<'a>(&self, depth: &'a DepthMap) -> Cow<'a, DepthMap> {
+        let valid = depth.height_mm.len() == depth.width as usize * depth.height as usize;
+        if valid && depth.width == self.width && depth.height == self.height {
+            return Cow::Borrowed(depth);
+        }
+        let mut out = DepthMap::empty(self.width, self.height);
+        if !valid || depth.width == 0 || depth.height == 0 {
+            return Cow::Owned(out);
+        }
+        for y in 0..self.height {
+            let sy = (y as u64 * depth.height as u64 / self.height as u64) as u32;
+            for x in 0..self.width {
+                let sx = (x as u64 * depth.width as u64 / self.width as u64) as u32;
+                if let Some(v) = depth.get(sx, sy) {
+                    out.height_mm[(y * self.width + x) as usize] = v;
+                }
+            }
+        }
+        Cow::Owned(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kind_names() {
+        for k in SensorKind::ALL {
+            assert_eq!(k.to_string().parse::<SensorKind>().unwrap(), k);
+            assert_eq!(k.label().parse::<SensorKind>().unwrap(), k);
+        }
+        assert_eq!("VITACTIP".parse::<SensorKind>().unwrap(), SensorKind::ViTacTip);
+        assert_eq!(SensorKind::ViTac.to_string(), "vitac");
+        assert!("gelsight".parse::<SensorKind>().is_err());
+    }
+
+    #[test]
+    fn mismatched_depth_is_resampled_and_broken_depth_is_empty() {
+        let sim = SensorSim::new(SensorKind::ViTac, Scene::preset("minimal").unwrap(), 64, 64, 4.0, 1);
+        let broken = DepthMap { width: 64, height: 64, height_mm: vec![1.0; 10] };
+        assert_eq!(sim.render(&broken, &MotionState::STILL, 0), sim.reference());
+        let small = DepthMap { width: 8, height: 8, height_mm: vec![1.0; 64] };
+        assert_ne!(sim.render(&small, &MotionState::STILL, 0), sim.reference());
+    }
+}

@@ -1,0 +1,366 @@
+//! The effect stages, each a separate function over the frame buffer.
+//!
+//! The frame buffer is RGB interleaved `f32` on the 8-bit scale (0..255, unclamped until the
+//! end). Slowly varying quantities (skin indentation, glow) live on a coarse [`CellField`]
+//! (one value per `cell` x `cell` pixels) and are sampled bilinearly, which keeps the wide
+//! blurs cheap.
+
+use crate::geometry::DepthMap;
+
+/// A coarse scalar field over the image, one value per square cell of `cell_px` pixels.
+#[derive(Debug, Clone)]
+pub struct CellField {
+    pub w: usize,
+    pub h: usize,
+    pub cell_px: usize,
+    pub v: Vec<f32>,
+}
+
+impl CellField {
+    /// Mean of `f(depth)` over each cell of an image of `depth.width` x `depth.height`.
+    pub fn from_depth(depth: &DepthMap, cell_px: usize, f: impl Fn(f32) -> f32) -> Self {
+        let (iw, ih) = (depth.width as usize, depth.height as usize);
+        let cell_px = cell_px.max(1);
+        let (w, h) = (iw.div_ceil(cell_px).max(1), ih.div_ceil(cell_px).max(1));
+        let mut sum = vec![0.0f32; w * h];
+        let mut n = vec![0u32; w * h];
+        for y in 0..ih {
+            let row = &depth.height_mm[y * iw..(y + 1) * iw];
+            let cy = y / cell_px;
+            for (x, &d) in row.iter().enumerate() {
+                let k = cy * w + x / cell_px;
+                sum[k] += f(d);
+                n[k] += 1;
+            }
+        }
+        let v = sum.iter().zip(&n).map(|(s, &c)| if c > 0 { s / c as f32 } else { 0.0 }).collect();
+        Self { w, h, cell_px, v }
+    }
+
+    /// Largest value.
+    pub fn max(&self) -> f32 {
+        self.v.iter().copied().fold(0.0, f32::max)
+    }
+
+    /// Bilinear sample at pixel coordinates (cell centres at `(i + 0.5) * cell_px`).
+    pub fn sample(&self, x_px: f32, y_px: f32) -> f32 {
+        let c = self.cell_px as f32;
+        let fx = (x_px / c - 0.5).clamp(0.0, (self.w - 1) as f32);
+        let fy = (y_px / c - 0.5).clamp(0.0, (self.h - 1) as f32);
+        let (x0, y0) = (fx as usize, fy as usize);
+        let (x1, y1) = ((x0 + 1).min(self.w - 1), (y0 + 1).min(self.h - 1));
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let a = self.v[y0 * self.w + x0] * (1.0 - tx) + self.v[y0 * self.w + x1] * tx;
+        let b = self.v[y1 * self.w + x0] * (1.0 - tx) + self.v[y1 * self.w + x1] * tx;
+        a * (1.0 - ty) + b * ty
+    }
+
+    /// Gradient in field units per pixel, by central differences one cell apart.
+    pub fn gradient_per_px(&self, x_px: f32, y_px: f32) -> [f32; 2] {
+        let c = self.cell_px as f32;
+        [
+            (self.sample(x_px + c, y_px) - self.sample(x_px - c, y_px)) / (2.0 * c),
+            (self.sample(x_px, y_px + c) - self.sample(x_px, y_px - c)) / (2.0 * c),
+        ]
+    }
+
+    /// Approximately Gaussian blur: `passes` separable box blurs of radius `radius_cells`.
+    pub fn blur(&mut self, radius_cells: usize, passes: usize) {
+        if radius_cells == 0 {
+            return;
+        }
+        let mut tmp = vec![0.0f32; self.v.len()];
+        for _ in 0..passes {
+            box_blur_1d(&self.v, &mut tmp, self.w, self.h, radius_cells, true);
+            box_blur_1d(&tmp, &mut self.v, self.w, self.h, radius_cells, false);
+        }
+    }
+
+    /// Calls `f(x, y, value)` for every pixel of a `width` x `height` image with the field
+    /// sampled bilinearly, skipping rows of cells where the field is exactly `skip_value`.
+    pub fn for_each_pixel(&self, width: usize, height: usize, skip_value: f32, mut f: impl FnMut(usize, f32)) {
+        let c = self.cell_px as f32;
+        let cols: Vec<(usize, usize, f32)> = (0..width)
+            .map(|x| {
+                let fx = ((x as f32 + 0.5) / c - 0.5).clamp(0.0, (self.w - 1) as f32);
+                let x0 = fx as usize;
+                (x0, (x0 + 1).min(self.w - 1), fx - x0 as f32)
+            })
+            .collect();
+        for y in 0..height {
+            let fy = ((y as f32 + 0.5) / c - 0.5).clamp(0.0, (self.h - 1) as f32);
+            let y0 = fy as usize;
+            let y1 = (y0 + 1).min(self.h - 1);
+            let ty = fy - y0 as f32;
+            let (r0, r1) = (&self.v[y0 * self.w..(y0 + 1) * self.w], &self.v[y1 * self.w..(y1 + 1) * self.w]);
+            if r0.iter().chain(r1).all(|&v| v == skip_value) {
+                continue;
+            }
+            for (x, &(x0, x1, tx)) in cols.iter().enumerate() {
+                let a = r0[x0] + (r0[x1] - r0[x0]) * tx;
+                let b = r1[x0] + (r1[x1] - r1[x0]) * tx;
+                f(y * width + x, a + (b - a) * ty);
+            }
+        }
+    }
+}
+
+fn box_blur_1d(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize, horizontal: bool) {
+    let (n, lines) = if horizontal { (w, h) } else { (h, w) };
+    let at = |line: usize, i: usize| if horizontal { line * w + i } else { i * w + line };
+    let norm = 1.0 / (2 * r + 1) as f32;
+    for line in 0..lines {
+        // Running sum with clamped edges.
+        let mut acc = 0.0f32;
+        for k in 0..=2 * r {
+            let i = (k as isize - r as isize).clamp(0, n as isize - 1) as usize;
+            acc += src[at(line, i)];
+        }
+        for i in 0..n {
+            dst[at(line, i)] = acc * norm;
+            let out = (i as isize - r as isize).clamp(0, n as isize - 1) as usize;
+            let inn = (i + r + 1).min(n - 1);
+            acc += src[at(line, inn)] - src[at(line, out)];
+        }
+    }
+}
+
+fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Contact deformation: the skin is dragged in around the footprint of the object. The
+/// indentation field becomes the larger of itself and its blur over `spread_px`.
+pub fn contact_deformation(indent: &mut CellField, spread_px: f32) {
+    let raw = indent.v.clone();
+    // Three box passes of radius r approximate a Gaussian of sigma ~ r.
+    let r = (spread_px / indent.cell_px as f32).round().max(1.0) as usize;
+    indent.blur(r, 3);
+    // The blur spreads the dent and lowers its peak; the skin still conforms to the object where
+    // it touches, and the spread keeps a share of the total dent volume around it.
+    for (v, &o) in indent.v.iter_mut().zip(&raw) {
+        *v = o.max(*v * 1.6);
+    }
+}
+
+/// Marker displacement: each marker moves down the indentation gradient (away from the
+/// indenter) by `lateral_mm` per unit slope.
+pub fn marker_displacement(markers: &mut [[f32; 2]], indent: &CellField, px_per_mm: f32, lateral_mm: f32) {
+    for m in markers.iter_mut() {
+        let g = indent.gradient_per_px(m[0], m[1]);
+        // g is mm of indentation per px; slope in mm/mm is g * px_per_mm.
+        let k = lateral_mm * px_per_mm * px_per_mm;
+        m[0] -= k * g[0];
+        m[1] -= k * g[1];
+    }
+}
+
+/// Draws disc markers with soft edges and a halo ring.
+pub fn draw_markers(
+    buf: &mut [f32],
+    width: usize,
+    height: usize,
+    markers: &[[f32; 2]],
+    rgb: [f32; 3],
+    opacity: f32,
+    radius_px: f32,
+    halo: f32,
+) {
+    let halo_w = (radius_px * 0.35).max(1.0);
+    let reach = radius_px + halo_w + 1.0;
+    for m in markers {
+        let (x0, x1) = ((m[0] - reach).floor().max(0.0) as usize, ((m[0] + reach).ceil().max(0.0) as usize).min(width));
+        let (y0, y1) = ((m[1] - reach).floor().max(0.0) as usize, ((m[1] + reach).ceil().max(0.0) as usize).min(height));
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let (dx, dy) = (x as f32 + 0.5 - m[0], y as f32 + 0.5 - m[1]);
+                let d = (dx * dx + dy * dy).sqrt();
+                let i = (y * width + x) * 3;
+                let cover = smoothstep(radius_px + 0.8, radius_px - 0.8, d) * opacity;
+                let ring = smoothstep(radius_px + halo_w + 0.5, radius_px + 0.5, d) - cover;
+                let fall = 1.0 - 0.12 * (d / radius_px).min(1.0).powi(2);
+                for c in 0..3 {
+                    let p = buf[i + c] * (1.0 + halo * ring.max(0.0));
+                    buf[i + c] = p + (rgb[c] * fall - p) * cover;
+                }
+            }
+        }
+    }
+}
+
+/// See-through: the object under a transparent skin, bright where it presses, faint where a
+/// small gap is left, with the glow it scatters into the skin (`glow` is 0..1 on cells).
+#[allow(clippy::too_many_arguments)]
+pub fn see_through(
+    buf: &mut [f32],
+    depth: &DepthMap,
+    fov: &[f32],
+    object_rgb: [f32; 3],
+    glow_rgb: [f32; 3],
+    glow: &CellField,
+    gap_mm: f32,
+) {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let glow_strength = 0.75;
+    glow.for_each_pixel(w, h, 0.0, |i, g| {
+        let a = (g * glow_strength * fov[i]).min(1.0);
+        for c in 0..3 {
+            let p = &mut buf[i * 3 + c];
+            *p += (glow_rgb[c] - *p) * a;
+        }
+    });
+    for (i, &d) in depth.height_mm.iter().enumerate() {
+        if d <= -gap_mm {
+            continue;
+        }
+        let vis = smoothstep(-gap_mm, 0.0, d);
+        let a = vis * vis * 0.97 * fov[i];
+        for c in 0..3 {
+            let p = &mut buf[i * 3 + c];
+            *p += (object_rgb[c] * (0.8 + 0.2 * vis) - *p) * a;
+        }
+    }
+}
+
+/// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,
+/// `px_per_mm` converts its gradient to a slope.
+pub fn shading(buf: &mut [f32], width: usize, height: usize, indent: &CellField, px_per_mm: f32, light: [f32; 2], gain: f32) {
+    // Precompute the shading factor per cell, then sample it per pixel.
+    let c = indent.cell_px as f32;
+    let mut factor = indent.clone();
+    for cy in 0..indent.h {
+        for cx in 0..indent.w {
+            let g = indent.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
+            let slope = [g[0] * px_per_mm, g[1] * px_per_mm];
+            factor.v[cy * indent.w + cx] = (gain * (slope[0] * light[0] + slope[1] * light[1])).clamp(-0.3, 0.3);
+        }
+    }
+    factor.for_each_pixel(width, height, 0.0, |i, f| {
+        let k = 1.0 + f;
+        for ch in 0..3 {
+            buf[i * 3 + ch] *= k;
+        }
+    });
+}
+
+/// Motion blur: the mean of the image shifted along `direction_rad` over `length_px`.
+pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f32, direction_rad: f32) {
+    if !(length_px >= 0.5) || width == 0 || height == 0 {
+        return;
+    }
+    let taps = (length_px.ceil() as usize + 1).clamp(2, 64);
+    let (s, c) = direction_rad.sin_cos();
+    let mut out = vec![0.0f32; buf.len()];
+    let norm = 1.0 / taps as f32;
+    for k in 0..taps {
+        let t = (k as f32 / (taps - 1) as f32 - 0.5) * length_px;
+        let (dx, dy) = ((t * c).round() as isize, (t * s).round() as isize);
+        for y in 0..height {
+            let sy = (y as isize + dy).clamp(0, height as isize - 1) as usize;
+            let src = &buf[sy * width * 3..(sy + 1) * width * 3];
+            let dst = &mut out[y * width * 3..(y + 1) * width * 3];
+            // Interior columns read a contiguous shifted slice; only the edges clamp.
+            let lo = (-dx).clamp(0, width as isize) as usize;
+            let hi = (width as isize - dx).clamp(lo as isize, width as isize) as usize;
+            for x in (0..lo).chain(hi..width) {
+                let sx = (x as isize + dx).clamp(0, width as isize - 1) as usize;
+                for ch in 0..3 {
+                    dst[x * 3 + ch] += src[sx * 3 + ch] * norm;
+                }
+            }
+            if hi > lo {
+                // Here 0 <= lo + dx and hi + dx <= width.
+                let shift = (lo as isize + dx) as usize;
+                let (d, s) = (&mut dst[lo * 3..hi * 3], &src[shift * 3..(shift + hi - lo) * 3]);
+                for (o, i) in d.iter_mut().zip(s) {
+                    *o += i * norm;
+                }
+            }
+        }
+    }
+    *buf = out;
+}
+
+/// Vignetting: multiply by the precomputed radial gain.
+pub fn vignetting(buf: &mut [f32], gain: &[f32]) {
+    for (px, &g) in buf.chunks_exact_mut(3).zip(gain) {
+        px[0] *= g;
+        px[1] *= g;
+        px[2] *= g;
+    }
+}
+
+/// A 64-bit mixing function (splitmix64's finaliser): deterministic on every platform.
+pub fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Sensor noise: luminance noise with a read floor and a shot part growing with brightness,
+/// plus a smaller independent part per channel. Deterministic in `key`.
+pub fn noise(buf: &mut [f32], sigma_levels: f32, key: u64) {
+    // The sum of four uniform bytes has mean 510 and standard deviation ~147.8: a cheap,
+    // nearly Gaussian variate.
+    const MEAN: f32 = 510.0;
+    const INV_SD: f32 = 1.0 / 147.8;
+    let base = mix64(key);
+    for (i, px) in buf.chunks_exact_mut(3).enumerate() {
+        let r = mix64(base ^ (i as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
+        let b = r.to_le_bytes();
+        let l = (b[0] as f32 + b[1] as f32 + b[2] as f32 + b[3] as f32 - MEAN) * INV_SD;
+        let lum = (px[0] + px[1] + px[2]) * (1.0 / 765.0);
+        let sd = sigma_levels * (0.6 + 0.8 * lum.max(0.0).sqrt());
+        for c in 0..3 {
+            let chroma = (b[4 + c] as f32 - 127.5) * (1.0 / 73.9);
+            px[c] += sd * (l + 0.35 * chroma);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blur_keeps_the_mean_of_a_flat_field() {
+        let mut f = CellField { w: 8, h: 6, cell_px: 4, v: vec![2.0; 48] };
+        f.blur(3, 3);
+        assert!(f.v.iter().all(|v| (v - 2.0).abs() < 1e-5));
+    }
+
+    #[test]
+    fn motion_blur_spreads_a_point_along_the_direction() {
+        let (w, h) = (21, 21);
+        let mut buf = vec![0.0f32; w * h * 3];
+        buf[(10 * w + 10) * 3] = 90.0;
+        motion_blur(&mut buf, w, h, 8.0, 0.0);
+        let row: Vec<f32> = (0..w).map(|x| buf[(10 * w + x) * 3]).collect();
+        let lit = row.iter().filter(|&&v| v > 0.0).count();
+        assert_eq!(lit, 9, "{row:?}");
+        assert!(buf[(9 * w + 10) * 3] == 0.0);
+        assert!((row.iter().sum::<f32>() - 90.0).abs() < 1e-3);
+        // Streaks longer than the image only clamp at the edges.
+        for (w, h) in [(1, 1), (3, 2), (5, 40)] {
+            let mut b = vec![10.0f32; w * h * 3];
+            motion_blur(&mut b, w, h, 60.0, 2.0);
+            assert!(b.iter().all(|v| (v - 10.0).abs() < 1e-4));
+        }
+    }
+
+    #[test]
+    fn noise_is_deterministic_and_zero_mean() {
+        let mut a = vec![100.0f32; 3 * 10_000];
+        let mut b = a.clone();
+        noise(&mut a, 3.0, 7);
+        noise(&mut b, 3.0, 7);
+        assert_eq!(a, b);
+        let mean = a.iter().sum::<f32>() / a.len() as f32;
+        assert!((mean - 100.0).abs() < 0.2, "{mean}");
+        let mut c = vec![100.0f32; 3 * 10_000];
+        noise(&mut c, 3.0, 8);
+        assert_ne!(a, c);
+    }
+}
