@@ -7,10 +7,12 @@
 //! the simulated MG400 and sensors behind the same seams.
 
 pub mod arm;
+pub mod calibration;
 pub mod camera;
 pub mod cli;
 pub mod clock;
 pub mod geometry;
+pub mod metrics;
 pub mod pose;
 pub mod sim;
 
