@@ -7,6 +7,7 @@
 //! the simulated MG400 and sensors behind the same seams.
 
 pub mod arm;
+pub mod calibration;
 pub mod camera;
 pub mod cli;
 pub mod clock;
@@ -14,6 +15,7 @@ pub mod config;
 pub mod dataset;
 pub mod geometry;
 pub mod plan;
+pub mod metrics;
 pub mod pose;
 pub mod sim;
 

@@ -3,6 +3,17 @@
 //! [`DepthMap`] is the hand-over between the rasteriser and its users (the control-image
 //! pipeline and the simulated sensors): per pixel of the sensor image, the height of the
 //! object's surface above the sensor's undeformed skin plane.
+//!
+//! Flow: [`stl`] loads a [`stl::Mesh`] (or [`objects`] finds a library object, built by
+//! [`shapes`]); [`raster::render_depth`] projects it under the sensor at a pose through a
+//! [`crate::calibration::Calibration`] into a [`DepthMap`]; [`control`] turns that into the
+//! diffusion model's control image or a 16-bit depth PNG.
+
+pub mod control;
+pub mod objects;
+pub mod raster;
+pub mod shapes;
+pub mod stl;
 
 /// Per-pixel object height relative to the sensor's undeformed skin plane, in mm, row-major.
 ///
