@@ -13,6 +13,7 @@ pub mod clock;
 pub mod geometry;
 pub mod pose;
 pub mod sim;
+pub mod synth;
 
 /// rig's version, written into manifests.
 pub fn version() -> &'static str {
