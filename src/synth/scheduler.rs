@@ -208,6 +208,31 @@ impl NoiseSchedule {
         Ok(ts)
     }
 
+    /// The timesteps diffusers' `DPMSolverMultistepScheduler` uses for `steps` steps: its grid
+    /// has `steps + 1` points with the last (t = 0 side) dropped, so with leading spacing it
+    /// differs from DDIM's (4 steps: 801, 601, 401, 201 rather than 751, 501, 251, 1).
+    pub fn dpm_timesteps(&self, steps: usize) -> Result<Vec<i64>, SchedulerError> {
+        let n = self.config.num_train_timesteps;
+        if steps == 0 || steps >= n {
+            return Err(SchedulerError::BadStepCount { steps, train_steps: n });
+        }
+        let ts: Vec<i64> = match self.config.timestep_spacing.as_str() {
+            "linspace" => {
+                let last = (n - 1) as f64;
+                (1..=steps).rev().map(|i| (last * i as f64 / steps as f64).round_ties_even() as i64).collect()
+            }
+            "trailing" => {
+                let ratio = n as f64 / steps as f64;
+                (0..steps).map(|i| (n as f64 - ratio * i as f64).round_ties_even() as i64 - 1).collect()
+            }
+            _ => {
+                let ratio = (n / (steps + 1)) as i64;
+                (1..=steps as i64).rev().map(|i| i * ratio + self.config.steps_offset).collect()
+            }
+        };
+        Ok(ts)
+    }
+
     /// `alphas_cumprod[t]`, or the final value for `t < 0`; clamps `t` past the end.
     pub fn alpha_prod(&self, t: i64) -> f32 {
         if t < 0 {
@@ -282,7 +307,10 @@ pub struct Scheduler {
 impl Scheduler {
     /// A sampler of `kind` for `steps` steps with DDIM's `eta` (ignored by DPM-Solver++).
     pub fn new(schedule: &NoiseSchedule, kind: SchedulerKind, steps: usize, eta: f32) -> Result<Self, SchedulerError> {
-        let timesteps = schedule.timesteps(steps)?;
+        let timesteps = match kind {
+            SchedulerKind::Ddim => schedule.timesteps(steps)?,
+            SchedulerKind::DpmSolverPp2m => schedule.dpm_timesteps(steps)?,
+        };
         if !eta.is_finite() || eta < 0.0 {
             return Err(SchedulerError::OutOfRange { field: "eta", value: eta as f64 });
         }
@@ -332,7 +360,7 @@ impl Scheduler {
         let beta_prod_t = 1.0 - alpha_prod_t;
         let (sa, sb) = (alpha_prod_t.sqrt(), beta_prod_t.sqrt());
         let mut x0: Vec<f32>;
-        let mut eps: Vec<f32>;
+        let eps: Vec<f32>;
         match self.prediction {
             Prediction::Epsilon => {
                 x0 = sample.iter().zip(model_output).map(|(&x, &e)| (x - sb * e) / sa).collect();
@@ -347,16 +375,10 @@ impl Scheduler {
                 eps = sample.iter().zip(model_output).map(|(&x, &p)| (x - sa * p) / sb).collect();
             }
         }
-        if let Some(range) = self.clip {
+        if let Some(range) = self.clip.filter(|_| self.kind == SchedulerKind::Ddim) {
+            // diffusers clips x0 only; epsilon stays as predicted (use_clipped_model_output
+            // is off in the pipelines).
             x0.iter_mut().for_each(|v| *v = v.clamp(-range, range));
-            // diffusers re-derives epsilon from the clipped x0 (DDIM, clip_sample).
-            if self.kind == SchedulerKind::Ddim {
-                eps = sample.iter().zip(&x0).map(|(&x, &p)| (x - sa * p) / sb).collect();
-                if self.prediction == Prediction::Epsilon {
-                    // ... except for epsilon prediction, where it keeps the model output.
-                    eps = model_output.to_vec();
-                }
-            }
         }
         (x0, eps)
     }
@@ -403,9 +425,9 @@ impl Scheduler {
             let h = lambda_s - lambda_t;
             let ratio = (sigma_s / sigma_t) as f32;
             let coeff = (alpha_s * (-(-h).exp_m1())) as f32; // alpha_s * (1 - e^{-h})
-            // lower_order_final: the last steps of a short run stay first order (diffusers does
-            // so below 15 steps); the first step has no history.
-            let second_order = !(last || (self.timesteps.len() < 15 && i + 2 == self.timesteps.len()));
+            // The first step has no history; the last one (to sigma 0) is first order in
+            // diffusers (lower_order_final / final_sigmas_type "zero") and handled above.
+            let second_order = !last;
             match (&self.previous_x0, second_order) {
                 (Some((prev_x0, lambda_prev)), true) => {
                     let h_prev = lambda_t - lambda_prev;
