@@ -18,6 +18,7 @@ pub mod plan;
 pub mod metrics;
 pub mod pose;
 pub mod sim;
+pub mod synth;
 
 /// rig's version, written into manifests.
 pub fn version() -> &'static str {

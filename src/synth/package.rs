@@ -1,0 +1,387 @@
+//! The model package: a directory in diffusers' layout, its `model.toml`, and the checks that
+//! each ONNX model takes and returns what the pipeline will feed and read.
+//!
+//! ```text
+//! model.toml                        name, resolution, modalities, prompt template, latent scale, hint encoding
+//! tokenizer/tokenizer.json          HF tokenizers format (CLIP BPE)
+//! text_encoder/model.onnx           input_ids [B,77] (int32|int64) -> last_hidden_state [B,77,D]
+//! controlnet/model.onnx             sample, timestep, encoder_hidden_states, controlnet_cond, conditioning_scale
+//!                                   -> down_block_res_samples_0..N-1, mid_block_res_sample
+//! unet/model.onnx                   sample, timestep, encoder_hidden_states,
+//!                                   down_block_additional_residual_0..N-1, mid_block_additional_residual -> out_sample
+//! vae_decoder/model.onnx            latent_sample (already divided by the latent scale) -> sample in [-1, 1]
+//! scheduler/scheduler_config.json   diffusers scheduler config
+//! ```
+//!
+//! Element types and shapes are read from the sessions ([`TensorSpec`]), never assumed: ids may
+//! be int32 or int64, the timestep float or integer, of rank 0 or 1. A model that does not fit
+//! is rejected at load time with an error naming the file and the tensor.
+//!
+//! `model.toml` (all keys but `name` optional):
+//!
+//! ```toml
+//! name = "multidiffsense-sd15"
+//! resolution = [512, 512]            # width, height in pixels (default 512 x 512)
+//! modalities = ["TacTip", "ViTac", "ViTacTip"]
+//! prompt_template = "multidiffsense" # the only template so far: prompt::mds_prompt
+//! latent_scale = 0.18215
+//! hint_encoding = "rgb01"            # control RGB scaled to [0,1] ("rgb11": to [-1,1])
+//! vae_scale_factor = 8               # image pixels per latent pixel
+//! end_token = "<|endoftext|>"        # padding token of the tokenizer
+//! ```
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use ort::value::{TensorElementType, ValueType};
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+use super::SynthError;
+use super::scheduler::{NoiseSchedule, SchedulerConfig};
+
+/// Files every package must hold, relative to its directory.
+pub const PACKAGE_FILES: [&str; 7] = [
+    "model.toml",
+    "tokenizer/tokenizer.json",
+    "text_encoder/model.onnx",
+    "controlnet/model.onnx",
+    "unet/model.onnx",
+    "vae_decoder/model.onnx",
+    "scheduler/scheduler_config.json",
+];
+
+/// How the control image is turned into the ControlNet's `controlnet_cond` tensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HintEncoding {
+    /// RGB / 255, in [0, 1] (MultiDiffSense, diffusers' ControlNet pipelines).
+    Rgb01,
+    /// RGB / 127.5 - 1, in [-1, 1].
+    Rgb11,
+}
+
+/// `model.toml` as written (first stage).
+#[derive(Debug, Deserialize)]
+struct RawModelToml {
+    name: String,
+    #[serde(default = "default_resolution")]
+    resolution: [u32; 2],
+    #[serde(default)]
+    modalities: Vec<String>,
+    #[serde(default = "default_template")]
+    prompt_template: String,
+    #[serde(default = "default_latent_scale")]
+    latent_scale: f64,
+    #[serde(default = "default_hint")]
+    hint_encoding: String,
+    #[serde(default = "default_vae_scale")]
+    vae_scale_factor: u32,
+    #[serde(default = "default_end_token")]
+    end_token: String,
+}
+
+fn default_resolution() -> [u32; 2] {
+    [512, 512]
+}
+fn default_template() -> String {
+    "multidiffsense".to_string()
+}
+fn default_latent_scale() -> f64 {
+    0.18215
+}
+fn default_hint() -> String {
+    "rgb01".to_string()
+}
+fn default_vae_scale() -> u32 {
+    8
+}
+fn default_end_token() -> String {
+    "<|endoftext|>".to_string()
+}
+
+/// `model.toml`, validated (second stage).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelConfig {
+    pub name: String,
+    pub width_px: u32,
+    pub height_px: u32,
+    pub modalities: Vec<String>,
+    pub prompt_template: String,
+    pub latent_scale: f32,
+    pub hint_encoding: HintEncoding,
+    pub vae_scale_factor: u32,
+    pub end_token: String,
+}
+
+impl ModelConfig {
+    /// Reads and validates `model.toml`.
+    pub fn read(path: &Path) -> Result<Self, SynthError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
+        let raw: RawModelToml =
+            toml::from_str(&text).map_err(|source| SynthError::ModelToml { path: path.to_path_buf(), source })?;
+        let bad = |field, value: String, reason| SynthError::BadModelConfig { path: path.to_path_buf(), field, value, reason };
+        let hint_encoding = match raw.hint_encoding.as_str() {
+            "rgb01" => HintEncoding::Rgb01,
+            "rgb11" => HintEncoding::Rgb11,
+            other => return Err(bad("hint_encoding", other.to_string(), "expected \"rgb01\" or \"rgb11\"")),
+        };
+        if raw.prompt_template != "multidiffsense" {
+            return Err(bad("prompt_template", raw.prompt_template, "the only template rig knows is \"multidiffsense\""));
+        }
+        if !(raw.latent_scale.is_finite() && raw.latent_scale > 0.0) {
+            return Err(bad("latent_scale", raw.latent_scale.to_string(), "must be a positive number"));
+        }
+        let f = raw.vae_scale_factor;
+        if f == 0 {
+            return Err(bad("vae_scale_factor", f.to_string(), "must be positive"));
+        }
+        let [w, h] = raw.resolution;
+        if w == 0 || h == 0 || w % f != 0 || h % f != 0 {
+            return Err(bad("resolution", format!("{raw_res:?}", raw_res = raw.resolution), "must be positive multiples of vae_scale_factor"));
+        }
+        Ok(Self {
+            name: raw.name,
+            width_px: w,
+            height_px: h,
+            modalities: raw.modalities,
+            prompt_template: raw.prompt_template,
+            latent_scale: raw.latent_scale as f32,
+            hint_encoding,
+            vae_scale_factor: f,
+            end_token: raw.end_token,
+        })
+    }
+}
+
+/// A package directory whose files are all there and whose configs parse. The ONNX models are
+/// checked when the sessions are made ([`ModelIo::check`]).
+#[derive(Debug, Clone)]
+pub struct ModelPackage {
+    pub dir: PathBuf,
+    pub config: ModelConfig,
+    pub schedule: NoiseSchedule,
+}
+
+impl ModelPackage {
+    /// Opens `dir`: all of [`PACKAGE_FILES`] must exist (the error lists every missing one).
+    pub fn open(dir: &Path) -> Result<Self, SynthError> {
+        let missing: Vec<PathBuf> = PACKAGE_FILES.iter().map(|f| dir.join(f)).filter(|p| !p.is_file()).collect();
+        if !missing.is_empty() {
+            return Err(SynthError::MissingFiles { dir: dir.to_path_buf(), missing });
+        }
+        let config = ModelConfig::read(&dir.join("model.toml"))?;
+        let sched_path = dir.join("scheduler/scheduler_config.json");
+        let sched_config = SchedulerConfig::read(&sched_path)
+            .map_err(|source| SynthError::Scheduler { path: sched_path.clone(), source })?;
+        let schedule =
+            NoiseSchedule::new(sched_config).map_err(|source| SynthError::Scheduler { path: sched_path, source })?;
+        Ok(Self { dir: dir.to_path_buf(), config, schedule })
+    }
+
+    /// Path of a package file.
+    pub fn file(&self, relative: &str) -> PathBuf {
+        self.dir.join(relative)
+    }
+
+    /// SHA-256 over every file of the package (recursively, in sorted path order; each file
+    /// contributes its relative path, a NUL, its length as 8 little-endian bytes, and its
+    /// bytes), hex. Identifies the exact weights a synthetic image came from.
+    pub fn content_hash(&self) -> Result<String, SynthError> {
+        let mut files = Vec::new();
+        collect_files(&self.dir, &self.dir, &mut files)?;
+        files.sort();
+        let mut hasher = Sha256::new();
+        let mut buf = vec![0u8; 1 << 20];
+        for rel in files {
+            let path = self.dir.join(&rel);
+            let io = |source| SynthError::Io { path: path.clone(), source };
+            let mut f = std::fs::File::open(&path).map_err(io)?;
+            let len = f.metadata().map_err(io)?.len();
+            hasher.update(rel.to_string_lossy().replace('\\', "/").as_bytes());
+            hasher.update([0u8]);
+            hasher.update(len.to_le_bytes());
+            loop {
+                let n = f.read(&mut buf).map_err(io)?;
+                if n == 0 {
+                    break;
+                }
+                hasher.update(&buf[..n]);
+            }
+        }
+        Ok(hex::encode(hasher.finalize()))
+    }
+}
+
+fn collect_files(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), SynthError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
+    for entry in entries {
+        let entry = entry.map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
+        let path = entry.path();
+        if path.is_dir() {
+            collect_files(root, &path, out)?;
+        } else if let Ok(rel) = path.strip_prefix(root) {
+            out.push(rel.to_path_buf());
+        }
+    }
+    Ok(())
+}
+
+/// One input or output of a model as the session reports it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TensorSpec {
+    pub name: String,
+    pub ty: TensorElementType,
+    /// Dimensions; -1 where dynamic.
+    pub shape: Vec<i64>,
+}
+
+/// The inputs and outputs of one model file.
+#[derive(Debug, Clone)]
+pub struct ModelIo {
+    pub file: PathBuf,
+    pub inputs: Vec<TensorSpec>,
+    pub outputs: Vec<TensorSpec>,
+}
+
+/// Element types a contract tensor may have.
+#[derive(Debug, Clone, Copy)]
+pub enum Accept {
+    Float32,
+    /// int32 or int64 (token ids).
+    Ids,
+    /// float32, float64, int32 or int64 (timesteps).
+    Number,
+}
+
+impl Accept {
+    fn allows(self, ty: TensorElementType) -> bool {
+        use TensorElementType as T;
+        match self {
+            Accept::Float32 => ty == T::Float32,
+            Accept::Ids => matches!(ty, T::Int32 | T::Int64),
+            Accept::Number => matches!(ty, T::Float32 | T::Float64 | T::Int32 | T::Int64),
+        }
+    }
+    fn describe(self) -> &'static str {
+        match self {
+            Accept::Float32 => "float32",
+            Accept::Ids => "int32 or int64",
+            Accept::Number => "float32, float64, int32 or int64",
+        }
+    }
+}
+
+fn specs(file: &Path, direction: &'static str, outlets: &[ort::value::Outlet]) -> Result<Vec<TensorSpec>, SynthError> {
+    outlets
+        .iter()
+        .map(|o| match o.dtype() {
+            ValueType::Tensor { ty, shape, .. } => Ok(TensorSpec { name: o.name().to_string(), ty: *ty, shape: shape.to_vec() }),
+            other => Err(SynthError::WrongElementType {
+                file: file.to_path_buf(),
+                direction,
+                tensor: o.name().to_string(),
+                found: format!("{other:?}"),
+                expected: "a tensor",
+            }),
+        })
+        .collect()
+}
+
+impl ModelIo {
+    /// Reads the inputs and outputs of a session made from `file`.
+    pub fn of(file: &Path, session: &ort::session::Session) -> Result<Self, SynthError> {
+        Ok(Self {
+            file: file.to_path_buf(),
+            inputs: specs(file, "input", session.inputs())?,
+            outputs: specs(file, "output", session.outputs())?,
+        })
+    }
+
+    fn find<'a>(&'a self, list: &'a [TensorSpec], direction: &'static str, name: &str) -> Result<&'a TensorSpec, SynthError> {
+        list.iter().find(|s| s.name == name).ok_or_else(|| SynthError::MissingTensor {
+            file: self.file.clone(),
+            direction,
+            tensor: name.to_string(),
+            available: list.iter().map(|s| s.name.clone()).collect(),
+        })
+    }
+
+    /// Checks one tensor: present, of an accepted element type, of one of the accepted ranks.
+    pub fn expect(&self, direction: &'static str, name: &str, accept: Accept, ranks: &[usize]) -> Result<&TensorSpec, SynthError> {
+        let list = if direction == "input" { &self.inputs } else { &self.outputs };
+        let spec = self.find(list, direction, name)?;
+        if !accept.allows(spec.ty) {
+            return Err(SynthError::WrongElementType {
+                file: self.file.clone(),
+                direction,
+                tensor: name.to_string(),
+                found: format!("{:?}", spec.ty),
+                expected: accept.describe(),
+            });
+        }
+        if !ranks.contains(&spec.shape.len()) {
+            return Err(SynthError::WrongShape {
+                file: self.file.clone(),
+                direction,
+                tensor: name.to_string(),
+                found: spec.shape.clone(),
+                expected: format!("rank {}", ranks.iter().map(|r| r.to_string()).collect::<Vec<_>>().join(" or ")),
+            });
+        }
+        Ok(spec)
+    }
+
+    /// Every input must be one the pipeline feeds.
+    pub fn only_inputs(&self, allowed: &[String]) -> Result<(), SynthError> {
+        match self.inputs.iter().find(|s| !allowed.contains(&s.name)) {
+            Some(extra) => Err(SynthError::UnexpectedInput { file: self.file.clone(), tensor: extra.name.clone() }),
+            None => Ok(()),
+        }
+    }
+
+    /// How many consecutive `{prefix}{i}` tensors (i = 0, 1, ...) there are.
+    pub fn count_numbered(&self, direction: &'static str, prefix: &str) -> usize {
+        let list = if direction == "input" { &self.inputs } else { &self.outputs };
+        (0..).take_while(|i| list.iter().any(|s| s.name == format!("{prefix}{i}"))).count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write_toml(text: &str) -> (tempfile::TempDir, PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("model.toml");
+        std::fs::write(&path, text).unwrap();
+        (dir, path)
+    }
+
+    #[test]
+    fn model_toml_defaults_and_validation() {
+        let (_d, p) = write_toml("name = \"x\"\n");
+        let c = ModelConfig::read(&p).unwrap();
+        assert_eq!((c.width_px, c.height_px, c.vae_scale_factor), (512, 512, 8));
+        assert_eq!(c.hint_encoding, HintEncoding::Rgb01);
+        assert!((c.latent_scale - 0.18215).abs() < 1e-7);
+        let (_d, p) = write_toml("name = \"x\"\nhint_encoding = \"bgr\"\n");
+        let e = ModelConfig::read(&p).unwrap_err();
+        assert!(matches!(e, SynthError::BadModelConfig { field: "hint_encoding", .. }), "{e}");
+        let (_d, p) = write_toml("name = \"x\"\nresolution = [500, 512]\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "resolution", .. })));
+        let (_d, p) = write_toml("resolution = [512, 512]\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::ModelToml { .. })));
+    }
+
+    #[test]
+    fn missing_files_are_all_listed() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("model.toml"), "name = \"x\"\n").unwrap();
+        let e = ModelPackage::open(dir.path()).unwrap_err();
+        match &e {
+            SynthError::MissingFiles { missing, .. } => assert_eq!(missing.len(), PACKAGE_FILES.len() - 1),
+            other => panic!("unexpected {other}"),
+        }
+        assert!(e.to_string().contains("unet/model.onnx"), "{e}");
+    }
+}

@@ -1,0 +1,565 @@
+//! The diffusion loop: ControlNet then UNet with its residuals, classifier-free guidance,
+//! the scheduler step, and the VAE decode to an 8-bit RGB image.
+//!
+//! Per step, one ControlNet call and one UNet call serve the whole batch: with guidance
+//! (`guidance != 1`) the batch is `[uncond_1..uncond_n, cond_1..cond_n]` and the noise estimate
+//! is `uncond + g * (cond - uncond)` (diffusers' formula); at guidance 1 the unconditional half
+//! is skipped, halving the work. Several requests with the same step count, scheduler, eta,
+//! conditioning scale, size and guided-ness run in one batch ([`Pipeline::generate_batch`]);
+//! each keeps its own seed stream, so a batched image equals the unbatched one.
+//!
+//! Determinism: the initial latents come from ChaCha8 seeded with the request's seed
+//! (`seed_from_u64`), turned into standard normals by Box–Muller (53-bit uniforms, both outputs
+//! used); DDIM's eta noise continues the same stream. `--init-latents` replaces the first part
+//! so a run can be compared with a Python one.
+//!
+//! Output: the decoder's `sample` (in [-1, 1] nominally) is kept raw, NHWC float32, and mapped
+//! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`.
+
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+use ort::session::Session;
+use rand_chacha::ChaCha8Rng;
+use rand_chacha::rand_core::{Rng, SeedableRng};
+
+use super::SynthError;
+use super::npy::NpyArray;
+use super::package::{Accept, ModelIo, ModelPackage, TensorSpec};
+use super::runtime::{Inputs, Runtime, RuntimeOptions, f32_value, init_runtime, number_value, run_f32};
+use super::scheduler::{Scheduler, SchedulerKind};
+use super::text::TextEncoder;
+
+/// One image to synthesise.
+#[derive(Debug, Clone, Copy)]
+pub struct GenerateRequest<'a> {
+    /// The control (hint) image, e.g. the viridis depth map; resized (bilinear) to the output
+    /// size when it differs.
+    pub control: &'a RgbImage,
+    pub prompt: &'a str,
+    /// Text for the unconditional half of guidance (usually empty).
+    pub negative_prompt: &'a str,
+    pub steps: usize,
+    /// Classifier-free guidance scale; 1 runs the conditional half only.
+    pub guidance: f32,
+    /// DDIM eta (0: deterministic DDIM).
+    pub eta: f32,
+    pub seed: u64,
+    pub scheduler: SchedulerKind,
+    /// Multiplies the ControlNet residuals.
+    pub conditioning_scale: f32,
+    /// Initial latents `[1, C, H/8, W/8]`, C order; `None` draws them from `seed`.
+    pub init_latents: Option<&'a [f32]>,
+    /// Output (width, height) in pixels; `None`: the package's resolution.
+    pub size: Option<(u32, u32)>,
+    /// Return the latents after every step (for comparisons with diffusers).
+    pub keep_step_latents: bool,
+}
+
+impl<'a> GenerateRequest<'a> {
+    /// A request with MultiDiffSense's sampling settings: DDIM, 50 steps, eta 0, guidance 9
+    /// (the paper's scale; its scripts save scale-1 samples), conditioning scale 1, seed 0.
+    pub fn new(control: &'a RgbImage, prompt: &'a str) -> Self {
+        Self {
+            control,
+            prompt,
+            negative_prompt: "",
+            steps: 50,
+            guidance: 9.0,
+            eta: 0.0,
+            seed: 0,
+            scheduler: SchedulerKind::Ddim,
+            conditioning_scale: 1.0,
+            init_latents: None,
+            size: None,
+            keep_step_latents: false,
+        }
+    }
+
+    fn guided(&self) -> bool {
+        self.guidance != 1.0
+    }
+}
+
+/// One synthesised image.
+#[derive(Debug, Clone)]
+pub struct GenerateOutput {
+    pub image: RgbImage,
+    /// The decoder's output before clamping, `[1, H, W, 3]` float32.
+    pub raw: NpyArray,
+    /// Latents after each step, `[1, C, h, w]` each (empty unless asked for).
+    pub step_latents: Vec<NpyArray>,
+}
+
+/// A session with the file it came from and its checked inputs/outputs.
+struct ModelSession {
+    session: Session,
+    file: PathBuf,
+    io: ModelIo,
+}
+
+impl ModelSession {
+    fn open(runtime: &Runtime, package: &ModelPackage, relative: &str, opts: &RuntimeOptions) -> Result<Self, SynthError> {
+        let file = package.file(relative);
+        let session = runtime.session(&file, opts)?;
+        let io = ModelIo::of(&file, &session)?;
+        Ok(Self { session, file, io })
+    }
+}
+
+/// A loaded model package, ready to generate.
+pub struct Pipeline {
+    package: ModelPackage,
+    runtime: Runtime,
+    text: TextEncoder,
+    controlnet: ModelSession,
+    unet: ModelSession,
+    vae: ModelSession,
+    down_names: Vec<String>,
+    residual_names: Vec<String>,
+    controlnet_timestep: TensorSpec,
+    unet_timestep: TensorSpec,
+    conditioning_scale: TensorSpec,
+    latent_channels: usize,
+    hash: String,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline")
+            .field("package", &self.package.dir)
+            .field("library", &self.runtime.library)
+            .field("hash", &self.hash)
+            .finish_non_exhaustive()
+    }
+}
+
+const STEP_INPUTS: [&str; 3] = ["sample", "timestep", "encoder_hidden_states"];
+
+impl Pipeline {
+    /// Opens the package at `model_dir`, loads ONNX Runtime and the four models, and checks
+    /// every model against the package contract.
+    pub fn load(model_dir: &Path, opts: &RuntimeOptions) -> Result<Pipeline, SynthError> {
+        let package = ModelPackage::open(model_dir)?;
+        let runtime = init_runtime(opts)?;
+
+        let te_file = package.file("text_encoder/model.onnx");
+        let te_session = runtime.session(&te_file, opts)?;
+        let text = TextEncoder::new(te_session, &te_file, &package.file("tokenizer/tokenizer.json"), &package.config.end_token)?;
+
+        let controlnet = ModelSession::open(&runtime, &package, "controlnet/model.onnx", opts)?;
+        let io = &controlnet.io;
+        let sample = io.expect("input", "sample", Accept::Float32, &[4])?;
+        let latent_channels = if sample.shape[1] > 0 { sample.shape[1] as usize } else { 4 };
+        let controlnet_timestep = io.expect("input", "timestep", Accept::Number, &[0, 1])?.clone();
+        io.expect("input", "encoder_hidden_states", Accept::Float32, &[3])?;
+        io.expect("input", "controlnet_cond", Accept::Float32, &[4])?;
+        let conditioning_scale = io.expect("input", "conditioning_scale", Accept::Float32, &[0, 1])?.clone();
+        let mut allowed: Vec<String> = STEP_INPUTS.iter().map(|s| s.to_string()).collect();
+        allowed.extend(["controlnet_cond".to_string(), "conditioning_scale".to_string()]);
+        io.only_inputs(&allowed)?;
+        let n_down = io.count_numbered("output", "down_block_res_samples_");
+        let mut down_names: Vec<String> = (0..n_down.max(1)).map(|i| format!("down_block_res_samples_{i}")).collect();
+        down_names.truncate(n_down.max(1));
+        for name in &down_names {
+            io.expect("output", name, Accept::Float32, &[4])?;
+        }
+        io.expect("output", "mid_block_res_sample", Accept::Float32, &[4])?;
+        down_names.push("mid_block_res_sample".to_string());
+
+        let unet = ModelSession::open(&runtime, &package, "unet/model.onnx", opts)?;
+        let io = &unet.io;
+        io.expect("input", "sample", Accept::Float32, &[4])?;
+        let unet_timestep = io.expect("input", "timestep", Accept::Number, &[0, 1])?.clone();
+        io.expect("input", "encoder_hidden_states", Accept::Float32, &[3])?;
+        let n_unet = io.count_numbered("input", "down_block_additional_residual_");
+        if n_unet != n_down && n_unet > 0 {
+            return Err(SynthError::ResidualCountMismatch {
+                controlnet_file: controlnet.file.clone(),
+                controlnet: n_down,
+                unet_file: unet.file.clone(),
+                unet: n_unet,
+            });
+        }
+        let mut residual_names: Vec<String> = (0..n_down).map(|i| format!("down_block_additional_residual_{i}")).collect();
+        residual_names.push("mid_block_additional_residual".to_string());
+        for name in &residual_names {
+            io.expect("input", name, Accept::Float32, &[4])?;
+        }
+        let mut allowed: Vec<String> = STEP_INPUTS.iter().map(|s| s.to_string()).collect();
+        allowed.extend(residual_names.iter().cloned());
+        io.only_inputs(&allowed)?;
+        io.expect("output", "out_sample", Accept::Float32, &[4])?;
+
+        let vae = ModelSession::open(&runtime, &package, "vae_decoder/model.onnx", opts)?;
+        vae.io.expect("input", "latent_sample", Accept::Float32, &[4])?;
+        vae.io.only_inputs(&["latent_sample".to_string()])?;
+        vae.io.expect("output", "sample", Accept::Float32, &[4])?;
+
+        let hash = package.content_hash()?;
+        Ok(Pipeline {
+            package,
+            runtime,
+            text,
+            controlnet,
+            unet,
+            vae,
+            down_names,
+            residual_names,
+            controlnet_timestep,
+            unet_timestep,
+            conditioning_scale,
+            latent_channels,
+            hash,
+        })
+    }
+
+    /// SHA-256 (hex) over the package's files; see [`ModelPackage::content_hash`].
+    pub fn package_hash(&self) -> &str {
+        &self.hash
+    }
+
+    /// The package's native output size (width, height) in pixels.
+    pub fn resolution(&self) -> (u32, u32) {
+        (self.package.config.width_px, self.package.config.height_px)
+    }
+
+    /// The package (config, schedule, directory).
+    pub fn package(&self) -> &ModelPackage {
+        &self.package
+    }
+
+    /// The ONNX Runtime library in use.
+    pub fn library(&self) -> &Path {
+        &self.runtime.library
+    }
+
+    /// Token ids the tokenizer gives `prompt` (padded to the sequence length).
+    pub fn token_ids(&self, prompt: &str) -> Result<Vec<u32>, SynthError> {
+        self.text.tokenizer.ids(prompt)
+    }
+
+    /// Text embeddings `[L * D]` of `prompt` (cached).
+    pub fn embed(&mut self, prompt: &str) -> Result<Vec<f32>, SynthError> {
+        Ok(self.text.encode(&[prompt])?.remove(0).to_vec())
+    }
+
+    /// Synthesises one image.
+    pub fn generate(&mut self, request: &GenerateRequest) -> Result<GenerateOutput, SynthError> {
+        let mut out = self.run_group(&[request])?;
+        Ok(out.remove(0))
+    }
+
+    /// Synthesises several images, batching compatible requests (same steps, scheduler, eta,
+    /// conditioning scale, size and guided-ness) into shared session calls. The results come
+    /// back in request order and equal the unbatched ones per seed.
+    pub fn generate_batch(&mut self, requests: &[GenerateRequest]) -> Result<Vec<GenerateOutput>, SynthError> {
+        let mut results: Vec<Option<GenerateOutput>> = (0..requests.len()).map(|_| None).collect();
+        let mut groups: Vec<(BatchKey, Vec<usize>)> = Vec::new();
+        for (i, r) in requests.iter().enumerate() {
+            let key = BatchKey::of(r, self.resolution());
+            match groups.iter_mut().find(|(k, _)| *k == key) {
+                Some((_, members)) => members.push(i),
+                None => groups.push((key, vec![i])),
+            }
+        }
+        for (_, members) in groups {
+            let batch: Vec<&GenerateRequest> = members.iter().map(|&i| &requests[i]).collect();
+            for (i, out) in members.into_iter().zip(self.run_group(&batch)?) {
+                results[i] = Some(out);
+            }
+        }
+        Ok(results.into_iter().flatten().collect())
+    }
+
+    fn validate(&self, r: &GenerateRequest, size: (u32, u32)) -> Result<(), SynthError> {
+        let bad = |field, value: String, reason: String| Err(SynthError::BadRequest { field, value, reason });
+        let f = self.package.config.vae_scale_factor;
+        if size.0 == 0 || size.1 == 0 || size.0 % f != 0 || size.1 % f != 0 {
+            return bad("size", format!("{}x{}", size.0, size.1), format!("width and height must be positive multiples of {f}"));
+        }
+        if !r.guidance.is_finite() || r.guidance < 0.0 {
+            return bad("guidance", r.guidance.to_string(), "must be a finite number >= 0".into());
+        }
+        if !r.conditioning_scale.is_finite() {
+            return bad("conditioning_scale", r.conditioning_scale.to_string(), "must be finite".into());
+        }
+        if let Some(init) = r.init_latents {
+            let want = self.latent_channels * (size.0 / f) as usize * (size.1 / f) as usize;
+            if init.len() != want {
+                return bad(
+                    "init_latents",
+                    format!("{} values", init.len()),
+                    format!("expected [1, {}, {}, {}] = {want} values", self.latent_channels, size.1 / f, size.0 / f),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    fn timestep_value(&self, spec: &TensorSpec, t: i64, batch: usize) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
+        match spec.shape.as_slice() {
+            [] => number_value(spec.ty, &[], &[t as f64]),
+            [1] => number_value(spec.ty, &[1], &[t as f64]),
+            _ => number_value(spec.ty, &[batch], &vec![t as f64; batch]),
+        }
+    }
+
+    /// Runs requests that share a [`BatchKey`] as one batch.
+    fn run_group(&mut self, reqs: &[&GenerateRequest]) -> Result<Vec<GenerateOutput>, SynthError> {
+        let first = reqs[0];
+        let size = first.size.unwrap_or(self.resolution());
+        for r in reqs {
+            self.validate(r, size)?;
+        }
+        let n = reqs.len();
+        let f = self.package.config.vae_scale_factor;
+        let (w, h) = (size.0 as usize, size.1 as usize);
+        let (lw, lh) = (w / f as usize, h / f as usize);
+        let c = self.latent_channels;
+        let latent_len = c * lh * lw;
+        let guided = first.guided();
+        let batch = if guided { 2 * n } else { n };
+
+        // Text: [uncond..., cond...] or [cond...].
+        let conds = self.text.encode(&reqs.iter().map(|r| r.prompt).collect::<Vec<_>>())?;
+        let mut ehs: Vec<f32> = Vec::new();
+        if guided {
+            let unconds = self.text.encode(&reqs.iter().map(|r| r.negative_prompt).collect::<Vec<_>>())?;
+            unconds.iter().for_each(|e| ehs.extend_from_slice(e));
+        }
+        conds.iter().for_each(|e| ehs.extend_from_slice(e));
+        let seq_len = self.text.tokenizer.sequence_len;
+        let hidden = ehs.len() / (batch * seq_len);
+
+        // Control images, NCHW, duplicated for the two halves of guidance.
+        let mut hint: Vec<f32> = Vec::with_capacity(n * 3 * w * h);
+        for r in reqs {
+            hint.extend(encode_hint(r.control, size, self.package.config.hint_encoding));
+        }
+        if guided {
+            hint.extend_from_within(..);
+        }
+
+        // Latents and per-request noise streams and schedulers.
+        let mut rngs: Vec<ChaCha8Rng> = reqs.iter().map(|r| ChaCha8Rng::seed_from_u64(r.seed)).collect();
+        let mut latents: Vec<Vec<f32>> = reqs
+            .iter()
+            .zip(rngs.iter_mut())
+            .map(|(r, rng)| match r.init_latents {
+                Some(init) => init.to_vec(),
+                None => gaussian(rng, latent_len),
+            })
+            .collect();
+        let schedule = &self.package.schedule;
+        let sched_path = self.package.file("scheduler/scheduler_config.json");
+        let mut schedulers: Vec<Scheduler> = reqs
+            .iter()
+            .map(|r| Scheduler::new(schedule, r.scheduler, r.steps, r.eta))
+            .collect::<Result<_, _>>()
+            .map_err(|source| SynthError::Scheduler { path: sched_path.clone(), source })?;
+        let timesteps = schedulers[0].timesteps().to_vec();
+        let mut step_latents: Vec<Vec<NpyArray>> = vec![Vec::new(); n];
+
+        for &t in &timesteps {
+            let mut sample: Vec<f32> = latents.concat();
+            if guided {
+                sample.extend_from_within(..);
+            }
+            let latent_shape = [batch, c, lh, lw];
+            let inputs: Inputs = vec![
+                ("sample".into(), f32_value(&latent_shape, sample.clone())?),
+                ("timestep".into(), self.timestep_value(&self.controlnet_timestep, t, batch)?),
+                ("encoder_hidden_states".into(), f32_value(&[batch, seq_len, hidden], ehs.clone())?),
+                ("controlnet_cond".into(), f32_value(&[batch, 3, h, w], hint.clone())?),
+                (
+                    "conditioning_scale".into(),
+                    if self.conditioning_scale.shape.is_empty() {
+                        f32_value(&[], vec![first.conditioning_scale])?
+                    } else {
+                        f32_value(&[1], vec![first.conditioning_scale])?
+                    },
+                ),
+            ];
+            let residuals = run_f32(&mut self.controlnet.session, &self.controlnet.file, inputs, &self.down_names)?;
+
+            let mut inputs: Inputs = vec![
+                ("sample".into(), f32_value(&latent_shape, sample)?),
+                ("timestep".into(), self.timestep_value(&self.unet_timestep, t, batch)?),
+                ("encoder_hidden_states".into(), f32_value(&[batch, seq_len, hidden], ehs.clone())?),
+            ];
+            for (name, (shape, data)) in self.residual_names.iter().zip(residuals) {
+                let shape: Vec<usize> = shape.iter().map(|&d| d.max(0) as usize).collect();
+                inputs.push((name.clone(), f32_value(&shape, data)?));
+            }
+            let mut out = run_f32(&mut self.unet.session, &self.unet.file, inputs, &["out_sample".to_string()])?;
+            let (shape, noise_pred) = out.remove(0);
+            if noise_pred.len() != batch * latent_len {
+                return Err(SynthError::UnexpectedOutputShape {
+                    file: self.unet.file.clone(),
+                    tensor: "out_sample".to_string(),
+                    found: shape,
+                    expected: latent_shape.iter().map(|&d| d as i64).collect(),
+                });
+            }
+
+            for k in 0..n {
+                let eps: Vec<f32> = if guided {
+                    let g = reqs[k].guidance;
+                    let uncond = &noise_pred[k * latent_len..(k + 1) * latent_len];
+                    let cond = &noise_pred[(n + k) * latent_len..(n + k + 1) * latent_len];
+                    uncond.iter().zip(cond).map(|(&u, &c)| u + g * (c - u)).collect()
+                } else {
+                    noise_pred[k * latent_len..(k + 1) * latent_len].to_vec()
+                };
+                let noise = schedulers[k].needs_noise().then(|| gaussian(&mut rngs[k], latent_len));
+                latents[k] = schedulers[k].step(schedule, &eps, &latents[k], noise.as_deref());
+                if reqs[k].keep_step_latents {
+                    step_latents[k].push(NpyArray { shape: vec![1, c, lh, lw], data: latents[k].clone() });
+                }
+            }
+        }
+
+        // Decode all at once.
+        let scale = self.package.config.latent_scale;
+        let scaled: Vec<f32> = latents.concat().iter().map(|v| v / scale).collect();
+        let inputs: Inputs = vec![("latent_sample".into(), f32_value(&[n, c, lh, lw], scaled)?)];
+        let mut out = run_f32(&mut self.vae.session, &self.vae.file, inputs, &["sample".to_string()])?;
+        let (shape, decoded) = out.remove(0);
+        if shape != [n as i64, 3, h as i64, w as i64] {
+            return Err(SynthError::UnexpectedOutputShape {
+                file: self.vae.file.clone(),
+                tensor: "sample".to_string(),
+                found: shape,
+                expected: vec![n as i64, 3, h as i64, w as i64],
+            });
+        }
+        let plane = w * h;
+        Ok((0..n)
+            .map(|k| {
+                let img = &decoded[k * 3 * plane..(k + 1) * 3 * plane];
+                let mut raw = Vec::with_capacity(3 * plane);
+                for p in 0..plane {
+                    raw.extend([img[p], img[plane + p], img[2 * plane + p]]);
+                }
+                let image = RgbImage::from_fn(size.0, size.1, |x, y| {
+                    let i = 3 * (y as usize * w + x as usize);
+                    image::Rgb([to_u8(raw[i]), to_u8(raw[i + 1]), to_u8(raw[i + 2])])
+                });
+                GenerateOutput {
+                    image,
+                    raw: NpyArray { shape: vec![1, h, w, 3], data: raw },
+                    step_latents: std::mem::take(&mut step_latents[k]),
+                }
+            })
+            .collect())
+    }
+}
+
+/// Requests that can share session calls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct BatchKey {
+    steps: usize,
+    scheduler: SchedulerKind,
+    eta_bits: u32,
+    scale_bits: u32,
+    guided: bool,
+    size: (u32, u32),
+}
+
+impl BatchKey {
+    fn of(r: &GenerateRequest, native: (u32, u32)) -> Self {
+        Self {
+            steps: r.steps,
+            scheduler: r.scheduler,
+            eta_bits: r.eta.to_bits(),
+            scale_bits: r.conditioning_scale.to_bits(),
+            guided: r.guided(),
+            size: r.size.unwrap_or(native),
+        }
+    }
+}
+
+/// diffusers' `numpy_to_pil`: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`.
+pub fn to_u8(x: f32) -> u8 {
+    let v = (x / 2.0 + 0.5).clamp(0.0, 1.0) * 255.0;
+    // numpy's `.round()` rounds half to even.
+    if v.is_nan() { 0 } else { v.round_ties_even() as u8 }
+}
+
+/// The control image as NCHW floats for `controlnet_cond`.
+pub fn encode_hint(control: &RgbImage, size: (u32, u32), encoding: super::package::HintEncoding) -> Vec<f32> {
+    let resized;
+    let img = if control.dimensions() == size {
+        control
+    } else {
+        resized = image::imageops::resize(control, size.0, size.1, image::imageops::FilterType::Triangle);
+        &resized
+    };
+    let (w, h) = (size.0 as usize, size.1 as usize);
+    let mut out = vec![0.0f32; 3 * w * h];
+    for (x, y, p) in img.enumerate_pixels() {
+        let i = y as usize * w + x as usize;
+        for ch in 0..3 {
+            let v = p.0[ch] as f32 / 255.0;
+            out[ch * w * h + i] = match encoding {
+                super::package::HintEncoding::Rgb01 => v,
+                super::package::HintEncoding::Rgb11 => v * 2.0 - 1.0,
+            };
+        }
+    }
+    out
+}
+
+/// `len` standard normal floats from `rng` (Box–Muller on 53-bit uniforms).
+pub fn gaussian(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(len + 1);
+    while out.len() < len {
+        // u1 in (0, 1] so the log is finite; u2 in [0, 1).
+        let u1 = 1.0 - (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+        let u2 = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+        let r = (-2.0 * u1.ln()).sqrt();
+        let (s, c) = (2.0 * std::f64::consts::PI * u2).sin_cos();
+        out.push((r * c) as f32);
+        out.push((r * s) as f32);
+    }
+    out.truncate(len);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gaussian_is_seeded_and_standard() {
+        let a = gaussian(&mut ChaCha8Rng::seed_from_u64(7), 20_001);
+        let b = gaussian(&mut ChaCha8Rng::seed_from_u64(7), 20_001);
+        assert_eq!(a, b);
+        assert_ne!(a, gaussian(&mut ChaCha8Rng::seed_from_u64(8), 20_001));
+        let mean = a.iter().map(|&v| v as f64).sum::<f64>() / a.len() as f64;
+        let var = a.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / a.len() as f64;
+        assert!(mean.abs() < 0.03, "mean {mean}");
+        assert!((var - 1.0).abs() < 0.05, "variance {var}");
+    }
+
+    #[test]
+    fn eight_bit_mapping_matches_diffusers() {
+        assert_eq!(to_u8(-1.0), 0);
+        assert_eq!(to_u8(1.0), 255);
+        assert_eq!(to_u8(0.0), 128); // 127.5: half to even
+        assert_eq!(to_u8(-3.0), 0);
+        assert_eq!(to_u8(f32::NAN), 0);
+    }
+
+    #[test]
+    fn hint_is_nchw_in_unit_range() {
+        let mut img = RgbImage::new(2, 1);
+        img.put_pixel(1, 0, image::Rgb([255, 0, 51]));
+        let v = encode_hint(&img, (2, 1), super::super::package::HintEncoding::Rgb01);
+        assert_eq!(v, vec![0.0, 1.0, 0.0, 0.0, 0.0, 0.2]);
+        let v = encode_hint(&img, (2, 1), super::super::package::HintEncoding::Rgb11);
+        assert_eq!(v[1], 1.0);
+        assert_eq!(v[0], -1.0);
+    }
+}

@@ -1,0 +1,290 @@
+//! Finding and loading ONNX Runtime, and choosing the execution provider.
+//!
+//! rig links ONNX Runtime at run time (`ort`'s load-dynamic), so the library must be found
+//! before any session is made; without it `ort` would panic on first use. Search order:
+//!
+//! 1. the explicit path in [`RuntimeOptions::ort_lib`] (`--ort-lib`), a file or a folder;
+//! 2. the environment variables `RIG_ORT_LIB`, then `ORT_DYLIB_PATH`;
+//! 3. `.rig/onnxruntime/` under the current directory, then under the crate's source folder
+//!    (what `scripts/setup.sh` fills from the PyPI `onnxruntime` wheel).
+//!
+//! An explicit path or variable that does not exist is an error naming it (rather than quietly
+//! using another library). The library is loaded once per process; the environment is shared
+//! by every session.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use ort::ep::ExecutionProvider;
+
+use super::SynthError;
+
+/// Where ONNX Runtime runs the models.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ExecutionProviderKind {
+    /// ONNX Runtime's CPU kernels (always available).
+    #[default]
+    Cpu,
+    /// NVIDIA CUDA (needs a CUDA build of ONNX Runtime, e.g. the onnxruntime-gpu wheel).
+    Cuda,
+    /// NVIDIA TensorRT, falling back to CUDA for unsupported nodes.
+    TensorRt,
+}
+
+impl fmt::Display for ExecutionProviderKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Cpu => "cpu",
+            Self::Cuda => "cuda",
+            Self::TensorRt => "tensorrt",
+        })
+    }
+}
+
+impl std::str::FromStr for ExecutionProviderKind {
+    type Err = SynthError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda),
+            "tensorrt" | "trt" => Ok(Self::TensorRt),
+            _ => Err(SynthError::BadRequest {
+                field: "provider",
+                value: s.to_string(),
+                reason: "expected cpu, cuda or tensorrt".to_string(),
+            }),
+        }
+    }
+}
+
+/// How to run ONNX Runtime.
+#[derive(Debug, Clone, Default)]
+pub struct RuntimeOptions {
+    /// The library file or its folder; `None` searches (see the module docs).
+    pub ort_lib: Option<PathBuf>,
+    pub provider: ExecutionProviderKind,
+    /// Threads per session for the CPU provider; `None` lets ONNX Runtime choose.
+    pub intra_threads: Option<usize>,
+}
+
+/// The loaded runtime: the library it came from and the shared environment.
+#[derive(Clone)]
+pub struct Runtime {
+    pub library: PathBuf,
+    environment: ort::environment::Environment,
+}
+
+impl fmt::Debug for Runtime {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Runtime").field("library", &self.library).finish_non_exhaustive()
+    }
+}
+
+static RUNTIME: OnceLock<Runtime> = OnceLock::new();
+
+/// Library file names ONNX Runtime ships under, most specific last (a versioned `.so.1.x.y`
+/// is what the PyPI wheel holds).
+fn is_library_name(name: &str) -> bool {
+    name == "libonnxruntime.so"
+        || (name.starts_with("libonnxruntime.so.") && !name.contains("providers"))
+        || name == "libonnxruntime.dylib"
+        || (name.starts_with("libonnxruntime.") && name.ends_with(".dylib") && !name.contains("providers"))
+        || name == "onnxruntime.dll"
+}
+
+/// The library inside `dir`, if any (the unversioned name first, then the highest version).
+fn library_in_dir(dir: &Path) -> Option<PathBuf> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.is_file() && p.file_name().and_then(|n| n.to_str()).is_some_and(is_library_name))
+        .collect();
+    found.sort();
+    found.iter().find(|p| p.file_name().is_some_and(|n| n == "libonnxruntime.so")).cloned().or(found.pop())
+}
+
+/// Resolves a user-given path (file or folder) to the library file.
+fn resolve_given(path: &Path, origin: &'static str) -> Result<PathBuf, SynthError> {
+    if path.is_file() {
+        Ok(path.to_path_buf())
+    } else if path.is_dir() {
+        library_in_dir(path).ok_or_else(|| SynthError::OrtLibraryNotFound { searched: vec![path.to_path_buf()] })
+    } else {
+        Err(SynthError::OrtLibraryMissing { path: path.to_path_buf(), origin })
+    }
+}
+
+/// Finds the ONNX Runtime library (search order in the module docs).
+pub fn find_ort_library(explicit: Option<&Path>) -> Result<PathBuf, SynthError> {
+    if let Some(path) = explicit {
+        return resolve_given(path, "--ort-lib");
+    }
+    for (var, origin) in [("RIG_ORT_LIB", "RIG_ORT_LIB"), ("ORT_DYLIB_PATH", "ORT_DYLIB_PATH")] {
+        if let Some(value) = std::env::var_os(var).filter(|v| !v.is_empty()) {
+            return resolve_given(Path::new(&value), origin);
+        }
+    }
+    let mut searched = Vec::new();
+    let mut dirs = Vec::new();
+    if let Ok(cwd) = std::env::current_dir() {
+        dirs.push(cwd.join(".rig/onnxruntime"));
+    }
+    dirs.push(Path::new(env!("CARGO_MANIFEST_DIR")).join(".rig/onnxruntime"));
+    for dir in dirs {
+        if let Some(lib) = library_in_dir(&dir) {
+            return Ok(lib);
+        }
+        searched.push(dir);
+    }
+    Err(SynthError::OrtLibraryNotFound { searched })
+}
+
+/// Loads ONNX Runtime once per process and returns it. A later call with another library
+/// path gets the library already loaded (a process can hold only one).
+pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
+    if let Some(rt) = RUNTIME.get() {
+        return Ok(rt.clone());
+    }
+    let library = find_ort_library(opts.ort_lib.as_deref())?;
+    let builder = ort::init_from(&library).map_err(|source| SynthError::OrtLoad { path: library.clone(), source })?;
+    let environment = builder
+        .with_name("rig")
+        .build()
+        .map_err(|source| SynthError::Ort { context: "creating the environment".to_string(), source })?;
+    let rt = Runtime { library, environment };
+    Ok(RUNTIME.get_or_init(|| rt).clone())
+}
+
+impl Runtime {
+    /// Whether the loaded library was built with `provider`.
+    pub fn supports(&self, provider: ExecutionProviderKind) -> Result<bool, SynthError> {
+        let available = match provider {
+            ExecutionProviderKind::Cpu => return Ok(true),
+            ExecutionProviderKind::Cuda => ort::ep::CUDA::is_available(),
+            ExecutionProviderKind::TensorRt => ort::ep::TensorRT::is_available(),
+        };
+        available.map_err(|source| SynthError::Ort { context: format!("asking for {provider} support"), source })
+    }
+
+    /// Opens one model file as a session on the chosen provider.
+    pub fn session(&self, file: &Path, opts: &RuntimeOptions) -> Result<ort::session::Session, SynthError> {
+        let ctx = |what: &str| format!("{what} {}", file.display());
+        let err = |what: &str| {
+            let context = ctx(what);
+            move |source: ort::Error<ort::session::builder::SessionBuilder>| SynthError::Ort {
+                context,
+                source: source.into(),
+            }
+        };
+        let mut builder = ort::session::Session::builder(&self.environment)
+            .map_err(|source| SynthError::Ort { context: ctx("session builder for"), source })?;
+        if let Some(n) = opts.intra_threads {
+            builder = builder.with_intra_threads(n).map_err(err("setting threads for"))?;
+        }
+        if opts.provider != ExecutionProviderKind::Cpu {
+            if !self.supports(opts.provider)? {
+                return Err(SynthError::ProviderUnavailable { provider: opts.provider, library: self.library.clone() });
+            }
+            let dispatch = match opts.provider {
+                ExecutionProviderKind::Cuda => ort::ep::CUDA::default().build().error_on_failure(),
+                _ => ort::ep::TensorRT::default().build().error_on_failure(),
+            };
+            let fallback = ort::ep::CUDA::default().build();
+            builder = builder.with_execution_providers([dispatch, fallback]).map_err(err("registering the provider for"))?;
+        }
+        builder.commit_from_file(file).map_err(|source| SynthError::Ort { context: ctx("loading"), source })
+    }
+}
+
+/// Input values for one session call, by name.
+pub(crate) type Inputs = Vec<(String, ort::session::SessionInputValue<'static>)>;
+
+/// A float32 tensor value.
+pub(crate) fn f32_value(shape: &[usize], data: Vec<f32>) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
+    let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
+    ort::value::Tensor::from_array((shape, data))
+        .map(Into::into)
+        .map_err(|source| SynthError::Ort { context: "making a float32 tensor".to_string(), source })
+}
+
+/// A tensor of `ty` (float32, float64, int32 or int64) holding `values`, converted from f64.
+pub(crate) fn number_value(
+    ty: ort::value::TensorElementType,
+    shape: &[usize],
+    values: &[f64],
+) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
+    use ort::value::{Tensor, TensorElementType as T};
+    let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
+    let made = match ty {
+        T::Float64 => Tensor::from_array((shape, values.to_vec())).map(Into::into),
+        T::Int64 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i64).collect::<Vec<_>>())).map(Into::into),
+        T::Int32 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i32).collect::<Vec<_>>())).map(Into::into),
+        _ => Tensor::from_array((shape, values.iter().map(|&v| v as f32).collect::<Vec<_>>())).map(Into::into),
+    };
+    made.map_err(|source| SynthError::Ort { context: format!("making a {ty:?} tensor"), source })
+}
+
+/// Runs a session and copies the named float32 outputs out, with their shapes.
+pub(crate) fn run_f32(
+    session: &mut ort::session::Session,
+    file: &Path,
+    inputs: Inputs,
+    output_names: &[String],
+) -> Result<Vec<(Vec<i64>, Vec<f32>)>, SynthError> {
+    let outputs = session
+        .run(inputs)
+        .map_err(|source| SynthError::Ort { context: format!("running {}", file.display()), source })?;
+    output_names
+        .iter()
+        .map(|name| {
+            let value = outputs.get(name.as_str()).ok_or_else(|| SynthError::MissingTensor {
+                file: file.to_path_buf(),
+                direction: "output",
+                tensor: name.clone(),
+                available: outputs.keys().map(|k| k.to_string()).collect(),
+            })?;
+            let (shape, data) = value
+                .try_extract_tensor::<f32>()
+                .map_err(|source| SynthError::Ort { context: format!("reading output `{name}` of {}", file.display()), source })?;
+            Ok((shape.to_vec(), data.to_vec()))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn explicit_missing_path_is_named() {
+        let e = find_ort_library(Some(Path::new("/nonexistent/libonnxruntime.so"))).unwrap_err();
+        assert!(matches!(&e, SynthError::OrtLibraryMissing { origin: "--ort-lib", .. }), "{e}");
+        assert!(e.to_string().contains("/nonexistent/libonnxruntime.so"));
+    }
+
+    #[test]
+    fn empty_folder_has_no_library() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = find_ort_library(Some(dir.path())).unwrap_err();
+        assert!(matches!(e, SynthError::OrtLibraryNotFound { .. }));
+        assert!(e.to_string().contains("scripts/setup.sh"));
+    }
+
+    #[test]
+    fn folder_search_picks_the_library() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("libonnxruntime_providers_shared.so"), b"").unwrap();
+        std::fs::write(dir.path().join("libonnxruntime.so.1.31.1"), b"").unwrap();
+        let lib = find_ort_library(Some(dir.path())).unwrap();
+        assert_eq!(lib.file_name().unwrap(), "libonnxruntime.so.1.31.1");
+    }
+
+    #[test]
+    fn provider_names_parse() {
+        assert_eq!("CUDA".parse::<ExecutionProviderKind>().unwrap(), ExecutionProviderKind::Cuda);
+        assert_eq!("trt".parse::<ExecutionProviderKind>().unwrap(), ExecutionProviderKind::TensorRt);
+        assert!("tpu".parse::<ExecutionProviderKind>().is_err());
+    }
+}

@@ -1,0 +1,196 @@
+"""Shared export code: wrap diffusers models so their ONNX inputs and outputs carry the names
+of rig's model-package contract (docs/synth.md, ARCHITECTURE.md "Model package"), and write
+the package layout.
+
+    model.toml
+    tokenizer/tokenizer.json
+    text_encoder/model.onnx   input_ids -> last_hidden_state
+    controlnet/model.onnx     sample, timestep, encoder_hidden_states, controlnet_cond,
+                              conditioning_scale -> down_block_res_samples_0..N, mid_block_res_sample
+    unet/model.onnx           sample, timestep, encoder_hidden_states,
+                              down_block_additional_residual_0..N, mid_block_additional_residual
+                              -> out_sample
+    vae_decoder/model.onnx    latent_sample -> sample
+    scheduler/scheduler_config.json
+
+Used by export_package.py (a real pipeline) and make_tiny_package.py (the test package).
+"""
+
+import json
+import os
+
+import torch
+
+
+class TextEncoderWrapper(torch.nn.Module):
+    def __init__(self, text_encoder):
+        super().__init__()
+        self.text_encoder = text_encoder
+
+    def forward(self, input_ids):
+        return self.text_encoder(input_ids, return_dict=False)[0]
+
+
+class ControlNetWrapper(torch.nn.Module):
+    """The conditioning scale is an input tensor; diffusers multiplies every residual by it,
+    which is what this does (with the model's own scale left at 1)."""
+
+    def __init__(self, controlnet):
+        super().__init__()
+        self.controlnet = controlnet
+
+    def forward(self, sample, timestep, encoder_hidden_states, controlnet_cond, conditioning_scale):
+        down, mid = self.controlnet(
+            sample,
+            timestep,
+            encoder_hidden_states=encoder_hidden_states,
+            controlnet_cond=controlnet_cond,
+            conditioning_scale=1.0,
+            return_dict=False,
+        )
+        down = [d * conditioning_scale for d in down]
+        return (*down, mid * conditioning_scale)
+
+
+class UNetWrapper(torch.nn.Module):
+    def __init__(self, unet, n_down):
+        super().__init__()
+        self.unet = unet
+        self.n_down = n_down
+
+    def forward(self, sample, timestep, encoder_hidden_states, *residuals):
+        down = list(residuals[: self.n_down])
+        mid = residuals[self.n_down]
+        return self.unet(
+            sample,
+            timestep,
+            encoder_hidden_states=encoder_hidden_states,
+            down_block_additional_residuals=down,
+            mid_block_additional_residual=mid,
+            return_dict=False,
+        )[0]
+
+
+class VaeDecoderWrapper(torch.nn.Module):
+    def __init__(self, vae):
+        super().__init__()
+        self.vae = vae
+
+    def forward(self, latent_sample):
+        return self.vae.decode(latent_sample, return_dict=False)[0]
+
+
+def _export(module, args, path, input_names, output_names, dynamic_axes, opset):
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    torch.onnx.export(
+        module,
+        args,
+        path,
+        input_names=input_names,
+        output_names=output_names,
+        dynamic_axes=dynamic_axes,
+        opset_version=opset,
+        do_constant_folding=True,
+        dynamo=False,
+    )
+
+
+@torch.no_grad()
+def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, opset=17, timestep_dtype=torch.int64):
+    """Exports the four models into out_dir with the contract's tensor names.
+
+    Batch and spatial sizes are dynamic; the ids are int32 (as diffusers' own ONNX export
+    writes them); the timestep is a [1] tensor of timestep_dtype, broadcast over the batch.
+    """
+    text_encoder.eval(), controlnet.eval(), unet.eval(), vae.eval()
+    lh, lw = height // 8, width // 8
+    latent_channels = unet.config.in_channels
+    hidden = text_encoder.config.hidden_size
+    seq = text_encoder.config.max_position_embeddings
+
+    ids = torch.zeros((1, seq), dtype=torch.int32)
+    _export(
+        TextEncoderWrapper(text_encoder),
+        (ids,),
+        os.path.join(out_dir, "text_encoder", "model.onnx"),
+        ["input_ids"],
+        ["last_hidden_state"],
+        {"input_ids": {0: "batch"}, "last_hidden_state": {0: "batch"}},
+        opset,
+    )
+
+    sample = torch.randn(2, latent_channels, lh, lw)
+    t = torch.tensor([500], dtype=timestep_dtype)
+    ehs = torch.randn(2, seq, hidden)
+    cond = torch.rand(2, 3, height, width)
+    scale = torch.tensor(1.0)
+    cn = ControlNetWrapper(controlnet)
+    residuals = cn(sample, t, ehs, cond, scale)
+    n_down = len(residuals) - 1
+    down_names = [f"down_block_res_samples_{i}" for i in range(n_down)]
+    spatial = {0: "batch", 2: "height", 3: "width"}
+    _export(
+        cn,
+        (sample, t, ehs, cond, scale),
+        os.path.join(out_dir, "controlnet", "model.onnx"),
+        ["sample", "timestep", "encoder_hidden_states", "controlnet_cond", "conditioning_scale"],
+        down_names + ["mid_block_res_sample"],
+        {
+            "sample": spatial,
+            "encoder_hidden_states": {0: "batch"},
+            "controlnet_cond": {0: "batch", 2: "cond_height", 3: "cond_width"},
+            **{n: {0: "batch", 2: f"{n}_h", 3: f"{n}_w"} for n in down_names + ["mid_block_res_sample"]},
+        },
+        opset,
+    )
+
+    res_names = [f"down_block_additional_residual_{i}" for i in range(n_down)] + ["mid_block_additional_residual"]
+    _export(
+        UNetWrapper(unet, n_down),
+        (sample, t, ehs, *residuals),
+        os.path.join(out_dir, "unet", "model.onnx"),
+        ["sample", "timestep", "encoder_hidden_states"] + res_names,
+        ["out_sample"],
+        {
+            "sample": spatial,
+            "encoder_hidden_states": {0: "batch"},
+            "out_sample": spatial,
+            **{n: {0: "batch", 2: f"{n}_h", 3: f"{n}_w"} for n in res_names},
+        },
+        opset,
+    )
+
+    latent = torch.randn(1, vae.config.latent_channels, lh, lw)
+    _export(
+        VaeDecoderWrapper(vae),
+        (latent,),
+        os.path.join(out_dir, "vae_decoder", "model.onnx"),
+        ["latent_sample"],
+        ["sample"],
+        {"latent_sample": spatial, "sample": {0: "batch", 2: "image_height", 3: "image_width"}},
+        opset,
+    )
+
+
+def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
+                     prompt_template="multidiffsense", hint_encoding="rgb01"):
+    mods = ", ".join(f'"{m}"' for m in modalities)
+    text = (
+        f'name = "{name}"\n'
+        f"resolution = [{width}, {height}]  # width, height in pixels\n"
+        f"modalities = [{mods}]\n"
+        f'prompt_template = "{prompt_template}"\n'
+        f"latent_scale = {latent_scale}\n"
+        f'hint_encoding = "{hint_encoding}"  # control image RGB scaled to [0, 1]\n'
+    )
+    with open(os.path.join(out_dir, "model.toml"), "w") as f:
+        f.write(text)
+
+
+def write_scheduler_config(out_dir, scheduler_config):
+    os.makedirs(os.path.join(out_dir, "scheduler"), exist_ok=True)
+    cfg = {k: v for k, v in dict(scheduler_config).items() if not k.startswith("_") or k == "_class_name"}
+    cfg["_class_name"] = "DDIMScheduler"
+    with open(os.path.join(out_dir, "scheduler", "scheduler_config.json"), "w") as f:
+        json.dump(cfg, f, indent=2, sort_keys=True)
+        f.write("\n")
