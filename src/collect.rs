@@ -22,7 +22,7 @@ use crate::arm::{Arm, ArmError, MoveKind};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
-use crate::dataset::{DatasetError, DatasetWriter, PoseRow, Source};
+use crate::dataset::{DatasetError, DatasetWriter, PoseRow};
 use crate::plan::PlannedPose;
 use crate::pose::{Pose, WorkFrame};
 
@@ -132,10 +132,10 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         let above_origin = self.work_frame.approach_pose(&origin);
 
         // The no-contact reference frame, for every sensor that has none yet.
-        if self.sensors.iter().any(|s| !s.writer.has_reference()) {
+        if self.sensors.iter().any(|s| !has_reference(&s.writer)) {
             let arrival = self.go(above_origin, MoveKind::Joint).await?;
             let not_before = arrival.t_s + self.options.settle_s;
-            for s in self.sensors.iter_mut().filter(|s| !s.writer.has_reference()) {
+            for s in self.sensors.iter_mut().filter(|s| !has_reference(&s.writer)) {
                 let (image, _) = capture(&mut s.camera, not_before, &self.options).await?;
                 s.writer.write_reference(&image)?;
             }
@@ -177,8 +177,12 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
             warn!(error = %e, "could not retract at the end");
         }
         self.arm.disable().await?;
-        for s in self.sensors.iter_mut() {
-            s.writer.finish()?;
+        // Rows are already durable; finishing stamps the end time, which an interrupted run
+        // has not reached.
+        if !summary.interrupted {
+            for s in std::mem::take(&mut self.sensors) {
+                s.writer.finish()?;
+            }
         }
         self.progress.finish_and_clear();
         end?;
@@ -202,6 +206,10 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         self.go(above, MoveKind::Linear).await?;
         Ok(())
     }
+}
+
+fn has_reference(writer: &DatasetWriter) -> bool {
+    writer.dir().join("reference.png").is_file()
 }
 
 /// Captures `frames_per_pose` frames exposed after `not_before_s`; returns the last frame (or the

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::pose::{Pose, WorkFrame};
+use crate::pose::WorkFrame;
 
 /// Errors reading or validating the rig configuration.
 #[derive(Debug, thiserror::Error)]

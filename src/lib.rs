@@ -11,12 +11,14 @@ pub mod calibration;
 pub mod camera;
 pub mod cli;
 pub mod clock;
+pub mod collect;
 pub mod config;
 pub mod dataset;
 pub mod geometry;
 pub mod plan;
 pub mod metrics;
 pub mod pose;
+pub mod rigs;
 pub mod sim;
 pub mod synth;
 

@@ -16,6 +16,7 @@ use crate::calibration::Calibration;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, RigConfig, SensorBackend};
+use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
 use crate::sim::mg400::{SimMg400, SimMg400Config};
@@ -65,7 +66,9 @@ impl SensorChoice {
 #[derive(Debug, Clone)]
 pub struct ObjectChoice {
     pub name: String,
-    pub path: PathBuf,
+    /// The STL file; `None` for a built-in procedural mesh.
+    pub path: Option<PathBuf>,
+    /// sha256 of the STL bytes (of the generated binary STL for a built-in mesh).
     pub sha256: String,
     pub mesh: Arc<Mesh>,
 }
@@ -77,14 +80,30 @@ impl ObjectChoice {
         let (name, path) = match stl {
             Some(p) => (
                 p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()),
-                p.to_path_buf(),
+                Some(p.to_path_buf()),
             ),
-            None => (name.to_string(), crate::geometry::objects::find_object(name).map_err(|e| err(e.to_string()))?),
+            None => {
+                let found = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))]
+                    .into_iter()
+                    .map(|root| object_path(root, name))
+                    .find(|p| p.is_file());
+                (name.to_string(), found)
+            }
         };
-        let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
-        let mesh = Mesh::from_bytes(&bytes).map_err(|e| err(format!("{}: {e}", path.display())))?;
-        let sha256 = hex::encode(Sha256::digest(&bytes));
-        Ok(Self { name, path, sha256, mesh: Arc::new(mesh) })
+        match path {
+            Some(path) => {
+                let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
+                let mesh = Mesh::from_bytes(&bytes).map_err(|e| err(format!("{}: {e}", path.display())))?;
+                let sha256 = hex::encode(Sha256::digest(&bytes));
+                Ok(Self { name, path: Some(path), sha256, mesh: Arc::new(mesh) })
+            }
+            None => {
+                // No file: the library's procedural mesh (or a clear "unknown object" error).
+                let mesh = load_object(&name).map_err(|e| err(e.to_string()))?;
+                let sha256 = hex::encode(Sha256::digest(mesh.to_binary_bytes(&name)));
+                Ok(Self { name, path: None, sha256, mesh: Arc::new(mesh) })
+            }
+        }
     }
 }
 
@@ -92,8 +111,21 @@ impl ObjectChoice {
 pub fn profile_for(config: &RigConfig) -> Result<FirmwareProfile, RigError> {
     match &config.arm.profile {
         None => Ok(FirmwareProfile::default_mg400()),
-        Some(name) => FirmwareProfile::find(name)
-            .map_err(|e| RigError::Profile { name: name.clone(), reason: e.to_string() }),
+        Some(name) => {
+            let as_path = Path::new(name);
+            let found = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
+                FirmwareProfile::load(as_path)
+            } else {
+                let local = Path::new("firmware-profiles");
+                let dir = if local.join(format!("{name}.toml")).is_file() {
+                    local.to_path_buf()
+                } else {
+                    Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles")
+                };
+                FirmwareProfile::by_name(dir, name)
+            };
+            found.map_err(|e| RigError::Profile { name: name.clone(), reason: e.to_string() })
+        }
     }
 }
 
@@ -165,19 +197,19 @@ impl Rig {
             ArmBackend::Simulated { .. } => {
                 let sim_cfg = SimMg400Config { profile: profile.clone(), ..SimMg400Config::default() };
                 let sim = SimMg400::start(sim_cfg, Arc::clone(&clock)).await.map_err(RigError::Sim)?;
-                let cfg = Mg400Config::for_addrs(sim.dashboard_addr(), sim.motion_addr(), sim.feedback_addr(), profile.clone());
+                let cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), profile.clone()).with_ports(
+                    sim.dashboard_addr().port(),
+                    sim.motion_addr().port(),
+                    sim.feedback_addr().port(),
+                );
                 (cfg, Some(sim))
             }
             ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port } => {
-                let mut cfg = Mg400Config::new(host.clone(), profile.clone());
-                cfg.dashboard_port = *dashboard_port;
-                cfg.motion_port = *motion_port;
-                cfg.feedback_port = *feedback_port;
-                (cfg, None)
+                (Mg400Config::new(host.clone(), profile.clone()).with_ports(*dashboard_port, *motion_port, *feedback_port), None)
             }
         };
         let mut arm_cfg = arm_cfg;
-        arm_cfg.speed_factor = config.arm.speed_factor;
+        arm_cfg.speed_factor_pct = config.arm.speed_factor;
         let arm = Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?;
 
         let mut cameras = Vec::new();
@@ -236,7 +268,11 @@ impl Rig {
 
     /// Stops the in-process simulator, if any.
     pub async fn shutdown(self) {
-        if let Some(sim) = self.sim {
+        let Rig { arm, cameras, sim } = self;
+        // Close the client first, so it does not try to reconnect to a simulator going away.
+        drop(arm);
+        drop(cameras);
+        if let Some(sim) = sim {
             sim.shutdown().await;
         }
     }

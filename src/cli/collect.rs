@@ -9,7 +9,7 @@ use clap::Args;
 
 use crate::collect::{CollectJob, SensorStream, check_plan};
 use crate::config::RigConfig;
-use crate::dataset::{DatasetWriter, Manifest};
+use crate::dataset::{DatasetWriter, Manifest, ObjectInfo};
 use crate::plan::PlanSpec;
 use crate::rigs::{Rig, SensorChoice};
 
@@ -62,7 +62,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         None => PlanSpec::default(),
     };
     if let Some(n) = args.poses {
-        spec.n_poses = n;
+        spec.n_poses = Some(n);
     }
     if let Some(s) = args.seed {
         spec.seed = s;
@@ -72,7 +72,9 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let object = crate::rigs::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
 
     let profile = crate::rigs::profile_for(&config)?;
-    let plan = spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b));
+    let plan = spec
+        .build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b))
+        .context("building the plan")?;
     println!(
         "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
         plan.poses.len(),
@@ -91,7 +93,15 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let mut streams = Vec::new();
     for camera in rig.cameras.drain(..) {
         let dir = args.out.join(&object.name).join(camera.sensor_dir());
-        let manifest = Manifest::new(&spec, &object.name, &object.path, &object.sha256, camera.sensor_dir(), profile.name(), camera.calibration_name());
+        let object_info = ObjectInfo {
+            name: object.name.clone(),
+            stl_path: object.path.as_ref().map(|p| p.display().to_string()),
+            stl_sha256: Some(object.sha256.clone()),
+        };
+        let mut manifest = Manifest::new(&camera.sensor_dir(), object_info, Some(spec.clone()));
+        manifest.calibration = Some(camera.calibration_name());
+        manifest.firmware_profile = Some(profile.name.clone());
+        manifest.work_frame = Some(config.work_frame);
         let writer = if args.resume {
             DatasetWriter::resume(&dir, manifest)
         } else {

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod collect;
 pub mod sim;
 pub mod dataset;
 pub mod plan;
@@ -26,6 +27,8 @@ pub struct Cli {
 pub enum Command {
     /// Print the version and the configuration rig would use.
     Info,
+    /// Drive the arm through a pose plan, capture every sensor, write the datasets.
+    Collect(collect::CollectArgs),
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
     Sim(sim::Args),
     /// Pose plans: show a plan's grid, sampled poses and motion time.
@@ -47,6 +50,7 @@ pub fn main() -> ExitCode {
             println!("rig {}", crate::version());
             Ok(())
         }
+        Command::Collect(args) => collect::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),
