@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 pub mod collect;
+pub mod fill;
 pub mod sim;
 pub mod dataset;
 pub mod plan;
@@ -59,7 +60,10 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // An exit status alone has said what it had to say already.
+            if e.downcast_ref::<ExitStatus>().is_none() {
+                eprintln!("error: {e:#}");
+            }
             ExitCode::from(exit_code(&e))
         }
     }
@@ -71,12 +75,25 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     if let Some(code) = e.downcast_ref::<ExitStatus>() {
         return code.0;
     }
+    if e.downcast_ref::<UsageError>().is_some() {
+        return 2;
+    }
     for cause in e.chain() {
         if cause.downcast_ref::<crate::arm::ArmError>().is_some() {
             return 3;
         }
     }
     1
+}
+
+/// Bad input on the command line (exit code 2).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// A [`UsageError`] with this message.
+pub fn usage(message: &str) -> UsageError {
+    UsageError(message.to_string())
 }
 
 /// An error that carries its own exit code.

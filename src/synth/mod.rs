@@ -21,6 +21,7 @@
 //! - [`pipeline`] runs the step loop with classifier-free guidance batched as [uncond, cond];
 //! - [`npy`] reads and writes float32 `.npy` files for comparing with Python runs.
 
+pub mod fill;
 pub mod npy;
 pub mod package;
 pub mod pipeline;

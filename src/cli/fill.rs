@@ -1,0 +1,164 @@
+//! `rig synth --fill-missing`: synthesise every planned pose a dataset lacks.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::Args;
+
+use crate::synth::fill::{FillOptions, Shard, fill_missing, missing_poses};
+use crate::synth::{Pipeline, RuntimeOptions, SchedulerKind};
+
+/// Fill-missing mode of `rig synth`.
+#[derive(Debug, Clone, Args)]
+pub struct FillArgs {
+    /// Synthesise every pose of the dataset's plan that has no image yet.
+    #[arg(long)]
+    pub fill_missing: bool,
+    /// A dataset (`.../<object>/<sensor>`) or a folder holding several (searched two levels
+    /// deep for manifest.toml).
+    #[arg(long, value_name = "DIR", default_value = "datasets")]
+    pub dataset: PathBuf,
+    /// Model package directory (default: models/default, else the tiny test package).
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// Do only part i of n of the missing poses (pose_id % n == i - 1), written to --out.
+    #[arg(long, value_name = "i/n")]
+    pub shard: Option<Shard>,
+    /// Where the synthetic rows go (required with --shard; default: into the dataset itself).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Sampling steps.
+    #[arg(long, default_value_t = 20)]
+    pub steps: usize,
+    /// Classifier-free guidance scale (1: unguided, half the work, as MultiDiffSense's scripts save).
+    #[arg(long, default_value_t = 1.0)]
+    pub guidance: f32,
+    /// DDIM eta (0: deterministic).
+    #[arg(long, default_value_t = 0.0)]
+    pub eta: f32,
+    /// Sampler: ddim or dpm++2m.
+    #[arg(long, default_value = "ddim")]
+    pub sampler: SchedulerKind,
+    /// Poses per model call.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Supersampling factor of the control image's depth map.
+    #[arg(long, default_value_t = 2)]
+    pub supersample: u32,
+    /// At most this many poses per dataset (after sharding).
+    #[arg(long)]
+    pub limit: Option<usize>,
+    /// List what would be synthesised; load no model.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// ONNX Runtime library (libonnxruntime.so) or its folder (default: $RIG_ORT_LIB,
+    /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
+    #[arg(long = "fill-ort-lib", value_name = "PATH")]
+    pub ort_lib: Option<PathBuf>,
+}
+
+/// The default model package: `models/default` when present, else the tiny test package.
+pub fn default_model() -> PathBuf {
+    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
+    for rel in ["models/default", "tests/data/tiny-package"] {
+        for root in &roots {
+            let p = root.join(rel);
+            if p.join("model.toml").is_file() {
+                return p;
+            }
+        }
+    }
+    PathBuf::from("models/default")
+}
+
+/// Dataset directories under `root` (itself, or up to two levels below).
+pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
+    if root.join("manifest.toml").is_file() {
+        return vec![root.to_path_buf()];
+    }
+    let mut found = Vec::new();
+    let children = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    for a in children(root) {
+        if a.join("manifest.toml").is_file() {
+            found.push(a);
+            continue;
+        }
+        found.extend(children(&a).into_iter().filter(|b| b.join("manifest.toml").is_file()));
+    }
+    found
+}
+
+/// Runs `rig synth --fill-missing`.
+pub fn run(args: FillArgs) -> anyhow::Result<()> {
+    if !args.fill_missing {
+        bail!(crate::cli::usage("rig synth needs a mode: `rig synth --fill-missing ...`, `rig synth one ...` or `rig synth info ...`"));
+    }
+    let shard = args.shard.unwrap_or(Shard::ALL);
+    if args.shard.is_some() && args.out.is_none() {
+        bail!(crate::cli::usage("--shard needs --out DIR: each shard writes its own dataset, joined by `rig dataset merge`"));
+    }
+    let datasets = find_datasets(&args.dataset);
+    if datasets.is_empty() {
+        bail!(crate::cli::usage(&format!(
+            "no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)",
+            args.dataset.display()
+        )));
+    }
+    if args.out.is_some() && datasets.len() > 1 {
+        bail!(crate::cli::usage("--out takes one dataset: name it with --dataset .../<object>/<sensor>"));
+    }
+    if args.dry_run {
+        for d in &datasets {
+            let work = missing_poses(d, args.out.as_deref(), shard)?;
+            println!("{}: {} of {} grid poses present, {} to synthesise in shard {}/{}", d.display(), work.present, work.grid, work.todo.len(), shard.index, shard.count);
+        }
+        return Ok(());
+    }
+    let model = args.model.clone().unwrap_or_else(default_model);
+    if model.ends_with("tests/data/tiny-package") {
+        println!("model: {} (the tiny test package with random weights: no trained default model is installed)", model.display());
+    } else {
+        println!("model: {}", model.display());
+    }
+    let runtime = RuntimeOptions { ort_lib: args.ort_lib.clone(), ..RuntimeOptions::default() };
+    let mut pipeline =
+        Pipeline::load(&model, &runtime).with_context(|| format!("loading model package {}", model.display()))?;
+    let options = FillOptions {
+        steps: args.steps,
+        guidance: args.guidance,
+        eta: args.eta,
+        scheduler: args.sampler,
+        conditioning_scale: 1.0,
+        shard,
+        batch: args.batch,
+        supersample: args.supersample,
+        limit: args.limit,
+    };
+    for d in &datasets {
+        let progress = indicatif::ProgressBar::new(0);
+        progress.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        let t0 = std::time::Instant::now();
+        let summary = fill_missing(d, args.out.as_deref(), &mut pipeline, &options, &progress)
+            .with_context(|| format!("filling {}", d.display()))?;
+        progress.finish_and_clear();
+        println!(
+            "{}: synthesised {} poses in {:.1} s ({} of {} grid poses were present{})",
+            args.out.as_deref().unwrap_or(d).display(),
+            summary.synthesised,
+            t0.elapsed().as_secs_f64(),
+            summary.present,
+            summary.grid,
+            if summary.left > 0 { format!(", {} left to other shards or --limit", summary.left) } else { String::new() }
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,279 @@
+//! Filling the poses a collection did not capture.
+//!
+//! The dataset's manifest names the plan (its full grid of pose ids), the object, the sensor,
+//! the calibration and the work frame. Every grid pose without a row is synthesised: its
+//! control image is rendered from the object's mesh at that pose through the calibration, its
+//! prompt is the MultiDiffSense prompt of the sensor and pose, and its seed is
+//! [`pose_seed`](super::pose_seed)`(plan seed, pose_id)`, so an image does not depend on
+//! batching, order or sharding. A shard `i/n` takes the missing poses with
+//! `pose_id % n == i - 1` and writes them to its own dataset directory, which
+//! `rig dataset merge` joins later.
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use image::RgbImage;
+
+use super::{GenerateRequest, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
+use crate::calibration::Calibration;
+use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
+use crate::geometry::objects::load_object;
+use crate::geometry::stl::Mesh;
+use crate::plan::PlannedPose;
+use crate::pose::Pose;
+use crate::sim::sensor::SensorKind;
+
+/// Errors of the fill job.
+#[derive(Debug, thiserror::Error)]
+pub enum FillError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Synth(#[from] SynthError),
+    #[error("dataset {dir}: its manifest has no plan, so the missing poses are unknown")]
+    NoPlan { dir: PathBuf },
+    #[error("dataset {dir}: sensor {sensor:?} is not one rig can prompt for (tactip, vitac, vitactip)")]
+    UnknownSensor { dir: PathBuf, sensor: String },
+    #[error("dataset {dir}: object {object}: {reason}")]
+    Object { dir: PathBuf, object: String, reason: String },
+    #[error("dataset {dir}: calibration {calibration}: {reason}")]
+    Calibration { dir: PathBuf, calibration: String, reason: String },
+    #[error("shard {text:?}: write it i/n with 1 <= i <= n (e.g. 2/4)")]
+    BadShard { text: String },
+}
+
+/// One of `count` disjoint parts of the work, 1-based.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Shard {
+    /// The whole work.
+    pub const ALL: Shard = Shard { index: 1, count: 1 };
+
+    /// Whether `pose_id` belongs to this shard.
+    pub fn owns(&self, pose_id: u32) -> bool {
+        pose_id % self.count == self.index - 1
+    }
+}
+
+impl FromStr for Shard {
+    type Err = FillError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = || FillError::BadShard { text: s.to_string() };
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: u32 = i.trim().parse().map_err(|_| bad())?;
+        let count: u32 = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index == 0 || index > count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+/// Sampler settings and work split of a fill.
+#[derive(Debug, Clone)]
+pub struct FillOptions {
+    pub steps: usize,
+    pub guidance: f32,
+    pub eta: f32,
+    pub scheduler: SchedulerKind,
+    pub conditioning_scale: f32,
+    pub shard: Shard,
+    /// Poses per session call.
+    pub batch: usize,
+    /// Supersampling of the control image's depth map.
+    pub supersample: u32,
+    /// At most this many poses (after sharding); `None`: all.
+    pub limit: Option<usize>,
+}
+
+impl Default for FillOptions {
+    fn default() -> Self {
+        Self {
+            steps: 20,
+            guidance: 1.0,
+            eta: 0.0,
+            scheduler: SchedulerKind::Ddim,
+            conditioning_scale: 1.0,
+            shard: Shard::ALL,
+            batch: 4,
+            supersample: 2,
+            limit: None,
+        }
+    }
+}
+
+/// What a fill did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FillSummary {
+    /// Grid poses of the plan.
+    pub grid: usize,
+    /// Poses the dataset already had (real or synthetic).
+    pub present: usize,
+    /// Poses this shard synthesised now.
+    pub synthesised: usize,
+    /// Missing poses left to other shards (or beyond the limit).
+    pub left: usize,
+}
+
+/// What a dataset needs filled: its manifest and the missing grid poses of one shard.
+pub struct FillWork {
+    pub manifest: Manifest,
+    pub todo: Vec<PlannedPose>,
+    pub grid: usize,
+    pub present: usize,
+}
+
+/// Lists the grid poses of `dataset` (and of `out`, when a shard writes elsewhere) that have
+/// no row yet and belong to `shard`.
+pub fn missing_poses(dataset: &Path, out: Option<&Path>, shard: Shard) -> Result<FillWork, FillError> {
+    let manifest = Manifest::load(dataset)?;
+    let spec = manifest.plan.clone().ok_or_else(|| FillError::NoPlan { dir: dataset.to_path_buf() })?;
+    let grid = spec.grid();
+    let mut present: std::collections::BTreeSet<u32> = read_rows(dataset)?.iter().map(|r| r.pose_id).collect();
+    if let Some(out) = out.filter(|o| o.join("poses.csv").is_file()) {
+        present.extend(read_rows(out)?.iter().map(|r| r.pose_id));
+    }
+    let todo: Vec<PlannedPose> =
+        grid.iter().filter(|p| !present.contains(&p.pose_id) && shard.owns(p.pose_id)).copied().collect();
+    let present = grid.iter().filter(|p| present.contains(&p.pose_id)).count();
+    Ok(FillWork { manifest, todo, grid: grid.len(), present })
+}
+
+/// Fills the missing poses of `dataset` with `pipeline`; rows go into `out` (a shard's own
+/// dataset) or, when `out` is `None`, into `dataset` itself. `progress` is told after each
+/// batch. Resumable: poses already written are not redone.
+pub fn fill_missing(
+    dataset: &Path,
+    out: Option<&Path>,
+    pipeline: &mut Pipeline,
+    options: &FillOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<FillSummary, FillError> {
+    let work = missing_poses(dataset, out, options.shard)?;
+    let manifest = work.manifest.clone();
+    let dir = dataset.to_path_buf();
+    let spec_seed = manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
+    let kind = SensorKind::from_str(&manifest.sensor)
+        .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: manifest.sensor.clone() })?;
+    let mesh = object_mesh(&dir, &manifest)?;
+    let (width, height) = pipeline.resolution();
+    let calibration = calibration_of(&dir, &manifest, width, height)?;
+    let contact_depth_mm = manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+    let output_size = reference_size(dataset);
+
+    let mut todo = work.todo;
+    let total_missing = todo.len();
+    if let Some(limit) = options.limit {
+        todo.truncate(limit);
+    }
+    let mut writer = match out {
+        Some(out) => DatasetWriter::resume(out, manifest.clone())?,
+        None => DatasetWriter::resume(dataset, manifest.clone())?,
+    };
+    if let (Some(out), Ok(reference)) = (out, image::open(dataset.join("reference.png"))) {
+        if !out.join("reference.png").is_file() {
+            writer.write_reference(&reference.to_rgb8())?;
+        }
+    }
+    let model = pipeline.package_hash().to_string();
+    progress.set_length(todo.len() as u64);
+    for chunk in todo.chunks(options.batch.max(1)) {
+        let controls: Vec<RgbImage> = chunk
+            .iter()
+            .map(|p| {
+                let object_pose = Pose { z_mm: p.pose.z_mm + contact_depth_mm, ..p.pose };
+                let depth = crate::geometry::raster::render_depth(
+                    &mesh,
+                    &object_pose,
+                    &calibration,
+                    width,
+                    height,
+                    options.supersample,
+                );
+                crate::geometry::control::control_image(&depth)
+            })
+            .collect();
+        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
+        let requests: Vec<GenerateRequest> = chunk
+            .iter()
+            .zip(controls.iter().zip(&prompts))
+            .map(|(p, (control, prompt))| {
+                let mut r = GenerateRequest::new(control, prompt);
+                r.steps = options.steps;
+                r.guidance = options.guidance;
+                r.eta = options.eta;
+                r.scheduler = options.scheduler;
+                r.conditioning_scale = options.conditioning_scale;
+                r.seed = pose_seed(spec_seed, p.pose_id);
+                r
+            })
+            .collect();
+        let outputs = pipeline.generate_batch(&requests)?;
+        for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
+            let image = match output_size {
+                Some((w, h)) if (w, h) != output.image.dimensions() => {
+                    image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
+                }
+                _ => output.image,
+            };
+            let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
+            writer.append(row, &image)?;
+        }
+        progress.inc(chunk.len() as u64);
+    }
+    writer.finish()?;
+    Ok(FillSummary {
+        grid: work.grid,
+        present: work.present,
+        synthesised: todo.len(),
+        left: total_missing - todo.len(),
+    })
+}
+
+/// The object mesh the dataset was collected on: its STL when the file still matches, else the
+/// library object of that name.
+fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
+    let name = manifest.object.name.clone();
+    let err = |reason: String| FillError::Object { dir: dir.to_path_buf(), object: name.clone(), reason };
+    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file()) {
+        return Mesh::load(&path).map_err(|e| err(e.to_string()));
+    }
+    load_object(&name).map_err(|e| err(e.to_string()))
+}
+
+/// The calibration named in the manifest ("default": the default for the image size).
+fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> Result<Calibration, FillError> {
+    match manifest.calibration.as_deref() {
+        None | Some("default") => Ok(Calibration::default_for(width, height)),
+        Some(path) => Calibration::load(Path::new(path)).map_err(|e| FillError::Calibration {
+            dir: dir.to_path_buf(),
+            calibration: path.to_string(),
+            reason: e.to_string(),
+        }),
+    }
+}
+
+/// Size of the dataset's reference frame, so synthetic images match the captured ones.
+fn reference_size(dataset: &Path) -> Option<(u32, u32)> {
+    image::image_dimensions(dataset.join("reference.png")).ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_partition_the_ids() {
+        let shards: Vec<Shard> = (1..=3).map(|i| format!("{i}/3").parse().unwrap()).collect();
+        for id in 0..100u32 {
+            assert_eq!(shards.iter().filter(|s| s.owns(id)).count(), 1, "id {id}");
+        }
+        for bad in ["0/2", "3/2", "1/0", "x/2", "2", ""] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+    }
+}
