@@ -277,6 +277,15 @@ pub enum SchedulerKind {
     DpmSolverPp2m,
 }
 
+impl std::fmt::Display for SchedulerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Ddim => "ddim",
+            Self::DpmSolverPp2m => "dpm++2m",
+        })
+    }
+}
+
 impl std::str::FromStr for SchedulerKind {
     type Err = SchedulerError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
