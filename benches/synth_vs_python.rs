@@ -6,7 +6,8 @@
 //!
 //! Settings from the environment: RIG_BENCH_MODEL (package, default the tiny test package),
 //! RIG_BENCH_STEPS (20), RIG_BENCH_IMAGES (3 timed images after one warm-up), RIG_BENCH_SIZES
-//! (`64x64,256x256`), RIG_BENCH_GUIDANCE (`7.5,1`), RIG_PYTHON (`.venv/bin/python`). Without
+//! (`64x64,256x256`), RIG_BENCH_GUIDANCE (`7.5,1`), RIG_BENCH_THREADS (threads per session for
+//! both sides; default ONNX Runtime's choice), RIG_PYTHON (`.venv/bin/python`). Without
 //! `--bench` (as `cargo test --all-targets` runs it) it makes one 2-step image and exits, so
 //! the suite stays fast.
 
@@ -26,9 +27,24 @@ fn parse_size(s: &str) -> Option<(u32, u32)> {
 }
 
 /// Python's mean seconds per image, or why there is none.
-fn python_seconds(python: &str, model: &Path, control: &Path, prompt: &str, steps: usize, guidance: f32, images: usize, size: (u32, u32)) -> Result<f64, String> {
-    let out = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/ort_pipeline.py"))
+#[allow(clippy::too_many_arguments)]
+fn python_seconds(
+    python: &str,
+    model: &Path,
+    control: &Path,
+    prompt: &str,
+    steps: usize,
+    guidance: f32,
+    images: usize,
+    size: (u32, u32),
+    threads: Option<usize>,
+) -> Result<f64, String> {
+    let mut cmd = Command::new(python);
+    cmd.arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/ort_pipeline.py"));
+    if let Some(n) = threads {
+        cmd.args(["--threads", &n.to_string()]);
+    }
+    let out = cmd
         .args(["--model", &model.display().to_string(), "--control", &control.display().to_string(), "--prompt", prompt])
         .args(["--steps", &steps.to_string(), "--guidance", &guidance.to_string(), "--images", &images.to_string()])
         .args(["--size", &format!("{}x{}", size.0, size.1), "--json"])
@@ -59,7 +75,9 @@ fn main() {
         }
     };
     let prompt = rig::synth::prompt::mds_prompt("ViTac", &rig::pose::Pose::new(0.12, -0.34, 1.5, 15.0));
-    let mut pipeline = match Pipeline::load(&model, &RuntimeOptions::default()) {
+    let threads: Option<usize> = std::env::var("RIG_BENCH_THREADS").ok().and_then(|t| t.parse().ok());
+    let opts = RuntimeOptions { intra_threads: threads, ..Default::default() };
+    let mut pipeline = match Pipeline::load(&model, &opts) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("synth_vs_python: skipped: {e}");
@@ -83,7 +101,7 @@ fn main() {
     let guidances: Vec<f32> = env_or("RIG_BENCH_GUIDANCE", "7.5,1").split(',').filter_map(|g| g.trim().parse().ok()).collect();
     let python = env_or("RIG_PYTHON", &root.join(".venv/bin/python").display().to_string());
 
-    println!("package {} ({}), DDIM {steps} steps, {images} timed images after 1 warm-up, CPU, default threads", model.display(), pipeline.package().config.name);
+    println!("package {} ({}), DDIM {steps} steps, {images} timed images after 1 warm-up, CPU, threads per session: {}", model.display(), pipeline.package().config.name, threads.map_or("default".to_string(), |t| t.to_string()));
     println!("| size | guidance | rig s/image | python onnxruntime s/image | rig / python |");
     println!("|---|---|---|---|---|");
     for &size in &sizes {
@@ -102,7 +120,7 @@ fn main() {
                 }
             }
             let rig_s = times.iter().sum::<f64>() / times.len() as f64;
-            let (py, ratio) = match python_seconds(&python, &model, &control_path, &prompt, steps, guidance, images, size) {
+            let (py, ratio) = match python_seconds(&python, &model, &control_path, &prompt, steps, guidance, images, size, threads) {
                 Ok(p) => (format!("{p:.3}"), format!("{:.2}", rig_s / p)),
                 Err(e) => (format!("n/a ({e})"), "n/a".to_string()),
             };
