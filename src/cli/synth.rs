@@ -26,7 +26,7 @@ pub struct Args {
 #[derive(Debug, Subcommand)]
 pub enum SynthCommand {
     /// Synthesise one image from a control image and a prompt.
-    One(OneArgs),
+    One(Box<OneArgs>),
     /// Show a model package: config, tensors, hash.
     Info(InfoArgs),
 }
@@ -127,7 +127,7 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// Runs `rig synth`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        SynthCommand::One(one) => run_one(one),
+        SynthCommand::One(one) => run_one(*one),
         SynthCommand::Info(info) => run_info(info),
     }
 }
