@@ -244,6 +244,11 @@ impl Pipeline {
         Ok(self.text.encode(&[prompt])?.remove(0).to_vec())
     }
 
+    /// How many distinct prompts have cached embeddings.
+    pub fn cached_prompts(&self) -> usize {
+        self.text.cached()
+    }
+
     /// Synthesises one image.
     pub fn generate(&mut self, request: &GenerateRequest) -> Result<GenerateOutput, SynthError> {
         let mut out = self.run_group(&[request])?;
