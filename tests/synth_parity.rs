@@ -123,4 +123,6 @@ fn batched_equals_unbatched_and_seeds_are_deterministic() {
         assert_eq!(again.raw.data, single.raw.data, "seed {} is not deterministic", r.seed);
     }
     assert!(max_abs_diff(&batched[0].raw.data, &batched[1].raw.data) > 1e-3, "different seeds/prompts gave the same image");
+    // Embeddings were computed once per distinct text: "", p1 and p2.
+    assert_eq!(pipeline.cached_prompts(), 3);
 }

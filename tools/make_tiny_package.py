@@ -4,6 +4,9 @@ the models are built from small configs with a fixed torch seed.
 
     .venv/bin/python tools/make_tiny_package.py [--out tests/data/tiny-package]
 
+The tokenizer trainer is not bit-for-bit repeatable between runs, so the package and its
+reference are always regenerated together (as this script does).
+
 Writes:
     <out>/                      the package (model.toml, tokenizer/, text_encoder/, controlnet/,
                                 unet/, vae_decoder/, scheduler/)

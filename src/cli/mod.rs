@@ -11,6 +11,7 @@ pub mod sim;
 pub mod dataset;
 pub mod plan;
 pub mod sensor;
+pub mod synth;
 
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
@@ -38,6 +39,8 @@ pub enum Command {
     Dataset(dataset::Args),
     /// Simulated tactile sensors: render frames for checking their look.
     Sensor(sensor::Args),
+    /// Synthesise tactile images with a diffusion model package (ONNX Runtime).
+    Synth(synth::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -56,6 +59,7 @@ pub fn main() -> ExitCode {
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Sensor(args) => sensor::run(args),
+        Command::Synth(args) => synth::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -233,7 +233,7 @@ mod tests {
         // np.save of np.array([[1, 2]], dtype='<f4'), header as NumPy 1.x/2.x writes it.
         let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
         let mut header = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 2), }".to_string();
-        while (10 + header.len() + 1) % 64 != 0 {
+        while !(10 + header.len() + 1).is_multiple_of(64) {
             header.push(' ');
         }
         header.push('\n');

@@ -136,7 +136,7 @@ impl ModelConfig {
             return Err(bad("vae_scale_factor", f.to_string(), "must be positive"));
         }
         let [w, h] = raw.resolution;
-        if w == 0 || h == 0 || w % f != 0 || h % f != 0 {
+        if w == 0 || h == 0 || !w.is_multiple_of(f) || !h.is_multiple_of(f) {
             return Err(bad("resolution", format!("{raw_res:?}", raw_res = raw.resolution), "must be positive multiples of vae_scale_factor"));
         }
         Ok(Self {

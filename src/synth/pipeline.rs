@@ -244,6 +244,11 @@ impl Pipeline {
         Ok(self.text.encode(&[prompt])?.remove(0).to_vec())
     }
 
+    /// How many distinct prompts have cached embeddings.
+    pub fn cached_prompts(&self) -> usize {
+        self.text.cached()
+    }
+
     /// Synthesises one image.
     pub fn generate(&mut self, request: &GenerateRequest) -> Result<GenerateOutput, SynthError> {
         let mut out = self.run_group(&[request])?;
@@ -275,7 +280,7 @@ impl Pipeline {
     fn validate(&self, r: &GenerateRequest, size: (u32, u32)) -> Result<(), SynthError> {
         let bad = |field, value: String, reason: String| Err(SynthError::BadRequest { field, value, reason });
         let f = self.package.config.vae_scale_factor;
-        if size.0 == 0 || size.1 == 0 || size.0 % f != 0 || size.1 % f != 0 {
+        if size.0 == 0 || size.1 == 0 || !size.0.is_multiple_of(f) || !size.1.is_multiple_of(f) {
             return bad("size", format!("{}x{}", size.0, size.1), format!("width and height must be positive multiples of {f}"));
         }
         if !r.guidance.is_finite() || r.guidance < 0.0 {

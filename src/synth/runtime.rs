@@ -226,13 +226,16 @@ pub(crate) fn number_value(
     made.map_err(|source| SynthError::Ort { context: format!("making a {ty:?} tensor"), source })
 }
 
+/// A float32 output: its shape and its values (C order).
+pub(crate) type ShapedF32 = (Vec<i64>, Vec<f32>);
+
 /// Runs a session and copies the named float32 outputs out, with their shapes.
 pub(crate) fn run_f32(
     session: &mut ort::session::Session,
     file: &Path,
     inputs: Inputs,
     output_names: &[String],
-) -> Result<Vec<(Vec<i64>, Vec<f32>)>, SynthError> {
+) -> Result<Vec<ShapedF32>, SynthError> {
     let outputs = session
         .run(inputs)
         .map_err(|source| SynthError::Ort { context: format!("running {}", file.display()), source })?;

@@ -277,6 +277,15 @@ pub enum SchedulerKind {
     DpmSolverPp2m,
 }
 
+impl std::fmt::Display for SchedulerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Ddim => "ddim",
+            Self::DpmSolverPp2m => "dpm++2m",
+        })
+    }
+}
+
 impl std::str::FromStr for SchedulerKind {
     type Err = SchedulerError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -445,5 +454,119 @@ impl Scheduler {
         };
         self.previous_x0 = Some((x0, lambda_t));
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Stable Diffusion 1.5's scheduler settings (the tiny package's too).
+    fn sd15() -> NoiseSchedule {
+        NoiseSchedule::new(
+            SchedulerConfig::from_json(
+                r#"{"_class_name": "DDIMScheduler", "beta_end": 0.012, "beta_schedule": "scaled_linear",
+                    "beta_start": 0.00085, "clip_sample": false, "num_train_timesteps": 1000,
+                    "set_alpha_to_one": false, "steps_offset": 1, "trained_betas": null, "skip_prk_steps": true}"#,
+            )
+            .unwrap(),
+        )
+        .unwrap()
+    }
+
+    fn close(a: f32, b: f64, tol: f64) -> bool {
+        ((a as f64) - b).abs() <= tol * b.abs().max(1e-12)
+    }
+
+    // Expected values below were printed by diffusers 0.42.1 (DDIMScheduler /
+    // DPMSolverMultistepScheduler.from_config of the same config) with torch 2.15.
+
+    #[test]
+    fn ddim_timesteps_match_diffusers() {
+        let s = sd15();
+        assert_eq!(s.timesteps(4).unwrap(), vec![751, 501, 251, 1]);
+        let t50 = s.timesteps(50).unwrap();
+        assert_eq!(t50.len(), 50);
+        assert_eq!(&t50[..3], &[981, 961, 941]);
+        assert_eq!(*t50.last().unwrap(), 1);
+        assert!(t50.windows(2).all(|w| w[0] - w[1] == 20));
+        let mut c = s.config.clone();
+        c.timestep_spacing = "linspace".into();
+        assert_eq!(NoiseSchedule::new(c.clone()).unwrap().timesteps(7).unwrap(), vec![999, 832, 666, 500, 333, 166, 0]);
+        c.timestep_spacing = "trailing".into();
+        assert_eq!(NoiseSchedule::new(c).unwrap().timesteps(7).unwrap(), vec![999, 856, 713, 570, 428, 285, 142]);
+        assert!(matches!(s.timesteps(0), Err(SchedulerError::BadStepCount { .. })));
+    }
+
+    #[test]
+    fn dpm_timesteps_match_diffusers() {
+        let s = sd15();
+        assert_eq!(s.dpm_timesteps(4).unwrap(), vec![801, 601, 401, 201]);
+        let t20 = s.dpm_timesteps(20).unwrap();
+        assert_eq!(&t20[..4], &[941, 894, 847, 800]);
+        assert_eq!(*t20.last().unwrap(), 48);
+        let mut c = s.config.clone();
+        c.timestep_spacing = "linspace".into();
+        assert_eq!(NoiseSchedule::new(c.clone()).unwrap().dpm_timesteps(7).unwrap(), vec![999, 856, 714, 571, 428, 285, 143]);
+        c.timestep_spacing = "trailing".into();
+        assert_eq!(NoiseSchedule::new(c).unwrap().dpm_timesteps(7).unwrap(), vec![999, 856, 713, 570, 428, 285, 142]);
+    }
+
+    #[test]
+    fn alphas_cumprod_match_diffusers() {
+        let s = sd15();
+        for (i, want) in [
+            (0, 0.9991499781608582),
+            (1, 0.9982960224151611),
+            (250, 0.67379230260849),
+            (500, 0.27633246779441833),
+            (751, 0.055718984454870224),
+            (999, 0.00466009508818388),
+        ] {
+            // 1e-5 relative: torch's float32 cumprod accumulates in its own order; rig's
+            // sequential product drifts by about 1e-6 relative over 1000 factors.
+            assert!(close(s.alphas_cumprod[i], want, 1e-5), "alphas_cumprod[{i}] = {} want {want}", s.alphas_cumprod[i]);
+        }
+        assert_eq!(s.final_alpha_cumprod, s.alphas_cumprod[0]);
+        let cos = NoiseSchedule::new(SchedulerConfig { beta_schedule: "squaredcos_cap_v2".into(), ..Default::default() }).unwrap();
+        assert!(close(cos.alphas_cumprod[0], 0.9999586939811707, 1e-6));
+        assert!(close(cos.alphas_cumprod[500], 0.4922850430011749, 1e-5));
+        let lin = NoiseSchedule::new(SchedulerConfig::default()).unwrap();
+        assert!(close(lin.alphas_cumprod[500], 0.07779665291309357, 1e-5));
+        assert!(close(lin.alphas_cumprod[999], 4.035830352222547e-05, 1e-4));
+        assert_eq!(lin.final_alpha_cumprod, 1.0);
+    }
+
+    #[test]
+    fn ddim_step_matches_diffusers() {
+        let s = sd15();
+        let x = [0.5f32, -1.0, 2.0, 0.25];
+        let e = [0.1f32, -0.2, 0.3, -0.4];
+        let z = [1.0f32, 0.0, -1.0, 0.5];
+        let check = |got: Vec<f32>, want: [f64; 4], what: &str| {
+            for (g, w) in got.iter().zip(want) {
+                assert!(close(*g, w, 1e-5), "{what}: got {got:?} want {want:?}");
+            }
+        };
+        let mut sch = Scheduler::new(&s, SchedulerKind::Ddim, 4, 0.0).unwrap();
+        check(sch.step(&s, &e, &x, None), [0.9800608158111572, -1.9601216316223145, 4.0509772300720215, 1.0783334970474243], "t=751");
+        check(sch.step(&s, &e, &x, None), [0.7058361768722534, -1.4116723537445068, 2.899204730987549, 0.694288432598114], "t=501");
+        sch.step(&s, &e, &x, None);
+        check(sch.step(&s, &e, &x, None), [0.49899962544441223, -0.9979992508888245, 1.9972126483917236, 0.25496360659599304], "t=1");
+        let mut eta = Scheduler::new(&s, SchedulerKind::Ddim, 4, 0.5).unwrap();
+        assert!(eta.needs_noise());
+        eta.step(&s, &e, &x, Some(&z));
+        check(eta.step(&s, &e, &x, Some(&z)), [0.9581247568130493, -1.39934241771698, 2.622256278991699, 0.8481751680374146], "t=501 eta 0.5");
+    }
+
+    #[test]
+    fn rejects_what_it_does_not_implement() {
+        let bad = |json: &str| NoiseSchedule::new(SchedulerConfig::from_json(json).unwrap()).unwrap_err();
+        assert!(matches!(bad(r#"{"thresholding": true}"#), SchedulerError::Unsupported { field: "thresholding", .. }));
+        assert!(matches!(bad(r#"{"beta_schedule": "sigmoid"}"#), SchedulerError::Unsupported { field: "beta_schedule", .. }));
+        assert!(matches!(bad(r#"{"prediction_type": "flow"}"#), SchedulerError::Unsupported { .. }));
+        assert!(SchedulerConfig::from_json("{not json").is_err());
+        assert!("euler".parse::<SchedulerKind>().is_err());
+        assert_eq!("DPM++2M".parse::<SchedulerKind>().unwrap(), SchedulerKind::DpmSolverPp2m);
     }
 }
