@@ -17,9 +17,12 @@ use crate::synth::{ExecutionProviderKind, GenerateRequest, Pipeline, RuntimeOpti
 
 /// `rig synth` arguments.
 #[derive(Debug, ClapArgs)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct Args {
     #[command(subcommand)]
-    pub command: SynthCommand,
+    pub command: Option<SynthCommand>,
+    #[command(flatten)]
+    pub fill: super::fill::FillArgs,
 }
 
 /// The `rig synth` modes.
@@ -127,8 +130,9 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// Runs `rig synth`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        SynthCommand::One(one) => run_one(*one),
-        SynthCommand::Info(info) => run_info(info),
+        Some(SynthCommand::One(one)) => run_one(*one),
+        Some(SynthCommand::Info(info)) => run_info(info),
+        None => super::fill::run(args.fill),
     }
 }
 
