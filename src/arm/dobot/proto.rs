@@ -1254,6 +1254,29 @@ mod tests {
             })
     }
 
+    /// Pulls everything out of both framers, using every parsed value; each call consumes
+    /// input or reports a partial frame, so `bound` iterations suffice.
+    fn drain_framers(r: &mut ReplyFramer, q: &mut RequestFramer, bound: usize) {
+        for _ in 0..=bound {
+            match r.next_reply() {
+                Ok(None) => break,
+                Ok(Some(reply)) => {
+                    let _ = (reply.numbers(), reply.pose(), reply.error_id_lists(), reply.integer());
+                }
+                Err(_) => {}
+            }
+        }
+        for _ in 0..=bound {
+            match q.next_call() {
+                Ok(None) => break,
+                Ok(Some(call)) => {
+                    let _ = Request::from_call(&call).map(|req| req.encode());
+                }
+                Err(_) => {}
+            }
+        }
+    }
+
     proptest! {
         #[test]
         fn request_encode_then_decode(req in arb_request()) {
@@ -1297,26 +1320,45 @@ mod tests {
             prop_assert_eq!(got, vec![frame, frame]);
         }
 
+        /// The stand-in for the cargo-fuzz targets where `cargo fuzz` cannot run: valid
+        /// replies, requests and frames with random bytes overwritten.
+        #[test]
+        fn mutated_valid_input_never_panics(frame in arb_frame(),
+                                            flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..24),
+                                            chunk in 1usize..700) {
+            let mut bytes = Vec::new();
+            bytes.extend_from_slice(b"0,{350.000000,0.000000,0.000000,0.000000,0.000000,0.000000},GetPose();");
+            bytes.extend_from_slice(Reply::new(ErrorId::Accepted, format_error_id_lists(&[vec![69, 72], vec![1]]), "GetErrorID()").encode().as_bytes());
+            bytes.extend_from_slice(b"MovL(300,0,-20,15)EnableRobot(0.5,1,2,3)DO(1,1)");
+            bytes.extend_from_slice(&frame.encode());
+            bytes.extend_from_slice(&frame.encode());
+            let len = bytes.len();
+            for (at, b) in flips {
+                bytes[at % len] = b;
+            }
+            let mut r = ReplyFramer::new();
+            let mut q = RequestFramer::new();
+            let mut d = FeedbackDecoder::new();
+            let mut frames = 0;
+            for piece in bytes.chunks(chunk) {
+                r.push(piece);
+                q.push(piece);
+                drain_framers(&mut r, &mut q, len);
+                d.push(piece);
+                while d.next_frame().is_some() {
+                    frames += 1;
+                }
+            }
+            prop_assert!(frames <= len / FEEDBACK_FRAME_LEN);
+        }
+
         #[test]
         fn decoders_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..4000)) {
             let mut r = ReplyFramer::new();
-            r.push(&bytes);
-            for _ in 0..bytes.len() + 1 {
-                match r.next_reply() {
-                    Ok(None) => break,
-                    Ok(Some(reply)) => { let _ = (reply.numbers(), reply.pose(), reply.error_id_lists(), reply.integer()); }
-                    Err(_) => {}
-                }
-            }
             let mut q = RequestFramer::new();
+            r.push(&bytes);
             q.push(&bytes);
-            for _ in 0..bytes.len() + 1 {
-                match q.next_call() {
-                    Ok(None) => break,
-                    Ok(Some(call)) => { let _ = Request::from_call(&call); }
-                    Err(_) => {}
-                }
-            }
+            drain_framers(&mut r, &mut q, bytes.len());
             let mut d = FeedbackDecoder::new();
             d.push(&bytes);
             while d.next_frame().is_some() {}
