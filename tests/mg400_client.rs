@@ -27,8 +27,9 @@ async fn start_sim(faults: SimFaults) -> (SimMg400, Arc<dyn Clock>) {
 }
 
 fn client_config(sim: &SimMg400) -> Mg400Config {
-    let mut cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), FirmwareProfile::default_mg400())
-        .with_ports(sim.dashboard_addr().port(), sim.motion_addr().port(), sim.feedback_addr().port());
+    let mut cfg = sim.client_config();
+    assert_eq!(cfg.profile, FirmwareProfile::default_mg400());
+    assert_eq!(cfg.motion_port, sim.motion_addr().port());
     cfg.arrival_tolerance_mm = TOL_MM;
     cfg.arrival_tolerance_deg = 0.05;
     cfg.speed_factor_pct = 100;

@@ -37,6 +37,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use crate::arm::dobot::alarms;
+use crate::arm::dobot::client::Mg400Config;
 use crate::arm::dobot::proto::{
     ErrorId, FeedbackFrame, Port, Reply, Request, RequestCall, RequestFramer, RobotMode, format_error_id_lists,
 };
@@ -690,6 +691,16 @@ impl SimMg400 {
         self.feedback_addr
     }
 
+    /// Client settings for this simulator: its address and ports, the profile it runs.
+    pub fn client_config(&self) -> Mg400Config {
+        let profile = self.shared.controller().profile.clone();
+        Mg400Config::new(self.dashboard_addr.ip().to_string(), profile).with_ports(
+            self.dashboard_addr.port(),
+            self.motion_addr.port(),
+            self.feedback_addr.port(),
+        )
+    }
+
     /// The arm's true state, published at every motion step (`t_s` on the simulator's clock).
     pub fn truth(&self) -> watch::Receiver<ArmTruth> {
         self.shared.truth_tx.subscribe()
@@ -760,12 +771,12 @@ async fn motion_task(shared: Arc<Shared>) {
             _ = shutdown.changed() => return,
         }
         let now_s = shared.clock.now_s();
-        let truth = {
-            let mut c = shared.controller();
-            c.tick(now_s);
-            ArmTruth { t_s: now_s, pose: c.pose, speed_mm_s: c.speed_mm_s }
-        };
-        shared.truth_tx.send_replace(truth);
+        let mut c = shared.controller();
+        c.tick(now_s);
+        // Published under the lock, so no feedback frame or reply can show a state the truth
+        // does not yet hold.
+        shared.truth_tx.send_replace(ArmTruth { t_s: now_s, pose: c.pose, speed_mm_s: c.speed_mm_s });
+        drop(c);
     }
 }
 
