@@ -39,7 +39,8 @@ use tokio::task::JoinHandle;
 use crate::arm::dobot::alarms;
 use crate::arm::dobot::client::Mg400Config;
 use crate::arm::dobot::proto::{
-    ErrorId, FeedbackFrame, Port, Reply, Request, RequestCall, RequestFramer, RobotMode, format_error_id_lists,
+    DigitalOutput, ErrorId, FeedbackFrame, Port, RatioSetting, Reply, Request, RequestCall, RequestFramer, RobotMode,
+    format_error_id_lists,
 };
 use crate::arm::kinematics::Joints;
 use crate::arm::profile::{FirmwareProfile, ReachError, trapezoid_accel_fraction, trapezoid_fraction, trapezoid_time_s};
@@ -169,6 +170,15 @@ struct Segment {
     collides: bool,
 }
 
+/// SpeedJ/AccJ/SpeedL/AccL ratios, % (defaults 100).
+#[derive(Debug, Clone, Copy)]
+struct Ratios {
+    speed_j: i64,
+    acc_j: i64,
+    speed_l: i64,
+    acc_l: i64,
+}
+
 /// The simulated controller: modes, alarms, queue and kinematic motion. Pure state, advanced
 /// by [`Controller::tick`] with the time passed in.
 #[derive(Debug)]
@@ -181,6 +191,7 @@ pub struct Controller {
     queue_running: bool,
     paused: bool,
     speed_factor_pct: i64,
+    ratios_pct: Ratios,
     user: i64,
     tool: i64,
     digital_outputs: u64,
@@ -215,6 +226,7 @@ impl Controller {
             queue_running: true,
             paused: false,
             speed_factor_pct: 100,
+            ratios_pct: Ratios { speed_j: 100, acc_j: 100, speed_l: 100, acc_l: 100 },
             user: 0,
             tool: 0,
             digital_outputs: 0,
@@ -366,15 +378,41 @@ impl Controller {
                 }
                 reply(ErrorId::Accepted, "0".into())
             }
-            Request::Do { index, on } => {
-                if !(1..=16).contains(&index) {
+            Request::Do { output, index, on } => {
+                let tool = matches!(output, DigitalOutput::ToolQueued | DigitalOutput::ToolImmediate);
+                // 16 controller outputs; the arm carries two tool outputs (fact sheet section 2).
+                let count = if tool { 2 } else { 16 };
+                if !(1..=count).contains(&index) {
                     return reply(ErrorId::ParameterRange { index: 1 }, String::new());
                 }
-                let bit = 1u64 << (index - 1);
-                if on {
-                    self.digital_outputs |= bit;
-                } else {
-                    self.digital_outputs &= !bit;
+                if !tool {
+                    let bit = 1u64 << (index - 1);
+                    if on {
+                        self.digital_outputs |= bit;
+                    } else {
+                        self.digital_outputs &= !bit;
+                    }
+                }
+                ok()
+            }
+            Request::Ratio { setting, percent } => {
+                let min = if setting == RatioSetting::Cp { 0 } else { 1 };
+                if !(min..=100).contains(&percent) {
+                    return reply(ErrorId::ParameterRange { index: 1 }, String::new());
+                }
+                match setting {
+                    RatioSetting::AccJ => self.ratios_pct.acc_j = percent,
+                    RatioSetting::AccL => self.ratios_pct.acc_l = percent,
+                    RatioSetting::SpeedJ => self.ratios_pct.speed_j = percent,
+                    RatioSetting::SpeedL => self.ratios_pct.speed_l = percent,
+                    // Blending is not simulated: every move comes to rest on its target.
+                    RatioSetting::Cp => {}
+                }
+                ok()
+            }
+            Request::SetCollisionLevel { level } => {
+                if !(0..=5).contains(&level) {
+                    return reply(ErrorId::ParameterRange { index: 1 }, String::new());
                 }
                 ok()
             }
@@ -500,23 +538,28 @@ impl Controller {
                 return false;
             }
         };
+        // Effective speed = global SpeedFactor x the per-kind ratio ([G4]).
         let sf = self.speed_factor_pct as f64 / 100.0;
+        let r = self.ratios_pct;
         let sp = &self.profile.speed;
         let (duration_s, accel_fraction) = if linear {
+            let (v, a) = (sf * r.speed_l as f64 / 100.0, sf * r.acc_l as f64 / 100.0);
             let d = self.pose.distance_mm(&to_pose);
             let yaw = (to_pose.yaw_deg - self.pose.yaw_deg).abs();
-            let t_lin = trapezoid_time_s(d, sp.linear_speed_mm_s * sf, sp.linear_acc_mm_s2 * sf);
-            let t_yaw = trapezoid_time_s(yaw, sp.yaw_speed_deg_s * sf, sp.yaw_acc_deg_s2 * sf);
+            let t_lin = trapezoid_time_s(d, sp.linear_speed_mm_s * v, sp.linear_acc_mm_s2 * a);
+            let t_yaw = trapezoid_time_s(yaw, sp.yaw_speed_deg_s * v, sp.yaw_acc_deg_s2 * a);
             if t_lin >= t_yaw {
-                (t_lin, trapezoid_accel_fraction(d, sp.linear_speed_mm_s * sf, sp.linear_acc_mm_s2 * sf))
+                (t_lin, trapezoid_accel_fraction(d, sp.linear_speed_mm_s * v, sp.linear_acc_mm_s2 * a))
             } else {
-                (t_yaw, trapezoid_accel_fraction(yaw, sp.yaw_speed_deg_s * sf, sp.yaw_acc_deg_s2 * sf))
+                (t_yaw, trapezoid_accel_fraction(yaw, sp.yaw_speed_deg_s * v, sp.yaw_acc_deg_s2 * a))
             }
         } else {
+            let (v, acc_ratio) = (sf * r.speed_j as f64 / 100.0, sf * r.acc_j as f64 / 100.0);
             let (a, b) = (self.joints.to_array(), to_joints.to_array());
             let mut slowest = (0.0, 0.5);
             for i in 0..4 {
-                let (d, v, acc) = ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * sf, sp.joint_acc_deg_s2[i] * sf);
+                let (d, v, acc) =
+                    ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * v, sp.joint_acc_deg_s2[i] * acc_ratio);
                 let t = trapezoid_time_s(d, v, acc);
                 if t > slowest.0 {
                     slowest = (t, trapezoid_accel_fraction(d, v, acc));
@@ -979,12 +1022,39 @@ mod tests {
     }
 
     #[test]
+    fn speed_ratios_slow_moves_down() {
+        let duration = |setup: &[&str], motion: &str| {
+            let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
+            reply(&mut c, "EnableRobot()", Port::Dashboard);
+            for cmd in setup {
+                assert_eq!(reply(&mut c, cmd, Port::Dashboard).error_id, ErrorId::Accepted, "{cmd}");
+            }
+            reply(&mut c, motion, Port::Motion);
+            c.tick(0.001);
+            c.active.map(|seg| seg.duration_s).unwrap_or(0.0)
+        };
+        let full = duration(&[], "MovJ(250,80,-30,20)");
+        assert!(full > 0.0);
+        assert!(duration(&["SpeedJ(10)"], "MovJ(250,80,-30,20)") > full);
+        assert!(duration(&["SpeedFactor(20)"], "MovJ(250,80,-30,20)") > full);
+        // SpeedJ affects joint moves only.
+        let linear = duration(&[], "MovL(250,80,-30,20)");
+        assert_eq!(duration(&["SpeedJ(10)", "AccJ(10)"], "MovL(250,80,-30,20)"), linear);
+        assert!(duration(&["SpeedL(10)", "AccL(10)"], "MovL(250,80,-30,20)") > linear);
+    }
+
+    #[test]
     fn parameter_errors() {
         let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
         assert_eq!(reply(&mut c, "SpeedFactor(0)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
         assert_eq!(reply(&mut c, "SpeedFactor(a)", Port::Dashboard).error_id, ErrorId::ParameterType { index: 1 });
         assert_eq!(reply(&mut c, "Fly()", Port::Dashboard).error_id, ErrorId::UnknownCommand);
         assert_eq!(reply(&mut c, "User(3)", Port::Dashboard).error_id, ErrorId::Failed);
+        assert_eq!(reply(&mut c, "ToolDO(3,1)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
+        assert_eq!(reply(&mut c, "ToolDO(2,1)", Port::Dashboard).error_id, ErrorId::Accepted);
+        assert_eq!(reply(&mut c, "CP(0)", Port::Dashboard).error_id, ErrorId::Accepted);
+        assert_eq!(reply(&mut c, "AccJ(0)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
+        assert_eq!(reply(&mut c, "SetCollisionLevel(6)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
         assert_eq!(reply(&mut c, "EnableRobot(1,2)", Port::Dashboard).error_id, ErrorId::WrongParameterCount);
         assert_eq!(reply(&mut c, "getpose()", Port::Dashboard).values, "300.000000,0.000000,0.000000,0.000000");
     }
