@@ -10,7 +10,7 @@ use rig::arm::dobot::client::{Mg400Client, Mg400Config};
 use rig::arm::dobot::proto::RobotMode;
 use rig::arm::profile::FirmwareProfile;
 use rig::arm::{Arm, ArmError, MoveKind};
-use rig::clock::{Clock, MonotonicClock};
+use rig::clock::{Clock, MockClock, MonotonicClock};
 use rig::pose::Pose;
 use rig::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -284,4 +284,37 @@ async fn raw_protocol_as_netcat_sees_it() {
     assert_eq!(ask(&mut d, "GetPose()").await, "0,{300.000000,10.000000,0.000000,0.000000},GetPose();");
     let errors = ask(&mut d, "GetErrorID()").await;
     assert!(errors.starts_with("0,{[\n\t[],"), "{errors:?}");
+}
+
+/// The simulator's motion runs on the clock it is given: on a mock clock nothing moves until
+/// the clock does, and arrival times are stamped in mock seconds.
+#[tokio::test]
+async fn simulated_motion_follows_a_mock_clock() {
+    let mock = MockClock::new();
+    let clock: Arc<dyn Clock> = Arc::new(mock.clone());
+    let sim = SimMg400::start(SimMg400Config::default(), clock.clone()).await.unwrap();
+    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    client.enable().await.unwrap();
+    let target = Pose::new(320.0, 40.0, -10.0, 0.0);
+    client.move_to(target, MoveKind::Joint).await.unwrap();
+    // The move starts, real time passes, mock time does not: the arm stays at its start pose.
+    while sim.stats().moves_started == 0 {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    assert!(sim.pose().distance_mm(&Pose::new(300.0, 0.0, 0.0, 0.0)) < 1e-9, "{}", sim.pose());
+    assert_eq!(sim.mode(), RobotMode::Running);
+    let ticker = {
+        let mock = mock.clone();
+        tokio::spawn(async move {
+            loop {
+                mock.advance(Duration::from_millis(8));
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+        })
+    };
+    let arrival = client.wait_arrived(target, WAIT).await.unwrap();
+    ticker.abort();
+    assert!(arrival.error_mm <= 0.1);
+    assert!(arrival.t_s > 0.0 && arrival.t_s <= mock.now_s());
 }

@@ -521,7 +521,14 @@ impl Mg400Client {
 
     async fn enable_inner(&mut self) -> Result<(), ArmError> {
         self.dashboard(&Request::ClearError).await?;
-        self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await?;
+        if let Err(e) = self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await {
+            // An alarm ClearError could not clear makes EnableRobot fail with -1: report the
+            // alarm rather than the bare refusal.
+            if matches!(e, ArmError::Refused { .. }) && matches!(self.robot_mode().await, Ok(RobotMode::Error)) {
+                return Err(self.fault().await);
+            }
+            return Err(e);
+        }
         let deadline = Instant::now() + self.cfg.enable_timeout;
         let seq = self.latest_seq();
         // Frames already in flight may still show the state from before ClearError, so an
