@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use rig::arm::dobot::client::{Mg400Client, Mg400Config};
 use rig::arm::dobot::proto::RobotMode;
+use rig::arm::kinematics::Joints;
 use rig::arm::profile::FirmwareProfile;
 use rig::arm::{Arm, ArmError, MoveKind};
 use rig::clock::{Clock, MockClock, MonotonicClock};
@@ -255,6 +256,21 @@ async fn attach_runs_over_given_streams() {
     assert!(arrival.error_mm <= TOL_MM);
 }
 
+#[tokio::test]
+async fn starts_where_configured_or_refuses_to_start() {
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
+    let joints = Joints::new(10.0, 30.0, 40.0, -5.0);
+    let cfg = SimMg400Config { start_joints: Some(joints), ..Default::default() };
+    let sim = SimMg400::start(cfg, clock.clone()).await.unwrap();
+    let expected = FirmwareProfile::default_mg400().kinematics.forward(&joints);
+    assert_eq!(sim.pose(), expected);
+    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    assert!(client.pose().await.unwrap().distance_mm(&expected) < 1e-9);
+    let bad = SimMg400Config { start_pose: Pose::new(900.0, 0.0, 0.0, 0.0), ..Default::default() };
+    let err = SimMg400::start(bad, clock).await.err().expect("unreachable start refused");
+    assert_eq!(err.kind(), std::io::ErrorKind::InvalidInput);
+}
+
 /// What `printf 'EnableRobot()' | nc 127.0.0.1 29999` sees: the real reply format.
 #[tokio::test]
 async fn raw_protocol_as_netcat_sees_it() {
@@ -278,6 +294,12 @@ async fn raw_protocol_as_netcat_sees_it() {
     assert_eq!(ask(&mut d, "enablerobot(1,2)").await, "-20000,{},enablerobot(1,2);");
     assert_eq!(ask(&mut d, "Jump()").await, "-10000,{},Jump();");
     assert_eq!(ask(&mut m, "MovJ(300,10,0,0)").await, "0,{},MovJ(300,10,0,0);");
+    assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
+    // Dobot's Python SDK formats numbers with %f.
+    assert_eq!(
+        ask(&mut m, "MovL(300.000000,10.000000,0.000000,0.000000)").await,
+        "0,{},MovL(300.000000,10.000000,0.000000,0.000000);"
+    );
     assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
     // Sync answered only after the move: the arm is at the target now.
     assert_eq!(sim.pose(), Pose::new(300.0, 10.0, 0.0, 0.0));

@@ -91,6 +91,8 @@ pub struct SimMg400Config {
     pub feedback_port: u16,
     /// Base-frame pose the arm starts at; must be reachable under `profile`.
     pub start_pose: Pose,
+    /// Joint angles the arm starts at; when set, they replace `start_pose`.
+    pub start_joints: Option<Joints>,
     pub profile: FirmwareProfile,
     pub faults: SimFaults,
     /// Queue depth past which the controller freezes (the real one freezes past about 50).
@@ -105,6 +107,7 @@ impl Default for SimMg400Config {
             motion_port: 0,
             feedback_port: 0,
             start_pose: Pose::new(300.0, 0.0, 0.0, 0.0),
+            start_joints: None,
             profile: FirmwareProfile::default_mg400(),
             faults: SimFaults::default(),
             freeze_queue_depth: 50,
@@ -684,19 +687,24 @@ pub struct SimMg400 {
 impl SimMg400 {
     /// Binds the ports and starts serving.
     pub async fn start(cfg: SimMg400Config, clock: Arc<dyn Clock>) -> Result<SimMg400, std::io::Error> {
-        let mut controller = Controller::new(cfg.profile.clone(), cfg.start_pose, cfg.freeze_queue_depth)
-            .map_err(|e| {
-                std::io::Error::new(
-                    std::io::ErrorKind::InvalidInput,
-                    format!("simulated MG400 start pose {} is unreachable: {e}", cfg.start_pose),
-                )
-            })?;
+        let unreachable = |e: ReachError| {
+            std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("simulated MG400 start is unreachable: {e}"))
+        };
+        let start_pose = match cfg.start_joints {
+            Some(j) => {
+                cfg.profile.check_joints(&j).map_err(unreachable)?;
+                cfg.profile.kinematics.forward(&j)
+            }
+            None => cfg.start_pose,
+        };
+        let mut controller =
+            Controller::new(cfg.profile.clone(), start_pose, cfg.freeze_queue_depth).map_err(unreachable)?;
         controller.collision_at_move = cfg.faults.collision_at_move;
         controller.last_t_s = clock.now_s();
         let dashboard = TcpListener::bind((cfg.bind, cfg.dashboard_port)).await?;
         let motion = TcpListener::bind((cfg.bind, cfg.motion_port)).await?;
         let feedback = TcpListener::bind((cfg.bind, cfg.feedback_port)).await?;
-        let truth = ArmTruth { t_s: clock.now_s(), pose: cfg.start_pose, speed_mm_s: 0.0 };
+        let truth = ArmTruth { t_s: clock.now_s(), pose: start_pose, speed_mm_s: 0.0 };
         let epoch_unix_ms = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0);
         let shared = Arc::new(Shared {
             controller: Mutex::new(controller),
