@@ -17,7 +17,8 @@
 //! exactly on the commanded target. Mode is 7 while moving, 5 when idle, 9 with alarm ids for
 //! unreachable targets, injected collisions and emergency stops. An alarm stops the arm,
 //! empties the queue and stops the queue runner: further motion is refused (-1) until
-//! ClearError, and queued motion waits for Continue. A collision or emergency stop also
+//! ClearError, and queued motion waits for Continue. Pause holds the arm mid-move until
+//! Continue. A collision or emergency stop also
 //! disables the arm, so EnableRobot is needed again (as [WS] reports for the real arm).
 //!
 //! Fault injection ([`SimFaults`], changeable at run time with [`SimMg400::set_faults`]):
@@ -455,6 +456,16 @@ impl Controller {
     pub fn tick(&mut self, now_s: f64) {
         let before = self.pose;
         let dt = now_s - self.last_t_s;
+        if self.paused {
+            // Pause holds the arm where it is: the move in progress resumes on Continue from
+            // the same point of its profile.
+            if let Some(seg) = self.active.as_mut() {
+                seg.start_t_s += dt;
+            }
+            self.speed_mm_s = 0.0;
+            self.last_t_s = now_s;
+            return;
+        }
         let mut chain_from = now_s;
         // Each pass either finishes a segment or leaves it running; bounded by the queue.
         for _ in 0..=self.queue.len() + 1 {
@@ -1049,6 +1060,29 @@ mod tests {
         let linear = duration(&[], "MovL(250,80,-30,20)");
         assert_eq!(duration(&["SpeedJ(10)", "AccJ(10)"], "MovL(250,80,-30,20)"), linear);
         assert!(duration(&["SpeedL(10)", "AccL(10)"], "MovL(250,80,-30,20)") > linear);
+    }
+
+    #[test]
+    fn pause_holds_the_arm_and_continue_resumes() {
+        let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
+        reply(&mut c, "EnableRobot()", Port::Dashboard);
+        reply(&mut c, "MovL(260,0,0,0)", Port::Motion);
+        c.tick(0.0);
+        c.tick(0.02);
+        reply(&mut c, "Pause()", Port::Dashboard);
+        assert_eq!(c.mode(), RobotMode::Pause);
+        let held = c.pose();
+        c.tick(5.0);
+        assert_eq!(c.pose(), held);
+        reply(&mut c, "Continue()", Port::Dashboard);
+        c.tick(5.01);
+        assert!(c.pose().x_mm < held.x_mm, "moves on after Continue");
+        let mut t = 5.01;
+        while !c.idle() && t < 20.0 {
+            t += 0.008;
+            c.tick(t);
+        }
+        assert_eq!(c.pose(), Pose::new(260.0, 0.0, 0.0, 0.0));
     }
 
     #[test]
