@@ -8,9 +8,10 @@ use std::time::Duration;
 
 use rig::arm::dobot::client::{Mg400Client, Mg400Config};
 use rig::arm::dobot::proto::RobotMode;
+use rig::arm::kinematics::Joints;
 use rig::arm::profile::FirmwareProfile;
 use rig::arm::{Arm, ArmError, MoveKind};
-use rig::clock::{Clock, MonotonicClock};
+use rig::clock::{Clock, MockClock, MonotonicClock};
 use rig::pose::Pose;
 use rig::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -27,8 +28,9 @@ async fn start_sim(faults: SimFaults) -> (SimMg400, Arc<dyn Clock>) {
 }
 
 fn client_config(sim: &SimMg400) -> Mg400Config {
-    let mut cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), FirmwareProfile::default_mg400())
-        .with_ports(sim.dashboard_addr().port(), sim.motion_addr().port(), sim.feedback_addr().port());
+    let mut cfg = sim.client_config();
+    assert_eq!(cfg.profile, FirmwareProfile::default_mg400());
+    assert_eq!(cfg.motion_port, sim.motion_addr().port());
     cfg.arrival_tolerance_mm = TOL_MM;
     cfg.arrival_tolerance_deg = 0.05;
     cfg.speed_factor_pct = 100;
@@ -254,6 +256,21 @@ async fn attach_runs_over_given_streams() {
     assert!(arrival.error_mm <= TOL_MM);
 }
 
+#[tokio::test]
+async fn starts_where_configured_or_refuses_to_start() {
+    let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
+    let joints = Joints::new(10.0, 30.0, 40.0, -5.0);
+    let cfg = SimMg400Config { start_joints: Some(joints), ..Default::default() };
+    let sim = SimMg400::start(cfg, clock.clone()).await.unwrap();
+    let expected = FirmwareProfile::default_mg400().kinematics.forward(&joints);
+    assert_eq!(sim.pose(), expected);
+    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    assert!(client.pose().await.unwrap().distance_mm(&expected) < 1e-9);
+    let bad = SimMg400Config { start_pose: Pose::new(900.0, 0.0, 0.0, 0.0), ..Default::default() };
+    let err = SimMg400::start(bad, clock).await.err().expect("unreachable start refused");
+    assert_eq!(err.kind(), std::io::ErrorKind::InvalidInput);
+}
+
 /// What `printf 'EnableRobot()' | nc 127.0.0.1 29999` sees: the real reply format.
 #[tokio::test]
 async fn raw_protocol_as_netcat_sees_it() {
@@ -278,9 +295,48 @@ async fn raw_protocol_as_netcat_sees_it() {
     assert_eq!(ask(&mut d, "Jump()").await, "-10000,{},Jump();");
     assert_eq!(ask(&mut m, "MovJ(300,10,0,0)").await, "0,{},MovJ(300,10,0,0);");
     assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
+    // Dobot's Python SDK formats numbers with %f.
+    assert_eq!(
+        ask(&mut m, "MovL(300.000000,10.000000,0.000000,0.000000)").await,
+        "0,{},MovL(300.000000,10.000000,0.000000,0.000000);"
+    );
+    assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
     // Sync answered only after the move: the arm is at the target now.
     assert_eq!(sim.pose(), Pose::new(300.0, 10.0, 0.0, 0.0));
     assert_eq!(ask(&mut d, "GetPose()").await, "0,{300.000000,10.000000,0.000000,0.000000},GetPose();");
     let errors = ask(&mut d, "GetErrorID()").await;
     assert!(errors.starts_with("0,{[\n\t[],"), "{errors:?}");
+}
+
+/// The simulator's motion runs on the clock it is given: on a mock clock nothing moves until
+/// the clock does, and arrival times are stamped in mock seconds.
+#[tokio::test]
+async fn simulated_motion_follows_a_mock_clock() {
+    let mock = MockClock::new();
+    let clock: Arc<dyn Clock> = Arc::new(mock.clone());
+    let sim = SimMg400::start(SimMg400Config::default(), clock.clone()).await.unwrap();
+    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    client.enable().await.unwrap();
+    let target = Pose::new(320.0, 40.0, -10.0, 0.0);
+    client.move_to(target, MoveKind::Joint).await.unwrap();
+    // The move starts, real time passes, mock time does not: the arm stays at its start pose.
+    while sim.stats().moves_started == 0 {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    assert!(sim.pose().distance_mm(&Pose::new(300.0, 0.0, 0.0, 0.0)) < 1e-9, "{}", sim.pose());
+    assert_eq!(sim.mode(), RobotMode::Running);
+    let ticker = {
+        let mock = mock.clone();
+        tokio::spawn(async move {
+            loop {
+                mock.advance(Duration::from_millis(8));
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+        })
+    };
+    let arrival = client.wait_arrived(target, WAIT).await.unwrap();
+    ticker.abort();
+    assert!(arrival.error_mm <= 0.1);
+    assert!(arrival.t_s > 0.0 && arrival.t_s <= mock.now_s());
 }

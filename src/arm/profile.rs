@@ -274,7 +274,8 @@ impl FirmwareProfile {
 /// Time to travel `distance` from rest to rest with speed limit `v_max` and acceleration
 /// limit `a_max`: triangular when the distance is too short to reach `v_max`.
 pub fn trapezoid_time_s(distance: f64, v_max: f64, a_max: f64) -> f64 {
-    if !(distance > 0.0) {
+    // Also catches NaN: no distance, no time.
+    if distance.is_nan() || distance <= 0.0 {
         return 0.0;
     }
     if distance <= v_max * v_max / a_max {

@@ -70,34 +70,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--time-scale must be a positive number, got {}",
         args.time_scale
     );
-    let profile = match &args.profile {
-        Some(path) => FirmwareProfile::load(path)?,
-        None => FirmwareProfile::default_mg400(),
-    };
-    let mut cfg = SimMg400Config {
-        bind: args.bind,
-        dashboard_port: profile.transport.dashboard_port,
-        motion_port: profile.transport.motion_port,
-        feedback_port: profile.transport.feedback_port,
-        start_pose: args.start_pose,
-        faults: SimFaults {
-            reply_delay: Duration::from_millis(args.reply_delay_ms),
-            split_replies: args.split_replies,
-            feedback_garbage_every: args.feedback_garbage_every,
-            feedback_start_mid_frame: args.feedback_start_mid_frame,
-            collision_at_move: args.collision_at_move,
-            drop_dashboard_after: args.drop_dashboard_after,
-        },
-        profile,
-        ..Default::default()
-    };
-    if let Some(base) = args.port_base {
-        cfg = cfg.with_port_base(base)?;
-    }
-    cfg.dashboard_port = args.dashboard_port.unwrap_or(cfg.dashboard_port);
-    cfg.motion_port = args.motion_port.unwrap_or(cfg.motion_port);
-    cfg.feedback_port = args.feedback_port.unwrap_or(cfg.feedback_port);
-
+    let cfg = sim_config(&args)?;
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     runtime.block_on(async move {
         let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(args.time_scale));
@@ -127,4 +100,74 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         sim.shutdown().await;
         Ok(())
     })
+}
+
+/// Resolves the options into the simulator's configuration.
+pub fn sim_config(args: &Args) -> anyhow::Result<SimMg400Config> {
+    let profile = match &args.profile {
+        Some(path) => FirmwareProfile::load(path)?,
+        None => FirmwareProfile::default_mg400(),
+    };
+    let mut cfg = SimMg400Config {
+        bind: args.bind,
+        dashboard_port: profile.transport.dashboard_port,
+        motion_port: profile.transport.motion_port,
+        feedback_port: profile.transport.feedback_port,
+        start_pose: args.start_pose,
+        faults: SimFaults {
+            reply_delay: Duration::from_millis(args.reply_delay_ms),
+            split_replies: args.split_replies,
+            feedback_garbage_every: args.feedback_garbage_every,
+            feedback_start_mid_frame: args.feedback_start_mid_frame,
+            collision_at_move: args.collision_at_move,
+            drop_dashboard_after: args.drop_dashboard_after,
+        },
+        profile,
+        ..Default::default()
+    };
+    if let Some(base) = args.port_base {
+        cfg = cfg.with_port_base(base)?;
+    }
+    cfg.dashboard_port = args.dashboard_port.unwrap_or(cfg.dashboard_port);
+    cfg.motion_port = args.motion_port.unwrap_or(cfg.motion_port);
+    cfg.feedback_port = args.feedback_port.unwrap_or(cfg.feedback_port);
+    Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    fn parse(argv: &[&str]) -> Args {
+        match crate::cli::Cli::try_parse_from(argv).map(|c| c.command) {
+            Ok(crate::cli::Command::Sim(args)) => args,
+            other => panic!("expected sim args, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn ports_from_base_flags_and_defaults() {
+        let cfg = sim_config(&parse(&["rig", "sim"])).unwrap();
+        assert_eq!((cfg.dashboard_port, cfg.motion_port, cfg.feedback_port), (29999, 30003, 30004));
+        let cfg = sim_config(&parse(&["rig", "sim", "--port-base", "41000"])).unwrap();
+        assert_eq!((cfg.dashboard_port, cfg.motion_port, cfg.feedback_port), (41000, 41003, 41004));
+        let cfg = sim_config(&parse(&["rig", "sim", "--port-base", "41000", "--feedback-port", "0"])).unwrap();
+        assert_eq!((cfg.dashboard_port, cfg.motion_port, cfg.feedback_port), (41000, 41003, 0));
+        assert!(sim_config(&parse(&["rig", "sim", "--port-base", "65534"])).is_err());
+    }
+
+    #[test]
+    fn faults_and_start_pose() {
+        let args = parse(&[
+            "rig", "sim", "--collision-at-move", "3", "--split-replies", "--reply-delay-ms", "5",
+            "--start-pose", "310,-20,-5,10",
+        ]);
+        let cfg = sim_config(&args).unwrap();
+        assert_eq!(cfg.faults.collision_at_move, Some(3));
+        assert!(cfg.faults.split_replies);
+        assert_eq!(cfg.faults.reply_delay, Duration::from_millis(5));
+        assert_eq!(cfg.start_pose, Pose::new(310.0, -20.0, -5.0, 10.0));
+        assert!(parse(&["rig", "sim", "--time-scale", "10"]).time_scale == 10.0);
+    }
 }

@@ -17,7 +17,8 @@
 //! exactly on the commanded target. Mode is 7 while moving, 5 when idle, 9 with alarm ids for
 //! unreachable targets, injected collisions and emergency stops. An alarm stops the arm,
 //! empties the queue and stops the queue runner: further motion is refused (-1) until
-//! ClearError, and queued motion waits for Continue. A collision or emergency stop also
+//! ClearError, and queued motion waits for Continue. Pause holds the arm mid-move until
+//! Continue. A collision or emergency stop also
 //! disables the arm, so EnableRobot is needed again (as [WS] reports for the real arm).
 //!
 //! Fault injection ([`SimFaults`], changeable at run time with [`SimMg400::set_faults`]):
@@ -37,8 +38,10 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use crate::arm::dobot::alarms;
+use crate::arm::dobot::client::Mg400Config;
 use crate::arm::dobot::proto::{
-    ErrorId, FeedbackFrame, Port, Reply, Request, RequestCall, RequestFramer, RobotMode, format_error_id_lists,
+    DigitalOutput, ErrorId, FeedbackFrame, Port, RatioSetting, Reply, Request, RequestCall, RequestFramer, RobotMode,
+    format_error_id_lists,
 };
 use crate::arm::kinematics::Joints;
 use crate::arm::profile::{FirmwareProfile, ReachError, trapezoid_accel_fraction, trapezoid_fraction, trapezoid_time_s};
@@ -89,6 +92,8 @@ pub struct SimMg400Config {
     pub feedback_port: u16,
     /// Base-frame pose the arm starts at; must be reachable under `profile`.
     pub start_pose: Pose,
+    /// Joint angles the arm starts at; when set, they replace `start_pose`.
+    pub start_joints: Option<Joints>,
     pub profile: FirmwareProfile,
     pub faults: SimFaults,
     /// Queue depth past which the controller freezes (the real one freezes past about 50).
@@ -103,6 +108,7 @@ impl Default for SimMg400Config {
             motion_port: 0,
             feedback_port: 0,
             start_pose: Pose::new(300.0, 0.0, 0.0, 0.0),
+            start_joints: None,
             profile: FirmwareProfile::default_mg400(),
             faults: SimFaults::default(),
             freeze_queue_depth: 50,
@@ -168,6 +174,15 @@ struct Segment {
     collides: bool,
 }
 
+/// SpeedJ/AccJ/SpeedL/AccL ratios, % (defaults 100).
+#[derive(Debug, Clone, Copy)]
+struct Ratios {
+    speed_j: i64,
+    acc_j: i64,
+    speed_l: i64,
+    acc_l: i64,
+}
+
 /// The simulated controller: modes, alarms, queue and kinematic motion. Pure state, advanced
 /// by [`Controller::tick`] with the time passed in.
 #[derive(Debug)]
@@ -180,6 +195,7 @@ pub struct Controller {
     queue_running: bool,
     paused: bool,
     speed_factor_pct: i64,
+    ratios_pct: Ratios,
     user: i64,
     tool: i64,
     digital_outputs: u64,
@@ -214,6 +230,7 @@ impl Controller {
             queue_running: true,
             paused: false,
             speed_factor_pct: 100,
+            ratios_pct: Ratios { speed_j: 100, acc_j: 100, speed_l: 100, acc_l: 100 },
             user: 0,
             tool: 0,
             digital_outputs: 0,
@@ -365,15 +382,41 @@ impl Controller {
                 }
                 reply(ErrorId::Accepted, "0".into())
             }
-            Request::Do { index, on } => {
-                if !(1..=16).contains(&index) {
+            Request::Do { output, index, on } => {
+                let tool = matches!(output, DigitalOutput::ToolQueued | DigitalOutput::ToolImmediate);
+                // 16 controller outputs; the arm carries two tool outputs (fact sheet section 2).
+                let count = if tool { 2 } else { 16 };
+                if !(1..=count).contains(&index) {
                     return reply(ErrorId::ParameterRange { index: 1 }, String::new());
                 }
-                let bit = 1u64 << (index - 1);
-                if on {
-                    self.digital_outputs |= bit;
-                } else {
-                    self.digital_outputs &= !bit;
+                if !tool {
+                    let bit = 1u64 << (index - 1);
+                    if on {
+                        self.digital_outputs |= bit;
+                    } else {
+                        self.digital_outputs &= !bit;
+                    }
+                }
+                ok()
+            }
+            Request::Ratio { setting, percent } => {
+                let min = if setting == RatioSetting::Cp { 0 } else { 1 };
+                if !(min..=100).contains(&percent) {
+                    return reply(ErrorId::ParameterRange { index: 1 }, String::new());
+                }
+                match setting {
+                    RatioSetting::AccJ => self.ratios_pct.acc_j = percent,
+                    RatioSetting::AccL => self.ratios_pct.acc_l = percent,
+                    RatioSetting::SpeedJ => self.ratios_pct.speed_j = percent,
+                    RatioSetting::SpeedL => self.ratios_pct.speed_l = percent,
+                    // Blending is not simulated: every move comes to rest on its target.
+                    RatioSetting::Cp => {}
+                }
+                ok()
+            }
+            Request::SetCollisionLevel { level } => {
+                if !(0..=5).contains(&level) {
+                    return reply(ErrorId::ParameterRange { index: 1 }, String::new());
                 }
                 ok()
             }
@@ -413,6 +456,16 @@ impl Controller {
     pub fn tick(&mut self, now_s: f64) {
         let before = self.pose;
         let dt = now_s - self.last_t_s;
+        if self.paused {
+            // Pause holds the arm where it is: the move in progress resumes on Continue from
+            // the same point of its profile.
+            if let Some(seg) = self.active.as_mut() {
+                seg.start_t_s += dt;
+            }
+            self.speed_mm_s = 0.0;
+            self.last_t_s = now_s;
+            return;
+        }
         let mut chain_from = now_s;
         // Each pass either finishes a segment or leaves it running; bounded by the queue.
         for _ in 0..=self.queue.len() + 1 {
@@ -499,23 +552,28 @@ impl Controller {
                 return false;
             }
         };
+        // Effective speed = global SpeedFactor x the per-kind ratio ([G4]).
         let sf = self.speed_factor_pct as f64 / 100.0;
+        let r = self.ratios_pct;
         let sp = &self.profile.speed;
         let (duration_s, accel_fraction) = if linear {
+            let (v, a) = (sf * r.speed_l as f64 / 100.0, sf * r.acc_l as f64 / 100.0);
             let d = self.pose.distance_mm(&to_pose);
             let yaw = (to_pose.yaw_deg - self.pose.yaw_deg).abs();
-            let t_lin = trapezoid_time_s(d, sp.linear_speed_mm_s * sf, sp.linear_acc_mm_s2 * sf);
-            let t_yaw = trapezoid_time_s(yaw, sp.yaw_speed_deg_s * sf, sp.yaw_acc_deg_s2 * sf);
+            let t_lin = trapezoid_time_s(d, sp.linear_speed_mm_s * v, sp.linear_acc_mm_s2 * a);
+            let t_yaw = trapezoid_time_s(yaw, sp.yaw_speed_deg_s * v, sp.yaw_acc_deg_s2 * a);
             if t_lin >= t_yaw {
-                (t_lin, trapezoid_accel_fraction(d, sp.linear_speed_mm_s * sf, sp.linear_acc_mm_s2 * sf))
+                (t_lin, trapezoid_accel_fraction(d, sp.linear_speed_mm_s * v, sp.linear_acc_mm_s2 * a))
             } else {
-                (t_yaw, trapezoid_accel_fraction(yaw, sp.yaw_speed_deg_s * sf, sp.yaw_acc_deg_s2 * sf))
+                (t_yaw, trapezoid_accel_fraction(yaw, sp.yaw_speed_deg_s * v, sp.yaw_acc_deg_s2 * a))
             }
         } else {
+            let (v, acc_ratio) = (sf * r.speed_j as f64 / 100.0, sf * r.acc_j as f64 / 100.0);
             let (a, b) = (self.joints.to_array(), to_joints.to_array());
             let mut slowest = (0.0, 0.5);
             for i in 0..4 {
-                let (d, v, acc) = ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * sf, sp.joint_acc_deg_s2[i] * sf);
+                let (d, v, acc) =
+                    ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * v, sp.joint_acc_deg_s2[i] * acc_ratio);
                 let t = trapezoid_time_s(d, v, acc);
                 if t > slowest.0 {
                     slowest = (t, trapezoid_accel_fraction(d, v, acc));
@@ -640,19 +698,24 @@ pub struct SimMg400 {
 impl SimMg400 {
     /// Binds the ports and starts serving.
     pub async fn start(cfg: SimMg400Config, clock: Arc<dyn Clock>) -> Result<SimMg400, std::io::Error> {
-        let mut controller = Controller::new(cfg.profile.clone(), cfg.start_pose, cfg.freeze_queue_depth)
-            .map_err(|e| {
-                std::io::Error::new(
-                    std::io::ErrorKind::InvalidInput,
-                    format!("simulated MG400 start pose {} is unreachable: {e}", cfg.start_pose),
-                )
-            })?;
+        let unreachable = |e: ReachError| {
+            std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("simulated MG400 start is unreachable: {e}"))
+        };
+        let start_pose = match cfg.start_joints {
+            Some(j) => {
+                cfg.profile.check_joints(&j).map_err(unreachable)?;
+                cfg.profile.kinematics.forward(&j)
+            }
+            None => cfg.start_pose,
+        };
+        let mut controller =
+            Controller::new(cfg.profile.clone(), start_pose, cfg.freeze_queue_depth).map_err(unreachable)?;
         controller.collision_at_move = cfg.faults.collision_at_move;
         controller.last_t_s = clock.now_s();
         let dashboard = TcpListener::bind((cfg.bind, cfg.dashboard_port)).await?;
         let motion = TcpListener::bind((cfg.bind, cfg.motion_port)).await?;
         let feedback = TcpListener::bind((cfg.bind, cfg.feedback_port)).await?;
-        let truth = ArmTruth { t_s: clock.now_s(), pose: cfg.start_pose, speed_mm_s: 0.0 };
+        let truth = ArmTruth { t_s: clock.now_s(), pose: start_pose, speed_mm_s: 0.0 };
         let epoch_unix_ms = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0);
         let shared = Arc::new(Shared {
             controller: Mutex::new(controller),
@@ -688,6 +751,16 @@ impl SimMg400 {
     }
     pub fn feedback_addr(&self) -> SocketAddr {
         self.feedback_addr
+    }
+
+    /// Client settings for this simulator: its address and ports, the profile it runs.
+    pub fn client_config(&self) -> Mg400Config {
+        let profile = self.shared.controller().profile.clone();
+        Mg400Config::new(self.dashboard_addr.ip().to_string(), profile).with_ports(
+            self.dashboard_addr.port(),
+            self.motion_addr.port(),
+            self.feedback_addr.port(),
+        )
     }
 
     /// The arm's true state, published at every motion step (`t_s` on the simulator's clock).
@@ -760,12 +833,12 @@ async fn motion_task(shared: Arc<Shared>) {
             _ = shutdown.changed() => return,
         }
         let now_s = shared.clock.now_s();
-        let truth = {
-            let mut c = shared.controller();
-            c.tick(now_s);
-            ArmTruth { t_s: now_s, pose: c.pose, speed_mm_s: c.speed_mm_s }
-        };
-        shared.truth_tx.send_replace(truth);
+        let mut c = shared.controller();
+        c.tick(now_s);
+        // Published under the lock, so no feedback frame or reply can show a state the truth
+        // does not yet hold.
+        shared.truth_tx.send_replace(ArmTruth { t_s: now_s, pose: c.pose, speed_mm_s: c.speed_mm_s });
+        drop(c);
     }
 }
 
@@ -968,12 +1041,62 @@ mod tests {
     }
 
     #[test]
+    fn speed_ratios_slow_moves_down() {
+        let duration = |setup: &[&str], motion: &str| {
+            let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
+            reply(&mut c, "EnableRobot()", Port::Dashboard);
+            for cmd in setup {
+                assert_eq!(reply(&mut c, cmd, Port::Dashboard).error_id, ErrorId::Accepted, "{cmd}");
+            }
+            reply(&mut c, motion, Port::Motion);
+            c.tick(0.001);
+            c.active.map(|seg| seg.duration_s).unwrap_or(0.0)
+        };
+        let full = duration(&[], "MovJ(250,80,-30,20)");
+        assert!(full > 0.0);
+        assert!(duration(&["SpeedJ(10)"], "MovJ(250,80,-30,20)") > full);
+        assert!(duration(&["SpeedFactor(20)"], "MovJ(250,80,-30,20)") > full);
+        // SpeedJ affects joint moves only.
+        let linear = duration(&[], "MovL(250,80,-30,20)");
+        assert_eq!(duration(&["SpeedJ(10)", "AccJ(10)"], "MovL(250,80,-30,20)"), linear);
+        assert!(duration(&["SpeedL(10)", "AccL(10)"], "MovL(250,80,-30,20)") > linear);
+    }
+
+    #[test]
+    fn pause_holds_the_arm_and_continue_resumes() {
+        let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
+        reply(&mut c, "EnableRobot()", Port::Dashboard);
+        reply(&mut c, "MovL(260,0,0,0)", Port::Motion);
+        c.tick(0.0);
+        c.tick(0.02);
+        reply(&mut c, "Pause()", Port::Dashboard);
+        assert_eq!(c.mode(), RobotMode::Pause);
+        let held = c.pose();
+        c.tick(5.0);
+        assert_eq!(c.pose(), held);
+        reply(&mut c, "Continue()", Port::Dashboard);
+        c.tick(5.01);
+        assert!(c.pose().x_mm < held.x_mm, "moves on after Continue");
+        let mut t = 5.01;
+        while !c.idle() && t < 20.0 {
+            t += 0.008;
+            c.tick(t);
+        }
+        assert_eq!(c.pose(), Pose::new(260.0, 0.0, 0.0, 0.0));
+    }
+
+    #[test]
     fn parameter_errors() {
         let mut c = Controller::new(FirmwareProfile::default_mg400(), Pose::new(300.0, 0.0, 0.0, 0.0), 50).unwrap();
         assert_eq!(reply(&mut c, "SpeedFactor(0)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
         assert_eq!(reply(&mut c, "SpeedFactor(a)", Port::Dashboard).error_id, ErrorId::ParameterType { index: 1 });
         assert_eq!(reply(&mut c, "Fly()", Port::Dashboard).error_id, ErrorId::UnknownCommand);
         assert_eq!(reply(&mut c, "User(3)", Port::Dashboard).error_id, ErrorId::Failed);
+        assert_eq!(reply(&mut c, "ToolDO(3,1)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
+        assert_eq!(reply(&mut c, "ToolDO(2,1)", Port::Dashboard).error_id, ErrorId::Accepted);
+        assert_eq!(reply(&mut c, "CP(0)", Port::Dashboard).error_id, ErrorId::Accepted);
+        assert_eq!(reply(&mut c, "AccJ(0)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
+        assert_eq!(reply(&mut c, "SetCollisionLevel(6)", Port::Dashboard).error_id, ErrorId::ParameterRange { index: 1 });
         assert_eq!(reply(&mut c, "EnableRobot(1,2)", Port::Dashboard).error_id, ErrorId::WrongParameterCount);
         assert_eq!(reply(&mut c, "getpose()", Port::Dashboard).values, "300.000000,0.000000,0.000000,0.000000");
     }

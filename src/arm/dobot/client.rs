@@ -34,7 +34,7 @@ use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 use crate::arm::dobot::alarms;
-use crate::arm::dobot::proto::{ErrorId, FeedbackDecoder, FeedbackFrame, Reply, ReplyFramer, Request, RobotMode};
+use crate::arm::dobot::proto::{ErrorId, FeedbackDecoder, FeedbackFrame, Port, Reply, ReplyFramer, Request, RobotMode};
 use crate::arm::profile::FirmwareProfile;
 use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
 use crate::clock::Clock;
@@ -465,6 +465,18 @@ impl Mg400Client {
         accepted(req, reply)
     }
 
+    /// Sends any command on its own port (dashboard or motion); a non-zero ErrorID becomes
+    /// [`ArmError::Refused`]. Motion sent this way is not counted against the queue bound.
+    pub async fn command(&mut self, req: &Request) -> Result<Reply, ArmError> {
+        match req.port() {
+            Port::Dashboard => self.dashboard(req).await,
+            Port::Motion => {
+                let reply = self.motion.request(req, self.cfg.reply_timeout, self.cfg.reconnect_attempts).await?;
+                accepted(req, reply)
+            }
+        }
+    }
+
     /// The robot mode, asked on the dashboard.
     pub async fn robot_mode(&mut self) -> Result<RobotMode, ArmError> {
         let reply = self.dashboard(&Request::RobotMode).await?;
@@ -521,7 +533,14 @@ impl Mg400Client {
 
     async fn enable_inner(&mut self) -> Result<(), ArmError> {
         self.dashboard(&Request::ClearError).await?;
-        self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await?;
+        if let Err(e) = self.dashboard(&Request::EnableRobot { load_kg: None, centre_mm: None }).await {
+            // An alarm ClearError could not clear makes EnableRobot fail with -1: report the
+            // alarm rather than the bare refusal.
+            if matches!(e, ArmError::Refused { .. }) && matches!(self.robot_mode().await, Ok(RobotMode::Error)) {
+                return Err(self.fault().await);
+            }
+            return Err(e);
+        }
         let deadline = Instant::now() + self.cfg.enable_timeout;
         let seq = self.latest_seq();
         // Frames already in flight may still show the state from before ClearError, so an
@@ -677,5 +696,92 @@ impl Arm for Mg400Client {
         self.dashboard(&Request::DisableRobot).await?;
         self.queued_moves = 0;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::MockClock;
+    use tokio::io::duplex;
+
+    fn attached() -> (Mg400Client, tokio::io::DuplexStream, tokio::io::DuplexStream, tokio::io::DuplexStream) {
+        let (d, d_robot) = duplex(4096);
+        let (m, m_robot) = duplex(4096);
+        let (f, f_robot) = duplex(1 << 16);
+        let mut cfg = Mg400Config::new("attached", FirmwareProfile::default_mg400());
+        cfg.reply_timeout = Duration::from_millis(50);
+        let client = Mg400Client::attach(cfg, Arc::new(MockClock::new()), d, m, f);
+        (client, d_robot, m_robot, f_robot)
+    }
+
+    async fn expect_request(robot: &mut tokio::io::DuplexStream, text: &str) {
+        let mut buf = vec![0u8; text.len()];
+        robot.read_exact(&mut buf).await.unwrap();
+        assert_eq!(String::from_utf8_lossy(&buf), text);
+    }
+
+    #[tokio::test]
+    async fn replies_are_matched_by_echo_across_split_writes() {
+        let (mut client, mut robot, _m, _f) = attached();
+        let robot_side = tokio::spawn(async move {
+            expect_request(&mut robot, "RobotMode()").await;
+            // A stray reply first, then the answer split inside its echo.
+            robot.write_all(b"0,{},ClearError();0,{5},Robot").await.unwrap();
+            tokio::task::yield_now().await;
+            robot.write_all(b"Mode();").await.unwrap();
+            expect_request(&mut robot, "SpeedFactor(101)").await;
+            robot.write_all(b"-40001,{},SpeedFactor(101);").await.unwrap();
+            robot
+        });
+        assert_eq!(client.robot_mode().await.unwrap(), RobotMode::Enabled);
+        let err = client.command(&Request::SpeedFactor { percent: 101 }).await.unwrap_err();
+        assert!(
+            matches!(&err, ArmError::Refused { error_id: -40001, command, .. } if command == "SpeedFactor(101)"),
+            "{err:?}"
+        );
+        robot_side.await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_late_reply_to_an_abandoned_request_is_skipped() {
+        let (mut client, mut robot, _m, _f) = attached();
+        let robot_side = tokio::spawn(async move {
+            expect_request(&mut robot, "RobotMode()").await;
+            // No answer in time; it comes after the next request.
+            expect_request(&mut robot, "GetErrorID()").await;
+            robot.write_all(b"0,{5},RobotMode();0,{[[],[],[]]},GetErrorID();").await.unwrap();
+            expect_request(&mut robot, "RobotMode()").await;
+            robot.write_all(b"0,{4},RobotMode();").await.unwrap();
+            robot
+        });
+        let err = client.robot_mode().await.unwrap_err();
+        assert!(matches!(err, ArmError::Timeout { .. }), "{err:?}");
+        assert!(client.read_alarms().await.unwrap().is_empty());
+        // The late "5" was the abandoned request's; this request's answer is "4".
+        assert_eq!(client.robot_mode().await.unwrap(), RobotMode::Disabled);
+        robot_side.await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_closed_attached_stream_is_an_io_error() {
+        let (mut client, robot, _m, _f) = attached();
+        drop(robot);
+        let err = client.robot_mode().await.unwrap_err();
+        assert!(matches!(err, ArmError::Io { .. }), "{err:?}");
+        assert!(err.is_recoverable());
+    }
+
+    #[tokio::test]
+    async fn feedback_frames_reach_the_client_through_garbage() {
+        let (mut client, _d, _m, mut feedback) = attached();
+        let frame = FeedbackFrame { robot_mode: 5, tool_vector_actual: [310.0, 1.0, 2.0, 3.0, 0.0, 0.0], ..Default::default() };
+        let bytes = frame.encode();
+        feedback.write_all(&bytes[900..]).await.unwrap();
+        feedback.write_all(b"\xA0\x05garbage").await.unwrap();
+        feedback.write_all(&bytes).await.unwrap();
+        let sample = client.first_feedback().await.unwrap();
+        assert_eq!(sample.frame, frame);
+        assert_eq!(client.pose().await.unwrap(), Pose::new(310.0, 1.0, 2.0, 3.0));
     }
 }

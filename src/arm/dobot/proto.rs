@@ -171,8 +171,12 @@ pub enum Request {
     GetErrorId,
     /// `DI(index)`: read a digital input.
     Di { index: i64 },
-    /// `DO(index,status)`: queued digital output.
-    Do { index: i64, on: bool },
+    /// `DO(index,status)` and its relatives: set a digital output.
+    Do { output: DigitalOutput, index: i64, on: bool },
+    /// `SpeedJ(r)`, `AccL(r)`, ...: per-motion-kind speed and acceleration ratios, %.
+    Ratio { setting: RatioSetting, percent: i64 },
+    /// `SetCollisionLevel(level)`: 0 = off .. 5 = most sensitive.
+    SetCollisionLevel { level: i64 },
     /// `MovJ(x,y,z,r)`: joint-interpolated move to a base-frame pose.
     MovJ { target: Pose },
     /// `MovL(x,y,z,r)`: straight-line move to a base-frame pose.
@@ -181,6 +185,58 @@ pub enum Request {
     JointMovJ { joints_deg: [f64; 4] },
     /// Blocks until the motion queue has drained.
     Sync,
+}
+
+/// The digital-output commands (fact sheet section 2): queued or immediate, controller
+/// outputs or the two tool outputs on the arm.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DigitalOutput {
+    /// `DO`: controller output, queued.
+    Queued,
+    /// `DOExecute`: controller output, immediate.
+    Immediate,
+    /// `ToolDO`: arm-mounted output, queued.
+    ToolQueued,
+    /// `ToolDOExecute`: arm-mounted output, immediate.
+    ToolImmediate,
+}
+
+impl DigitalOutput {
+    fn name(&self) -> &'static str {
+        match self {
+            DigitalOutput::Queued => "DO",
+            DigitalOutput::Immediate => "DOExecute",
+            DigitalOutput::ToolQueued => "ToolDO",
+            DigitalOutput::ToolImmediate => "ToolDOExecute",
+        }
+    }
+}
+
+/// The ratio setters (1..=100 %; CP takes 0..=100).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RatioSetting {
+    /// Joint moves (MovJ, JointMovJ): acceleration.
+    AccJ,
+    /// Linear moves (MovL): acceleration.
+    AccL,
+    /// Joint moves: speed.
+    SpeedJ,
+    /// Linear moves: speed.
+    SpeedL,
+    /// Continuous-path blending ratio.
+    Cp,
+}
+
+impl RatioSetting {
+    fn name(&self) -> &'static str {
+        match self {
+            RatioSetting::AccJ => "AccJ",
+            RatioSetting::AccL => "AccL",
+            RatioSetting::SpeedJ => "SpeedJ",
+            RatioSetting::SpeedL => "SpeedL",
+            RatioSetting::Cp => "CP",
+        }
+    }
 }
 
 impl Request {
@@ -202,7 +258,9 @@ impl Request {
             Request::GetAngle => "GetAngle",
             Request::GetErrorId => "GetErrorID",
             Request::Di { .. } => "DI",
-            Request::Do { .. } => "DO",
+            Request::Do { output, .. } => output.name(),
+            Request::Ratio { setting, .. } => setting.name(),
+            Request::SetCollisionLevel { .. } => "SetCollisionLevel",
             Request::MovJ { .. } => "MovJ",
             Request::MovL { .. } => "MovL",
             Request::JointMovJ { .. } => "JointMovJ",
@@ -243,7 +301,9 @@ impl Request {
             Request::User { index } | Request::Tool { index } | Request::Di { index } => {
                 vec![index.to_string()]
             }
-            Request::Do { index, on } => vec![index.to_string(), u8::from(*on).to_string()],
+            Request::Ratio { percent, .. } => vec![percent.to_string()],
+            Request::SetCollisionLevel { level } => vec![level.to_string()],
+            Request::Do { index, on, .. } => vec![index.to_string(), u8::from(*on).to_string()],
             Request::MovJ { target } | Request::MovL { target } => {
                 vec![num(target.x_mm), num(target.y_mm), num(target.z_mm), num(target.yaw_deg)]
             }
@@ -315,14 +375,36 @@ impl Request {
                 count(&[1])?;
                 Request::Di { index: int(0)? }
             }
-            "do" => {
+            "do" | "doexecute" | "tooldo" | "tooldoexecute" => {
                 count(&[2])?;
+                let index = int(0)?;
                 let on = match int(1)? {
                     0 => false,
                     1 => true,
                     _ => return Err(ErrorId::ParameterRange { index: 2 }),
                 };
-                Request::Do { index: int(0)?, on }
+                let output = match name.as_str() {
+                    "do" => DigitalOutput::Queued,
+                    "doexecute" => DigitalOutput::Immediate,
+                    "tooldo" => DigitalOutput::ToolQueued,
+                    _ => DigitalOutput::ToolImmediate,
+                };
+                Request::Do { output, index, on }
+            }
+            "accj" | "accl" | "speedj" | "speedl" | "cp" => {
+                count(&[1])?;
+                let setting = match name.as_str() {
+                    "accj" => RatioSetting::AccJ,
+                    "accl" => RatioSetting::AccL,
+                    "speedj" => RatioSetting::SpeedJ,
+                    "speedl" => RatioSetting::SpeedL,
+                    _ => RatioSetting::Cp,
+                };
+                Request::Ratio { setting, percent: int(0)? }
+            }
+            "setcollisionlevel" => {
+                count(&[1])?;
+                Request::SetCollisionLevel { level: int(0)? }
             }
             "movj" => {
                 count(&[4])?;
@@ -1003,7 +1085,9 @@ mod tests {
         );
         assert_eq!(Request::SpeedFactor { percent: 50 }.encode(), "SpeedFactor(50)");
         assert_eq!(Request::MovL { target: Pose::new(350.0, 0.0, -20.5, 15.0) }.encode(), "MovL(350,0,-20.5,15)");
-        assert_eq!(Request::Do { index: 1, on: true }.encode(), "DO(1,1)");
+        assert_eq!(Request::Do { output: DigitalOutput::Queued, index: 1, on: true }.encode(), "DO(1,1)");
+        assert_eq!(Request::Do { output: DigitalOutput::ToolImmediate, index: 2, on: false }.encode(), "ToolDOExecute(2,0)");
+        assert_eq!(Request::Ratio { setting: RatioSetting::SpeedL, percent: 30 }.encode(), "SpeedL(30)");
         assert_eq!(Request::Sync.encode(), "Sync()");
         assert_eq!(Request::Sync.port(), Port::Motion);
         assert_eq!(Request::GetErrorId.port(), Port::Dashboard);
@@ -1211,7 +1295,16 @@ mod tests {
             Just(Request::Sync),
             any::<i64>().prop_map(|percent| Request::SpeedFactor { percent }),
             any::<i64>().prop_map(|index| Request::User { index }),
-            (any::<i64>(), any::<bool>()).prop_map(|(index, on)| Request::Do { index, on }),
+            (any::<i64>(), any::<bool>(), 0usize..4).prop_map(|(index, on, k)| Request::Do {
+                output: [DigitalOutput::Queued, DigitalOutput::Immediate, DigitalOutput::ToolQueued, DigitalOutput::ToolImmediate][k],
+                index,
+                on,
+            }),
+            (any::<i64>(), 0usize..5).prop_map(|(percent, k)| Request::Ratio {
+                setting: [RatioSetting::AccJ, RatioSetting::AccL, RatioSetting::SpeedJ, RatioSetting::SpeedL, RatioSetting::Cp][k],
+                percent,
+            }),
+            any::<i64>().prop_map(|level| Request::SetCollisionLevel { level }),
             pose().prop_map(|target| Request::MovJ { target }),
             pose().prop_map(|target| Request::MovL { target }),
             (finite(), finite(), finite(), finite())
@@ -1252,6 +1345,29 @@ mod tests {
                     robot_type: rt,
                 }
             })
+    }
+
+    /// Pulls everything out of both framers, using every parsed value; each call consumes
+    /// input or reports a partial frame, so `bound` iterations suffice.
+    fn drain_framers(r: &mut ReplyFramer, q: &mut RequestFramer, bound: usize) {
+        for _ in 0..=bound {
+            match r.next_reply() {
+                Ok(None) => break,
+                Ok(Some(reply)) => {
+                    let _ = (reply.numbers(), reply.pose(), reply.error_id_lists(), reply.integer());
+                }
+                Err(_) => {}
+            }
+        }
+        for _ in 0..=bound {
+            match q.next_call() {
+                Ok(None) => break,
+                Ok(Some(call)) => {
+                    let _ = Request::from_call(&call).map(|req| req.encode());
+                }
+                Err(_) => {}
+            }
+        }
     }
 
     proptest! {
@@ -1297,26 +1413,45 @@ mod tests {
             prop_assert_eq!(got, vec![frame, frame]);
         }
 
+        /// The stand-in for the cargo-fuzz targets where `cargo fuzz` cannot run: valid
+        /// replies, requests and frames with random bytes overwritten.
+        #[test]
+        fn mutated_valid_input_never_panics(frame in arb_frame(),
+                                            flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..24),
+                                            chunk in 1usize..700) {
+            let mut bytes = Vec::new();
+            bytes.extend_from_slice(b"0,{350.000000,0.000000,0.000000,0.000000,0.000000,0.000000},GetPose();");
+            bytes.extend_from_slice(Reply::new(ErrorId::Accepted, format_error_id_lists(&[vec![69, 72], vec![1]]), "GetErrorID()").encode().as_bytes());
+            bytes.extend_from_slice(b"MovL(300,0,-20,15)EnableRobot(0.5,1,2,3)DO(1,1)");
+            bytes.extend_from_slice(&frame.encode());
+            bytes.extend_from_slice(&frame.encode());
+            let len = bytes.len();
+            for (at, b) in flips {
+                bytes[at % len] = b;
+            }
+            let mut r = ReplyFramer::new();
+            let mut q = RequestFramer::new();
+            let mut d = FeedbackDecoder::new();
+            let mut frames = 0;
+            for piece in bytes.chunks(chunk) {
+                r.push(piece);
+                q.push(piece);
+                drain_framers(&mut r, &mut q, len);
+                d.push(piece);
+                while d.next_frame().is_some() {
+                    frames += 1;
+                }
+            }
+            prop_assert!(frames <= len / FEEDBACK_FRAME_LEN);
+        }
+
         #[test]
         fn decoders_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..4000)) {
             let mut r = ReplyFramer::new();
-            r.push(&bytes);
-            for _ in 0..bytes.len() + 1 {
-                match r.next_reply() {
-                    Ok(None) => break,
-                    Ok(Some(reply)) => { let _ = (reply.numbers(), reply.pose(), reply.error_id_lists(), reply.integer()); }
-                    Err(_) => {}
-                }
-            }
             let mut q = RequestFramer::new();
+            r.push(&bytes);
             q.push(&bytes);
-            for _ in 0..bytes.len() + 1 {
-                match q.next_call() {
-                    Ok(None) => break,
-                    Ok(Some(call)) => { let _ = Request::from_call(&call); }
-                    Err(_) => {}
-                }
-            }
+            drain_framers(&mut r, &mut q, bytes.len());
             let mut d = FeedbackDecoder::new();
             d.push(&bytes);
             while d.next_frame().is_some() {}
