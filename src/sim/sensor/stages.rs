@@ -27,10 +27,10 @@ impl CellField {
         for y in 0..ih {
             let row = &depth.height_mm[y * iw..(y + 1) * iw];
             let cy = y / cell_px;
-            for (x, &d) in row.iter().enumerate() {
-                let k = cy * w + x / cell_px;
-                sum[k] += f(d);
-                n[k] += 1;
+            for (cx, chunk) in row.chunks(cell_px).enumerate() {
+                let k = cy * w + cx;
+                sum[k] += chunk.iter().map(|&d| f(d)).sum::<f32>();
+                n[k] += chunk.len() as u32;
             }
         }
         let v = sum.iter().zip(&n).map(|(s, &c)| if c > 0 { s / c as f32 } else { 0.0 }).collect();
