@@ -172,6 +172,8 @@ pub struct StaticLook {
     pub fov: Vec<f32>,
     /// Marker rest positions, px.
     pub markers: Vec<[f32; 2]>,
+    /// The no-contact frame before vignetting and noise: background plus markers at rest.
+    pub rest_frame: Vec<f32>,
 }
 
 impl StaticLook {
@@ -226,7 +228,12 @@ impl StaticLook {
                 }
             }
         }
-        Self { background, vignette, fov, markers: marker_lattice(width, height) }
+        let markers = marker_lattice(width, height);
+        let mut rest_frame = background.clone();
+        if let Some(m) = look.markers {
+            super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
+        }
+        Self { background, vignette, fov, markers, rest_frame }
     }
 }
 

@@ -322,7 +322,7 @@ impl SensorSim {
         });
         self.stage(Stage::MotionBlur, || {
             let len = motion.streak_px().min(self.scene.max_blur_px);
-            stages::motion_blur(&mut buf, w, h, len, motion.direction_rad)
+            stages::contact_motion_blur(&mut buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad)
         });
         self.stage(Stage::Vignetting, || stages::vignetting(&mut buf, &self.fixed.vignette));
         self.stage(Stage::Noise, || {

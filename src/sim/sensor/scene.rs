@@ -33,7 +33,8 @@ pub enum Stage {
     Vignetting,
     /// Read and shot noise of the image sensor, seeded per frame.
     Noise,
-    /// Blur along the contact's image-space motion during the exposure.
+    /// Blur of the contact imprint along its image-space motion during the exposure (the
+    /// camera and the skin move with the arm, so the static look does not streak).
     MotionBlur,
     /// The camera hands out the frame of one frame period earlier (applied by `SimCamera`).
     StaleFrame,

@@ -282,6 +282,20 @@ pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f
     *buf = out;
 }
 
+/// Motion blur of the contact only: the camera and the skin move with the arm, so only what
+/// the contact changes (the object seen through, displaced markers, shading) streaks. The
+/// change from `rest` (the no-contact frame before vignetting) is blurred and added back.
+pub fn contact_motion_blur(buf: &mut Vec<f32>, rest: &[f32], width: usize, height: usize, length_px: f32, direction_rad: f32) {
+    if !(length_px >= 0.5) || rest.len() != buf.len() {
+        return;
+    }
+    let mut delta: Vec<f32> = buf.iter().zip(rest).map(|(b, r)| b - r).collect();
+    motion_blur(&mut delta, width, height, length_px, direction_rad);
+    for ((b, d), r) in buf.iter_mut().zip(&delta).zip(rest) {
+        *b = r + d;
+    }
+}
+
 /// Vignetting: multiply by the precomputed radial gain.
 pub fn vignetting(buf: &mut [f32], gain: &[f32]) {
     for (px, &g) in buf.chunks_exact_mut(3).zip(gain) {
