@@ -120,16 +120,22 @@ impl MotionState {
     }
 }
 
-/// How many times each stage has run, a snapshot.
+/// How many times each stage has run and the time spent in it, a snapshot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct StageCounts {
     counts: [u64; Stage::COUNT],
+    nanos: [u64; Stage::COUNT],
 }
 
 impl StageCounts {
     /// Runs of `stage`.
     pub fn get(&self, stage: Stage) -> u64 {
         self.counts[stage.index()]
+    }
+    /// Mean wall time of one run of `stage`, ms (0 when it never ran).
+    pub fn mean_ms(&self, stage: Stage) -> f64 {
+        let i = stage.index();
+        if self.counts[i] == 0 { 0.0 } else { self.nanos[i] as f64 / self.counts[i] as f64 * 1e-6 }
     }
     /// Runs of all stages together.
     pub fn total(&self) -> u64 {
@@ -180,6 +186,7 @@ pub struct SensorSim {
     fixed: StaticLook,
     active: [bool; Stage::COUNT],
     counts: [AtomicU64; Stage::COUNT],
+    nanos: [AtomicU64; Stage::COUNT],
 }
 
 impl SensorSim {
@@ -212,6 +219,7 @@ impl SensorSim {
             fixed,
             active,
             counts: std::array::from_fn(|_| AtomicU64::new(0)),
+            nanos: std::array::from_fn(|_| AtomicU64::new(0)),
         }
     }
 
@@ -241,7 +249,10 @@ impl SensorSim {
 
     /// How many times each stage has run since this simulator was made.
     pub fn stage_counts(&self) -> StageCounts {
-        StageCounts { counts: std::array::from_fn(|i| self.counts[i].load(Ordering::Relaxed)) }
+        StageCounts {
+            counts: std::array::from_fn(|i| self.counts[i].load(Ordering::Relaxed)),
+            nanos: std::array::from_fn(|i| self.nanos[i].load(Ordering::Relaxed)),
+        }
     }
 
     /// Records a run of `stage` done outside `render` (the camera's stale frames).
@@ -249,11 +260,15 @@ impl SensorSim {
         self.counts[stage.index()].fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Runs `stage` if active, counting it.
+    /// Runs `stage` if active, counting it and timing it (wall time, for the benchmark; it
+    /// has no effect on the image).
     fn stage(&self, stage: Stage, f: impl FnOnce()) {
         if self.runs(stage) {
             self.count(stage);
+            let t = std::time::Instant::now();
             f();
+            let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
         }
     }
 
