@@ -161,8 +161,8 @@ pub fn scale(width: u32, height: u32) -> f32 {
     width.min(height).max(1) as f32 / REFERENCE_SIZE_PX
 }
 
-/// The precomputed, frame-independent part of a sensor image.
-#[derive(Debug, Clone)]
+/// The precomputed, frame-independent part of a sensor image (megabytes: no `Debug`).
+#[derive(Clone)]
 pub struct StaticLook {
     /// Skin background before vignetting, RGB interleaved, 8-bit scale as f32.
     pub background: Vec<f32>,

@@ -174,7 +174,6 @@ mod skin {
 const CELL_PX: f32 = 4.0;
 
 /// A simulated tactile sensor of one kind, one image size and one scene.
-#[derive(Debug)]
 pub struct SensorSim {
     kind: SensorKind,
     scene: Scene,
@@ -187,6 +186,20 @@ pub struct SensorSim {
     active: [bool; Stage::COUNT],
     counts: [AtomicU64; Stage::COUNT],
     nanos: [AtomicU64; Stage::COUNT],
+}
+
+impl fmt::Debug for SensorSim {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // The precomputed buffers are megabytes: leave them out.
+        f.debug_struct("SensorSim")
+            .field("kind", &self.kind)
+            .field("scene", &self.scene.name)
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("px_per_mm", &self.px_per_mm)
+            .field("seed", &self.seed)
+            .finish_non_exhaustive()
+    }
 }
 
 impl SensorSim {
