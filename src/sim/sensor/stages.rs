@@ -282,10 +282,16 @@ pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f
     *buf = out;
 }
 
+/// Changes from the no-contact frame below this many 8-bit levels do not widen the region
+/// that motion blur processes.
+pub const BLUR_IGNORE_LEVELS: f32 = 0.5;
+
 /// Motion blur of the contact only: the camera and the skin move with the arm, so only what
 /// the contact changes (the object seen through, displaced markers, shading) streaks. The
 /// change from `rest` (the no-contact frame before vignetting) is blurred and added back;
-/// only the box around the change (grown by the streak) is touched.
+/// only the box around the change (grown by the streak) is touched. Changes under
+/// [`BLUR_IGNORE_LEVELS`] (the far tails of the glow) do not widen the box: they are too faint
+/// to streak visibly.
 pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: usize, length_px: f32, direction_rad: f32) {
     if !(length_px >= 0.5) || rest.len() != buf.len() || buf.len() != width * height * 3 {
         return;
@@ -295,9 +301,10 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
     for y in 0..height {
         let row = y * width * 3..(y + 1) * width * 3;
         let (b, r) = (&buf[row.clone()], &rest[row]);
-        let first = b.iter().zip(r).position(|(b, r)| b != r);
+        let changed = |(b, r): (&f32, &f32)| (b - r).abs() > BLUR_IGNORE_LEVELS;
+        let first = b.iter().zip(r).position(changed);
         if let Some(f) = first {
-            let last = b.iter().zip(r).rposition(|(b, r)| b != r).unwrap_or(f);
+            let last = b.iter().zip(r).rposition(changed).unwrap_or(f);
             (x0, x1) = (x0.min(f / 3), x1.max(last / 3));
             (y0, y1) = (y0.min(y), y.max(y1));
         }
