@@ -35,6 +35,17 @@ fn ms_per_frame(sim: &SensorSim, depth: &rig::geometry::DepthMap, motion: &Motio
 }
 
 fn main() {
+    // `cargo test --all-targets` runs this binary without `--bench`: render one frame of each
+    // kind as a smoke test and leave the timing to `cargo bench`.
+    if !std::env::args().any(|a| a == "--bench") {
+        for kind in SensorKind::ALL {
+            let sim = SensorSim::new(kind, Scene::preset("full").expect("preset"), 64, 48, 2.0, 1);
+            let img = sim.render(&shapes::sphere(64, 48, 2.0, 0.0, 0.0, 6.0, 1.0), &MotionState::STILL, 0);
+            assert_eq!(img.dimensions(), (64, 48));
+        }
+        println!("sensor_stages: smoke run only (timings with `cargo bench --bench sensor_stages`)");
+        return;
+    }
     let budget = Duration::from_millis(std::env::var("SENSOR_BENCH_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(300));
     let motion = MotionState { speed_px_per_s: 400.0, direction_rad: 0.4, exposure_s: 0.016 };
     let px_per_mm = 8.5;
