@@ -215,7 +215,7 @@ fn motion_blur_smears_the_contact_along_the_motion_only() {
 fn noise_has_the_scene_sigma() {
     let mut scene = Scene::with_stages("n", &[Stage::Noise]);
     scene.noise_sigma_levels = 4.0;
-    let on = SensorSim::new(SensorKind::ViTac, scene, 256, 256, 4.25, 1);
+    let on = SensorSim::new(SensorKind::ViTac, scene, 256, 256, PX_PER_MM / 2.0, 7); // same static look as `off`
     let off = sim(SensorKind::ViTac, &[]);
     let (a, b) = (on.render(&DepthMap::empty(256, 256), &MotionState::STILL, 9), off.reference());
     // Inside the field of view (no clipping), the residual's spread is a few levels.
