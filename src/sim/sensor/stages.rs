@@ -157,6 +157,7 @@ pub fn marker_displacement(markers: &mut [[f32; 2]], indent: &CellField, px_per_
 }
 
 /// Draws disc markers with soft edges and a halo ring.
+#[allow(clippy::too_many_arguments)]
 pub fn draw_markers(
     buf: &mut [f32],
     width: usize,
@@ -246,7 +247,7 @@ pub fn shading(buf: &mut [f32], width: usize, height: usize, indent: &CellField,
 
 /// Motion blur: the mean of the image shifted along `direction_rad` over `length_px`.
 pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f32, direction_rad: f32) {
-    if !(length_px >= 0.5) || width == 0 || height == 0 {
+    if length_px.is_nan() || length_px < 0.5 || width == 0 || height == 0 {
         return;
     }
     let taps = (length_px.ceil() as usize + 1).clamp(2, 64);
@@ -293,7 +294,7 @@ pub const BLUR_IGNORE_LEVELS: f32 = 0.5;
 /// [`BLUR_IGNORE_LEVELS`] (the far tails of the glow) do not widen the box: they are too faint
 /// to streak visibly.
 pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: usize, length_px: f32, direction_rad: f32) {
-    if !(length_px >= 0.5) || rest.len() != buf.len() || buf.len() != width * height * 3 {
+    if length_px.is_nan() || length_px < 0.5 || rest.len() != buf.len() || buf.len() != width * height * 3 {
         return;
     }
     // Bounding box of the change.
@@ -324,7 +325,6 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
     }
     // The box has a margin of zero change at least half a streak wide wherever it is inside
     // the image, so clamping at its edges reads the same as clamping at the image's.
-    let mut delta = delta;
     motion_blur(&mut delta, cw, ch, length_px, direction_rad);
     for y in 0..ch {
         let dst = ((y0 + y) * width + x0) * 3..((y0 + y) * width + x1) * 3;
