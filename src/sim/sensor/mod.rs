@@ -161,7 +161,7 @@ mod skin {
     /// Indentation at which the scattered glow saturates, mm.
     pub const GLOW_FULL_MM: f32 = 0.2;
     /// Reach of the tight glow hugging the contact at 512x512, px.
-    pub const GLOW_NEAR_PX: f32 = 14.0;
+    pub const GLOW_NEAR_PX: f32 = 22.0;
     /// Reach of the broad haze around the contact at 512x512, px.
     pub const GLOW_FAR_PX: f32 = 70.0;
     /// Shading gain per unit slope.
@@ -326,7 +326,7 @@ impl SensorSim {
                     near.blur(cells(skin::GLOW_NEAR_PX), 2);
                     glow.blur(cells(skin::GLOW_FAR_PX), 3);
                     for (g, n) in glow.v.iter_mut().zip(&near.v) {
-                        *g = (1.0 - (-(1.2 * n + 5.0 * *g)).exp()).min(1.0);
+                        *g = (1.0 - (-(2.5 * n + 3.5 * *g)).exp()).min(1.0);
                     }
                 }
                 stages::see_through(
