@@ -149,7 +149,7 @@ async fn motion_during_the_exposure_blurs() {
     for speed_mm_s in [0.0, 60.0] {
         let t = ArmTruth { speed_mm_s, ..truth_at(plan, 0.0) };
         let (clock, rx) = ScriptedClock::new(1e-3, t, vec![]);
-        let mut cam = camera(Scene::with_stages("blur", &[Stage::MotionBlur]), 1, rx, clock);
+        let mut cam = camera(Scene::with_stages("blur", &[Stage::SeeThrough, Stage::MotionBlur]), 1, rx, clock);
         images.push(cam.frame_after(0.0).await.unwrap().image);
         assert_eq!(cam.sim().stage_counts().get(Stage::MotionBlur), 1);
     }

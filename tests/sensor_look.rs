@@ -63,7 +63,7 @@ fn vitactip_markers_match_in_count() {
 
 #[test]
 fn skin_colours_by_radius_match() {
-    for (kind, frame, tol) in [(SensorKind::ViTac, 0, 14.0), (SensorKind::ViTacTip, 1, 14.0), (SensorKind::TacTip, 0, 6.0)] {
+    for (kind, frame, tol) in [(SensorKind::ViTac, 0, 10.0), (SensorKind::ViTacTip, 1, 10.0), (SensorKind::TacTip, 0, 6.0)] {
         let real = real_image(kind.label(), frame);
         let simulated = bar_frame(kind);
         for (r0, r1) in [(60.0, 140.0), (160.0, 200.0), (200.0, 235.0), (270.0, 360.0)] {

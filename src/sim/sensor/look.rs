@@ -49,6 +49,9 @@ pub struct Look {
     pub profile: Vec<(f32, [f32; 3])>,
     /// Amplitude of the concentric ring texture (relative).
     pub ring_texture: f32,
+    /// Whitish translucent patches on the skin (dust, moulding marks): how many, and their
+    /// brightness in 8-bit levels. The real see-through skins show a handful.
+    pub patches: (usize, f32),
     /// Markers, if the sensor has them.
     pub markers: Option<MarkerLook>,
     /// Colour of the object seen through the skin when pressed, if the skin is transparent.
@@ -72,6 +75,7 @@ impl Look {
                     (1.08, [8.0, 8.0, 9.0]),
                 ],
                 ring_texture: 0.25,
+                patches: (0, 0.0),
                 markers: Some(MarkerLook { rgb: [188.0, 198.0, 202.0], opacity: 1.0, radius_px: 5.0, halo: -0.5 }),
                 object_rgb: None,
                 glow_rgb: [0.0; 3],
@@ -79,8 +83,8 @@ impl Look {
             SensorKind::ViTac => Look {
                 profile: vec![
                     (0.0, [168.0, 166.0, 158.0]),
-                    (0.3, [156.0, 150.0, 138.0]),
-                    (0.5, [150.0, 126.0, 98.0]),
+                    (0.3, [150.0, 149.0, 142.0]),
+                    (0.5, [146.0, 125.0, 99.0]),
                     (0.65, [120.0, 100.0, 77.0]),
                     (0.78, [104.0, 94.0, 76.0]),
                     (0.88, [90.0, 86.0, 74.0]),
@@ -90,6 +94,7 @@ impl Look {
                     (1.08, outside[1]),
                 ],
                 ring_texture: 0.025,
+                patches: (6, 22.0),
                 markers: None,
                 object_rgb: Some([252.0, 254.0, 254.0]),
                 glow_rgb: [240.0, 240.0, 234.0],
@@ -108,6 +113,7 @@ impl Look {
                     (1.08, outside[1]),
                 ],
                 ring_texture: 0.025,
+                patches: (6, 22.0),
                 markers: Some(MarkerLook { rgb: [38.0, 35.0, 37.0], opacity: 0.92, radius_px: 4.7, halo: 0.08 }),
                 object_rgb: Some([235.0, 242.0, 240.0]),
                 glow_rgb: [225.0, 228.0, 222.0],
@@ -161,8 +167,8 @@ pub fn scale(width: u32, height: u32) -> f32 {
     width.min(height).max(1) as f32 / REFERENCE_SIZE_PX
 }
 
-/// The precomputed, frame-independent part of a sensor image.
-#[derive(Debug, Clone)]
+/// The precomputed, frame-independent part of a sensor image (megabytes: no `Debug`).
+#[derive(Clone)]
 pub struct StaticLook {
     /// Skin background before vignetting, RGB interleaved, 8-bit scale as f32.
     pub background: Vec<f32>,
@@ -172,6 +178,8 @@ pub struct StaticLook {
     pub fov: Vec<f32>,
     /// Marker rest positions, px.
     pub markers: Vec<[f32; 2]>,
+    /// The no-contact frame before vignetting and noise: background plus markers at rest.
+    pub rest_frame: Vec<f32>,
 }
 
 impl StaticLook {
@@ -202,8 +210,31 @@ impl StaticLook {
                 fov[i] = ((fov_r - r) / (1.5 * s)).clamp(0.0, 1.0);
             }
         }
-        // Dust and scratches: short bright streaks, mostly towards the rim, as in the real images.
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_5bec);
+        // Patches: soft whitish blobs of 12..30 px (at 512) between a fifth and nine tenths of
+        // the radius.
+        let (count, level) = look.patches;
+        for _ in 0..count {
+            let rho: f32 = 0.2 + 0.7 * rng.random::<f32>();
+            let a: f32 = rng.random::<f32>() * std::f32::consts::TAU;
+            let radius = (12.0 + 18.0 * rng.random::<f32>()) * s;
+            let gain = level * (0.5 + 0.5 * rng.random::<f32>());
+            let (px, py) = (cx + rho * fov_r * a.cos(), cy + rho * fov_r * a.sin());
+            let reach = 2.0 * radius;
+            let (x0, x1) = ((px - reach).max(0.0) as usize, ((px + reach).max(0.0) as usize).min(w));
+            let (y0, y1) = ((py - reach).max(0.0) as usize, ((py + reach).max(0.0) as usize).min(h));
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let d2 = ((x as f32 + 0.5 - px).powi(2) + (y as f32 + 0.5 - py).powi(2)) / (radius * radius);
+                    let i = y * w + x;
+                    let add = gain * (-d2).exp() / vignette[i].max(0.1);
+                    for c in 0..3 {
+                        background[i * 3 + c] += add;
+                    }
+                }
+            }
+        }
+        // Dust and scratches: short bright streaks, mostly towards the rim, as in the real images.
         for k in 0..40 {
             // Two thirds on the tube rim, the rest scattered over the skin.
             let rho: f32 = if k % 3 == 0 { 0.2 + 0.75 * rng.random::<f32>() } else { 0.97 + 0.12 * rng.random::<f32>() };
@@ -226,7 +257,12 @@ impl StaticLook {
                 }
             }
         }
-        Self { background, vignette, fov, markers: marker_lattice(width, height) }
+        let markers = marker_lattice(width, height);
+        let mut rest_frame = background.clone();
+        if let Some(m) = look.markers {
+            super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
+        }
+        Self { background, vignette, fov, markers, rest_frame }
     }
 }
 

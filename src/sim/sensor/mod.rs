@@ -120,16 +120,22 @@ impl MotionState {
     }
 }
 
-/// How many times each stage has run, a snapshot.
+/// How many times each stage has run and the time spent in it, a snapshot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct StageCounts {
     counts: [u64; Stage::COUNT],
+    nanos: [u64; Stage::COUNT],
 }
 
 impl StageCounts {
     /// Runs of `stage`.
     pub fn get(&self, stage: Stage) -> u64 {
         self.counts[stage.index()]
+    }
+    /// Mean wall time of one run of `stage`, ms (0 when it never ran).
+    pub fn mean_ms(&self, stage: Stage) -> f64 {
+        let i = stage.index();
+        if self.counts[i] == 0 { 0.0 } else { self.nanos[i] as f64 / self.counts[i] as f64 * 1e-6 }
     }
     /// Runs of all stages together.
     pub fn total(&self) -> u64 {
@@ -155,7 +161,7 @@ mod skin {
     /// Indentation at which the scattered glow saturates, mm.
     pub const GLOW_FULL_MM: f32 = 0.2;
     /// Reach of the tight glow hugging the contact at 512x512, px.
-    pub const GLOW_NEAR_PX: f32 = 14.0;
+    pub const GLOW_NEAR_PX: f32 = 22.0;
     /// Reach of the broad haze around the contact at 512x512, px.
     pub const GLOW_FAR_PX: f32 = 70.0;
     /// Shading gain per unit slope.
@@ -168,7 +174,6 @@ mod skin {
 const CELL_PX: f32 = 4.0;
 
 /// A simulated tactile sensor of one kind, one image size and one scene.
-#[derive(Debug)]
 pub struct SensorSim {
     kind: SensorKind,
     scene: Scene,
@@ -180,6 +185,21 @@ pub struct SensorSim {
     fixed: StaticLook,
     active: [bool; Stage::COUNT],
     counts: [AtomicU64; Stage::COUNT],
+    nanos: [AtomicU64; Stage::COUNT],
+}
+
+impl fmt::Debug for SensorSim {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // The precomputed buffers are megabytes: leave them out.
+        f.debug_struct("SensorSim")
+            .field("kind", &self.kind)
+            .field("scene", &self.scene.name)
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("px_per_mm", &self.px_per_mm)
+            .field("seed", &self.seed)
+            .finish_non_exhaustive()
+    }
 }
 
 impl SensorSim {
@@ -212,6 +232,7 @@ impl SensorSim {
             fixed,
             active,
             counts: std::array::from_fn(|_| AtomicU64::new(0)),
+            nanos: std::array::from_fn(|_| AtomicU64::new(0)),
         }
     }
 
@@ -241,7 +262,10 @@ impl SensorSim {
 
     /// How many times each stage has run since this simulator was made.
     pub fn stage_counts(&self) -> StageCounts {
-        StageCounts { counts: std::array::from_fn(|i| self.counts[i].load(Ordering::Relaxed)) }
+        StageCounts {
+            counts: std::array::from_fn(|i| self.counts[i].load(Ordering::Relaxed)),
+            nanos: std::array::from_fn(|i| self.nanos[i].load(Ordering::Relaxed)),
+        }
     }
 
     /// Records a run of `stage` done outside `render` (the camera's stale frames).
@@ -249,11 +273,15 @@ impl SensorSim {
         self.counts[stage.index()].fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Runs `stage` if active, counting it.
+    /// Runs `stage` if active, counting it and timing it (wall time, for the benchmark; it
+    /// has no effect on the image).
     fn stage(&self, stage: Stage, f: impl FnOnce()) {
         if self.runs(stage) {
             self.count(stage);
+            let t = std::time::Instant::now();
             f();
+            let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
         }
     }
 
@@ -298,7 +326,7 @@ impl SensorSim {
                     near.blur(cells(skin::GLOW_NEAR_PX), 2);
                     glow.blur(cells(skin::GLOW_FAR_PX), 3);
                     for (g, n) in glow.v.iter_mut().zip(&near.v) {
-                        *g = (1.0 - (-(1.2 * n + 5.0 * *g)).exp()).min(1.0);
+                        *g = (1.0 - (-(2.5 * n + 3.5 * *g)).exp()).min(1.0);
                     }
                 }
                 stages::see_through(
@@ -322,7 +350,7 @@ impl SensorSim {
         });
         self.stage(Stage::MotionBlur, || {
             let len = motion.streak_px().min(self.scene.max_blur_px);
-            stages::motion_blur(&mut buf, w, h, len, motion.direction_rad)
+            stages::contact_motion_blur(&mut buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad)
         });
         self.stage(Stage::Vignetting, || stages::vignetting(&mut buf, &self.fixed.vignette));
         self.stage(Stage::Noise, || {

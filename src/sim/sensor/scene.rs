@@ -33,7 +33,8 @@ pub enum Stage {
     Vignetting,
     /// Read and shot noise of the image sensor, seeded per frame.
     Noise,
-    /// Blur along the contact's image-space motion during the exposure.
+    /// Blur of the contact imprint along its image-space motion during the exposure (the
+    /// camera and the skin move with the arm, so the static look does not streak).
     MotionBlur,
     /// The camera hands out the frame of one frame period earlier (applied by `SimCamera`).
     StaleFrame,
@@ -107,7 +108,7 @@ pub enum SceneError {
     UnknownPreset { name: String },
     #[error("unknown stage {name:?} (known: {})", Stage::ALL.map(|s| s.name()).join(", "))]
     UnknownStage { name: String },
-    #[error("invalid scene TOML: {source}")]
+    #[error("invalid scene TOML")]
     Toml {
         #[source]
         source: toml::de::Error,
@@ -194,6 +195,9 @@ impl Scene {
         if Self::PRESETS.contains(&spec.trim().to_ascii_lowercase().as_str()) {
             return Ok(Self::preset(spec)?);
         }
+        if !std::path::Path::new(spec).exists() {
+            return Err(SceneLoadError::NotFound { spec: spec.to_string() });
+        }
         let text = std::fs::read_to_string(spec)
             .map_err(|source| SceneLoadError::Read { path: spec.to_string(), source })?;
         Ok(Self::from_toml(&text)?)
@@ -219,7 +223,9 @@ impl Scene {
 /// Errors loading a scene given on the command line.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneLoadError {
-    #[error("cannot read scene file {path}: {source}")]
+    #[error("{spec:?} is neither a scene preset ({}) nor a file", Scene::PRESETS.join(", "))]
+    NotFound { spec: String },
+    #[error("cannot read scene file {path}")]
     Read {
         path: String,
         #[source]

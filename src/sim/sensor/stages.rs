@@ -27,10 +27,10 @@ impl CellField {
         for y in 0..ih {
             let row = &depth.height_mm[y * iw..(y + 1) * iw];
             let cy = y / cell_px;
-            for (x, &d) in row.iter().enumerate() {
-                let k = cy * w + x / cell_px;
-                sum[k] += f(d);
-                n[k] += 1;
+            for (cx, chunk) in row.chunks(cell_px).enumerate() {
+                let k = cy * w + cx;
+                sum[k] += chunk.iter().map(|&d| f(d)).sum::<f32>();
+                n[k] += chunk.len() as u32;
             }
         }
         let v = sum.iter().zip(&n).map(|(s, &c)| if c > 0 { s / c as f32 } else { 0.0 }).collect();
@@ -157,6 +157,7 @@ pub fn marker_displacement(markers: &mut [[f32; 2]], indent: &CellField, px_per_
 }
 
 /// Draws disc markers with soft edges and a halo ring.
+#[allow(clippy::too_many_arguments)]
 pub fn draw_markers(
     buf: &mut [f32],
     width: usize,
@@ -246,7 +247,7 @@ pub fn shading(buf: &mut [f32], width: usize, height: usize, indent: &CellField,
 
 /// Motion blur: the mean of the image shifted along `direction_rad` over `length_px`.
 pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f32, direction_rad: f32) {
-    if !(length_px >= 0.5) || width == 0 || height == 0 {
+    if length_px.is_nan() || length_px < 0.5 || width == 0 || height == 0 {
         return;
     }
     let taps = (length_px.ceil() as usize + 1).clamp(2, 64);
@@ -280,6 +281,57 @@ pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f
         }
     }
     *buf = out;
+}
+
+/// Changes from the no-contact frame below this many 8-bit levels do not widen the region
+/// that motion blur processes.
+pub const BLUR_IGNORE_LEVELS: f32 = 0.5;
+
+/// Motion blur of the contact only: the camera and the skin move with the arm, so only what
+/// the contact changes (the object seen through, displaced markers, shading) streaks. The
+/// change from `rest` (the no-contact frame before vignetting) is blurred and added back;
+/// only the box around the change (grown by the streak) is touched. Changes under
+/// [`BLUR_IGNORE_LEVELS`] (the far tails of the glow) do not widen the box: they are too faint
+/// to streak visibly.
+pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: usize, length_px: f32, direction_rad: f32) {
+    if length_px.is_nan() || length_px < 0.5 || rest.len() != buf.len() || buf.len() != width * height * 3 {
+        return;
+    }
+    // Bounding box of the change.
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0usize, 0usize);
+    for y in 0..height {
+        let row = y * width * 3..(y + 1) * width * 3;
+        let (b, r) = (&buf[row.clone()], &rest[row]);
+        let changed = |(b, r): (&f32, &f32)| (b - r).abs() > BLUR_IGNORE_LEVELS;
+        let first = b.iter().zip(r).position(changed);
+        if let Some(f) = first {
+            let last = b.iter().zip(r).rposition(changed).unwrap_or(f);
+            (x0, x1) = (x0.min(f / 3), x1.max(last / 3));
+            (y0, y1) = (y0.min(y), y.max(y1));
+        }
+    }
+    if x0 > x1 {
+        return;
+    }
+    let m = (length_px / 2.0).ceil() as usize + 1;
+    let (x0, y0, x1, y1) = (x0.saturating_sub(m), y0.saturating_sub(m), (x1 + m + 1).min(width), (y1 + m + 1).min(height));
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let mut delta = vec![0.0f32; cw * ch * 3];
+    for y in 0..ch {
+        let src = ((y0 + y) * width + x0) * 3..((y0 + y) * width + x1) * 3;
+        for ((d, b), r) in delta[y * cw * 3..(y + 1) * cw * 3].iter_mut().zip(&buf[src.clone()]).zip(&rest[src]) {
+            *d = b - r;
+        }
+    }
+    // The box has a margin of zero change at least half a streak wide wherever it is inside
+    // the image, so clamping at its edges reads the same as clamping at the image's.
+    motion_blur(&mut delta, cw, ch, length_px, direction_rad);
+    for y in 0..ch {
+        let dst = ((y0 + y) * width + x0) * 3..((y0 + y) * width + x1) * 3;
+        for ((b, d), r) in buf[dst.clone()].iter_mut().zip(&delta[y * cw * 3..(y + 1) * cw * 3]).zip(&rest[dst]) {
+            *b = r + d;
+        }
+    }
 }
 
 /// Vignetting: multiply by the precomputed radial gain.
@@ -347,6 +399,24 @@ mod tests {
             let mut b = vec![10.0f32; w * h * 3];
             motion_blur(&mut b, w, h, 60.0, 2.0);
             assert!(b.iter().all(|v| (v - 10.0).abs() < 1e-4));
+        }
+    }
+
+    #[test]
+    fn contact_blur_equals_blurring_the_whole_change() {
+        let (w, h) = (40, 30);
+        let rest: Vec<f32> = (0..w * h * 3).map(|i| (i % 17) as f32).collect();
+        let mut buf = rest.clone();
+        for (x, y) in [(3, 4), (20, 15), (21, 15), (38, 28)] {
+            buf[(y * w + x) * 3 + 1] += 50.0;
+        }
+        for dir in [0.0f32, 0.7, 2.0, -1.9] {
+            let mut delta: Vec<f32> = buf.iter().zip(&rest).map(|(b, r)| b - r).collect();
+            motion_blur(&mut delta, w, h, 9.0, dir);
+            let expected: Vec<f32> = rest.iter().zip(&delta).map(|(r, d)| r + d).collect();
+            let mut got = buf.clone();
+            contact_motion_blur(&mut got, &rest, w, h, 9.0, dir);
+            assert!(got.iter().zip(&expected).all(|(a, b)| (a - b).abs() < 1e-3), "direction {dir}");
         }
     }
 
