@@ -425,8 +425,8 @@ impl PlanSpec {
         let mut ids = Vec::with_capacity(n);
         for k in 0..n {
             let mut idx = [0u64; 4];
-            for a in 0..4 {
-                let u = (strata[a][k] as f64 + rng.random::<f64>()) / n as f64;
+            for (a, perm) in strata.iter().enumerate() {
+                let u = (perm[k] as f64 + rng.random::<f64>()) / n as f64;
                 idx[a] = ((u * counts[a] as f64).floor() as u64).min(counts[a] - 1);
             }
             let mut id = self.id_of(idx);
@@ -641,17 +641,13 @@ mod tests {
         let mut s = PlanSpec::default();
         s.yaw_deg.min = f64::NAN;
         assert!(matches!(s.validate(), Err(PlanError::NotFinite { axis: "yaw_deg", field: "min", .. })));
-        let mut s = PlanSpec::default();
-        s.z_mm = AxisRange::new(1.0, -1.0, 0.5);
+        let s = PlanSpec { z_mm: AxisRange::new(1.0, -1.0, 0.5), ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::EmptyRange { axis: "z_mm", .. })));
-        let mut s = PlanSpec::default();
-        s.n_poses = Some(7866);
+        let s = PlanSpec { n_poses: Some(7866), ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::TooManyPoses { requested: 7866, grid: 7865 })));
-        let mut s = PlanSpec::default();
-        s.sampling = Sampling::Full;
+        let s = PlanSpec { sampling: Sampling::Full, ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::CountWithFull { .. })));
-        let mut s = PlanSpec::default();
-        s.n_poses = None;
+        let s = PlanSpec { n_poses: None, ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::MissingCount { sampling: Sampling::Lhs })));
         let mut s = PlanSpec::default();
         s.x_mm.step = 1e-9;

@@ -1,0 +1,84 @@
+//! Plan files and the stability of pose ids.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use rig::plan::{Order, PlanError, PlanSpec, Sampling, TrapezoidMotionModel};
+use rig::pose::Pose;
+
+fn cost() -> impl Fn(&Pose, &Pose) -> f64 {
+    let m = TrapezoidMotionModel::default();
+    move |a: &Pose, b: &Pose| m.time_s(a, b)
+}
+
+#[test]
+fn default_plan_file_is_the_default_spec() {
+    let spec = PlanSpec::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/default.toml").as_path())
+        .expect("plans/default.toml loads");
+    assert_eq!(spec, PlanSpec::default());
+}
+
+#[test]
+fn unknown_keys_and_bad_values_are_refused() {
+    let good = toml::to_string(&PlanSpec::default()).expect("serialise");
+    assert_eq!(PlanSpec::from_toml_str(&good).expect("round trip"), PlanSpec::default());
+    assert!(PlanSpec::from_toml_str(&format!("{good}\nspeed = 3\n")).is_err());
+    assert!(PlanSpec::from_toml_str(&good.replace("\"lhs\"", "\"sobol\"")).is_err());
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("p.toml");
+    std::fs::write(&path, good.replace("step = 15.0", "step = -15.0")).expect("write");
+    assert!(matches!(PlanSpec::load(&path), Err(PlanError::BadStep { axis: "yaw_deg", .. })));
+    std::fs::write(&path, "sampling = \"lhs\"").expect("write");
+    assert!(matches!(PlanSpec::load(&path), Err(PlanError::Parse { .. })));
+}
+
+#[test]
+fn pose_ids_do_not_depend_on_sampling_seed_or_order() {
+    let c = cost();
+    let grid = PlanSpec::default().grid();
+    for (sampling, order, seed) in [
+        (Sampling::Random, Order::Optimised, 1),
+        (Sampling::Lhs, Order::Random, 2),
+        (Sampling::Lhs, Order::AsSampled, 3),
+    ] {
+        let spec = PlanSpec { sampling, order, seed, n_poses: Some(300), ..PlanSpec::default() };
+        let plan = spec.build(&c).expect("build");
+        assert_eq!(plan.poses.len(), 300);
+        for p in &plan.poses {
+            assert_eq!(grid[p.pose_id as usize].pose, p.pose);
+        }
+        let unique: BTreeSet<u32> = plan.poses.iter().map(|p| p.pose_id).collect();
+        assert_eq!(unique.len(), 300);
+    }
+    // Full sampling returns the grid itself.
+    let full = PlanSpec { sampling: Sampling::Full, n_poses: None, order: Order::AsSampled, ..PlanSpec::default() };
+    assert_eq!(full.build(&c).expect("build").poses, grid);
+}
+
+#[test]
+fn lhs_can_take_the_whole_grid() {
+    let spec = PlanSpec {
+        x_mm: rig::plan::AxisRange::new(0.0, 2.0, 1.0),
+        y_mm: rig::plan::AxisRange::new(0.0, 1.0, 1.0),
+        z_mm: rig::plan::AxisRange::new(0.0, 0.0, 1.0),
+        yaw_deg: rig::plan::AxisRange::new(-45.0, 45.0, 45.0),
+        sampling: Sampling::Lhs,
+        n_poses: Some(18),
+        seed: 4,
+        order: Order::Optimised,
+    };
+    let plan = spec.build(&cost()).expect("build");
+    let ids: BTreeSet<u32> = plan.poses.iter().map(|p| p.pose_id).collect();
+    assert_eq!(ids, (0..18).collect());
+}
+
+#[test]
+fn optimised_500_pose_plan_meets_the_ratio_goal() {
+    // Same measurement as benches/plan_order.rs, one seed: random order against rig's order.
+    let c = cost();
+    let base = PlanSpec { seed: 11, ..PlanSpec::default() };
+    let random = PlanSpec { order: Order::Random, ..base.clone() }.build(&c).expect("build");
+    let rig = base.build(&c).expect("build");
+    let ratio = rig.motion_time_after_s / random.motion_time_after_s;
+    assert!(ratio <= 0.6, "ratio {ratio}");
+}
