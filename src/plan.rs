@@ -602,9 +602,22 @@ impl TrapezoidMotionModel {
     }
 }
 
-/// Pose ids of `planned` not present in `done` (what `--fill-missing` has to produce).
-pub fn missing_ids<'a>(planned: impl IntoIterator<Item = &'a PlannedPose>, done: &BTreeSet<u32>) -> Vec<u32> {
-    planned.into_iter().map(|p| p.pose_id).filter(|id| !done.contains(id)).collect()
+impl PlanSpec {
+    /// Grid points whose id is not in `done`, in `pose_id` order: what
+    /// `rig synth --fill-missing` has to produce (assumes a validated spec).
+    pub fn missing(&self, done: &BTreeSet<u32>) -> Vec<PlannedPose> {
+        self.grid().into_iter().filter(|p| !done.contains(&p.pose_id)).collect()
+    }
+}
+
+/// Shard `index` of `count` (0-based): every `count`-th pose starting at position `index`, so
+/// shards are disjoint, cover all poses, and differ in size by at most one. Empty when
+/// `index >= count`.
+pub fn shard(poses: &[PlannedPose], index: usize, count: usize) -> Vec<PlannedPose> {
+    if count == 0 || index >= count {
+        return Vec::new();
+    }
+    poses.iter().skip(index).step_by(count).copied().collect()
 }
 
 #[cfg(test)]
@@ -700,6 +713,21 @@ mod tests {
         let c = PlanSpec { seed: 8, ..PlanSpec::default() }.build(&cost).unwrap();
         assert_eq!(a, b);
         assert_ne!(a.poses, c.poses);
+    }
+
+    #[test]
+    fn missing_and_shards() {
+        let s = PlanSpec::default();
+        let done: BTreeSet<u32> = (0..7000).collect();
+        let missing = s.missing(&done);
+        assert_eq!(missing.len(), 865);
+        assert_eq!(missing[0].pose_id, 7000);
+        let shards: Vec<Vec<PlannedPose>> = (0..3).map(|i| shard(&missing, i, 3)).collect();
+        assert_eq!(shards.iter().map(Vec::len).sum::<usize>(), 865);
+        let mut ids: Vec<u32> = shards.iter().flatten().map(|p| p.pose_id).collect();
+        ids.sort();
+        assert_eq!(ids, missing.iter().map(|p| p.pose_id).collect::<Vec<_>>());
+        assert!(shard(&missing, 3, 3).is_empty());
     }
 
     #[test]
