@@ -82,3 +82,23 @@ fn optimised_500_pose_plan_meets_the_ratio_goal() {
     let ratio = rig.motion_time_after_s / random.motion_time_after_s;
     assert!(ratio <= 0.6, "ratio {ratio}");
 }
+
+#[test]
+fn plan_show_cli_prints_the_poses_and_refuses_bad_plans() {
+    let rig = env!("CARGO_BIN_EXE_rig");
+    let out = std::process::Command::new(rig)
+        .args(["plan", "show", "--n", "5", "--seed", "3", "--x", "-2:2:1"])
+        .output()
+        .expect("run rig");
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("grid: 5 x 11 x 5 x 13 = 3575 poses"), "{text}");
+    assert!(text.contains("motion time:"), "{text}");
+    // Header line plus five pose lines after it.
+    let after_header = text.lines().skip_while(|l| !l.contains("pose_id")).count();
+    assert_eq!(after_header, 6, "{text}");
+
+    let bad = std::process::Command::new(rig).args(["plan", "show", "--yaw", "10:0:5"]).output().expect("run rig");
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("yaw_deg"));
+}
