@@ -414,7 +414,7 @@ impl PlanSpec {
             let mut out = [0u64; 4];
             let mut sum = 0u64;
             for (k, (d, n)) in digits.into_iter().enumerate() {
-                out[k] = if sum % 2 == 0 { d } else { n - 1 - d };
+                out[k] = if sum.is_multiple_of(2) { d } else { n - 1 - d };
                 // Parity of the untransformed digits: it flips exactly once at every step of
                 // an outer digit, which is what keeps the inner sweep continuous.
                 sum += d;
