@@ -102,3 +102,43 @@ fn plan_show_cli_prints_the_poses_and_refuses_bad_plans() {
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("yaw_deg"));
 }
+
+mod prop {
+    use super::*;
+    use proptest::prelude::*;
+    use rig::plan::AxisRange;
+
+    fn axis() -> impl Strategy<Value = AxisRange> {
+        (-10i32..10, 0i32..6, 1i32..4).prop_map(|(min, span, step)| {
+            AxisRange::new(min as f64 * 0.5, (min + span) as f64 * 0.5, step as f64 * 0.5)
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+        /// Any valid plan yields distinct grid ids whose poses are the grid's, in any order.
+        #[test]
+        fn any_valid_plan_is_a_set_of_grid_points(
+            x in axis(), y in axis(), z in axis(), yaw in axis(),
+            lhs in any::<bool>(), frac in 0.0f64..1.0, seed in any::<u64>(), order in 0usize..3,
+        ) {
+            let mut spec = PlanSpec {
+                x_mm: x, y_mm: y, z_mm: z, yaw_deg: yaw,
+                sampling: if lhs { Sampling::Lhs } else { Sampling::Random },
+                n_poses: None,
+                seed,
+                order: [Order::AsSampled, Order::Random, Order::Optimised][order],
+            };
+            let grid_len = spec.grid_len() as usize;
+            spec.n_poses = Some(((grid_len as f64 * frac) as usize).clamp(1, grid_len));
+            let plan = spec.build(&cost()).expect("valid plan");
+            let ids: BTreeSet<u32> = plan.poses.iter().map(|p| p.pose_id).collect();
+            prop_assert_eq!(ids.len(), spec.n_poses.unwrap_or(0));
+            for p in &plan.poses {
+                prop_assert_eq!(spec.pose_of(p.pose_id), Some(p.pose));
+            }
+            prop_assert!(plan.motion_time_after_s <= plan.motion_time_before_s + 1e-9 || order == 1);
+        }
+    }
+}
