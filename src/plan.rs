@@ -388,7 +388,12 @@ impl PlanSpec {
                 v
             }
             Order::Optimised => {
-                let ordered = optimise_order(&sampled, cost);
+                let ordered = if sampled.len() <= MAX_OPTIMISED_POSES {
+                    optimise_order(&sampled, cost)
+                } else {
+                    // NN and the neighbour lists are quadratic: beyond this size, sweep.
+                    self.serpentine(&sampled)
+                };
                 // Never hand back a worse order than the sampler's (possible only with
                 // strongly asymmetric costs, which 2-opt does not model).
                 if path_cost(&ordered, cost) <= motion_time_before_s { ordered } else { sampled }
@@ -396,6 +401,29 @@ impl PlanSpec {
         };
         let motion_time_after_s = path_cost(&poses, cost);
         Ok(Plan { poses, motion_time_before_s, motion_time_after_s })
+    }
+
+    /// Boustrophedon sweep: yaw slowest (the most expensive axis), then z, x, y, each digit
+    /// running backwards when the grid indices before it sum to an odd number, so consecutive poses
+    /// are grid neighbours wherever the sample is dense.
+    fn serpentine(&self, poses: &[PlannedPose]) -> Vec<PlannedPose> {
+        let counts = self.axis_counts();
+        let key = |p: &PlannedPose| -> [u64; 4] {
+            let [ix, iy, iz, iyaw] = self.indices_of(p.pose_id);
+            let digits = [(iyaw, counts[3]), (iz, counts[2]), (ix, counts[0]), (iy, counts[1])];
+            let mut out = [0u64; 4];
+            let mut sum = 0u64;
+            for (k, (d, n)) in digits.into_iter().enumerate() {
+                out[k] = if sum.is_multiple_of(2) { d } else { n - 1 - d };
+                // Parity of the untransformed digits: it flips exactly once at every step of
+                // an outer digit, which is what keeps the inner sweep continuous.
+                sum += d;
+            }
+            out
+        };
+        let mut v = poses.to_vec();
+        v.sort_by_key(key);
+        v
     }
 
     fn sample_ids(&self) -> Vec<u32> {
@@ -425,8 +453,8 @@ impl PlanSpec {
         let mut ids = Vec::with_capacity(n);
         for k in 0..n {
             let mut idx = [0u64; 4];
-            for a in 0..4 {
-                let u = (strata[a][k] as f64 + rng.random::<f64>()) / n as f64;
+            for (a, perm) in strata.iter().enumerate() {
+                let u = (perm[k] as f64 + rng.random::<f64>()) / n as f64;
                 idx[a] = ((u * counts[a] as f64).floor() as u64).min(counts[a] - 1);
             }
             let mut id = self.id_of(idx);
@@ -439,23 +467,48 @@ impl PlanSpec {
         ids
     }
 
-    /// The free grid point nearest to `idx` in index space normalised by the axis counts
-    /// (ties: lowest id). Linear in the grid size; only collisions call it.
+    /// A free grid point near `idx`: the nearest (index space normalised by the axis counts,
+    /// ties to the lowest id) within the box of half-width [`LHS_LOCAL_RADIUS`] grid steps, or
+    /// the nearest in the whole grid when that box is full. Only collisions call it.
     fn nearest_free(&self, idx: [u64; 4], used: &[bool]) -> u32 {
         let counts = self.axis_counts();
-        let mut best = (f64::INFINITY, 0u32);
-        for (id, _) in used.iter().enumerate().filter(|(_, u)| !**u) {
-            let other = self.indices_of(id as u32);
-            let d: f64 = (0..4)
-                .map(|a| ((other[a] as f64 - idx[a] as f64) / counts[a] as f64).powi(2))
-                .sum();
-            if d < best.0 {
-                best = (d, id as u32);
+        let dist = |other: [u64; 4]| -> f64 {
+            (0..4).map(|a| ((other[a] as f64 - idx[a] as f64) / counts[a] as f64).powi(2)).sum()
+        };
+        let mut best = (f64::INFINITY, u32::MAX);
+        let consider = |other: [u64; 4], best: &mut (f64, u32)| {
+            let id = self.id_of(other);
+            if !used[id as usize] {
+                let d = dist(other);
+                if d < best.0 || (d == best.0 && id < best.1) {
+                    *best = (d, id);
+                }
+            }
+        };
+        let r = LHS_LOCAL_RADIUS;
+        let lo: Vec<u64> = (0..4).map(|a| idx[a].saturating_sub(r)).collect();
+        let hi: Vec<u64> = (0..4).map(|a| (idx[a] + r).min(counts[a] - 1)).collect();
+        for i0 in lo[0]..=hi[0] {
+            for i1 in lo[1]..=hi[1] {
+                for i2 in lo[2]..=hi[2] {
+                    for i3 in lo[3]..=hi[3] {
+                        consider([i0, i1, i2, i3], &mut best);
+                    }
+                }
+            }
+        }
+        if best.1 == u32::MAX {
+            for id in (0..used.len()).filter(|&id| !used[id]) {
+                consider(self.indices_of(id as u32), &mut best);
             }
         }
         best.1
     }
 }
+
+/// Half-width, in grid steps, of the box searched first for a free point after an LHS
+/// collision (a 7^4 box: cheap, and almost always holds one).
+const LHS_LOCAL_RADIUS: u64 = 3;
 
 fn derived_seed(seed: u64, stream: u64) -> u64 {
     seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15)
@@ -465,6 +518,9 @@ fn derived_seed(seed: u64, stream: u64) -> u64 {
 pub fn path_cost(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> f64 {
     poses.windows(2).map(|w| cost(&w[0].pose, &w[1].pose)).sum()
 }
+
+/// Largest plan ordered by nearest neighbour + 2-opt; larger ones get a serpentine sweep.
+pub const MAX_OPTIMISED_POSES: usize = 10_000;
 
 /// Neighbours examined per pose by 2-opt.
 const NEIGHBOURS: usize = 16;
@@ -506,8 +562,13 @@ fn optimise_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> 
     let knn: Vec<Vec<(f64, usize)>> = (0..n)
         .map(|a| {
             let mut v: Vec<(f64, usize)> = (0..n).filter(|&b| b != a).map(|b| (d(a, b), b)).collect();
-            v.sort_by(|x, y| x.0.total_cmp(&y.0));
-            v.truncate(k);
+            // Partial selection first: sorting all n candidates per pose is what would make
+            // full-grid plans slow.
+            if k < v.len() {
+                v.select_nth_unstable_by(k, |x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                v.truncate(k);
+            }
+            v.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             v
         })
         .collect();
@@ -602,9 +663,22 @@ impl TrapezoidMotionModel {
     }
 }
 
-/// Pose ids of `planned` not present in `done` (what `--fill-missing` has to produce).
-pub fn missing_ids<'a>(planned: impl IntoIterator<Item = &'a PlannedPose>, done: &BTreeSet<u32>) -> Vec<u32> {
-    planned.into_iter().map(|p| p.pose_id).filter(|id| !done.contains(id)).collect()
+impl PlanSpec {
+    /// Grid points whose id is not in `done`, in `pose_id` order: what
+    /// `rig synth --fill-missing` has to produce (assumes a validated spec).
+    pub fn missing(&self, done: &BTreeSet<u32>) -> Vec<PlannedPose> {
+        self.grid().into_iter().filter(|p| !done.contains(&p.pose_id)).collect()
+    }
+}
+
+/// Shard `index` of `count` (0-based): every `count`-th pose starting at position `index`, so
+/// shards are disjoint, cover all poses, and differ in size by at most one. Empty when
+/// `index >= count`.
+pub fn shard(poses: &[PlannedPose], index: usize, count: usize) -> Vec<PlannedPose> {
+    if count == 0 || index >= count {
+        return Vec::new();
+    }
+    poses.iter().skip(index).step_by(count).copied().collect()
 }
 
 #[cfg(test)]
@@ -641,17 +715,13 @@ mod tests {
         let mut s = PlanSpec::default();
         s.yaw_deg.min = f64::NAN;
         assert!(matches!(s.validate(), Err(PlanError::NotFinite { axis: "yaw_deg", field: "min", .. })));
-        let mut s = PlanSpec::default();
-        s.z_mm = AxisRange::new(1.0, -1.0, 0.5);
+        let s = PlanSpec { z_mm: AxisRange::new(1.0, -1.0, 0.5), ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::EmptyRange { axis: "z_mm", .. })));
-        let mut s = PlanSpec::default();
-        s.n_poses = Some(7866);
+        let s = PlanSpec { n_poses: Some(7866), ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::TooManyPoses { requested: 7866, grid: 7865 })));
-        let mut s = PlanSpec::default();
-        s.sampling = Sampling::Full;
+        let s = PlanSpec { sampling: Sampling::Full, ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::CountWithFull { .. })));
-        let mut s = PlanSpec::default();
-        s.n_poses = None;
+        let s = PlanSpec { n_poses: None, ..PlanSpec::default() };
         assert!(matches!(s.validate(), Err(PlanError::MissingCount { sampling: Sampling::Lhs })));
         let mut s = PlanSpec::default();
         s.x_mm.step = 1e-9;
@@ -704,6 +774,42 @@ mod tests {
         let c = PlanSpec { seed: 8, ..PlanSpec::default() }.build(&cost).unwrap();
         assert_eq!(a, b);
         assert_ne!(a.poses, c.poses);
+    }
+
+    #[test]
+    fn missing_and_shards() {
+        let s = PlanSpec::default();
+        let done: BTreeSet<u32> = (0..7000).collect();
+        let missing = s.missing(&done);
+        assert_eq!(missing.len(), 865);
+        assert_eq!(missing[0].pose_id, 7000);
+        let shards: Vec<Vec<PlannedPose>> = (0..3).map(|i| shard(&missing, i, 3)).collect();
+        assert_eq!(shards.iter().map(Vec::len).sum::<usize>(), 865);
+        let mut ids: Vec<u32> = shards.iter().flatten().map(|p| p.pose_id).collect();
+        ids.sort();
+        assert_eq!(ids, missing.iter().map(|p| p.pose_id).collect::<Vec<_>>());
+        assert!(shard(&missing, 3, 3).is_empty());
+    }
+
+    #[test]
+    fn serpentine_visits_grid_neighbours() {
+        let s = PlanSpec {
+            x_mm: AxisRange::new(0.0, 3.0, 1.0),
+            y_mm: AxisRange::new(0.0, 2.0, 1.0),
+            z_mm: AxisRange::new(0.0, 1.0, 1.0),
+            yaw_deg: AxisRange::new(0.0, 30.0, 15.0),
+            sampling: Sampling::Full,
+            n_poses: None,
+            seed: 0,
+            order: Order::AsSampled,
+        };
+        let swept = s.serpentine(&s.grid());
+        assert_eq!(swept.len(), 72);
+        for w in swept.windows(2) {
+            let (a, b) = (s.indices_of(w[0].pose_id), s.indices_of(w[1].pose_id));
+            let steps: u64 = (0..4).map(|k| a[k].abs_diff(b[k])).sum();
+            assert_eq!(steps, 1, "{:?} -> {:?}", w[0], w[1]);
+        }
     }
 
     #[test]

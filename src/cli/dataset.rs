@@ -66,6 +66,9 @@ pub enum DatasetCommand {
         /// STL file of the object (hashed into the manifest).
         #[arg(long)]
         stl: Option<PathBuf>,
+        /// Continue an interrupted import into --out (rows already there are skipped).
+        #[arg(long)]
+        resume: bool,
     },
     /// Join datasets (e.g. synth shards) into OUT, refusing conflicting rows.
     Merge {
@@ -91,8 +94,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         DatasetCommand::Export { dir, format, out, obj_id, images_out } => {
             export(&dir, format, out.as_deref(), &obj_id, images_out.as_deref())
         }
-        DatasetCommand::Import { csv, out, images, sensor, object, stl } => {
-            import(&csv, out.as_deref(), images.as_deref(), &sensor, object.as_deref(), stl.as_deref())
+        DatasetCommand::Import { csv, out, images, sensor, object, stl, resume } => {
+            let target = ImportTarget { out, images, sensor, object, stl, resume };
+            import(&csv, &target)
         }
         DatasetCommand::Merge { out, inputs } => {
             let report = merge(&inputs, &out).with_context(|| format!("merging into {}", out.display()))?;
@@ -136,17 +140,20 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
     Ok(())
 }
 
-fn import(
-    csv: &Path,
-    out: Option<&Path>,
-    images: Option<&Path>,
-    sensor: &str,
-    object: Option<&str>,
-    stl: Option<&Path>,
-) -> anyhow::Result<()> {
+/// Where and how `rig dataset import` writes.
+struct ImportTarget {
+    out: Option<PathBuf>,
+    images: Option<PathBuf>,
+    sensor: String,
+    object: Option<String>,
+    stl: Option<PathBuf>,
+    resume: bool,
+}
+
+fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
     let rows = import_mds(csv)?;
     println!("{}: {} filled rows", csv.display(), rows.len());
-    let Some(out) = out else {
+    let Some(out) = target.out.as_deref() else {
         println!("{:>8} {:>12} {:>12} {:>12} {:>12}  image_name", "pose_id", "x_mm", "y_mm", "z_mm", "yaw_deg");
         for r in &rows {
             let p = r.work_pose();
@@ -154,15 +161,18 @@ fn import(
         }
         return Ok(());
     };
-    let Some(images) = images else { bail!("--out needs --images: a dataset row needs its image") };
-    let obj_name = object.map(str::to_string).or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
-    let object = match stl {
+    let Some(images) = target.images.as_deref() else { bail!("--out needs --images: a dataset row needs its image") };
+    let sensor = &target.sensor;
+    let obj_name =
+        target.object.clone().or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
+    let object = match &target.stl {
         Some(stl) => ObjectInfo::with_stl(&obj_name, stl)?,
         None => ObjectInfo::named(&obj_name),
     };
-    let mut writer = DatasetWriter::create(out, Manifest::new(sensor, object, None))?;
+    let manifest = Manifest::new(sensor, object, None);
+    let mut writer = DatasetWriter::start(out, manifest, target.resume)?;
     let (mut written, mut skipped) = (0, Vec::new());
-    for r in &rows {
+    for r in rows.iter().filter(|r| !writer.done_ids().contains(&r.pose_id)).collect::<Vec<_>>() {
         let mut candidates = vec![images.join(&r.image_name)];
         if let Some(i) = r.frame_index() {
             candidates.push(images.join(format!("{}_{sensor}_{i}.png", r.obj_id)));

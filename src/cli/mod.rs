@@ -86,6 +86,15 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         if cause.downcast_ref::<crate::arm::ArmError>().is_some() {
             return 3;
         }
+        if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
+            return 2;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::dataset::DatasetError>() {
+            use crate::dataset::DatasetError as D;
+            if matches!(e, D::NotEmpty { .. } | D::NotADataset { .. } | D::ManifestMismatch { .. } | D::MalformedMds { .. }) {
+                return 2;
+            }
+        }
     }
     1
 }

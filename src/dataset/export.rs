@@ -146,26 +146,7 @@ pub fn parse_mds(bytes: &[u8], path: &Path) -> Result<Vec<MdsRow>, DatasetError>
 /// A dataset row for an imported MDS row: pose id = the MDS pose id, commanded pose = the
 /// MDS pose, source `real`, no measured pose or capture time (MDS files carry neither).
 pub fn pose_row_from_mds(row: &MdsRow) -> PoseRow {
-    let pose = row.work_pose();
-    PoseRow {
-        pose_id: row.pose_id,
-        x_mm: pose.x_mm,
-        y_mm: pose.y_mm,
-        z_mm: pose.z_mm,
-        yaw_deg: pose.yaw_deg,
-        meas_x_mm: None,
-        meas_y_mm: None,
-        meas_z_mm: None,
-        meas_yaw_deg: None,
-        image: super::image_rel_path(row.pose_id),
-        source: super::Source::Real,
-        t_capture_s: None,
-        model: None,
-        seed: None,
-        steps: None,
-        guidance: None,
-        n_frames: None,
-    }
+    PoseRow::commanded_only(row.pose_id, row.work_pose(), super::Source::Real)
 }
 
 /// MDS rows for dataset rows, in the given order: row `i` becomes `frame_<i>_0.png` with MDS

@@ -78,11 +78,10 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
             writer.append_png(row, &png)?;
         }
     }
-    if !out.join(REFERENCE_FILE).exists() {
-        if let Some(src) = inputs.iter().map(|d| d.join(REFERENCE_FILE)).find(|p| p.is_file()) {
-            let bytes = std::fs::read(&src).map_err(DatasetError::io("reading", &src))?;
-            write_atomic(out, REFERENCE_FILE, &bytes)?;
-        }
+    let reference_src = inputs.iter().map(|d| d.join(REFERENCE_FILE)).find(|p| p.is_file());
+    if let Some(src) = reference_src.filter(|_| !out.join(REFERENCE_FILE).exists()) {
+        let bytes = std::fs::read(&src).map_err(DatasetError::io("reading", &src))?;
+        write_atomic(out, REFERENCE_FILE, &bytes)?;
     }
     writer.finish()?;
     Ok(MergeReport { inputs: inputs.len(), appended: new_ids.len(), already_present })

@@ -121,31 +121,8 @@ pub struct PoseRow {
 }
 
 impl PoseRow {
-    /// A captured row: commanded and measured work-frame poses and the capture time.
-    pub fn real(pose_id: u32, commanded: Pose, measured: Pose, t_capture_s: f64) -> Self {
-        Self {
-            pose_id,
-            x_mm: commanded.x_mm,
-            y_mm: commanded.y_mm,
-            z_mm: commanded.z_mm,
-            yaw_deg: commanded.yaw_deg,
-            meas_x_mm: Some(measured.x_mm),
-            meas_y_mm: Some(measured.y_mm),
-            meas_z_mm: Some(measured.z_mm),
-            meas_yaw_deg: Some(measured.yaw_deg),
-            image: image_rel_path(pose_id),
-            source: Source::Real,
-            t_capture_s: Some(t_capture_s),
-            model: None,
-            seed: None,
-            steps: None,
-            guidance: None,
-            n_frames: None,
-        }
-    }
-
-    /// A synthesised row with its provenance.
-    pub fn synthetic(pose_id: u32, commanded: Pose, model: &str, seed: u64, steps: u32, guidance: f64) -> Self {
+    /// A row with only the commanded pose and the source; every optional column empty.
+    pub fn commanded_only(pose_id: u32, commanded: Pose, source: Source) -> Self {
         Self {
             pose_id,
             x_mm: commanded.x_mm,
@@ -157,13 +134,36 @@ impl PoseRow {
             meas_z_mm: None,
             meas_yaw_deg: None,
             image: image_rel_path(pose_id),
-            source: Source::Synthetic,
+            source,
             t_capture_s: None,
+            model: None,
+            seed: None,
+            steps: None,
+            guidance: None,
+            n_frames: None,
+        }
+    }
+
+    /// A captured row: commanded and measured work-frame poses and the capture time.
+    pub fn real(pose_id: u32, commanded: Pose, measured: Pose, t_capture_s: f64) -> Self {
+        Self {
+            meas_x_mm: Some(measured.x_mm),
+            meas_y_mm: Some(measured.y_mm),
+            meas_z_mm: Some(measured.z_mm),
+            meas_yaw_deg: Some(measured.yaw_deg),
+            t_capture_s: Some(t_capture_s),
+            ..Self::commanded_only(pose_id, commanded, Source::Real)
+        }
+    }
+
+    /// A synthesised row with its provenance.
+    pub fn synthetic(pose_id: u32, commanded: Pose, model: &str, seed: u64, steps: u32, guidance: f64) -> Self {
+        Self {
             model: Some(model.to_string()),
             seed: Some(seed),
             steps: Some(steps),
             guidance: Some(guidance),
-            n_frames: None,
+            ..Self::commanded_only(pose_id, commanded, Source::Synthetic)
         }
     }
 

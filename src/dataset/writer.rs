@@ -75,6 +75,12 @@ impl DatasetWriter {
         Self::open_existing(dir, existing, true)
     }
 
+    /// [`resume`](Self::resume) when `resume` is set (the `--resume` flag), else
+    /// [`create`](Self::create).
+    pub fn start(dir: &Path, manifest: Manifest, resume: bool) -> Result<Self, DatasetError> {
+        if resume { Self::resume(dir, manifest) } else { Self::create(dir, manifest) }
+    }
+
     /// Opens an existing dataset to append to it under its own manifest (what
     /// `rig synth --fill-missing` does), repairing it as [`resume`](Self::resume) does.
     pub fn open(dir: &Path) -> Result<Self, DatasetError> {

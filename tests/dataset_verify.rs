@@ -1,0 +1,139 @@
+//! `verify` finds each kind of damage; `merge` joins shards and refuses conflicts; the CLI's
+//! `rig dataset verify` exits 1 on a damaged dataset; no bytes make the parsers panic.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use image::RgbImage;
+use proptest::prelude::*;
+use rig::dataset::{
+    DatasetError, DatasetWriter, Manifest, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify,
+};
+use rig::plan::PlanSpec;
+use rig::pose::Pose;
+
+fn manifest() -> Manifest {
+    Manifest::new("vitac", ObjectInfo::named("sphere"), Some(PlanSpec::default()))
+}
+
+fn img(v: u8) -> RgbImage {
+    RgbImage::from_fn(4, 4, |x, _| image::Rgb([v, x as u8, 0]))
+}
+
+fn synth_row(id: u32, seed: u64) -> PoseRow {
+    let pose = PlanSpec::default().pose_of(id).expect("on grid");
+    PoseRow::synthetic(id, pose, "mds-sd15", seed, 50, 1.0)
+}
+
+fn dataset(dir: &Path, ids: &[u32]) {
+    let mut w = DatasetWriter::create(dir, manifest()).expect("create");
+    for &id in ids {
+        w.append(synth_row(id, id as u64), &img(id as u8)).expect("append");
+    }
+    w.finish().expect("finish");
+}
+
+#[test]
+fn verify_reports_every_kind_of_damage() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("ds");
+    dataset(&dir, &[1, 2, 3, 4]);
+    let clean = verify(&dir).expect("verify");
+    assert!(clean.is_clean(), "{clean}");
+    assert_eq!((clean.rows, clean.images, clean.synthetic), (4, 4, 4));
+
+    std::fs::remove_file(dir.join("images/2.png")).expect("rm");
+    std::fs::write(dir.join("images/9.png"), b"png").expect("orphan");
+    std::fs::write(dir.join("images/.5.png.tmp"), b"tmp").expect("tmp");
+    let csv = dir.join("poses.csv");
+    let mut text = std::fs::read_to_string(&csv).expect("read");
+    let line3 = text.lines().nth(3).expect("row of pose 3").to_string();
+    text.push_str(&format!("{line3}\n"));
+    text.push_str("7,1,2,3\n");
+    text.push_str("8,0,0,0,0,,,,,images/8.png,real,1.0,,,,,");
+    std::fs::write(&csv, text).expect("write");
+
+    let r = verify(&dir).expect("verify");
+    assert!(!r.is_clean());
+    assert_eq!((r.missing, r.orphan, r.duplicated, r.malformed, r.temp_files), (1, 1, 1, 2, 1), "{r}");
+    assert!(r.issues.contains(&VerifyIssue::MissingImage { pose_id: 2, path: dir.join("images/2.png") }));
+    assert!(r.issues.contains(&VerifyIssue::DuplicateRow { pose_id: 3, first_line: 4, line: 6 }));
+    assert!(r.issues.iter().any(|i| matches!(i, VerifyIssue::TornLastLine { .. })));
+
+    // The CLI prints the report and exits 1.
+    let out = Command::new(env!("CARGO_BIN_EXE_rig")).args(["dataset", "verify"]).arg(&dir).output().expect("run rig");
+    assert_eq!(out.status.code(), Some(1));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("missing 1, orphan 1, duplicated 1, malformed 2, temp files 1"), "{stdout}");
+    // Resume refuses a duplicated row rather than guessing.
+    assert!(matches!(DatasetWriter::resume(&dir, manifest()), Err(DatasetError::DuplicateRow { pose_id: 3, .. })));
+}
+
+#[test]
+fn merge_joins_shards_and_refuses_conflicts() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let shard = |name: &str, ids: &[u32]| -> PathBuf {
+        let d = tmp.path().join(name);
+        dataset(&d, ids);
+        d
+    };
+    let a = shard("a", &[0, 2, 4]);
+    let b = shard("b", &[1, 3, 4]); // 4 is in both, identical
+    let out = tmp.path().join("out");
+    let report = merge(&[a.clone(), b.clone()], &out).expect("merge");
+    assert_eq!((report.appended, report.already_present), (5, 1));
+    let ids: Vec<u32> = read_rows(&out).expect("rows").iter().map(|r| r.pose_id).collect();
+    assert_eq!(ids, vec![0, 1, 2, 3, 4]);
+    assert!(verify(&out).expect("verify").is_clean());
+    // Merging again adds nothing.
+    let again = merge(&[a.clone(), b], &out).expect("merge again");
+    assert_eq!((again.appended, again.already_present), (0, 6));
+
+    // A shard whose row 2 differs (another seed) conflicts; nothing is written.
+    let c = tmp.path().join("c");
+    let mut w = DatasetWriter::create(&c, manifest()).expect("create");
+    w.append(synth_row(2, 77), &img(2)).expect("append");
+    w.append(synth_row(5, 5), &img(5)).expect("append");
+    w.finish().expect("finish");
+    let err = merge(&[c], &out).unwrap_err();
+    assert!(matches!(err, DatasetError::MergeConflict { pose_id: 2, .. }), "{err}");
+    assert_eq!(read_rows(&out).expect("rows").len(), 5);
+
+    // A shard of another sensor is refused by name.
+    let d = tmp.path().join("d");
+    let mut m = manifest();
+    m.sensor = "tactip".into();
+    DatasetWriter::create(&d, m).expect("create").finish().expect("finish");
+    let err = merge(&[a, d], &tmp.path().join("out2")).unwrap_err();
+    assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
+}
+
+#[test]
+fn create_refuses_existing_dataset_via_cli_style_message() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("ds");
+    dataset(&dir, &[1]);
+    let err = DatasetWriter::create(&dir, manifest()).unwrap_err();
+    assert!(err.to_string().contains("--resume"), "{err}");
+    let row = PoseRow::real(1, Pose::default(), Pose::default(), 0.0);
+    let mut w = DatasetWriter::resume(&dir, manifest()).expect("resume");
+    assert!(matches!(w.append(row, &img(1)), Err(DatasetError::DuplicatePose { pose_id: 1 })));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn parsers_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400), keep_header in any::<bool>()) {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        let dir = tmp.path().join("ds");
+        dataset(&dir, &[]);
+        let mut content = if keep_header { std::fs::read(dir.join("poses.csv")).expect("read") } else { Vec::new() };
+        content.extend(&bytes);
+        std::fs::write(dir.join("poses.csv"), &content).expect("write");
+        let _ = verify(&dir).expect("verify reads any bytes");
+        let _ = read_rows(&dir);
+        let _ = DatasetWriter::open(&dir);
+        let _ = rig::dataset::export::parse_mds(&bytes, Path::new("x.csv"));
+    }
+}
