@@ -311,6 +311,7 @@ impl RigConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pose::Pose;
 
     #[test]
     fn empty_file_is_the_simulated_rig() {

@@ -241,13 +241,13 @@ mod tests {
             "--scheduler", "dpm++2m", "--size", "64x64",
         ])
         .unwrap();
-        let crate::cli::Command::Synth(Args { command: SynthCommand::One(one) }) = cli.command else { panic!("not synth one") };
+        let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
         assert_eq!((one.steps, one.scheduler, one.size), (4, SchedulerKind::DpmSolverPp2m, Some((64, 64))));
         let cli = crate::cli::Cli::try_parse_from([
             "rig", "synth", "one", "--model", "m", "--control", "c.png", "--sensor", "ViTac", "--pose", "-1,2,0.5,-30", "--out", "o.png",
         ])
         .unwrap();
-        let crate::cli::Command::Synth(Args { command: SynthCommand::One(one) }) = cli.command else { panic!("not synth one") };
+        let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
         assert!(
             crate::cli::Cli::try_parse_from(["rig", "synth", "one", "--model", "m", "--control", "c", "--out", "o"]).is_err(),
