@@ -13,7 +13,7 @@
 //! (`calibration/<name>.toml`); the optional [`FitRecord`] keeps the data and residuals of the
 //! fit that produced it. [`contact_fit`] fits one to real frames of a known object.
 
-// pub mod contact_fit;
+pub mod contact_fit;
 
 use std::path::Path;
 
@@ -97,6 +97,12 @@ pub struct Calibration {
     /// How this calibration was fitted, if it was.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fit: Option<FitRecord>,
+    /// Maps a commanded work-frame x/y offset (mm) to the offset the object really shows under
+    /// the sensor (row-major 2 x 2 matrix); `None` is the identity, the rigid model. Fitted
+    /// when a rig's logged poses do not move the image as the rigid model says (the
+    /// MultiDiffSense example does not: see `docs/geometry.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_xy_correction: Option<[[f64; 2]; 2]>,
 }
 
 impl Calibration {
@@ -111,6 +117,7 @@ impl Calibration {
             image_size: [width, height],
             depth_scale_per_mm: 0.0,
             fit: None,
+            pose_xy_correction: None,
         }
     }
 
@@ -159,6 +166,11 @@ impl Calibration {
         if self.image_size.contains(&0) {
             return bad("image_size", format!("{:?}", self.image_size), "must be positive");
         }
+        if let Some(m) = self.pose_xy_correction
+            && !m.iter().flatten().all(|v| v.is_finite())
+        {
+            return bad("pose_xy_correction", format!("{m:?}"), "must be finite");
+        }
         if !self.depth_scale_per_mm.is_finite() {
             return bad("depth_scale_per_mm", self.depth_scale_per_mm.to_string(), "must be finite");
         }
@@ -174,6 +186,15 @@ impl Calibration {
             scale_px_per_mm: [self.scale_px_per_mm[0] * kx, self.scale_px_per_mm[1] * ky],
             image_size: [width, height],
             ..self.clone()
+        }
+    }
+
+    /// The x/y offset (mm) the object shows under the sensor for a commanded work-frame offset
+    /// (applies [`Self::pose_xy_correction`]).
+    pub fn effective_offset_mm(&self, x_mm: f64, y_mm: f64) -> (f64, f64) {
+        match self.pose_xy_correction {
+            Some([[a, b], [c, d]]) => (a * x_mm + b * y_mm, c * x_mm + d * y_mm),
+            None => (x_mm, y_mm),
         }
     }
 
@@ -215,6 +236,7 @@ mod tests {
             image_size: [512, 512],
             depth_scale_per_mm: 0.0,
             fit: None,
+            pose_xy_correction: None,
         };
         for (x, y) in [(0.0, 0.0), (3.0, -4.0), (-7.5, 2.25)] {
             let (u, v) = c.mm_to_px(x, y);

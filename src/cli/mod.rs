@@ -5,6 +5,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod compare;
+pub mod objects;
+pub mod render;
+pub mod sensor_bridge;
+
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
 #[derive(Debug, Parser)]
@@ -21,6 +26,12 @@ pub struct Cli {
 pub enum Command {
     /// Print the version and the configuration rig would use.
     Info,
+    /// Render one image of an object under a sensor at a pose (depth, control or a sensor).
+    Render(render::Args),
+    /// The STL object library: regenerate it, or draw a contact sheet.
+    Objects(objects::Args),
+    /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
+    CompareReal(compare::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -34,6 +45,9 @@ pub fn main() -> ExitCode {
             println!("rig {}", crate::version());
             Ok(())
         }
+        Command::Render(args) => render::run(args),
+        Command::Objects(args) => objects::run(args),
+        Command::CompareReal(args) => compare::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

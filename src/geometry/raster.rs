@@ -65,7 +65,8 @@ pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, o
     render_depth(mesh, object_pose, calib, opts.width, opts.height, opts.supersample)
 }
 
-/// The affine map from object-frame x/y (mm) to pixels for a pose and calibration.
+/// The affine map from object-frame x/y (mm) to pixels for a pose and calibration (the pose's
+/// x/y pass through [`Calibration::effective_offset_mm`] first).
 pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
     let (s, c) = calib.rotation_deg.to_radians().sin_cos();
     let rot_scale = DMat2::from_cols(DVec2::new(c, s), DVec2::new(-s, c))
@@ -73,7 +74,7 @@ pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
     DAffine2::from_translation(DVec2::from_array(calib.centre_px))
         * DAffine2::from_mat2(rot_scale)
         * DAffine2::from_angle(-object_pose.yaw_deg.to_radians())
-        * DAffine2::from_translation(DVec2::new(-object_pose.x_mm, -object_pose.y_mm))
+        * DAffine2::from_translation(-DVec2::from(calib.effective_offset_mm(object_pose.x_mm, object_pose.y_mm)))
 }
 
 fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32) -> DepthMap {
