@@ -84,6 +84,12 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
     let plane_z = mesh.top_z_mm() as f64 - object_pose.z_mm;
     let (w, h) = (width as usize, height as usize);
     for tri in &mesh.triangles {
+        // Walls (normal nearly horizontal) project to slivers whose interpolated heights are
+        // ill-conditioned; the faces around them already cover those pixels.
+        let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+        if n.z.abs() <= 1e-4 * n.length() {
+            continue;
+        }
         let p = tri.map(|v| {
             let uv = to_px.transform_point2(DVec2::new(v.x as f64, v.y as f64));
             (uv, v.z as f64 - plane_z)
