@@ -79,3 +79,25 @@ fn ssim_of_an_edge_shift_is_between_zero_and_one() {
     let s3 = ssim(&edge(0), &edge(3)).unwrap();
     assert!(s1 < 1.0 && s3 < s1 && s3 > 0.0, "{s1} {s3}");
 }
+
+/// Against scikit-image 0.26 on real frames:
+/// `structural_similarity(a, b, channel_axis=2, gaussian_weights=True, sigma=1.5,
+/// use_sample_covariance=False, data_range=255)` and `peak_signal_noise_ratio(a, b,
+/// data_range=255)`, computed once with skimage and written here as reference values.
+#[test]
+fn ssim_and_psnr_match_scikit_image_on_real_frames() {
+    let root = std::path::PathBuf::from(std::env::var("RIG_SHARED").unwrap_or_else(|_| "../shared".to_string()))
+        .join("real-sample/multidiffsense-example/tactile/1");
+    let load = |p: &str| image::open(root.join(p)).unwrap_or_else(|e| panic!("{p}: {e} (set RIG_SHARED)")).to_rgb8();
+    let cases = [
+        ("ViTac/target/1_ViTac_0.png", "ViTac/target/1_ViTac_1.png", 0.9190462484044947, 22.070848519835078),
+        ("TacTip/target/1_TacTip_0.png", "TacTip/target/1_TacTip_3.png", 0.8505309769135733, 20.3036512042533),
+    ];
+    for (a, b, ssim_ref, psnr_ref) in cases {
+        let (ia, ib) = (load(a), load(b));
+        let s = ssim(&ia, &ib).unwrap();
+        let p = psnr(&ia, &ib).unwrap();
+        assert!((s - ssim_ref).abs() < 1e-6, "{a} vs {b}: SSIM {s} skimage {ssim_ref}");
+        assert!((p - psnr_ref).abs() < 1e-6, "{a} vs {b}: PSNR {p} skimage {psnr_ref}");
+    }
+}

@@ -136,15 +136,18 @@ fn pose_of(sample: &RealSample, index: usize) -> anyhow::Result<Pose> {
 /// Per-pixel median of `frames` (upper median for even counts).
 pub fn median_image(frames: &[&RgbImage]) -> RgbImage {
     let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    RgbImage::from_fn(w, h, |x, y| {
-        let mut px = [0u8; 3];
-        for (k, out) in px.iter_mut().enumerate() {
-            let mut v: Vec<u8> = frames.iter().map(|f| f.get_pixel(x, y).0[k]).collect();
-            v.sort_unstable();
-            *out = v[v.len() / 2];
-        }
-        Rgb(px)
-    })
+    RgbImage::from_fn(w, h, |x, y| median_pixel(frames.iter().copied(), x, y))
+}
+
+/// Channel-wise upper median of the pixel (x, y) over `frames` (black for none).
+fn median_pixel<'a>(frames: impl Iterator<Item = &'a RgbImage> + Clone, x: u32, y: u32) -> Rgb<u8> {
+    let mut px = [0u8; 3];
+    for (k, out) in px.iter_mut().enumerate() {
+        let mut v: Vec<u8> = frames.clone().map(|f| f.get_pixel(x, y).0[k]).collect();
+        v.sort_unstable();
+        *out = v.get(v.len() / 2).copied().unwrap_or(0);
+    }
+    Rgb(px)
 }
 
 /// Per-pixel mean of `frames`.
@@ -160,20 +163,14 @@ pub fn mean_image(frames: &[&RgbImage]) -> RgbImage {
     })
 }
 
-/// No-contact look: per pixel the median over frames whose footprint does not cover it.
+/// No-contact look: per pixel the median over frames whose footprint does not cover it
+/// (over all frames where every footprint covers it).
 pub fn no_contact_estimate(frames: &[&RgbImage], covered: &[Vec<bool>]) -> RgbImage {
     let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
     RgbImage::from_fn(w, h, |x, y| {
         let i = (y * w + x) as usize;
-        let free: Vec<&RgbImage> = frames.iter().zip(covered).filter(|(_, c)| !c[i]).map(|(f, _)| *f).collect();
-        let pool = if free.is_empty() { frames.to_vec() } else { free };
-        let mut px = [0u8; 3];
-        for (k, out) in px.iter_mut().enumerate() {
-            let mut v: Vec<u8> = pool.iter().map(|f| f.get_pixel(x, y).0[k]).collect();
-            v.sort_unstable();
-            *out = v[v.len() / 2];
-        }
-        Rgb(px)
+        let free = frames.iter().zip(covered).filter(|(_, c)| !c[i]).map(|(f, _)| *f);
+        if free.clone().next().is_some() { median_pixel(free, x, y) } else { median_pixel(frames.iter().copied(), x, y) }
     })
 }
 
