@@ -115,7 +115,7 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
         for j in j0 as usize..=j1 as usize {
             let py = j as f64 + 0.5;
             let row = &mut map.height_mm[j * w..(j + 1) * w];
-            for i in i0 as usize..=i1 as usize {
+            for (i, cell) in row.iter_mut().enumerate().take(i1 as usize + 1).skip(i0 as usize) {
                 let q = DVec2::new(i as f64 + 0.5, py);
                 // Barycentric weights from edge functions, normalised by the signed area so
                 // both windings work.
@@ -127,8 +127,8 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
                     continue;
                 }
                 let z = (wa * za + wb * zb + wc * zc) as f32;
-                if z > row[i] {
-                    row[i] = z;
+                if z > *cell {
+                    *cell = z;
                 }
             }
         }
