@@ -1,10 +1,21 @@
 //! The one place the geometry commands (`render`, `objects contact-sheet`, `compare-real`)
 //! reach the tactile-sensor simulator.
 //!
-//! The simulator (`sim::sensor::{SensorKind, Scene, SensorSim}`) is built in parallel; until it
-//! is wired here, [`render_tactile`] answers [`SensorUnavailable`] and the commands say so. At
-//! merge time only the body of [`render_tactile`] changes:
-//! `SensorSim::new(kind, scene, calib.clone(), w, h, seed).render(depth, ...)`.
+//! The simulator (`sim::sensor`) is built on another branch; until it is merged,
+//! [`render_tactile`] answers [`SensorUnavailable`] and the commands say so. At merge time only
+//! the body of [`render_tactile`] (and [`simulator_available`]) changes; with the sensor
+//! branch's API as of this writing that is:
+//!
+//! ```text
+//! let kind = match sensor { TacTip => SensorKind::TacTip, ViTac => SensorKind::ViTac, ViTacTip => SensorKind::ViTacTip };
+//! let scene = Scene::preset("full")?;   // map SceneError into the error type
+//! let px_per_mm = ((calib.scale_px_per_mm[0].abs() + calib.scale_px_per_mm[1].abs()) / 2.0) as f32;
+//! let sim = SensorSim::new(kind, scene, depth.width, depth.height, px_per_mm, seed);
+//! Ok(sim.render(depth, &MotionState::STILL, seed))
+//! ```
+//!
+//! [`TactileSensor`] mirrors `sim::sensor::SensorKind` (same names and parsing) and can be
+//! replaced by it then.
 
 use std::fmt;
 use std::str::FromStr;
