@@ -43,14 +43,21 @@ impl Default for RasterOptions {
 
 /// Largest supersampling factor accepted (64 samples per pixel).
 pub const MAX_SUPERSAMPLE: u32 = 8;
+/// Most samples a supersampled render may hold (256 MiB of f32); the factor is lowered to fit.
+pub const MAX_SAMPLES: u64 = 1 << 26;
 
 /// Renders `mesh` under the sensor at `object_pose` (see the module docs) into a
 /// `width x height` depth map, `calib` scaled to that size, with `supersample`^2 samples per
-/// pixel (0 is treated as 1).
+/// pixel (0 is treated as 1; lowered so the samples stay within [`MAX_SAMPLES`]). A pose with a
+/// non-finite component renders nothing.
 pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32, supersample: u32) -> DepthMap {
-    let ss = supersample.clamp(1, MAX_SUPERSAMPLE);
-    if width == 0 || height == 0 {
+    if width == 0 || height == 0 || !object_pose.is_finite() {
         return DepthMap::empty(width, height);
+    }
+    // Keep the supersampled buffer bounded (MAX_SAMPLES f32s) whatever size is asked for.
+    let mut ss = supersample.clamp(1, MAX_SUPERSAMPLE);
+    while ss > 1 && (width as u64 * ss as u64) * (height as u64 * ss as u64) > MAX_SAMPLES {
+        ss -= 1;
     }
     let (sw, sh) = (width * ss, height * ss);
     let fine = rasterise(mesh, object_pose, &calib.scaled_to(sw, sh), sw, sh);
@@ -187,6 +194,17 @@ mod tests {
         let d = render_depth(&mesh, &Pose::new(0.0, 0.0, 1.0, 90.0), &calib, 100, 100, 1);
         // Long side now along the rows.
         assert!(d.get(50, 30).unwrap() > 0.0 && d.get(30, 50) == Some(DepthMap::BACKGROUND_MM));
+    }
+
+    #[test]
+    fn non_finite_pose_renders_nothing_and_huge_supersampling_is_bounded() {
+        let mesh = box_mesh(Vec3::new(-2.0, -1.0, 0.0), Vec3::new(2.0, 1.0, 5.0));
+        let calib = Calibration::default_for(64, 64);
+        let d = render_depth(&mesh, &Pose::new(f64::NAN, 0.0, 1.0, 0.0), &calib, 64, 64, 1);
+        assert_eq!(d, DepthMap::empty(64, 64));
+        // 4096^2 at 8x8 would be 1 G samples; it renders at a lower factor instead.
+        let big = render_depth(&mesh, &Pose::new(0.0, 0.0, 1.0, 0.0), &Calibration::default_for(4096, 4096), 4096, 4096, 8);
+        assert!((big.max_indentation_mm() - 1.0).abs() < 1e-4);
     }
 
     #[test]
