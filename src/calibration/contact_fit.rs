@@ -70,6 +70,8 @@ pub struct ContactFitOptions {
     pub max_evaluations: usize,
     /// Extra starting points, e.g. the fit of another sensor on the same rig (any size).
     pub extra_starts: Vec<Calibration>,
+    /// If larger than `work_size`: a last pattern search at this size (e.g. the frames' own).
+    pub final_size: Option<u32>,
 }
 
 impl Default for ContactFitOptions {
@@ -82,6 +84,7 @@ impl Default for ContactFitOptions {
             refine_best: 6,
             max_evaluations: 400,
             extra_starts: Vec::new(),
+            final_size: None,
         }
     }
 }
@@ -246,7 +249,17 @@ pub fn fit_contact(
             best = Some(fine);
         }
     }
-    let Some(best) = best else { return Err(ContactFitError::NoFrames) };
+    let Some(mut best) = best else { return Err(ContactFitError::NoFrames) };
+    let mut size = size;
+    let mut features = features;
+    if let Some(final_size) = opts.final_size.filter(|&f| f > size) {
+        let fine = build_features(frames, target, final_size);
+        let p = best.1.rescaled(final_size as f64 / size as f64);
+        let start = score(mesh, frames, &fine, &p);
+        let few = ContactFitOptions { max_evaluations: opts.max_evaluations / 2, ..opts.clone() };
+        best = pattern_search(mesh, frames, &fine, p, start, &few);
+        (size, features) = (final_size, fine);
+    }
     let (best_score, best_params) = best;
     let mut calib = best_params.calibration(size).scaled_to(fw, fh);
     if !opts.fit_pose_correction {

@@ -236,7 +236,8 @@ pub fn fit_sensor(
         .collect::<anyhow::Result<_>>()?;
     let refs: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
     let target = fit_target(sensor, &refs);
-    let mut opts = ContactFitOptions { extra_starts: seeds.to_vec(), ..ContactFitOptions::default() };
+    let full = list[0].1.width();
+    let mut opts = ContactFitOptions { extra_starts: seeds.to_vec(), final_size: Some(full), ..ContactFitOptions::default() };
     if sensor == TactileSensor::TacTip && !seeds.is_empty() {
         // Markers alone barely constrain the pose correction, which belongs to the pose log
         // (shared by all three sensors), not to the camera: take the see-through sensors' mean.
