@@ -115,13 +115,22 @@ pub fn load_real_sample(dir: &Path) -> anyhow::Result<RealSample> {
     let mut frames = BTreeMap::new();
     for sensor in TactileSensor::ALL {
         let name = sensor.dataset_name();
-        let mut list = Vec::new();
+        let mut list: Vec<(usize, RgbImage)> = Vec::new();
         for i in FRAMES {
             let p = dir.join(format!("tactile/1/{name}/target/1_{name}_{i}.png"));
             if !p.is_file() {
                 continue;
             }
             let img = image::open(&p).with_context(|| format!("reading {}", p.display()))?.to_rgb8();
+            // The per-pixel statistics below need one size per sensor.
+            if let Some((_, first)) = list.first()
+                && first.dimensions() != img.dimensions()
+            {
+                bail!("{}: {}x{} differs from the sensor's other frames ({}x{})", p.display(), img.width(), img.height(), first.width(), first.height());
+            }
+            if img.width() < 16 || img.height() < 16 {
+                bail!("{}: {}x{} is too small to compare", p.display(), img.width(), img.height());
+            }
             list.push((i, img));
         }
         frames.insert(name, list);
