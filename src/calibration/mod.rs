@@ -178,6 +178,8 @@ impl Calibration {
     }
 
     /// The same calibration for an image of another size (the optics scale with the image).
+    /// Exact when the aspect ratio is kept or the rotation is a multiple of 90 degrees; a
+    /// rotated calibration resized anisotropically would need a shear the model does not have.
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let kx = width as f64 / self.image_size[0] as f64;
         let ky = height as f64 / self.image_size[1] as f64;
@@ -247,6 +249,23 @@ mod tests {
         let r = Calibration { rotation_deg: 90.0, ..Calibration::default_for(512, 512) };
         let (u, v) = r.mm_to_px(1.0, 0.0);
         assert!((u - 256.0).abs() < 1e-9 && (v - 264.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn scaled_to_keeps_points_in_place_relative_to_the_image() {
+        let c = Calibration {
+            centre_px: [250.0, 261.0],
+            scale_px_per_mm: [18.0, -18.0],
+            rotation_deg: 170.0,
+            pose_xy_correction: Some([[0.4, -0.3], [0.3, 0.4]]),
+            ..Calibration::default_for(512, 512)
+        };
+        let half = c.scaled_to(256, 256);
+        assert_eq!(half.image_size, [256, 256]);
+        let (u, v) = c.mm_to_px(3.0, -2.0);
+        let (uh, vh) = half.mm_to_px(3.0, -2.0);
+        assert!((uh - u / 2.0).abs() < 1e-9 && (vh - v / 2.0).abs() < 1e-9, "({uh}, {vh}) vs ({u}, {v})");
+        assert_eq!(half.effective_offset_mm(1.0, 0.0), (0.4, 0.3));
     }
 
     #[test]
