@@ -178,7 +178,7 @@ impl Calibration {
     }
 
     /// The same calibration for an image of another size (the optics scale with the image).
-    /// Exact when the aspect ratio is kept or the rotation is a multiple of 90 degrees; a
+    /// Exact when the aspect ratio is kept or the rotation is a multiple of 180 degrees; a
     /// rotated calibration resized anisotropically would need a shear the model does not have.
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let kx = width as f64 / self.image_size[0] as f64;
