@@ -13,10 +13,11 @@
 //!
 //! The score is the Pearson correlation between the rendered indicator and the feature map,
 //! averaged over the frames; it rewards overlap and penalises both a footprint that is too
-//! small (few pixels) and one that is too large (dilutes the mean). The search runs at a
-//! reduced working size: a coarse grid over scale, rotation, mirroring and the pose
-//! correction, then a pattern search (coordinate steps halving on failure) from the best few
-//! starts. Parameters: centre, scale (same magnitude on both axes, optionally mirrored),
+//! small (few pixels) and one that is too large (dilutes the mean). The search: a coarse grid
+//! over scale, rotation, mirroring and the pose correction at half the working size (plus any
+//! [`ContactFitOptions::extra_starts`]), a pattern search (coordinate steps halving on
+//! failure) from the best starts there, again at the working size from the best of those, and
+//! optionally once more at [`ContactFitOptions::final_size`]. Parameters: centre, scale (same magnitude on both axes, optionally mirrored),
 //! rotation and a pose correction (gain and angle, see
 //! [`Calibration::pose_xy_correction`]).
 //!
@@ -173,7 +174,7 @@ struct Features {
     outline: bool,
 }
 
-/// Fits a calibration for `frames` of `mesh`; `full_size` is the frames' size.
+/// Fits a calibration for `frames` of `mesh` (all the same size; the result is for that size).
 pub fn fit_contact(
     mesh: &Mesh,
     frames: &[FitFrame],

@@ -69,7 +69,7 @@ impl FromStr for ImageSize {
 #[derive(Debug, ClapArgs)]
 #[command(group(clap::ArgGroup::new("mesh").required(true).args(["object", "stl"])))]
 pub struct Args {
-    /// Library object (datasets/objects/<NAME>.stl): edge, cuboid, sphere, pacman,
+    /// Library object (`datasets/objects/NAME.stl`): edge, cuboid, sphere, pacman,
     /// hollow_cylinder, cross, cone, wedge.
     #[arg(long)]
     pub object: Option<String>,
