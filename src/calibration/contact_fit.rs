@@ -278,7 +278,12 @@ pub fn fit_contact(
         residuals_px: residuals_px.clone(),
         rms_px: Some(rms),
         iou: Vec::new(),
-        notes: format!("mean correlation {best_score:.3}; residual = mean outline-to-feature distance, capped at {RESIDUAL_CAP_PX} px"),
+        notes: format!(
+            "mean correlation {best_score:.3}; pose correction gain {:.3}, angle {:.1} deg ({}); residual = mean outline-to-feature distance, capped at {RESIDUAL_CAP_PX} px",
+            best_params.v[4],
+            best_params.v[5],
+            if opts.fit_pose_correction { "fitted" } else { "fixed" },
+        ),
     });
     Ok(ContactFit { calibration: calib, score: best_score, residuals_px })
 }

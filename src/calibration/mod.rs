@@ -146,7 +146,7 @@ impl Calibration {
 
     /// The TOML text of this calibration.
     pub fn to_toml(&self) -> Result<String, CalibrationError> {
-        toml::to_string_pretty(self).map_err(|source| CalibrationError::Encode { source })
+        toml::to_string(self).map_err(|source| CalibrationError::Encode { source })
     }
 
     /// Checks that every number is usable.
