@@ -13,7 +13,7 @@
 //! (`calibration/<name>.toml`); the optional [`FitRecord`] keeps the data and residuals of the
 //! fit that produced it. [`contact_fit`] fits one to real frames of a known object.
 
-// pub mod contact_fit;
+pub mod contact_fit;
 
 use std::path::Path;
 
@@ -97,6 +97,12 @@ pub struct Calibration {
     /// How this calibration was fitted, if it was.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fit: Option<FitRecord>,
+    /// Maps a commanded work-frame x/y offset (mm) to the offset the object really shows under
+    /// the sensor (row-major 2 x 2 matrix); `None` is the identity, the rigid model. Fitted
+    /// when a rig's logged poses do not move the image as the rigid model says (the
+    /// MultiDiffSense example does not: see `docs/geometry.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_xy_correction: Option<[[f64; 2]; 2]>,
 }
 
 impl Calibration {
@@ -111,6 +117,7 @@ impl Calibration {
             image_size: [width, height],
             depth_scale_per_mm: 0.0,
             fit: None,
+            pose_xy_correction: None,
         }
     }
 
@@ -139,7 +146,7 @@ impl Calibration {
 
     /// The TOML text of this calibration.
     pub fn to_toml(&self) -> Result<String, CalibrationError> {
-        toml::to_string_pretty(self).map_err(|source| CalibrationError::Encode { source })
+        toml::to_string(self).map_err(|source| CalibrationError::Encode { source })
     }
 
     /// Checks that every number is usable.
@@ -159,6 +166,11 @@ impl Calibration {
         if self.image_size.contains(&0) {
             return bad("image_size", format!("{:?}", self.image_size), "must be positive");
         }
+        if let Some(m) = self.pose_xy_correction
+            && !m.iter().flatten().all(|v| v.is_finite())
+        {
+            return bad("pose_xy_correction", format!("{m:?}"), "must be finite");
+        }
         if !self.depth_scale_per_mm.is_finite() {
             return bad("depth_scale_per_mm", self.depth_scale_per_mm.to_string(), "must be finite");
         }
@@ -166,6 +178,8 @@ impl Calibration {
     }
 
     /// The same calibration for an image of another size (the optics scale with the image).
+    /// Exact when the aspect ratio is kept or the rotation is a multiple of 180 degrees; a
+    /// rotated calibration resized anisotropically would need a shear the model does not have.
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let kx = width as f64 / self.image_size[0] as f64;
         let ky = height as f64 / self.image_size[1] as f64;
@@ -174,6 +188,15 @@ impl Calibration {
             scale_px_per_mm: [self.scale_px_per_mm[0] * kx, self.scale_px_per_mm[1] * ky],
             image_size: [width, height],
             ..self.clone()
+        }
+    }
+
+    /// The x/y offset (mm) the object shows under the sensor for a commanded work-frame offset
+    /// (applies [`Self::pose_xy_correction`]).
+    pub fn effective_offset_mm(&self, x_mm: f64, y_mm: f64) -> (f64, f64) {
+        match self.pose_xy_correction {
+            Some([[a, b], [c, d]]) => (a * x_mm + b * y_mm, c * x_mm + d * y_mm),
+            None => (x_mm, y_mm),
         }
     }
 
@@ -215,6 +238,7 @@ mod tests {
             image_size: [512, 512],
             depth_scale_per_mm: 0.0,
             fit: None,
+            pose_xy_correction: None,
         };
         for (x, y) in [(0.0, 0.0), (3.0, -4.0), (-7.5, 2.25)] {
             let (u, v) = c.mm_to_px(x, y);
@@ -225,6 +249,23 @@ mod tests {
         let r = Calibration { rotation_deg: 90.0, ..Calibration::default_for(512, 512) };
         let (u, v) = r.mm_to_px(1.0, 0.0);
         assert!((u - 256.0).abs() < 1e-9 && (v - 264.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn scaled_to_keeps_points_in_place_relative_to_the_image() {
+        let c = Calibration {
+            centre_px: [250.0, 261.0],
+            scale_px_per_mm: [18.0, -18.0],
+            rotation_deg: 170.0,
+            pose_xy_correction: Some([[0.4, -0.3], [0.3, 0.4]]),
+            ..Calibration::default_for(512, 512)
+        };
+        let half = c.scaled_to(256, 256);
+        assert_eq!(half.image_size, [256, 256]);
+        let (u, v) = c.mm_to_px(3.0, -2.0);
+        let (uh, vh) = half.mm_to_px(3.0, -2.0);
+        assert!((uh - u / 2.0).abs() < 1e-9 && (vh - v / 2.0).abs() < 1e-9, "({uh}, {vh}) vs ({u}, {v})");
+        assert_eq!(half.effective_offset_mm(1.0, 0.0), (0.4, 0.3));
     }
 
     #[test]

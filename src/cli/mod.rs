@@ -12,6 +12,10 @@ pub mod dataset;
 pub mod plan;
 pub mod sensor;
 pub mod synth;
+pub mod compare;
+pub mod objects;
+pub mod render;
+pub mod sensor_bridge;
 
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
@@ -41,6 +45,12 @@ pub enum Command {
     Sensor(sensor::Args),
     /// Synthesise tactile images with a diffusion model package (ONNX Runtime).
     Synth(synth::Args),
+    /// Render one image of an object under a sensor at a pose (depth, control or a sensor).
+    Render(render::Args),
+    /// The STL object library: regenerate it, or draw a contact sheet.
+    Objects(objects::Args),
+    /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
+    CompareReal(compare::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -60,6 +70,9 @@ pub fn main() -> ExitCode {
         Command::Dataset(args) => dataset::run(args),
         Command::Sensor(args) => sensor::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::Render(args) => render::run(args),
+        Command::Objects(args) => objects::run(args),
+        Command::CompareReal(args) => compare::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

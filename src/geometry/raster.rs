@@ -43,14 +43,21 @@ impl Default for RasterOptions {
 
 /// Largest supersampling factor accepted (64 samples per pixel).
 pub const MAX_SUPERSAMPLE: u32 = 8;
+/// Most samples a supersampled render may hold (256 MiB of f32); the factor is lowered to fit.
+pub const MAX_SAMPLES: u64 = 1 << 26;
 
 /// Renders `mesh` under the sensor at `object_pose` (see the module docs) into a
 /// `width x height` depth map, `calib` scaled to that size, with `supersample`^2 samples per
-/// pixel (0 is treated as 1).
+/// pixel (0 is treated as 1; lowered so the samples stay within [`MAX_SAMPLES`]). A pose with a
+/// non-finite component renders nothing.
 pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32, supersample: u32) -> DepthMap {
-    let ss = supersample.clamp(1, MAX_SUPERSAMPLE);
-    if width == 0 || height == 0 {
+    if width == 0 || height == 0 || !object_pose.is_finite() {
         return DepthMap::empty(width, height);
+    }
+    // Keep the supersampled buffer bounded (MAX_SAMPLES f32s) whatever size is asked for.
+    let mut ss = supersample.clamp(1, MAX_SUPERSAMPLE);
+    while ss > 1 && (width as u64 * ss as u64) * (height as u64 * ss as u64) > MAX_SAMPLES {
+        ss -= 1;
     }
     let (sw, sh) = (width * ss, height * ss);
     let fine = rasterise(mesh, object_pose, &calib.scaled_to(sw, sh), sw, sh);
@@ -65,7 +72,8 @@ pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, o
     render_depth(mesh, object_pose, calib, opts.width, opts.height, opts.supersample)
 }
 
-/// The affine map from object-frame x/y (mm) to pixels for a pose and calibration.
+/// The affine map from object-frame x/y (mm) to pixels for a pose and calibration (the pose's
+/// x/y pass through [`Calibration::effective_offset_mm`] first).
 pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
     let (s, c) = calib.rotation_deg.to_radians().sin_cos();
     let rot_scale = DMat2::from_cols(DVec2::new(c, s), DVec2::new(-s, c))
@@ -73,7 +81,7 @@ pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
     DAffine2::from_translation(DVec2::from_array(calib.centre_px))
         * DAffine2::from_mat2(rot_scale)
         * DAffine2::from_angle(-object_pose.yaw_deg.to_radians())
-        * DAffine2::from_translation(DVec2::new(-object_pose.x_mm, -object_pose.y_mm))
+        * DAffine2::from_translation(-DVec2::from(calib.effective_offset_mm(object_pose.x_mm, object_pose.y_mm)))
 }
 
 fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32) -> DepthMap {
@@ -83,6 +91,12 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
     let plane_z = mesh.top_z_mm() as f64 - object_pose.z_mm;
     let (w, h) = (width as usize, height as usize);
     for tri in &mesh.triangles {
+        // Walls (normal nearly horizontal) project to slivers whose interpolated heights are
+        // ill-conditioned; the faces around them already cover those pixels.
+        let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+        if n.z.abs() <= 1e-4 * n.length() {
+            continue;
+        }
         let p = tri.map(|v| {
             let uv = to_px.transform_point2(DVec2::new(v.x as f64, v.y as f64));
             (uv, v.z as f64 - plane_z)
@@ -108,7 +122,7 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
         for j in j0 as usize..=j1 as usize {
             let py = j as f64 + 0.5;
             let row = &mut map.height_mm[j * w..(j + 1) * w];
-            for i in i0 as usize..=i1 as usize {
+            for (i, cell) in row.iter_mut().enumerate().take(i1 as usize + 1).skip(i0 as usize) {
                 let q = DVec2::new(i as f64 + 0.5, py);
                 // Barycentric weights from edge functions, normalised by the signed area so
                 // both windings work.
@@ -120,8 +134,8 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
                     continue;
                 }
                 let z = (wa * za + wb * zb + wc * zc) as f32;
-                if z > row[i] {
-                    row[i] = z;
+                if z > *cell {
+                    *cell = z;
                 }
             }
         }
@@ -180,6 +194,17 @@ mod tests {
         let d = render_depth(&mesh, &Pose::new(0.0, 0.0, 1.0, 90.0), &calib, 100, 100, 1);
         // Long side now along the rows.
         assert!(d.get(50, 30).unwrap() > 0.0 && d.get(30, 50) == Some(DepthMap::BACKGROUND_MM));
+    }
+
+    #[test]
+    fn non_finite_pose_renders_nothing_and_huge_supersampling_is_bounded() {
+        let mesh = box_mesh(Vec3::new(-2.0, -1.0, 0.0), Vec3::new(2.0, 1.0, 5.0));
+        let calib = Calibration::default_for(64, 64);
+        let d = render_depth(&mesh, &Pose::new(f64::NAN, 0.0, 1.0, 0.0), &calib, 64, 64, 1);
+        assert_eq!(d, DepthMap::empty(64, 64));
+        // 4096^2 at 8x8 would be 1 G samples; it renders at a lower factor instead.
+        let big = render_depth(&mesh, &Pose::new(0.0, 0.0, 1.0, 0.0), &Calibration::default_for(4096, 4096), 4096, 4096, 8);
+        assert!((big.max_indentation_mm() - 1.0).abs() < 1e-4);
     }
 
     #[test]

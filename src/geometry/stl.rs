@@ -243,10 +243,15 @@ fn parse_ascii(bytes: &[u8], name: &str) -> Result<Mesh, StlError> {
         let mut words = line.split_whitespace();
         let keyword = words.next().unwrap_or_default().to_ascii_lowercase();
         if ended {
-            return Err(syntax(line_no, "nothing after endsolid", line));
+            // Some exporters write several solids into one file; anything else is junk.
+            if keyword == "solid" {
+                ended = false;
+                continue;
+            }
+            return Err(syntax(line_no, "solid or nothing after endsolid", line));
         }
         match keyword.as_str() {
-            "solid" if line_no == 1 || triangles.is_empty() && loop_vertices.is_none() => {}
+            "solid" if triangles.is_empty() && loop_vertices.is_none() => {}
             "facet" | "endfacet" => {}
             "outer" => {
                 if loop_vertices.is_some() {
@@ -334,5 +339,9 @@ mod tests {
             let _ = Mesh::from_bytes(&ascii[..len]);
         }
         assert_eq!(Mesh::from_bytes(ascii).unwrap().triangles.len(), 1);
+        let two_solids = [&ascii[..], &ascii[..]].concat();
+        assert_eq!(Mesh::from_bytes(&two_solids).unwrap().triangles.len(), 2);
+        let trailing = [&ascii[..], b"garbage\n"].concat();
+        assert!(matches!(Mesh::from_bytes(&trailing), Err(StlError::AsciiSyntax { line: 10, .. })));
     }
 }

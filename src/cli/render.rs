@@ -1,0 +1,140 @@
+//! `rig render`: one image of an object under a sensor at a pose.
+//!
+//! ```text
+//! rig render (--object NAME | --stl PATH) --pose x,y,z,yaw \
+//!     --sensor tactip|vitac|vitactip|depth|control [--calibration FILE] [--size WxH] --out PNG
+//! ```
+//!
+//! `depth` writes the 16-bit depth PNG, `control` the MultiDiffSense control image, the
+//! tactile sensors go through the sensor simulator.
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use anyhow::{Context, bail};
+use clap::Args as ClapArgs;
+
+use super::sensor_bridge::{TactileSensor, render_tactile};
+use crate::calibration::Calibration;
+use crate::geometry::control::{control_image, depth_png16};
+use crate::geometry::objects::load_object;
+use crate::geometry::raster::render_depth;
+use crate::geometry::stl::Mesh;
+use crate::pose::Pose;
+
+/// What `rig render` produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum View {
+    /// 16-bit depth PNG (see `geometry::control`).
+    Depth,
+    /// MultiDiffSense control image (viridis, RGB8).
+    Control,
+    /// A simulated tactile sensor image.
+    Tactile(TactileSensor),
+}
+
+impl FromStr for View {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "depth" => Ok(View::Depth),
+            "control" => Ok(View::Control),
+            other => other
+                .parse::<TactileSensor>()
+                .map(View::Tactile)
+                .map_err(|_| format!("unknown sensor {s:?}; expected tactip, vitac, vitactip, depth or control")),
+        }
+    }
+}
+
+/// An image size written `WxH`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageSize {
+    pub width: u32,
+    pub height: u32,
+}
+
+impl FromStr for ImageSize {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("size is written WxH, got {s:?}"))?;
+        let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| (1..=8192).contains(&n));
+        match (parse(w), parse(h)) {
+            (Some(width), Some(height)) => Ok(ImageSize { width, height }),
+            _ => Err(format!("size {s:?}: width and height must be integers in 1..=8192")),
+        }
+    }
+}
+
+#[derive(Debug, ClapArgs)]
+#[command(group(clap::ArgGroup::new("mesh").required(true).args(["object", "stl"])))]
+pub struct Args {
+    /// Library object (`datasets/objects/NAME.stl`): edge, cuboid, sphere, pacman,
+    /// hollow_cylinder, cross, cone, wedge.
+    #[arg(long)]
+    pub object: Option<String>,
+    /// Any binary or ASCII STL file (mm).
+    #[arg(long)]
+    pub stl: Option<PathBuf>,
+    /// Sensor pose relative to the object's top centre: x,y,z,yaw (mm, mm, indentation mm, deg).
+    #[arg(long, allow_hyphen_values = true)]
+    pub pose: Pose,
+    /// tactip, vitac, vitactip, depth or control.
+    #[arg(long)]
+    pub sensor: View,
+    /// Calibration TOML (default: centred, about 8.5 px/mm at 512 px).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Image size WxH.
+    #[arg(long, default_value = "512x512")]
+    pub size: ImageSize,
+    /// Samples per pixel along each axis for the depth render.
+    #[arg(long, default_value_t = 2)]
+    pub supersample: u32,
+    /// Noise seed of the sensor simulator.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output PNG.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Loads the mesh named by `--object` or `--stl`.
+pub fn load_mesh(object: Option<&str>, stl: Option<&Path>) -> anyhow::Result<Mesh> {
+    match (object, stl) {
+        (Some(name), None) => load_object(name).with_context(|| format!("loading object {name:?}")),
+        (None, Some(path)) => Mesh::load(path).map_err(anyhow::Error::from),
+        _ => bail!("give exactly one of --object NAME or --stl PATH"),
+    }
+}
+
+/// Loads `--calibration` (scaled to the image size) or the default for that size.
+pub fn load_calibration(path: Option<&Path>, width: u32, height: u32) -> anyhow::Result<Calibration> {
+    Ok(match path {
+        Some(p) => Calibration::load(p)?.scaled_to(width, height),
+        None => Calibration::default_for(width, height),
+    })
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let mesh = load_mesh(args.object.as_deref(), args.stl.as_deref())?;
+    let ImageSize { width, height } = args.size;
+    let calib = load_calibration(args.calibration.as_deref(), width, height)?;
+    let depth = render_depth(&mesh, &args.pose, &calib, width, height, args.supersample);
+    let out = &args.out;
+    match args.sensor {
+        View::Depth => depth_png16(&depth).save(out),
+        View::Control => control_image(&depth).save(out),
+        View::Tactile(sensor) => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
+    }
+    .with_context(|| format!("writing {}", out.display()))?;
+    println!(
+        "wrote {} ({}x{}, {:?}, max indentation {:.3} mm)",
+        out.display(),
+        width,
+        height,
+        args.sensor,
+        depth.max_indentation_mm()
+    );
+    Ok(())
+}
