@@ -1,0 +1,109 @@
+//! `rig synth --fill-missing` on a simulated dataset, with the committed tiny model package:
+//! every missing grid pose is filled, and two shards merged give exactly the images of one
+//! unsharded run.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+
+fn rig() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c.env_remove("RIG_CONFIG");
+    c
+}
+
+fn ok(mut c: Command) -> String {
+    let o = c.output().expect("running rig");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{c:?} failed:\n{text}");
+    text
+}
+
+/// pose_id -> (source, decoded pixels) of a dataset.
+fn contents(dir: &Path) -> BTreeMap<u32, (String, Vec<u8>)> {
+    let rows = rig::dataset::read_rows(dir).expect("rows");
+    rows.into_iter()
+        .map(|r| {
+            let pixels = image::open(dir.join(&r.image)).expect("image").to_rgb8().into_raw();
+            (r.pose_id, (r.source.to_string(), pixels))
+        })
+        .collect()
+}
+
+#[test]
+fn fill_missing_fills_the_grid_and_shards_merge_to_the_same_images() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let plan = tmp.path().join("plan.toml");
+    // A 2 x 2 x 1 x 3 = 12-pose grid; collect 5, fill 7.
+    std::fs::write(
+        &plan,
+        "sampling = \"random\"\nn_poses = 5\nseed = 3\norder = \"optimised\"\n\
+         [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n\
+         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -45.0\nmax = 45.0\nstep = 45.0\n",
+    )
+    .expect("plan");
+    let collected = tmp.path().join("collected");
+    let mut c = rig();
+    c.args(["collect", "--object", "edge", "--sensor", "vitac", "--plan"]).arg(&plan).arg("--out").arg(&collected);
+    ok(c);
+    let ds = collected.join("edge").join("vitac");
+
+    // Copies: one filled in place, one filled by two shards then merged.
+    let whole = tmp.path().join("whole");
+    let sharded = tmp.path().join("sharded");
+    for dst in [&whole, &sharded] {
+        copy_dir(&ds, dst);
+    }
+    let fill = |dataset: &Path, extra: &[&str]| {
+        let mut c = rig();
+        c.args(["synth", "--fill-missing", "--steps", "3", "--batch", "3", "--dataset"]).arg(dataset).args(extra);
+        ok(c)
+    };
+    let out = fill(&whole, &[]);
+    assert!(out.contains("synthesised 7 poses"), "{out}");
+
+    let s1 = tmp.path().join("shard1");
+    let s2 = tmp.path().join("shard2");
+    fill(&sharded, &["--shard", "1/2", "--out", s1.to_str().expect("utf8")]);
+    fill(&sharded, &["--shard", "2/2", "--out", s2.to_str().expect("utf8")]);
+    let merged = tmp.path().join("merged");
+    let mut m = rig();
+    m.args(["dataset", "merge", "--out"]).arg(&merged).arg(&sharded).arg(&s1).arg(&s2);
+    ok(m);
+
+    let (a, b) = (contents(&whole), contents(&merged));
+    assert_eq!(a.len(), 12, "every grid pose present after filling");
+    assert_eq!(a.values().filter(|(s, _)| s == "synthetic").count(), 7);
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (id, (source, pixels)) in &a {
+        let (source_b, pixels_b) = &b[id];
+        assert_eq!(source, source_b, "pose {id}");
+        assert!(pixels == pixels_b, "pose {id}: sharded and unsharded images differ");
+    }
+    // A second fill finds nothing left to do.
+    let again = fill(&whole, &[]);
+    assert!(again.contains("synthesised 0 poses"), "{again}");
+    for dir in [&whole, &merged] {
+        let mut v = rig();
+        v.args(["dataset", "verify"]).arg(dir);
+        ok(v);
+    }
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("images")).expect("mkdir");
+    for entry in walk(from) {
+        let rel = entry.strip_prefix(from).expect("prefix");
+        std::fs::copy(&entry, to.join(rel)).expect("copy");
+    }
+}
+
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).expect("read_dir").flatten() {
+        let p = e.path();
+        if p.is_dir() { out.extend(walk(&p)) } else { out.push(p) }
+    }
+    out
+}
