@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The main job on the simulated rig: collect 50 poses of the demo plan from the three simulated
+# sensors (simulated MG400 over TCP on loopback), then synthesise the 85 grid poses not
+# collected. Installs what it needs first. Re-running continues where it stopped.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+./scripts/setup.sh
+cargo build --release --locked --quiet
+RIG=./target/release/rig
+OUT="${RIG_DEMO_OUT:-datasets}"
+$RIG collect --object sphere --plan plans/demo.toml --sensor all --out "$OUT" --resume
+$RIG synth --fill-missing --dataset "$OUT/sphere"
+for s in tactip vitac vitactip; do
+  $RIG dataset verify "$OUT/sphere/$s" | tail -n 1
+done
