@@ -159,8 +159,8 @@ impl Pipeline {
         allowed.extend(["controlnet_cond".to_string(), "conditioning_scale".to_string()]);
         io.only_inputs(&allowed)?;
         let n_down = io.count_numbered("output", "down_block_res_samples_");
+        // With none found, checking `_0` gives the error naming the first missing output.
         let mut down_names: Vec<String> = (0..n_down.max(1)).map(|i| format!("down_block_res_samples_{i}")).collect();
-        down_names.truncate(n_down.max(1));
         for name in &down_names {
             io.expect("output", name, Accept::Float32, &[4])?;
         }

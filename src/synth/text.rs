@@ -159,16 +159,9 @@ impl TextEncoder {
     }
 
     fn insert(&mut self, prompt: String, embedding: Arc<[f32]>) {
-        while self.order.len() >= CACHE_CAPACITY {
-            if let Some(old) = self.order.pop_front() {
-                // The unconditional (empty) prompt is used by every guided image: keep it.
-                if old.is_empty() {
-                    self.order.push_back(old);
-                    if self.order.len() == 1 {
-                        break;
-                    }
-                    continue;
-                }
+        if self.order.len() >= CACHE_CAPACITY {
+            // Forget the oldest prompt, but never the empty one: every guided image uses it.
+            if let Some(old) = self.order.iter().position(|p| !p.is_empty()).and_then(|i| self.order.remove(i)) {
                 self.cache.remove(&old);
             }
         }
