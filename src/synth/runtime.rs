@@ -187,12 +187,12 @@ impl Runtime {
             if !self.supports(opts.provider)? {
                 return Err(SynthError::ProviderUnavailable { provider: opts.provider, library: self.library.clone() });
             }
-            let dispatch = match opts.provider {
-                ExecutionProviderKind::Cuda => ort::ep::CUDA::default().build().error_on_failure(),
-                _ => ort::ep::TensorRT::default().build().error_on_failure(),
+            let providers = match opts.provider {
+                ExecutionProviderKind::Cuda => vec![ort::ep::CUDA::default().build().error_on_failure()],
+                // TensorRT hands the nodes it cannot run to CUDA.
+                _ => vec![ort::ep::TensorRT::default().build().error_on_failure(), ort::ep::CUDA::default().build()],
             };
-            let fallback = ort::ep::CUDA::default().build();
-            builder = builder.with_execution_providers([dispatch, fallback]).map_err(err("registering the provider for"))?;
+            builder = builder.with_execution_providers(providers).map_err(err("registering the provider for"))?;
         }
         builder.commit_from_file(file).map_err(|source| SynthError::Ort { context: ctx("loading"), source })
     }
