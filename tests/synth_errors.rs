@@ -115,3 +115,46 @@ fn bad_requests_are_rejected() {
     assert_eq!(p.resolution(), (64, 64));
     assert_eq!(p.package_hash().len(), 64);
 }
+
+/// The tiny package with one model replaced by a graph from tests/data/broken-models
+/// (tools/make_broken_models.py).
+fn with_broken(model_dir: &str, broken: &str) -> SynthError {
+    let dir = copy_package();
+    let broken = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/broken-models").join(broken);
+    std::fs::copy(broken, dir.path().join(model_dir).join("model.onnx")).unwrap();
+    Pipeline::load(dir.path(), &RuntimeOptions::default()).unwrap_err()
+}
+
+#[test]
+fn residual_count_mismatch_names_both_files() {
+    let e = with_broken("unet", "unet_3_residuals.onnx");
+    assert!(matches!(e, SynthError::ResidualCountMismatch { controlnet: 4, unet: 3, .. }), "{e}");
+    let text = e.to_string();
+    assert!(text.contains("controlnet/model.onnx") && text.contains("unet/model.onnx"), "{text}");
+}
+
+#[test]
+fn float16_hint_names_tensor_and_type() {
+    let e = with_broken("controlnet", "controlnet_fp16_cond.onnx");
+    match &e {
+        SynthError::WrongElementType { file, tensor, expected, .. } => {
+            assert!(file.ends_with("controlnet/model.onnx"));
+            assert_eq!(tensor, "controlnet_cond");
+            assert_eq!(*expected, "float32");
+        }
+        other => panic!("unexpected error: {other}"),
+    }
+}
+
+#[test]
+fn float_ids_name_tensor_and_type() {
+    let e = with_broken("text_encoder", "text_encoder_float_ids.onnx");
+    assert!(matches!(&e, SynthError::WrongElementType { tensor, .. } if tensor == "input_ids"), "{e}");
+    assert!(e.to_string().contains("int32 or int64"), "{e}");
+}
+
+#[test]
+fn unknown_extra_input_is_named() {
+    let e = with_broken("vae_decoder", "vae_decoder_extra_input.onnx");
+    assert!(matches!(&e, SynthError::UnexpectedInput { tensor, file } if tensor == "return_dict" && file.ends_with("vae_decoder/model.onnx")), "{e}");
+}

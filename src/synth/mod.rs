@@ -56,7 +56,7 @@ pub enum SynthError {
     ProviderUnavailable { provider: ExecutionProviderKind, library: PathBuf },
     #[error("ONNX Runtime: {context}: {source}")]
     Ort { context: String, source: ort::Error },
-    #[error("model package {dir}: missing {}", missing.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))]
+    #[error("not a complete model package: missing {}", missing.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))]
     MissingFiles { dir: PathBuf, missing: Vec<PathBuf> },
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },

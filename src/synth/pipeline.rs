@@ -159,8 +159,8 @@ impl Pipeline {
         allowed.extend(["controlnet_cond".to_string(), "conditioning_scale".to_string()]);
         io.only_inputs(&allowed)?;
         let n_down = io.count_numbered("output", "down_block_res_samples_");
+        // With none found, checking `_0` gives the error naming the first missing output.
         let mut down_names: Vec<String> = (0..n_down.max(1)).map(|i| format!("down_block_res_samples_{i}")).collect();
-        down_names.truncate(n_down.max(1));
         for name in &down_names {
             io.expect("output", name, Accept::Float32, &[4])?;
         }
@@ -241,7 +241,7 @@ impl Pipeline {
 
     /// Text embeddings `[L * D]` of `prompt` (cached).
     pub fn embed(&mut self, prompt: &str) -> Result<Vec<f32>, SynthError> {
-        Ok(self.text.encode(&[prompt])?.remove(0).to_vec())
+        Ok(self.text.encode(&[prompt])?.into_iter().next().map(|e| e.to_vec()).unwrap_or_default())
     }
 
     /// How many distinct prompts have cached embeddings.
@@ -251,8 +251,12 @@ impl Pipeline {
 
     /// Synthesises one image.
     pub fn generate(&mut self, request: &GenerateRequest) -> Result<GenerateOutput, SynthError> {
-        let mut out = self.run_group(&[request])?;
-        Ok(out.remove(0))
+        let out = self.run_group(&[request])?;
+        out.into_iter().next().ok_or(SynthError::BadRequest {
+            field: "request",
+            value: "1".to_string(),
+            reason: "no image came back".to_string(),
+        })
     }
 
     /// Synthesises several images, batching compatible requests (same steps, scheduler, eta,
@@ -282,6 +286,9 @@ impl Pipeline {
         let f = self.package.config.vae_scale_factor;
         if size.0 == 0 || size.1 == 0 || !size.0.is_multiple_of(f) || !size.1.is_multiple_of(f) {
             return bad("size", format!("{}x{}", size.0, size.1), format!("width and height must be positive multiples of {f}"));
+        }
+        if r.control.width() == 0 || r.control.height() == 0 {
+            return bad("control", "0 pixels".to_string(), "the control image is empty".into());
         }
         if !r.guidance.is_finite() || r.guidance < 0.0 {
             return bad("guidance", r.guidance.to_string(), "must be a finite number >= 0".into());
@@ -398,7 +405,7 @@ impl Pipeline {
                 inputs.push((name.clone(), f32_value(&shape, data)?));
             }
             let mut out = run_f32(&mut self.unet.session, &self.unet.file, inputs, &["out_sample".to_string()])?;
-            let (shape, noise_pred) = out.remove(0);
+            let (shape, noise_pred) = out.pop().unwrap_or_default();
             if noise_pred.len() != batch * latent_len {
                 return Err(SynthError::UnexpectedOutputShape {
                     file: self.unet.file.clone(),
@@ -430,7 +437,7 @@ impl Pipeline {
         let scaled: Vec<f32> = latents.concat().iter().map(|v| v / scale).collect();
         let inputs: Inputs = vec![("latent_sample".into(), f32_value(&[n, c, lh, lw], scaled)?)];
         let mut out = run_f32(&mut self.vae.session, &self.vae.file, inputs, &["sample".to_string()])?;
-        let (shape, decoded) = out.remove(0);
+        let (shape, decoded) = out.pop().unwrap_or_default();
         if shape != [n as i64, 3, h as i64, w as i64] {
             return Err(SynthError::UnexpectedOutputShape {
                 file: self.vae.file.clone(),

@@ -187,12 +187,12 @@ impl Runtime {
             if !self.supports(opts.provider)? {
                 return Err(SynthError::ProviderUnavailable { provider: opts.provider, library: self.library.clone() });
             }
-            let dispatch = match opts.provider {
-                ExecutionProviderKind::Cuda => ort::ep::CUDA::default().build().error_on_failure(),
-                _ => ort::ep::TensorRT::default().build().error_on_failure(),
+            let providers = match opts.provider {
+                ExecutionProviderKind::Cuda => vec![ort::ep::CUDA::default().build().error_on_failure()],
+                // TensorRT hands the nodes it cannot run to CUDA.
+                _ => vec![ort::ep::TensorRT::default().build().error_on_failure(), ort::ep::CUDA::default().build()],
             };
-            let fallback = ort::ep::CUDA::default().build();
-            builder = builder.with_execution_providers([dispatch, fallback]).map_err(err("registering the provider for"))?;
+            builder = builder.with_execution_providers(providers).map_err(err("registering the provider for"))?;
         }
         builder.commit_from_file(file).map_err(|source| SynthError::Ort { context: ctx("loading"), source })
     }
@@ -201,12 +201,22 @@ impl Runtime {
 /// Input values for one session call, by name.
 pub(crate) type Inputs = Vec<(String, ort::session::SessionInputValue<'static>)>;
 
-/// A float32 tensor value.
+/// A float32 tensor value, in memory from ONNX Runtime's allocator (aligned as its kernels
+/// prefer) rather than wrapping the Rust `Vec`.
 pub(crate) fn f32_value(shape: &[usize], data: Vec<f32>) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
-    let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
-    ort::value::Tensor::from_array((shape, data))
-        .map(Into::into)
-        .map_err(|source| SynthError::Ort { context: "making a float32 tensor".to_string(), source })
+    let err = |source| SynthError::Ort { context: "making a float32 tensor".to_string(), source };
+    let dims: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
+    let mut tensor = ort::value::Tensor::<f32>::new(&ort::memory::Allocator::default(), dims).map_err(err)?;
+    let (_, dst) = tensor.try_extract_tensor_mut::<f32>().map_err(err)?;
+    if dst.len() != data.len() {
+        return Err(SynthError::BadRequest {
+            field: "tensor",
+            value: format!("{} values", data.len()),
+            reason: format!("shape {shape:?} holds {}", dst.len()),
+        });
+    }
+    dst.copy_from_slice(&data);
+    Ok(tensor.into())
 }
 
 /// A tensor of `ty` (float32, float64, int32 or int64) holding `values`, converted from f64.

@@ -132,6 +132,7 @@ impl TextEncoder {
                 todo.push(p);
             }
         }
+        let mut fresh: HashMap<&str, Arc<[f32]>> = HashMap::new();
         if !todo.is_empty() {
             let len = self.tokenizer.sequence_len;
             let mut ids = Vec::with_capacity(todo.len() * len);
@@ -140,8 +141,8 @@ impl TextEncoder {
             }
             let inputs: Inputs = vec![("input_ids".to_string(), number_value(self.ids_type, &[todo.len(), len], &ids)?)];
             let mut out = run_f32(&mut self.session, &self.file, inputs, &["last_hidden_state".to_string()])?;
-            let (shape, data) = out.remove(0);
-            let per = data.len() / todo.len().max(1);
+            let (shape, data) = out.pop().unwrap_or_default();
+            let per = data.len() / todo.len();
             if shape.len() != 3 || shape[0] as usize != todo.len() || shape[1] as usize != len || per * todo.len() != data.len() {
                 return Err(SynthError::UnexpectedOutputShape {
                     file: self.file.clone(),
@@ -152,23 +153,20 @@ impl TextEncoder {
             }
             self.hidden_size = shape[2] as usize;
             for (i, p) in todo.iter().enumerate() {
-                self.insert(p.to_string(), data[i * per..(i + 1) * per].into());
+                let embedding: Arc<[f32]> = data[i * per..(i + 1) * per].into();
+                fresh.insert(p, embedding.clone());
+                self.insert(p.to_string(), embedding);
             }
         }
-        Ok(prompts.iter().map(|p| self.cache[*p].clone()).collect())
+        // From this call's results first: a batch of more distinct prompts than the cache holds
+        // evicts some of its own before they are returned.
+        Ok(prompts.iter().filter_map(|p| fresh.get(p).or_else(|| self.cache.get(*p)).cloned()).collect())
     }
 
     fn insert(&mut self, prompt: String, embedding: Arc<[f32]>) {
-        while self.order.len() >= CACHE_CAPACITY {
-            if let Some(old) = self.order.pop_front() {
-                // The unconditional (empty) prompt is used by every guided image: keep it.
-                if old.is_empty() {
-                    self.order.push_back(old);
-                    if self.order.len() == 1 {
-                        break;
-                    }
-                    continue;
-                }
+        if self.order.len() >= CACHE_CAPACITY {
+            // Forget the oldest prompt, but never the empty one: every guided image uses it.
+            if let Some(old) = self.order.iter().position(|p| !p.is_empty()).and_then(|i| self.order.remove(i)) {
                 self.cache.remove(&old);
             }
         }
