@@ -37,10 +37,18 @@ pub enum CollectError {
     Dataset(#[from] DatasetError),
     #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
     RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
-    #[error("plan pose {pose_id} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}")]
-    Unreachable { pose_id: u32, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
+    /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
+    #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
+    Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
+}
+
+fn describe_pose(pose_id: Option<u32>) -> String {
+    match pose_id {
+        Some(id) => format!("plan pose {id}"),
+        None => "the no-contact reference pose above the plan origin".to_string(),
+    }
 }
 
 /// One sensor of the job: where its frames come from and where they go.
@@ -70,17 +78,18 @@ pub fn check_plan(
     work_frame: &WorkFrame,
     check: impl Fn(&Pose) -> Result<(), ArmError>,
 ) -> Result<(), CollectError> {
-    let reference = PlannedPose { pose_id: u32::MAX, pose: Pose::default() };
-    for p in std::iter::once(&reference).chain(plan.iter()) {
+    let reference = Pose::default();
+    let poses = std::iter::once((None, &reference)).chain(plan.iter().map(|p| (Some(p.pose_id), &p.pose)));
+    for (pose_id, plan_pose) in poses {
         for (which, base_pose) in
-            [("approach", work_frame.approach_pose(&p.pose)), ("contact", work_frame.contact_pose(&p.pose))]
+            [("approach", work_frame.approach_pose(plan_pose)), ("contact", work_frame.contact_pose(plan_pose))]
         {
             let limit = match check(&base_pose) {
                 Ok(()) => continue,
                 Err(ArmError::Unreachable { limit, .. }) => limit,
                 Err(other) => other.to_string(),
             };
-            return Err(CollectError::Unreachable { pose_id: p.pose_id, plan_pose: p.pose, base_pose, which, limit });
+            return Err(CollectError::Unreachable { pose_id, plan_pose: *plan_pose, base_pose, which, limit });
         }
     }
     Ok(())
@@ -282,7 +291,7 @@ mod tests {
             }
         };
         let e = check_plan(&plan, &wf, check).unwrap_err();
-        assert!(matches!(e, CollectError::Unreachable { pose_id: 7, which: "contact", .. }), "{e}");
+        assert!(matches!(e, CollectError::Unreachable { pose_id: Some(7), which: "contact", .. }), "{e}");
         assert!(e.to_string().contains("z below"));
     }
 }

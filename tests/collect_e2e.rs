@@ -157,16 +157,18 @@ fn existing_dataset_is_refused_without_resume() {
 fn plan_outside_the_workspace_is_refused_before_anything_moves() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let cfg = tmp.path().join("rig.toml");
-    // The object placed 500 mm out: beyond the MG400's 440 mm reach.
-    std::fs::write(&cfg, "[work_frame]\norigin = { x_mm = 500.0, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n").expect("write config");
+    // The object placed 437 mm out: the reference pose above it is within the MG400's 440 mm
+    // reach, but plan poses up to 5 mm further out are not.
+    std::fs::write(&cfg, "[work_frame]\norigin = { x_mm = 437.0, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n").expect("write config");
     let o = rig()
         .args(collect_args(&tmp.path().join("out"), 5, 1, "tactip"))
         .arg("--config")
         .arg(&cfg)
         .output()
         .expect("rig collect");
-    assert!(!o.status.success());
+    assert_eq!(o.status.code(), Some(2), "a refused plan is bad input");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("outside the arm's workspace") && err.contains("plan pose"), "{err}");
+    assert!(err.contains("radius"), "the message names the limit: {err}");
     assert!(!tmp.path().join("out/sphere/tactip/poses.csv").exists(), "no dataset may be started");
 }

@@ -62,7 +62,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Info => {
             println!("rig {}", crate::version());
-            Ok(())
+            crate::config::RigConfig::discover(None).map(|c| println!("{}", c.describe())).map_err(anyhow::Error::from)
         }
         Command::Collect(args) => collect::run(args),
         Command::Sim(args) => sim::run(args),
@@ -92,7 +92,9 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     if let Some(code) = e.downcast_ref::<ExitStatus>() {
         return code.0;
     }
-    if e.downcast_ref::<UsageError>().is_some() {
+    if e.downcast_ref::<UsageError>().is_some()
+        || matches!(e.downcast_ref::<crate::collect::CollectError>(), Some(crate::collect::CollectError::Unreachable { .. }))
+    {
         return 2;
     }
     for cause in e.chain() {
