@@ -165,3 +165,87 @@ fn a_client_that_sends_something_else_is_a_divergence_naming_both_sides() {
     let first_write = raw.events.iter().position(|e| matches!(e, Event::Socket { direction: format::Direction::ToController, .. }));
     assert!(first_write.is_some(), "the recording holds requests");
 }
+
+/// The client alone, through a collision alarm and its recovery: recorded against the
+/// simulated MG400 on a multi-threaded runtime (as `rig collect` runs), replayed on one thread
+/// with no simulator; every result must be the same.
+#[test]
+fn an_alarm_and_its_recovery_replay_the_same() {
+    use rig::arm::dobot::client::Mg400Client;
+    use rig::arm::{Arm, MoveKind};
+    use rig::clock::{Clock, MonotonicClock};
+    use rig::pose::Pose;
+    use rig::record::replay::ReplaySession;
+    use rig::record::{Recorder, Recording, SocketId, connect_recorded};
+    use rig::sim::mg400::{SimFaults, SimMg400, SimMg400Config};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    async fn session(arm: &mut Mg400Client) -> Vec<String> {
+        let wait = Duration::from_secs(20);
+        let (first, second) = (Pose::new(300.0, 20.0, -20.0, 0.0), Pose::new(260.0, -60.0, -30.0, 20.0));
+        let mut log = Vec::new();
+        log.push(format!("{:?}", arm.enable().await));
+        for target in [first, second] {
+            log.push(format!("{:?}", arm.move_to(target, MoveKind::Joint).await));
+            log.push(format!("{:?}", arm.wait_arrived(target, wait).await.map(|a| (a.measured, a.error_mm))));
+        }
+        log.push(format!("{:?}", arm.clear_error().await));
+        log.push(format!("{:?}", arm.move_to(second, MoveKind::Joint).await));
+        log.push(format!("{:?}", arm.wait_arrived(second, wait).await.map(|a| (a.measured, a.error_mm))));
+        log.push(format!("{:?}", arm.disable().await));
+        log
+    }
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("alarm.rec");
+    let recorded = tokio::runtime::Runtime::new().expect("runtime").block_on(async {
+        let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
+        let faults = SimFaults { collision_at_move: Some(2), ..Default::default() };
+        let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
+        let recorder = Recorder::create(&path, clock.clone()).expect("recording file");
+        let mut cfg = sim.client_config();
+        cfg.speed_factor_pct = 100;
+        let mut arm = connect_recorded(cfg, clock, recorder.clone()).await.expect("connects");
+        let header = serde_json::from_str(&format!(
+            r#"{{"rig_version":"test","command_line":[],"config_source":null,"object":{{"name":"none"}},"sensors":[],"seed":0,
+               "plan_spec":{},"plan":[],"work_frame":{},"collect":{{"settle_s":0,"frames_per_pose":1,"average_frames":false,
+               "move_timeout_s":20,"retries_per_pose":0}},"profile":{},"speed_factor_pct":100}}"#,
+            serde_json::to_string(&rig::plan::PlanSpec::default()).expect("json"),
+            serde_json::to_string(&rig::pose::WorkFrame::default()).expect("json"),
+            serde_json::to_string(&rig::arm::profile::FirmwareProfile::default_mg400()).expect("json"),
+        ))
+        .expect("header");
+        recorder.begin(&header).expect("header written");
+        let log = session(&mut arm).await;
+        recorder.finish().expect("recording closed");
+        drop(arm);
+        sim.shutdown().await;
+        log
+    });
+    assert!(recorded[4].contains("collision"), "the second move must collide: {recorded:#?}");
+
+    let recording = Recording::read(&path).expect("reading the recording");
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+    let replayed = runtime.block_on(async {
+        let replay = ReplaySession::new(recording.events.clone(), vec![]);
+        let watchdog = tokio::spawn(replay.clone().watchdog(Duration::from_secs(10)));
+        let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
+        cfg.speed_factor_pct = 100;
+        let clock: Arc<dyn Clock> = Arc::new(replay.clock());
+        let mut arm = Mg400Client::attach(
+            cfg,
+            clock,
+            replay.stream(SocketId::Dashboard),
+            replay.stream(SocketId::Motion),
+            replay.stream(SocketId::Feedback),
+        );
+        arm.wait_first_feedback().await.expect("first feedback");
+        let log = session(&mut arm).await;
+        watchdog.abort();
+        assert_eq!(replay.divergence(), None);
+        replay.check_finished().expect("every recorded step replayed");
+        log
+    });
+    assert_eq!(replayed, recorded);
+}

@@ -398,3 +398,86 @@ pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder:
 /// Timeouts of a replayed client: long, so that a stalled replay is reported by the replay's
 /// own watchdog (which names the record it waits for) rather than by a client timeout.
 pub(crate) const REPLAY_CLIENT_TIMEOUT: Duration = Duration::from_secs(600);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::MockClock;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    fn header() -> RecordingHeader {
+        RecordingHeader {
+            rig_version: crate::version().into(),
+            command_line: vec!["rig".into(), "collect".into()],
+            config_source: None,
+            object: ObjectInfo { name: "sphere".into(), stl_path: None, stl_sha256: None },
+            sensors: vec![RecordedSensor { camera: "tactip".into(), sensor_dir: "tactip".into(), calibration: "default".into() }],
+            seed: 1,
+            plan_spec: PlanSpec::default(),
+            plan: vec![PlannedPose { pose_id: 4, pose: crate::pose::Pose::new(1.0, 2.0, 0.5, 15.0) }],
+            work_frame: WorkFrame::default(),
+            collect: (&CollectConfig::default()).into(),
+            profile: FirmwareProfile::default_mg400(),
+            speed_factor_pct: 100,
+        }
+    }
+
+    struct OneFrame;
+    impl Camera for OneFrame {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
+            Ok(Frame { image: image::RgbImage::from_pixel(2, 3, image::Rgb([9, 8, 7])), t_capture_s: not_before_s + 0.1, seq: 42 })
+        }
+    }
+
+    #[tokio::test]
+    async fn wrappers_log_both_directions_and_frames_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.rec");
+        let clock = MockClock::new();
+        let recorder = Recorder::create(&path, Arc::new(clock.clone())).unwrap();
+        let (client, mut controller) = tokio::io::duplex(256);
+        let mut stream = RecordingStream::new(client, SocketId::Dashboard, recorder.clone());
+        // Logged before the header is known, written after it.
+        stream.write_all(b"RobotMode()").await.unwrap();
+        recorder.begin(&header()).unwrap();
+        clock.set_s(2.5);
+        controller.write_all(b"0,{5},RobotMode();").await.unwrap();
+        let mut buf = [0u8; 64];
+        let n = stream.read(&mut buf).await.unwrap();
+        assert_eq!(&buf[..n], b"0,{5},RobotMode();");
+        let mut camera = RecordingCamera::new(OneFrame, 0, Some(recorder.clone()));
+        let frame = camera.frame_after(3.0).await.unwrap();
+        assert_eq!(recorder.finish().unwrap(), 3);
+
+        let r = Recording::read(&path).unwrap();
+        assert_eq!(r.header, header());
+        assert_eq!(
+            r.events[0],
+            Event::Socket { socket: SocketId::Dashboard, direction: Direction::ToController, t_s: 0.0, bytes: b"RobotMode()".to_vec() }
+        );
+        assert!(matches!(&r.events[1], Event::Socket { direction: Direction::FromController, t_s, .. } if *t_s == 2.5));
+        let Event::Frame(f) = &r.events[2] else { panic!("a frame: {:?}", r.events[2]) };
+        assert_eq!((f.width, f.height, f.seq, f.t_capture_s), (2, 3, 42, frame.t_capture_s));
+        assert_eq!(f.rgb, frame.image.as_raw().clone());
+    }
+
+    #[test]
+    fn closing_without_a_header_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let recorder = Recorder::create(&dir.path().join("r.rec"), Arc::new(MockClock::new())).unwrap();
+        assert!(matches!(recorder.finish(), Err(RecordError::NoHeader { .. })));
+    }
+
+    #[test]
+    fn a_frame_of_an_unlisted_camera_is_refused() {
+        let mut bytes = format::encode_preamble(&serde_json::to_string(&header()).unwrap());
+        let frame = RecordedFrame { camera: 1, t_s: 0.0, t_capture_s: 0.0, seq: 0, width: 0, height: 0, rgb: vec![] };
+        bytes.extend(format::encode_event(&Event::Frame(frame)));
+        bytes.extend(format::encode_end(1));
+        let e = Recording::decode(&bytes, Path::new("x.rec")).unwrap_err();
+        assert!(matches!(e, RecordError::UnknownCamera { camera: 1, cameras: 1, .. }), "{e}");
+    }
+}

@@ -14,8 +14,12 @@
 //!   and replies as they did (the frames that followed a `Sync()` reply still follow it);
 //! - a write, a command-socket read or a frame request of the job is served when the next event
 //!   is exactly that; when the next event is a feedback read it waits for the reader to take
-//!   it; anything else is a divergence, reported with the record number, what the recording
-//!   has and what the replayed run did instead;
+//!   it; a write or a frame request facing anything else is a divergence, reported with the
+//!   record number, what the recording has and what the replayed run did instead (a reply
+//!   read waits, because the client may race it against an alarm in the feedback; the
+//!   watchdog reports it if nothing else happens; and when the job goes on past replies it
+//!   read in the recording but gave up on this time, those stay in their socket, as on the
+//!   wire, and are read later);
 //! - after each chunk a stream yields once, so the job's task sees every feedback frame the
 //!   way it did live (the client keeps only the newest frame).
 //!
@@ -88,6 +92,19 @@ struct SessionState {
     waiters: Vec<Waker>,
     /// Counts served pieces, for the watchdog.
     progress: u64,
+    /// The command socket whose read waited last, for the watchdog's message.
+    blocked_read: Option<SocketId>,
+    /// Controller bytes the client has not read yet although it went on, per socket (what
+    /// would sit in the socket's receive buffer), served before further recorded reads.
+    unread: [Vec<u8>; 3],
+}
+
+fn slot(socket: SocketId) -> usize {
+    match socket {
+        SocketId::Dashboard => 0,
+        SocketId::Motion => 1,
+        SocketId::Feedback => 2,
+    }
 }
 
 /// Shortened, escaped text of protocol bytes for messages.
@@ -160,6 +177,25 @@ impl SessionState {
         std::io::Error::other(text)
     }
 
+    /// The job went on (wrote, or asked for a frame) while replies it read in the recording
+    /// are next: it gave up on those replies this time (the client's `Sync` races its reply
+    /// against an alarm in the feedback, and either may win). They stay in the socket, as on
+    /// the wire, and the client reads (and skips) them later.
+    fn shelve_unread_replies(&mut self, clock: &MockClock) {
+        while let Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) = self.events.get(self.cursor)
+            && *socket != SocketId::Feedback
+        {
+            let (socket, t_s, len) = (*socket, *t_s, bytes.len());
+            let rest = bytes.get(self.offset..).unwrap_or_default().to_vec();
+            self.unread[slot(socket)].extend_from_slice(&rest);
+            self.served(rest.len(), len, t_s, clock);
+            if self.offset != 0 {
+                // Nothing was left to move (an empty tail cannot happen with recorded events).
+                break;
+            }
+        }
+    }
+
     /// Marks `n` more bytes of the current event (of `len`) served, at recorded time `t_s`.
     fn served(&mut self, n: usize, len: usize, t_s: f64, clock: &MockClock) {
         self.offset += n;
@@ -168,6 +204,7 @@ impl SessionState {
             self.offset = 0;
         }
         self.progress += 1;
+        self.blocked_read = None;
         if t_s > clock.now_s() {
             clock.set_s(t_s);
         }
@@ -185,7 +222,7 @@ pub struct ReplaySession {
 impl ReplaySession {
     /// A session over `events`; `cameras` names the cameras by index (for messages).
     pub fn new(events: Vec<Event>, cameras: Vec<String>) -> Self {
-        let state = SessionState { events, cameras, cursor: 0, offset: 0, divergence: None, waiters: Vec::new(), progress: 0 };
+        let state = SessionState { events, cameras, cursor: 0, offset: 0, divergence: None, waiters: Vec::new(), progress: 0, blocked_read: None, unread: Default::default() };
         Self { state: Arc::new(Mutex::new(state)), clock: MockClock::new() }
     }
 
@@ -245,7 +282,11 @@ impl ReplaySession {
             if st.progress != last.0 {
                 last = (st.progress, tokio::time::Instant::now());
             } else if last.1.elapsed() >= stall_after {
-                let _ = st.diverge(format!("the replayed run did not get there within {stall_after:?} (it waits for something else)"));
+                let doing = match st.blocked_read {
+                    Some(socket) => format!("the client waits for a reply on the {} socket", socket.name()),
+                    None => "the replayed run waits for something else".to_string(),
+                };
+                let _ = st.diverge(format!("{doing}, and nothing happened for {stall_after:?}"));
                 return;
             }
         }
@@ -276,6 +317,15 @@ impl AsyncRead for ReplayStream {
         if buf.remaining() == 0 {
             return Poll::Ready(Ok(()));
         }
+        let waiting = &mut st.unread[slot(this.socket)];
+        if !waiting.is_empty() {
+            let n = waiting.len().min(buf.remaining());
+            buf.put_slice(&waiting[..n]);
+            waiting.drain(..n);
+            st.progress += 1;
+            this.yield_next = true;
+            return Poll::Ready(Ok(()));
+        }
         let (cursor, offset) = (st.cursor, st.offset);
         let outcome = match st.events.get(cursor) {
             Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) if *socket == this.socket => {
@@ -291,10 +341,14 @@ impl AsyncRead for ReplayStream {
             this.yield_next = true;
             return Poll::Ready(Ok(()));
         }
-        let next_is_feedback = st.events.get(cursor).is_some_and(is_feedback_read);
-        if this.socket == SocketId::Feedback || next_is_feedback {
-            // The feedback reader waits for its turn; the job waits for the reader to take
-            // the frames recorded before its own next event.
+        if this.socket == SocketId::Feedback || cursor < st.events.len() {
+            // The feedback reader waits for its turn. A reply read waits too, also when the
+            // job's next recorded step is something else: the client may be racing the read
+            // against an alarm in the feedback (`Sync` does), and the other branch moves on.
+            // If nothing does, the watchdog reports what this read waited for.
+            if this.socket != SocketId::Feedback {
+                st.blocked_read = Some(this.socket);
+            }
             st.wait(cx);
             return Poll::Pending;
         }
@@ -313,6 +367,7 @@ impl AsyncWrite for ReplayStream {
         if buf.is_empty() {
             return Poll::Ready(Ok(0));
         }
+        st.shelve_unread_replies(&session.clock);
         let (cursor, offset) = (st.cursor, st.offset);
         let matched = match st.events.get(cursor) {
             Some(Event::Socket { socket, direction: Direction::ToController, bytes, t_s }) if *socket == self.socket => {
@@ -364,6 +419,7 @@ impl ReplayCamera {
         if let Some(d) = &st.divergence {
             return Poll::Ready(Err(device_error(d.to_string())));
         }
+        st.shelve_unread_replies(&self.session.clock);
         let cursor = st.cursor;
         let frame = match st.events.get(cursor) {
             Some(Event::Frame(f)) if f.camera == self.index => Some(f.clone()),
@@ -541,6 +597,46 @@ mod tests {
     }
 
     #[tokio::test(flavor = "current_thread")]
+    async fn a_reply_that_never_comes_is_reported_by_the_watchdog() {
+        let session = ReplaySession::new(vec![ev(SocketId::Dashboard, Direction::ToController, 1.0, b"ClearError()")], vec![]);
+        let mut m = session.stream(SocketId::Motion);
+        let watchdog = tokio::spawn(session.clone().watchdog(Duration::from_millis(40)));
+        let mut buf = [0u8; 8];
+        assert!(m.read(&mut buf).await.is_err());
+        watchdog.await.unwrap();
+        let d = session.divergence().unwrap();
+        assert!(d.expected.contains("ClearError()") && d.got.contains("reply on the motion socket"), "{d}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_reply_the_client_gave_up_on_stays_in_the_socket() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::ToController, 1.0, b"Sync()"),
+                ev(SocketId::Motion, Direction::FromController, 1.1, b"0,{},Sync();"),
+                ev(SocketId::Dashboard, Direction::ToController, 1.2, b"GetErrorID()"),
+                ev(SocketId::Motion, Direction::ToController, 1.3, b"MovJ(1,2,3,4)"),
+                ev(SocketId::Motion, Direction::FromController, 1.4, b"0,{},MovJ(1,2,3,4);"),
+            ],
+            vec![],
+        );
+        let (mut d, mut m) = (session.stream(SocketId::Dashboard), session.stream(SocketId::Motion));
+        m.write_all(b"Sync()").await.unwrap();
+        // The client does not read the Sync reply now (an alarm won the race) and goes on.
+        d.write_all(b"GetErrorID()").await.unwrap();
+        m.write_all(b"MovJ(1,2,3,4)").await.unwrap();
+        let mut text = Vec::new();
+        let mut buf = [0u8; 64];
+        while text.len() < 31 {
+            let n = m.read(&mut buf).await.unwrap();
+            text.extend_from_slice(&buf[..n]);
+        }
+        assert_eq!(text, b"0,{},Sync();0,{},MovJ(1,2,3,4);");
+        assert_eq!(session.divergence(), None);
+        assert!(session.check_finished().is_ok());
+    }
+
+    #[tokio::test(flavor = "current_thread")]
     async fn writing_past_the_end_is_a_divergence() {
         let session = ReplaySession::new(vec![], vec![]);
         let mut d = session.stream(SocketId::Dashboard);
@@ -554,6 +650,6 @@ mod tests {
         let session = ReplaySession::new(vec![ev(SocketId::Motion, Direction::ToController, 3.0, b"Sync()")], vec![]);
         session.clone().watchdog(Duration::from_millis(40)).await;
         let d = session.divergence().unwrap();
-        assert!(d.expected.contains("Sync()") && d.got.contains("did not get there"), "{d}");
+        assert!(d.expected.contains("Sync()") && d.got.contains("nothing happened"), "{d}");
     }
 }
