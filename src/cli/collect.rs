@@ -105,33 +105,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     };
     let mut rig = Rig::open_with(&config, &object, &sensors, spec.seed, clock.clone(), recorder.clone()).await?;
     if let Some(recorder) = &recorder {
-        let header = crate::record::RecordingHeader {
-            rig_version: crate::version().to_string(),
-            command_line: std::env::args().collect(),
-            config_source: config.source.as_ref().map(|p| p.display().to_string()),
-            object: ObjectInfo {
-                name: object.name.clone(),
-                stl_path: object.path.as_ref().map(|p| p.display().to_string()),
-                stl_sha256: Some(object.sha256.clone()),
-            },
-            sensors: rig
-                .cameras
-                .iter()
-                .map(|c| crate::record::RecordedSensor {
-                    camera: crate::camera::Camera::name(c).to_string(),
-                    sensor_dir: c.sensor_dir(),
-                    calibration: c.calibration_name(),
-                })
-                .collect(),
-            seed: spec.seed,
-            plan_spec: spec.clone(),
-            plan: plan.poses.clone(),
-            work_frame: config.work_frame,
-            collect: (&config.collect).into(),
-            profile: profile.clone(),
-            speed_factor_pct: config.arm.speed_factor,
-        };
-        recorder.begin(&header)?;
+        recorder.begin(&crate::cli::replay::recording_header(&config, &object, &rig.cameras, &spec, &plan.poses, &profile))?;
     }
     let mut streams = Vec::new();
     for (index, camera) in rig.cameras.drain(..).enumerate() {

@@ -6,8 +6,14 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
-use crate::record::Recording;
+use crate::arm::profile::FirmwareProfile;
+use crate::camera::Camera;
+use crate::config::RigConfig;
+use crate::dataset::ObjectInfo;
+use crate::plan::{PlanSpec, PlannedPose};
 use crate::record::replay::{ReplayError, replay_collection};
+use crate::record::{RecordedSensor, Recording, RecordingHeader};
+use crate::rigs::{ObjectChoice, RigCamera};
 
 /// Arguments of `rig replay`.
 #[derive(Debug, clap::Args)]
@@ -63,5 +69,37 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bail!(crate::cli::ExitStatus(3))
         }
         Err(e) => Err(e).context("replaying the collection"),
+    }
+}
+
+/// The header `rig collect --record` writes: what the replay needs to run the same job.
+pub(crate) fn recording_header(
+    config: &RigConfig,
+    object: &ObjectChoice,
+    cameras: &[RigCamera],
+    spec: &PlanSpec,
+    plan: &[PlannedPose],
+    profile: &FirmwareProfile,
+) -> RecordingHeader {
+    RecordingHeader {
+        rig_version: crate::version().to_string(),
+        command_line: std::env::args().collect(),
+        config_source: config.source.as_ref().map(|p| p.display().to_string()),
+        object: ObjectInfo {
+            name: object.name.clone(),
+            stl_path: object.path.as_ref().map(|p| p.display().to_string()),
+            stl_sha256: Some(object.sha256.clone()),
+        },
+        sensors: cameras
+            .iter()
+            .map(|c| RecordedSensor { camera: c.name().to_string(), sensor_dir: c.sensor_dir(), calibration: c.calibration_name() })
+            .collect(),
+        seed: spec.seed,
+        plan_spec: spec.clone(),
+        plan: plan.to_vec(),
+        work_frame: config.work_frame,
+        collect: (&config.collect).into(),
+        profile: profile.clone(),
+        speed_factor_pct: config.arm.speed_factor,
     }
 }
