@@ -133,6 +133,17 @@ fn a_recorded_collection_replays_to_the_same_dataset_and_damage_is_reported() {
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
     assert!(text(&o).contains("corrupted") && text(&o).contains("checksum"), "{}", text(&o));
 
+    // A resumed run cannot be recorded: its replay would start from an empty dataset.
+    let o = rig()
+        .args(["collect", "--poses", "3", "--resume", "--record"])
+        .arg(tmp.path().join("resumed.bin"))
+        .arg("--out")
+        .arg(tmp.path().join("resumed"))
+        .output()
+        .expect("running rig collect");
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--resume"), "{}", text(&o));
+
     // Not a recording at all.
     let o = replay(&tmp.path().join("rig.toml"), &tmp.path().join("from-toml"));
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
