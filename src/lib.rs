@@ -18,6 +18,7 @@ pub mod geometry;
 pub mod plan;
 pub mod metrics;
 pub mod pose;
+pub mod record;
 pub mod rigs;
 pub mod sim;
 pub mod synth;

@@ -192,6 +192,19 @@ impl Rig {
         seed: u64,
         clock: Arc<dyn Clock>,
     ) -> Result<Self, RigError> {
+        Self::open_with(config, object, sensors, seed, clock, None).await
+    }
+
+    /// [`open`](Self::open), with every byte on the arm's sockets logged to `recorder` when
+    /// one is given (`rig collect --record`).
+    pub async fn open_with(
+        config: &RigConfig,
+        object: &ObjectChoice,
+        sensors: &SensorChoice,
+        seed: u64,
+        clock: Arc<dyn Clock>,
+        recorder: Option<crate::record::Recorder>,
+    ) -> Result<Self, RigError> {
         let profile = profile_for(config)?;
         let (arm_cfg, sim) = match &config.arm.backend {
             ArmBackend::Simulated { .. } => {
@@ -210,7 +223,10 @@ impl Rig {
         };
         let mut arm_cfg = arm_cfg;
         arm_cfg.speed_factor_pct = config.arm.speed_factor;
-        let arm = Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?;
+        let arm = match recorder {
+            Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(&clock), recorder).await?,
+            None => Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?,
+        };
 
         let mut cameras = Vec::new();
         for kind in &sensors.0 {

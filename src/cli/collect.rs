@@ -46,6 +46,10 @@ pub struct CollectArgs {
     /// Print the plan and check it against the workspace, move nothing.
     #[arg(long)]
     pub dry_run: bool,
+    /// Record every byte exchanged with the arm and every captured frame into FILE, for
+    /// `rig replay FILE`.
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
 }
 
 /// Runs `rig collect`.
@@ -89,9 +93,22 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     }
 
     let clock = crate::rigs::clock_for(&config);
-    let mut rig = Rig::open(&config, &object, &sensors, spec.seed, clock.clone()).await?;
+    let recorder = match &args.record {
+        Some(_) if args.resume => {
+            bail!(crate::cli::usage("--record starts a new dataset; it cannot be combined with --resume"))
+        }
+        Some(path) => Some(
+            crate::record::Recorder::create(path, clock.clone())
+                .with_context(|| format!("creating recording {}", path.display()))?,
+        ),
+        None => None,
+    };
+    let mut rig = Rig::open_with(&config, &object, &sensors, spec.seed, clock.clone(), recorder.clone()).await?;
+    if let Some(recorder) = &recorder {
+        recorder.begin(&crate::cli::replay::recording_header(&config, &object, &rig.cameras, &spec, &plan.poses, &profile))?;
+    }
     let mut streams = Vec::new();
-    for camera in rig.cameras.drain(..) {
+    for (index, camera) in rig.cameras.drain(..).enumerate() {
         let dir = args.out.join(&object.name).join(camera.sensor_dir());
         let object_info = ObjectInfo {
             name: object.name.clone(),
@@ -108,7 +125,8 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
             DatasetWriter::create(&dir, manifest)
         }
         .with_context(|| format!("opening dataset {}", dir.display()))?;
-        streams.push(SensorStream { camera, writer });
+        let index = u8::try_from(index).context("more than 256 sensors")?;
+        streams.push(SensorStream { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), writer });
     }
 
     let (cancel_tx, cancel_rx) = tokio::sync::watch::channel(false);
@@ -132,7 +150,13 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         cancel: cancel_rx,
         progress,
     };
-    let summary = job.run(&plan.poses).await?;
+    let summary = job.run(&plan.poses).await;
+    // Close the recording even when the run failed: its replay reproduces the failure.
+    if let (Some(recorder), Some(path)) = (&recorder, &args.record) {
+        let records = recorder.finish()?;
+        println!("recorded {records} events into {}", path.display());
+    }
+    let summary = summary?;
     rig.shutdown().await;
     if summary.interrupted {
         println!(

@@ -10,6 +10,7 @@ pub mod fill;
 pub mod sim;
 pub mod dataset;
 pub mod plan;
+pub mod replay;
 pub mod sensor;
 pub mod synth;
 pub mod compare;
@@ -51,6 +52,8 @@ pub enum Command {
     Objects(objects::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
     CompareReal(compare::Args),
+    /// Re-run a recorded collection (`rig collect --record`) without hardware.
+    Replay(replay::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -73,6 +76,7 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
+        Command::Replay(args) => replay::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

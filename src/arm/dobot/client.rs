@@ -416,6 +416,12 @@ impl Mg400Client {
         *self.feedback.borrow()
     }
 
+    /// Waits (up to the connect timeout) for the first feedback frame, as [`connect`](Self::connect)
+    /// does; for clients built with [`attach`](Self::attach) over freshly opened sockets.
+    pub async fn wait_first_feedback(&mut self) -> Result<FeedbackSample, ArmError> {
+        self.first_feedback().await
+    }
+
     async fn first_feedback(&mut self) -> Result<FeedbackSample, ArmError> {
         let deadline = Instant::now() + self.cfg.connect_timeout;
         self.wait_feedback(0, deadline, "waiting for the first MG400 feedback frame", |_| true).await

@@ -1,0 +1,105 @@
+//! `rig replay FILE [--out DIR]`: re-runs a recorded collection against its recording, with
+//! no hardware, and writes the dataset again.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+
+use crate::arm::profile::FirmwareProfile;
+use crate::camera::Camera;
+use crate::config::RigConfig;
+use crate::dataset::ObjectInfo;
+use crate::plan::{PlanSpec, PlannedPose};
+use crate::record::replay::{ReplayError, replay_collection};
+use crate::record::{RecordedSensor, Recording, RecordingHeader};
+use crate::rigs::{ObjectChoice, RigCamera};
+
+/// Arguments of `rig replay`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The recording (`rig collect --record FILE`).
+    pub file: PathBuf,
+    /// Output root; datasets go to `<out>/<object>/<sensor>/` (must not hold them yet).
+    #[arg(long, default_value = "datasets-replay")]
+    pub out: PathBuf,
+    /// Seconds without progress after which the replay is declared stuck.
+    #[arg(long, default_value_t = 10.0)]
+    pub stall_s: f64,
+}
+
+/// Runs `rig replay`.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let recording = match Recording::read(&args.file) {
+        Ok(r) => r,
+        // A file that is not a whole recording is bad input (exit 2).
+        Err(e) => bail!(crate::cli::UsageError(e.to_string())),
+    };
+    let h = &recording.header;
+    println!(
+        "replaying {} ({} events, rig {}): {}",
+        args.file.display(),
+        recording.events.len(),
+        h.rig_version,
+        h.command_line.join(" ")
+    );
+    if !(args.stall_s.is_finite() && args.stall_s > 0.0) {
+        bail!(crate::cli::usage("--stall-s must be a positive number of seconds"));
+    }
+    // One thread: the client's feedback reader and the job interleave only where the
+    // recording says (see `record::replay`).
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let outcome = runtime.block_on(replay_collection(&recording, &args.out, Duration::from_secs_f64(args.stall_s)));
+    match outcome {
+        Ok(o) => {
+            println!(
+                "replayed {} of {} recorded events: {} poses captured into {}",
+                o.replayed,
+                o.recorded,
+                o.summary.captured,
+                args.out.join(&h.object.name).display()
+            );
+            Ok(())
+        }
+        Err(e @ ReplayError::Diverged(_)) => {
+            eprintln!("error: {e}");
+            bail!(crate::cli::ExitStatus(3))
+        }
+        Err(e) => Err(e).context("replaying the collection"),
+    }
+}
+
+/// The header `rig collect --record` writes: what the replay needs to run the same job.
+pub(crate) fn recording_header(
+    config: &RigConfig,
+    object: &ObjectChoice,
+    cameras: &[RigCamera],
+    spec: &PlanSpec,
+    plan: &[PlannedPose],
+    profile: &FirmwareProfile,
+) -> RecordingHeader {
+    RecordingHeader {
+        rig_version: crate::version().to_string(),
+        command_line: std::env::args().collect(),
+        config_source: config.source.as_ref().map(|p| p.display().to_string()),
+        object: ObjectInfo {
+            name: object.name.clone(),
+            stl_path: object.path.as_ref().map(|p| p.display().to_string()),
+            stl_sha256: Some(object.sha256.clone()),
+        },
+        sensors: cameras
+            .iter()
+            .map(|c| RecordedSensor { camera: c.name().to_string(), sensor_dir: c.sensor_dir(), calibration: c.calibration_name() })
+            .collect(),
+        seed: spec.seed,
+        plan_spec: spec.clone(),
+        plan: plan.to_vec(),
+        work_frame: config.work_frame,
+        collect: (&config.collect).into(),
+        profile: profile.clone(),
+        speed_factor_pct: config.arm.speed_factor,
+    }
+}

@@ -1,0 +1,483 @@
+//! Recording of hardware I/O and its replay.
+//!
+//! Recording (`rig collect --record FILE`): a [`Recorder`] owns the file. Each MG400 socket is
+//! wrapped in a [`RecordingStream`] that logs every byte the client writes or reads, with the
+//! rig-clock time, and each camera in a [`RecordingCamera`] that logs every frame handed to the
+//! job (raw RGB8 plus its capture timestamp and sequence number). Events land in the file in
+//! the order they happened; the [`RecordingHeader`] (command line, plan, work frame, collect
+//! options, firmware profile, sensors, seed) comes first. The byte layout is in [`format`].
+//!
+//! Replay (`rig replay FILE`): [`replay::replay_collection`] attaches the real
+//! [`Mg400Client`] to [`replay::ReplayStream`]s and gives the job [`replay::ReplayCamera`]s,
+//! all fed from one [`replay::ReplaySession`] that serves the recorded events in recorded
+//! order, checks that what the client writes is what was recorded, and stops at the first
+//! divergence with both sides named. See `replay` for how it stays deterministic.
+
+pub mod format;
+pub mod replay;
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::TcpStream;
+
+use crate::arm::ArmError;
+use crate::arm::dobot::client::{Mg400Client, Mg400Config};
+use crate::arm::profile::FirmwareProfile;
+use crate::camera::{Camera, CameraError, Frame};
+use crate::clock::Clock;
+use crate::config::CollectConfig;
+use crate::dataset::ObjectInfo;
+use crate::plan::{PlanSpec, PlannedPose};
+use crate::pose::WorkFrame;
+
+pub use format::{Direction, Event, FormatError, RecordedFrame, SocketId};
+
+/// Errors reading or writing a recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("recording {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("recording {path}: {source}")]
+    Format {
+        path: PathBuf,
+        #[source]
+        source: FormatError,
+    },
+    #[error("recording {path}: the header is not valid: {source}")]
+    Header {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("recording {path}: record {record} is a frame of camera {camera}, but the header lists {cameras} cameras")]
+    UnknownCamera { path: PathBuf, record: usize, camera: u8, cameras: usize },
+    #[error("recording {path}: closed before its header was written")]
+    NoHeader { path: PathBuf },
+}
+
+/// The collect options as recorded (mirrors [`CollectConfig`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecordedCollectOptions {
+    pub settle_s: f64,
+    pub frames_per_pose: u32,
+    pub average_frames: bool,
+    pub move_timeout_s: f64,
+    pub retries_per_pose: u32,
+}
+
+impl From<&CollectConfig> for RecordedCollectOptions {
+    fn from(c: &CollectConfig) -> Self {
+        Self {
+            settle_s: c.settle_s,
+            frames_per_pose: c.frames_per_pose,
+            average_frames: c.average_frames,
+            move_timeout_s: c.move_timeout_s,
+            retries_per_pose: c.retries_per_pose,
+        }
+    }
+}
+
+impl From<&RecordedCollectOptions> for CollectConfig {
+    fn from(c: &RecordedCollectOptions) -> Self {
+        Self {
+            settle_s: c.settle_s,
+            frames_per_pose: c.frames_per_pose,
+            average_frames: c.average_frames,
+            move_timeout_s: c.move_timeout_s,
+            retries_per_pose: c.retries_per_pose,
+        }
+    }
+}
+
+/// One camera of the recorded run, in the order of the job's sensor list.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecordedSensor {
+    /// The camera's name (`Camera::name`).
+    pub camera: String,
+    /// Dataset directory name (`tactip`, `vitac`, `vitactip`).
+    pub sensor_dir: String,
+    /// Calibration named in the manifest.
+    pub calibration: String,
+}
+
+/// Everything a replay needs besides the events: what `rig collect` was asked and resolved.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecordingHeader {
+    pub rig_version: String,
+    /// The command line of the recorded run.
+    pub command_line: Vec<String>,
+    /// The rig configuration file, if one was used (for the reader; replay does not need it).
+    pub config_source: Option<String>,
+    pub object: ObjectInfo,
+    pub sensors: Vec<RecordedSensor>,
+    pub seed: u64,
+    pub plan_spec: PlanSpec,
+    /// The poses in the order the job ran them.
+    pub plan: Vec<PlannedPose>,
+    pub work_frame: WorkFrame,
+    pub collect: RecordedCollectOptions,
+    pub profile: FirmwareProfile,
+    pub speed_factor_pct: u8,
+}
+
+/// A decoded recording: header and events.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    pub header: RecordingHeader,
+    pub events: Vec<Event>,
+}
+
+impl Recording {
+    /// Reads and checks a recording file.
+    pub fn read(path: &Path) -> Result<Self, RecordError> {
+        let bytes = std::fs::read(path).map_err(|source| RecordError::Io { path: path.to_path_buf(), source })?;
+        Self::decode(&bytes, path)
+    }
+
+    /// Decodes recording bytes; `path` is only used in messages. Never panics.
+    pub fn decode(bytes: &[u8], path: &Path) -> Result<Self, RecordError> {
+        let raw = format::decode(bytes).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })?;
+        let header: RecordingHeader = serde_json::from_str(&raw.header_json)
+            .map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
+        for (record, e) in raw.events.iter().enumerate() {
+            if let Event::Frame(f) = e
+                && usize::from(f.camera) >= header.sensors.len()
+            {
+                return Err(RecordError::UnknownCamera {
+                    path: path.to_path_buf(),
+                    record,
+                    camera: f.camera,
+                    cameras: header.sensors.len(),
+                });
+            }
+        }
+        Ok(Self { header, events: raw.events })
+    }
+}
+
+/// What the recorder holds behind its lock.
+struct RecorderState {
+    path: PathBuf,
+    out: BufWriter<File>,
+    /// Events logged before the header was known (the connection's first feedback frames).
+    pending: Option<Vec<Event>>,
+    records: u64,
+    /// The first write error; reported by [`Recorder::finish`] (sockets keep working).
+    error: Option<std::io::Error>,
+    finished: bool,
+}
+
+impl RecorderState {
+    fn write_event(&mut self, event: &Event) {
+        if self.error.is_some() || self.finished {
+            return;
+        }
+        match self.out.write_all(&format::encode_event(event)) {
+            Ok(()) => self.records += 1,
+            Err(e) => self.error = Some(e),
+        }
+    }
+}
+
+/// Writes a recording. Cloning shares the file; events are written in the order they arrive.
+#[derive(Clone)]
+pub struct Recorder {
+    state: Arc<Mutex<RecorderState>>,
+    clock: Arc<dyn Clock>,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder").finish_non_exhaustive()
+    }
+}
+
+impl Recorder {
+    /// Creates `path`. Events are stamped with `clock`; until [`begin`](Self::begin) writes the
+    /// header they are held in memory.
+    pub fn create(path: &Path, clock: Arc<dyn Clock>) -> Result<Self, RecordError> {
+        let file = File::create(path).map_err(|source| RecordError::Io { path: path.to_path_buf(), source })?;
+        let state = RecorderState {
+            path: path.to_path_buf(),
+            out: BufWriter::with_capacity(1 << 20, file),
+            pending: Some(Vec::new()),
+            records: 0,
+            error: None,
+            finished: false,
+        };
+        Ok(Self { state: Arc::new(Mutex::new(state)), clock })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, RecorderState> {
+        // A panic elsewhere while holding the lock leaves consistent state (one whole write).
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Writes the header, then the events held so far.
+    pub fn begin(&self, header: &RecordingHeader) -> Result<(), RecordError> {
+        let mut st = self.lock();
+        let path = st.path.clone();
+        let json = serde_json::to_string_pretty(header).map_err(|source| RecordError::Header { path: path.clone(), source })?;
+        st.out
+            .write_all(&format::encode_preamble(&json))
+            .map_err(|source| RecordError::Io { path, source })?;
+        for event in st.pending.take().unwrap_or_default() {
+            st.write_event(&event);
+        }
+        Ok(())
+    }
+
+    fn log(&self, make: impl FnOnce(f64) -> Event) {
+        let mut st = self.lock();
+        // Stamped under the lock, so times in the file never go backwards.
+        let event = make(self.clock.now_s());
+        match st.pending.as_mut() {
+            Some(pending) => pending.push(event),
+            None => st.write_event(&event),
+        }
+    }
+
+    /// Logs bytes that passed on `socket`.
+    pub fn log_socket(&self, socket: SocketId, direction: Direction, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        self.log(|t_s| Event::Socket { socket, direction, t_s, bytes: bytes.to_vec() });
+    }
+
+    /// Logs a frame handed to the job by camera number `camera`.
+    pub fn log_frame(&self, camera: u8, frame: &Frame) {
+        self.log(|t_s| {
+            Event::Frame(RecordedFrame {
+                camera,
+                t_s,
+                t_capture_s: frame.t_capture_s,
+                seq: frame.seq,
+                width: frame.image.width(),
+                height: frame.image.height(),
+                rgb: frame.image.as_raw().clone(),
+            })
+        });
+    }
+
+    /// Writes the end record and flushes; later events are dropped. Returns the record count.
+    pub fn finish(&self) -> Result<u64, RecordError> {
+        let mut st = self.lock();
+        let path = st.path.clone();
+        if st.pending.is_some() {
+            return Err(RecordError::NoHeader { path });
+        }
+        if let Some(source) = st.error.take() {
+            return Err(RecordError::Io { path, source });
+        }
+        if !st.finished {
+            st.finished = true;
+            let end = format::encode_end(st.records);
+            let written = st.out.write_all(&end).and_then(|()| st.out.flush()).and_then(|()| st.out.get_ref().sync_all());
+            written.map_err(|source| RecordError::Io { path, source })?;
+        }
+        Ok(st.records)
+    }
+}
+
+/// A byte stream that logs everything read from and written to it.
+pub struct RecordingStream<S> {
+    inner: S,
+    socket: SocketId,
+    recorder: Recorder,
+}
+
+impl<S> RecordingStream<S> {
+    pub fn new(inner: S, socket: SocketId, recorder: Recorder) -> Self {
+        Self { inner, socket, recorder }
+    }
+}
+
+impl<S: AsyncRead + Unpin> AsyncRead for RecordingStream<S> {
+    fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let this = &mut *self;
+        let polled = Pin::new(&mut this.inner).poll_read(cx, buf);
+        if let Poll::Ready(Ok(())) = &polled {
+            this.recorder.log_socket(this.socket, Direction::FromController, &buf.filled()[before..]);
+        }
+        polled
+    }
+}
+
+impl<S: AsyncWrite + Unpin> AsyncWrite for RecordingStream<S> {
+    fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        let this = &mut *self;
+        let polled = Pin::new(&mut this.inner).poll_write(cx, buf);
+        if let Poll::Ready(Ok(n)) = &polled {
+            this.recorder.log_socket(this.socket, Direction::ToController, buf.get(..*n).unwrap_or_default());
+        }
+        polled
+    }
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// A camera that logs every frame it hands out; a plain pass-through without a recorder.
+pub struct RecordingCamera<C> {
+    inner: C,
+    index: u8,
+    recorder: Option<Recorder>,
+}
+
+impl<C: Camera> RecordingCamera<C> {
+    /// Wraps camera number `index` (its place in the header's sensor list).
+    pub fn new(inner: C, index: u8, recorder: Option<Recorder>) -> Self {
+        Self { inner, index, recorder }
+    }
+    pub fn inner(&self) -> &C {
+        &self.inner
+    }
+}
+
+impl<C: Camera> Camera for RecordingCamera<C> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
+        let frame = self.inner.frame_after(not_before_s).await?;
+        if let Some(r) = &self.recorder {
+            r.log_frame(self.index, &frame);
+        }
+        Ok(frame)
+    }
+}
+
+async fn connect_socket(cfg: &Mg400Config, port: u16, role: &str) -> Result<TcpStream, ArmError> {
+    let what = || format!("connecting to the MG400 {role} port at {}:{port}", cfg.host);
+    match tokio::time::timeout(cfg.connect_timeout, TcpStream::connect((cfg.host.as_str(), port))).await {
+        Ok(Ok(s)) => {
+            // Same as the client's own connect: small commands, latency first.
+            let _ = s.set_nodelay(true);
+            Ok(s)
+        }
+        Ok(Err(source)) => Err(ArmError::Io { context: what(), source }),
+        Err(_) => Err(ArmError::Timeout { what: what(), after: cfg.connect_timeout }),
+    }
+}
+
+/// Connects the MG400 client like [`Mg400Client::connect`], with every socket recorded.
+/// The streams are attached, so a dropped socket is not reconnected (a recording could not
+/// replay a reconnection anyway).
+pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder: Recorder) -> Result<Mg400Client, ArmError> {
+    let dashboard = connect_socket(&cfg, cfg.dashboard_port, "dashboard").await?;
+    let motion = connect_socket(&cfg, cfg.motion_port, "motion").await?;
+    let feedback = connect_socket(&cfg, cfg.feedback_port, "feedback").await?;
+    let mut client = Mg400Client::attach(
+        cfg,
+        clock,
+        RecordingStream::new(dashboard, SocketId::Dashboard, recorder.clone()),
+        RecordingStream::new(motion, SocketId::Motion, recorder.clone()),
+        RecordingStream::new(feedback, SocketId::Feedback, recorder),
+    );
+    client.wait_first_feedback().await?;
+    Ok(client)
+}
+
+/// Timeouts of a replayed client: long, so that a stalled replay is reported by the replay's
+/// own watchdog (which names the record it waits for) rather than by a client timeout.
+pub(crate) const REPLAY_CLIENT_TIMEOUT: Duration = Duration::from_secs(600);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::MockClock;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    fn header() -> RecordingHeader {
+        RecordingHeader {
+            rig_version: crate::version().into(),
+            command_line: vec!["rig".into(), "collect".into()],
+            config_source: None,
+            object: ObjectInfo { name: "sphere".into(), stl_path: None, stl_sha256: None },
+            sensors: vec![RecordedSensor { camera: "tactip".into(), sensor_dir: "tactip".into(), calibration: "default".into() }],
+            seed: 1,
+            plan_spec: PlanSpec::default(),
+            plan: vec![PlannedPose { pose_id: 4, pose: crate::pose::Pose::new(1.0, 2.0, 0.5, 15.0) }],
+            work_frame: WorkFrame::default(),
+            collect: (&CollectConfig::default()).into(),
+            profile: FirmwareProfile::default_mg400(),
+            speed_factor_pct: 100,
+        }
+    }
+
+    struct OneFrame;
+    impl Camera for OneFrame {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
+            Ok(Frame { image: image::RgbImage::from_pixel(2, 3, image::Rgb([9, 8, 7])), t_capture_s: not_before_s + 0.1, seq: 42 })
+        }
+    }
+
+    #[tokio::test]
+    async fn wrappers_log_both_directions_and_frames_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.rec");
+        let clock = MockClock::new();
+        let recorder = Recorder::create(&path, Arc::new(clock.clone())).unwrap();
+        let (client, mut controller) = tokio::io::duplex(256);
+        let mut stream = RecordingStream::new(client, SocketId::Dashboard, recorder.clone());
+        // Logged before the header is known, written after it.
+        stream.write_all(b"RobotMode()").await.unwrap();
+        recorder.begin(&header()).unwrap();
+        clock.set_s(2.5);
+        controller.write_all(b"0,{5},RobotMode();").await.unwrap();
+        let mut buf = [0u8; 64];
+        let n = stream.read(&mut buf).await.unwrap();
+        assert_eq!(&buf[..n], b"0,{5},RobotMode();");
+        let mut camera = RecordingCamera::new(OneFrame, 0, Some(recorder.clone()));
+        let frame = camera.frame_after(3.0).await.unwrap();
+        assert_eq!(recorder.finish().unwrap(), 3);
+
+        let r = Recording::read(&path).unwrap();
+        assert_eq!(r.header, header());
+        assert_eq!(
+            r.events[0],
+            Event::Socket { socket: SocketId::Dashboard, direction: Direction::ToController, t_s: 0.0, bytes: b"RobotMode()".to_vec() }
+        );
+        assert!(matches!(&r.events[1], Event::Socket { direction: Direction::FromController, t_s, .. } if *t_s == 2.5));
+        let Event::Frame(f) = &r.events[2] else { panic!("a frame: {:?}", r.events[2]) };
+        assert_eq!((f.width, f.height, f.seq, f.t_capture_s), (2, 3, 42, frame.t_capture_s));
+        assert_eq!(f.rgb, frame.image.as_raw().clone());
+    }
+
+    #[test]
+    fn closing_without_a_header_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let recorder = Recorder::create(&dir.path().join("r.rec"), Arc::new(MockClock::new())).unwrap();
+        assert!(matches!(recorder.finish(), Err(RecordError::NoHeader { .. })));
+    }
+
+    #[test]
+    fn a_frame_of_an_unlisted_camera_is_refused() {
+        let mut bytes = format::encode_preamble(&serde_json::to_string(&header()).unwrap());
+        let frame = RecordedFrame { camera: 1, t_s: 0.0, t_capture_s: 0.0, seq: 0, width: 0, height: 0, rgb: vec![] };
+        bytes.extend(format::encode_event(&Event::Frame(frame)));
+        bytes.extend(format::encode_end(1));
+        let e = Recording::decode(&bytes, Path::new("x.rec")).unwrap_err();
+        assert!(matches!(e, RecordError::UnknownCamera { camera: 1, cameras: 1, .. }), "{e}");
+    }
+}

@@ -1,0 +1,655 @@
+//! Replay: re-running a recorded collection with no hardware.
+//!
+//! A [`ReplaySession`] holds the recorded events and a cursor. The client's three sockets are
+//! [`ReplayStream`]s and the job's cameras are [`ReplayCamera`]s over that one session, so the
+//! real [`Mg400Client`] and the real [`CollectJob`] run unchanged.
+//!
+//! Ordering, and why the replay does not depend on wall-clock timing: two tasks touch the
+//! hardware. The job's task (commands, replies, frames) is sequential, so its events must come
+//! in exactly the recorded order; the client's feedback reader runs beside it and only reads.
+//! The session therefore serves the event under the cursor to whoever asks for it:
+//!
+//! - a feedback read is served when the next event is a feedback read, and waits otherwise, so
+//!   the controller's 8 ms frames arrive in the same place relative to the client's requests
+//!   and replies as they did (the frames that followed a `Sync()` reply still follow it);
+//! - a write, a command-socket read or a frame request of the job is served when the next event
+//!   is exactly that; when the next event is a feedback read it waits for the reader to take
+//!   it; a write or a frame request facing anything else is a divergence, reported with the
+//!   record number, what the recording has and what the replayed run did instead (a reply
+//!   read waits, because the client may race it against an alarm in the feedback; the
+//!   watchdog reports it if nothing else happens; and when the job goes on past replies it
+//!   read in the recording but gave up on this time, those stay in their socket, as on the
+//!   wire, and are read later);
+//! - after each chunk a stream yields once, so the job's task sees every feedback frame the
+//!   way it did live (the client keeps only the newest frame).
+//!
+//! Time comes from a [`MockClock`] set to each event's recorded rig-clock time as it is
+//! served, and the client's socket timeouts are set far out; a watchdog turns a replay that
+//! stops moving into a divergence naming the record it waits for. Run it on a current-thread
+//! runtime, where the two tasks interleave only at these points.
+
+use std::future::poll_fn;
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::task::{Context, Poll, Waker};
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+
+use super::format::{Direction, Event, SocketId};
+use super::{REPLAY_CLIENT_TIMEOUT, Recording};
+use crate::arm::dobot::client::{Mg400Client, Mg400Config};
+use crate::camera::{Camera, CameraError, Frame};
+use crate::clock::{Clock, MockClock};
+use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
+use crate::dataset::{DatasetError, DatasetWriter, Manifest};
+
+/// Where the replayed run left the recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Divergence {
+    /// Index of the recorded event (0 = first after the header).
+    pub record: usize,
+    /// Rig-clock time of that event, s; `None` past the end of the recording.
+    pub t_s: Option<f64>,
+    /// What the recording has at that point.
+    pub expected: String,
+    /// What the replayed run did instead.
+    pub got: String,
+}
+
+impl std::fmt::Display for Divergence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.t_s {
+            Some(t) => write!(f, "replay diverged at record {} (t = {t:.3} s on the recorded rig clock): ", self.record)?,
+            None => write!(f, "replay diverged at record {} (past the end of the recording): ", self.record)?,
+        }
+        write!(f, "the recording has {}, but {}", self.expected, self.got)
+    }
+}
+
+/// Errors of a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("{0}")]
+    Diverged(Divergence),
+    /// The replayed job failed the way the recorded one did (or for a dataset reason).
+    #[error("the replayed collection failed: {0}")]
+    Collect(#[from] CollectError),
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error("the replayed collection finished with {remaining} recorded events not replayed; the next is {next}")]
+    Leftover { remaining: usize, next: String },
+}
+
+struct SessionState {
+    events: Vec<Event>,
+    cameras: Vec<String>,
+    cursor: usize,
+    /// Bytes of `events[cursor]` already served (socket events are served in pieces).
+    offset: usize,
+    divergence: Option<Divergence>,
+    waiters: Vec<Waker>,
+    /// Counts served pieces, for the watchdog.
+    progress: u64,
+    /// The command socket whose read waited last, for the watchdog's message.
+    blocked_read: Option<SocketId>,
+    /// Controller bytes the client has not read yet although it went on, per socket (what
+    /// would sit in the socket's receive buffer), served before further recorded reads.
+    unread: [Vec<u8>; 3],
+}
+
+fn slot(socket: SocketId) -> usize {
+    match socket {
+        SocketId::Dashboard => 0,
+        SocketId::Motion => 1,
+        SocketId::Feedback => 2,
+    }
+}
+
+/// Shortened, escaped text of protocol bytes for messages.
+fn show_bytes(bytes: &[u8]) -> String {
+    let text: String = String::from_utf8_lossy(bytes).escape_debug().collect();
+    if text.chars().count() > 120 { format!("\"{}...\" ({} bytes)", text.chars().take(120).collect::<String>(), bytes.len()) } else { format!("\"{text}\"") }
+}
+
+/// Whether an event is the feedback reader's (the only one that runs beside the job).
+fn is_feedback_read(e: &Event) -> bool {
+    matches!(e, Event::Socket { socket: SocketId::Feedback, direction: Direction::FromController, .. })
+}
+
+impl SessionState {
+    fn describe(&self, e: &Event, offset: usize) -> String {
+        match e {
+            Event::Socket { socket, direction: Direction::ToController, bytes, .. } => {
+                format!("the client writing {} on the {} socket", show_bytes(bytes.get(offset..).unwrap_or_default()), socket.name())
+            }
+            Event::Socket { socket: SocketId::Feedback, bytes, .. } => {
+                format!("{} bytes of feedback for the client to read", bytes.len() - offset.min(bytes.len()))
+            }
+            Event::Socket { socket, bytes, .. } => {
+                format!("the controller answering {} on the {} socket", show_bytes(bytes.get(offset..).unwrap_or_default()), socket.name())
+            }
+            Event::Frame(f) => format!(
+                "a frame of camera {} (seq {}, captured at {:.3} s)",
+                self.cameras.get(usize::from(f.camera)).map_or("?", String::as_str),
+                f.seq,
+                f.t_capture_s
+            ),
+        }
+    }
+
+    fn describe_next(&self) -> String {
+        match self.events.get(self.cursor) {
+            Some(e) => self.describe(e, self.offset),
+            None => "the end of the recording".to_string(),
+        }
+    }
+
+    fn wake_all(&mut self) {
+        for w in self.waiters.drain(..) {
+            w.wake();
+        }
+    }
+
+    fn wait(&mut self, cx: &Context<'_>) {
+        if !self.waiters.iter().any(|w| w.will_wake(cx.waker())) {
+            self.waiters.push(cx.waker().clone());
+        }
+    }
+
+    /// Records the first divergence and wakes everyone so that they see it.
+    fn diverge(&mut self, got: String) -> std::io::Error {
+        if self.divergence.is_none() {
+            self.divergence = Some(Divergence {
+                record: self.cursor,
+                t_s: self.events.get(self.cursor).map(Event::t_s),
+                expected: self.describe_next(),
+                got,
+            });
+        }
+        self.wake_all();
+        self.failure()
+    }
+
+    fn failure(&self) -> std::io::Error {
+        let text = self.divergence.as_ref().map_or_else(|| "replay failed".to_string(), |d| d.to_string());
+        std::io::Error::other(text)
+    }
+
+    /// The job went on (wrote, or asked for a frame) while replies it read in the recording
+    /// are next: it gave up on those replies this time (the client's `Sync` races its reply
+    /// against an alarm in the feedback, and either may win). They stay in the socket, as on
+    /// the wire, and the client reads (and skips) them later.
+    fn shelve_unread_replies(&mut self, clock: &MockClock) {
+        while let Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) = self.events.get(self.cursor)
+            && *socket != SocketId::Feedback
+        {
+            let (socket, t_s, len) = (*socket, *t_s, bytes.len());
+            let rest = bytes.get(self.offset..).unwrap_or_default().to_vec();
+            self.unread[slot(socket)].extend_from_slice(&rest);
+            self.served(rest.len(), len, t_s, clock);
+            if self.offset != 0 {
+                // Nothing was left to move (an empty tail cannot happen with recorded events).
+                break;
+            }
+        }
+    }
+
+    /// Marks `n` more bytes of the current event (of `len`) served, at recorded time `t_s`.
+    fn served(&mut self, n: usize, len: usize, t_s: f64, clock: &MockClock) {
+        self.offset += n;
+        if self.offset >= len {
+            self.cursor += 1;
+            self.offset = 0;
+        }
+        self.progress += 1;
+        self.blocked_read = None;
+        if t_s > clock.now_s() {
+            clock.set_s(t_s);
+        }
+        self.wake_all();
+    }
+}
+
+/// Serves the recorded events to the replayed client and cameras. Cloning shares it.
+#[derive(Clone)]
+pub struct ReplaySession {
+    state: Arc<Mutex<SessionState>>,
+    clock: MockClock,
+}
+
+impl ReplaySession {
+    /// A session over `events`; `cameras` names the cameras by index (for messages).
+    pub fn new(events: Vec<Event>, cameras: Vec<String>) -> Self {
+        let state = SessionState { events, cameras, cursor: 0, offset: 0, divergence: None, waiters: Vec::new(), progress: 0, blocked_read: None, unread: Default::default() };
+        Self { state: Arc::new(Mutex::new(state)), clock: MockClock::new() }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, SessionState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The clock that follows the recorded times of the events served.
+    pub fn clock(&self) -> MockClock {
+        self.clock.clone()
+    }
+
+    /// The replay side of one MG400 socket.
+    pub fn stream(&self, socket: SocketId) -> ReplayStream {
+        ReplayStream { session: self.clone(), socket, yield_next: false }
+    }
+
+    /// The replay of camera number `index` of the header's list.
+    pub fn camera(&self, index: u8) -> ReplayCamera {
+        let name = self.lock().cameras.get(usize::from(index)).cloned().unwrap_or_else(|| format!("camera{index}"));
+        ReplayCamera { session: self.clone(), index, name }
+    }
+
+    /// The first divergence, if the replayed run left the recording.
+    pub fn divergence(&self) -> Option<Divergence> {
+        self.lock().divergence.clone()
+    }
+
+    /// Events served so far and in all.
+    pub fn position(&self) -> (usize, usize) {
+        let st = self.lock();
+        (st.cursor, st.events.len())
+    }
+
+    /// Succeeds when every recorded event of the job was replayed (feedback frames the client
+    /// did not read before it was closed may remain).
+    pub fn check_finished(&self) -> Result<(), ReplayError> {
+        let st = self.lock();
+        let rest = st.events.get(st.cursor..).unwrap_or_default();
+        if rest.iter().all(is_feedback_read) {
+            return Ok(());
+        }
+        Err(ReplayError::Leftover { remaining: rest.len(), next: st.describe_next() })
+    }
+
+    /// Turns a replay that serves nothing for `stall_after` into a divergence. Runs until the
+    /// task is aborted.
+    pub async fn watchdog(self, stall_after: Duration) {
+        let tick = (stall_after / 4).max(Duration::from_millis(10));
+        let mut last = (u64::MAX, tokio::time::Instant::now());
+        loop {
+            tokio::time::sleep(tick).await;
+            let mut st = self.lock();
+            if st.divergence.is_some() {
+                return;
+            }
+            if st.progress != last.0 {
+                last = (st.progress, tokio::time::Instant::now());
+            } else if last.1.elapsed() >= stall_after {
+                let doing = match st.blocked_read {
+                    Some(socket) => format!("the client waits for a reply on the {} socket", socket.name()),
+                    None => "the replayed run waits for something else".to_string(),
+                };
+                let _ = st.diverge(format!("{doing}, and nothing happened for {stall_after:?}"));
+                return;
+            }
+        }
+    }
+}
+
+/// One replayed MG400 socket: serves the recorded controller bytes, checks the client's.
+pub struct ReplayStream {
+    session: ReplaySession,
+    socket: SocketId,
+    /// Yield once before serving the next chunk (see the module docs).
+    yield_next: bool,
+}
+
+impl AsyncRead for ReplayStream {
+    fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<std::io::Result<()>> {
+        let this = &mut *self;
+        let session = this.session.clone();
+        let mut st = session.lock();
+        if st.divergence.is_some() {
+            return Poll::Ready(Err(st.failure()));
+        }
+        if this.yield_next {
+            this.yield_next = false;
+            cx.waker().wake_by_ref();
+            return Poll::Pending;
+        }
+        if buf.remaining() == 0 {
+            return Poll::Ready(Ok(()));
+        }
+        let waiting = &mut st.unread[slot(this.socket)];
+        if !waiting.is_empty() {
+            let n = waiting.len().min(buf.remaining());
+            buf.put_slice(&waiting[..n]);
+            waiting.drain(..n);
+            st.progress += 1;
+            this.yield_next = true;
+            return Poll::Ready(Ok(()));
+        }
+        let (cursor, offset) = (st.cursor, st.offset);
+        let outcome = match st.events.get(cursor) {
+            Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) if *socket == this.socket => {
+                let rest = bytes.get(offset..).unwrap_or_default();
+                let n = rest.len().min(buf.remaining());
+                buf.put_slice(&rest[..n]);
+                Some((n, bytes.len(), *t_s))
+            }
+            _ => None,
+        };
+        if let Some((n, len, t_s)) = outcome {
+            st.served(n, len, t_s, &session.clock);
+            this.yield_next = true;
+            return Poll::Ready(Ok(()));
+        }
+        if this.socket == SocketId::Feedback || cursor < st.events.len() {
+            // The feedback reader waits for its turn. A reply read waits too, also when the
+            // job's next recorded step is something else: the client may be racing the read
+            // against an alarm in the feedback (`Sync` does), and the other branch moves on.
+            // If nothing does, the watchdog reports what this read waited for.
+            if this.socket != SocketId::Feedback {
+                st.blocked_read = Some(this.socket);
+            }
+            st.wait(cx);
+            return Poll::Pending;
+        }
+        let got = format!("the client waits to read from the {} socket", this.socket.name());
+        Poll::Ready(Err(st.diverge(got)))
+    }
+}
+
+impl AsyncWrite for ReplayStream {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        let session = self.session.clone();
+        let mut st = session.lock();
+        if st.divergence.is_some() {
+            return Poll::Ready(Err(st.failure()));
+        }
+        if buf.is_empty() {
+            return Poll::Ready(Ok(0));
+        }
+        st.shelve_unread_replies(&session.clock);
+        let (cursor, offset) = (st.cursor, st.offset);
+        let matched = match st.events.get(cursor) {
+            Some(Event::Socket { socket, direction: Direction::ToController, bytes, t_s }) if *socket == self.socket => {
+                let rest = bytes.get(offset..).unwrap_or_default();
+                let n = rest.len().min(buf.len());
+                Some((rest.get(..n) == buf.get(..n), n, bytes.len(), *t_s))
+            }
+            _ => None,
+        };
+        match matched {
+            Some((true, n, len, t_s)) => {
+                st.served(n, len, t_s, &session.clock);
+                Poll::Ready(Ok(n))
+            }
+            Some((false, ..)) => {
+                let got = format!("the client wrote {} on the {} socket", show_bytes(buf), self.socket.name());
+                Poll::Ready(Err(st.diverge(got)))
+            }
+            None if st.events.get(cursor).is_some_and(is_feedback_read) => {
+                st.wait(cx);
+                Poll::Pending
+            }
+            None => {
+                let got = format!("the client wrote {} on the {} socket", show_bytes(buf), self.socket.name());
+                Poll::Ready(Err(st.diverge(got)))
+            }
+        }
+    }
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+}
+
+/// A replayed camera: hands out the recorded frames in recorded order. The recorded frame is
+/// returned whatever `not_before_s` asks: the recording already honoured it.
+pub struct ReplayCamera {
+    session: ReplaySession,
+    index: u8,
+    name: String,
+}
+
+impl ReplayCamera {
+    fn poll_frame(&self, cx: &mut Context<'_>) -> Poll<Result<Frame, CameraError>> {
+        let mut st = self.session.lock();
+        let device_error = |reason: String| CameraError::Device { camera: self.name.clone(), reason };
+        if let Some(d) = &st.divergence {
+            return Poll::Ready(Err(device_error(d.to_string())));
+        }
+        st.shelve_unread_replies(&self.session.clock);
+        let cursor = st.cursor;
+        let frame = match st.events.get(cursor) {
+            Some(Event::Frame(f)) if f.camera == self.index => Some(f.clone()),
+            _ => None,
+        };
+        if let Some(f) = frame {
+            st.served(1, 1, f.t_s, &self.session.clock);
+            let Some(image) = image::RgbImage::from_raw(f.width, f.height, f.rgb) else {
+                return Poll::Ready(Err(CameraError::Decode {
+                    camera: self.name.clone(),
+                    reason: format!("recorded frame {} does not hold {}x{} RGB pixels", f.seq, f.width, f.height),
+                }));
+            };
+            return Poll::Ready(Ok(Frame { image, t_capture_s: f.t_capture_s, seq: f.seq }));
+        }
+        if st.events.get(cursor).is_some_and(is_feedback_read) {
+            st.wait(cx);
+            return Poll::Pending;
+        }
+        let got = format!("the job asked camera {} for a frame", self.name);
+        let _ = st.diverge(got);
+        Poll::Ready(Err(device_error(st.failure().to_string())))
+    }
+}
+
+impl Camera for ReplayCamera {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    async fn frame_after(&mut self, _not_before_s: f64) -> Result<Frame, CameraError> {
+        poll_fn(|cx| self.poll_frame(cx)).await
+    }
+}
+
+/// What a replay did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayOutcome {
+    pub summary: CollectSummary,
+    /// Events served and in all.
+    pub replayed: usize,
+    pub recorded: usize,
+    /// The datasets written, one per sensor.
+    pub datasets: Vec<PathBuf>,
+}
+
+/// Re-runs the recorded collection into `out` (`<out>/<object>/<sensor>/`), with the real
+/// client and job over the recording. `stall_after` is the watchdog's patience.
+pub async fn replay_collection(recording: &Recording, out: &Path, stall_after: Duration) -> Result<ReplayOutcome, ReplayError> {
+    let h = &recording.header;
+    let session = ReplaySession::new(recording.events.clone(), h.sensors.iter().map(|s| s.camera.clone()).collect());
+    let clock = session.clock();
+    let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
+    let result = run_job(recording, out, &session, clock).await;
+    watchdog.abort();
+    // The first divergence explains whatever the job made of it afterwards.
+    if let Some(d) = session.divergence() {
+        return Err(ReplayError::Diverged(d));
+    }
+    let (summary, datasets) = result?;
+    session.check_finished()?;
+    let (replayed, recorded) = session.position();
+    Ok(ReplayOutcome { summary, replayed, recorded, datasets })
+}
+
+async fn run_job(
+    recording: &Recording,
+    out: &Path,
+    session: &ReplaySession,
+    clock: MockClock,
+) -> Result<(CollectSummary, Vec<PathBuf>), ReplayError> {
+    let h = &recording.header;
+    let mut cfg = Mg400Config::new("replay", h.profile.clone());
+    cfg.speed_factor_pct = h.speed_factor_pct;
+    cfg.connect_timeout = REPLAY_CLIENT_TIMEOUT;
+    cfg.reply_timeout = REPLAY_CLIENT_TIMEOUT;
+    cfg.enable_timeout = REPLAY_CLIENT_TIMEOUT;
+    cfg.drain_timeout = REPLAY_CLIENT_TIMEOUT;
+    let clock: Arc<dyn Clock> = Arc::new(clock);
+    let mut arm = Mg400Client::attach(
+        cfg,
+        Arc::clone(&clock),
+        session.stream(SocketId::Dashboard),
+        session.stream(SocketId::Motion),
+        session.stream(SocketId::Feedback),
+    );
+    // As the recorded run's connect did.
+    arm.wait_first_feedback().await.map_err(CollectError::from)?;
+
+    let mut sensors = Vec::new();
+    let mut datasets = Vec::new();
+    for (index, s) in h.sensors.iter().enumerate() {
+        let dir = out.join(&h.object.name).join(&s.sensor_dir);
+        let mut manifest = Manifest::new(&s.sensor_dir, h.object.clone(), Some(h.plan_spec.clone()));
+        manifest.calibration = Some(s.calibration.clone());
+        manifest.firmware_profile = Some(h.profile.name.clone());
+        manifest.work_frame = Some(h.work_frame);
+        let writer = DatasetWriter::create(&dir, manifest)?;
+        // The header has at most 256 sensors: frame records name them with one byte.
+        let index = u8::try_from(index).unwrap_or(u8::MAX);
+        sensors.push(SensorStream { camera: session.camera(index), writer });
+        datasets.push(dir);
+    }
+    let (_cancel_tx, cancel) = tokio::sync::watch::channel(false);
+    let job = CollectJob {
+        arm: &mut arm,
+        sensors,
+        work_frame: h.work_frame,
+        options: (&h.collect).into(),
+        clock,
+        cancel,
+        progress: indicatif::ProgressBar::hidden(),
+    };
+    let summary = job.run(&h.plan).await?;
+    Ok((summary, datasets))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    fn ev(socket: SocketId, direction: Direction, t_s: f64, bytes: &[u8]) -> Event {
+        Event::Socket { socket, direction, t_s, bytes: bytes.to_vec() }
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn serves_replies_in_order_and_follows_the_recorded_clock() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Dashboard, Direction::ToController, 1.0, b"RobotMode()"),
+                ev(SocketId::Dashboard, Direction::FromController, 1.5, b"0,{5},RobotMode();"),
+            ],
+            vec![],
+        );
+        let mut d = session.stream(SocketId::Dashboard);
+        d.write_all(b"Robot").await.unwrap();
+        d.write_all(b"Mode()").await.unwrap();
+        assert_eq!(session.clock().now_s(), 1.0);
+        let mut buf = [0u8; 64];
+        let n = d.read(&mut buf).await.unwrap();
+        assert_eq!(&buf[..n], b"0,{5},RobotMode();");
+        assert_eq!(session.clock().now_s(), 1.5);
+        assert!(session.check_finished().is_ok());
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_different_request_is_a_divergence_naming_both() {
+        let session = ReplaySession::new(vec![ev(SocketId::Motion, Direction::ToController, 2.0, b"MovJ(1,2,3,4)")], vec![]);
+        let mut m = session.stream(SocketId::Motion);
+        let err = m.write_all(b"MovJ(1,2,3,5)").await.unwrap_err();
+        let d = session.divergence().unwrap();
+        assert_eq!(d.record, 0);
+        assert!(d.expected.contains("MovJ(1,2,3,4)") && d.got.contains("MovJ(1,2,3,5)"), "{d}");
+        assert!(err.to_string().contains("record 0"), "{err}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn the_job_waits_for_feedback_recorded_before_its_request() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Feedback, Direction::FromController, 0.1, b"frame"),
+                ev(SocketId::Dashboard, Direction::ToController, 0.2, b"Sync()"),
+            ],
+            vec![],
+        );
+        let mut d = session.stream(SocketId::Dashboard);
+        let mut f = session.stream(SocketId::Feedback);
+        let writer = tokio::spawn(async move { d.write_all(b"Sync()").await });
+        tokio::task::yield_now().await;
+        assert_eq!(session.position().0, 0, "the write must wait for the feedback read");
+        let mut buf = [0u8; 16];
+        assert_eq!(f.read(&mut buf).await.unwrap(), 5);
+        writer.await.unwrap().unwrap();
+        assert_eq!(session.position(), (2, 2));
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_reply_that_never_comes_is_reported_by_the_watchdog() {
+        let session = ReplaySession::new(vec![ev(SocketId::Dashboard, Direction::ToController, 1.0, b"ClearError()")], vec![]);
+        let mut m = session.stream(SocketId::Motion);
+        let watchdog = tokio::spawn(session.clone().watchdog(Duration::from_millis(40)));
+        let mut buf = [0u8; 8];
+        assert!(m.read(&mut buf).await.is_err());
+        watchdog.await.unwrap();
+        let d = session.divergence().unwrap();
+        assert!(d.expected.contains("ClearError()") && d.got.contains("reply on the motion socket"), "{d}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_reply_the_client_gave_up_on_stays_in_the_socket() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::ToController, 1.0, b"Sync()"),
+                ev(SocketId::Motion, Direction::FromController, 1.1, b"0,{},Sync();"),
+                ev(SocketId::Dashboard, Direction::ToController, 1.2, b"GetErrorID()"),
+                ev(SocketId::Motion, Direction::ToController, 1.3, b"MovJ(1,2,3,4)"),
+                ev(SocketId::Motion, Direction::FromController, 1.4, b"0,{},MovJ(1,2,3,4);"),
+            ],
+            vec![],
+        );
+        let (mut d, mut m) = (session.stream(SocketId::Dashboard), session.stream(SocketId::Motion));
+        m.write_all(b"Sync()").await.unwrap();
+        // The client does not read the Sync reply now (an alarm won the race) and goes on.
+        d.write_all(b"GetErrorID()").await.unwrap();
+        m.write_all(b"MovJ(1,2,3,4)").await.unwrap();
+        let mut text = Vec::new();
+        let mut buf = [0u8; 64];
+        while text.len() < 31 {
+            let n = m.read(&mut buf).await.unwrap();
+            text.extend_from_slice(&buf[..n]);
+        }
+        assert_eq!(text, b"0,{},Sync();0,{},MovJ(1,2,3,4);");
+        assert_eq!(session.divergence(), None);
+        assert!(session.check_finished().is_ok());
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn writing_past_the_end_is_a_divergence() {
+        let session = ReplaySession::new(vec![], vec![]);
+        let mut d = session.stream(SocketId::Dashboard);
+        assert!(d.write_all(b"DisableRobot()").await.is_err());
+        let d = session.divergence().unwrap();
+        assert!(d.t_s.is_none() && d.expected.contains("end of the recording"), "{d}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn the_watchdog_reports_a_stall() {
+        let session = ReplaySession::new(vec![ev(SocketId::Motion, Direction::ToController, 3.0, b"Sync()")], vec![]);
+        session.clone().watchdog(Duration::from_millis(40)).await;
+        let d = session.divergence().unwrap();
+        assert!(d.expected.contains("Sync()") && d.got.contains("nothing happened"), "{d}");
+    }
+}

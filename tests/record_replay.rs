@@ -1,0 +1,262 @@
+//! `rig collect --record` then `rig replay`: the real binary records a small seeded collection
+//! on the built-in simulated rig (real MG400 client over loopback TCP, simulated sensors),
+//! replays it with no simulator into another directory, and the datasets must match: `poses.csv`
+//! byte for byte, images by decoded pixels. Damaged recordings must fail with a clear message.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use rig::record::format::{self, Event};
+
+fn rig() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c.env_remove("RIG_CONFIG");
+    c
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// Small sensors keep the recording small; two sensors cover the camera interleaving.
+const CONFIG: &str = "[sensors.tactip]\nwidth = 48\nheight = 40\n[sensors.vitac]\nwidth = 48\nheight = 40\n";
+const SENSORS: [&str; 2] = ["tactip", "vitac"];
+
+/// Records a seeded 3-pose collection into `dir/rec.bin` and `dir/recorded/`.
+fn record(dir: &Path) -> PathBuf {
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, CONFIG).expect("writing the config");
+    let rec = dir.join("rec.bin");
+    let o = rig()
+        .args(["collect", "--object", "sphere", "--poses", "3", "--seed", "11", "--sensor", "tactip,vitac"])
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(dir.join("recorded"))
+        .arg("--record")
+        .arg(&rec)
+        .output()
+        .expect("running rig collect");
+    assert!(o.status.success(), "rig collect --record failed:\n{}", text(&o));
+    assert!(text(&o).contains("recorded "), "collect must say it recorded:\n{}", text(&o));
+    rec
+}
+
+fn replay(rec: &Path, out: &Path) -> Output {
+    rig().arg("replay").arg(rec).arg("--out").arg(out).args(["--stall-s", "20"]).output().expect("running rig replay")
+}
+
+/// Pixel comparison with a readable first difference.
+fn assert_same_pixels(a: &Path, b: &Path) {
+    let ia = image::open(a).unwrap_or_else(|e| panic!("decoding {}: {e}", a.display())).to_rgb8();
+    let ib = image::open(b).unwrap_or_else(|e| panic!("decoding {}: {e}", b.display())).to_rgb8();
+    assert_eq!(ia.dimensions(), ib.dimensions(), "{} and {} differ in size", a.display(), b.display());
+    let diffs: Vec<_> = ia.enumerate_pixels().filter(|(x, y, p)| ib.get_pixel(*x, *y) != *p).collect();
+    if let Some((x, y, p)) = diffs.first() {
+        panic!(
+            "{} and {} differ in {} pixels; first at ({x}, {y}): {:?} vs {:?}",
+            a.display(),
+            b.display(),
+            diffs.len(),
+            p.0,
+            ib.get_pixel(*x, *y).0
+        );
+    }
+}
+
+fn assert_same_dataset(a: &Path, b: &Path) {
+    for sensor in SENSORS {
+        let (da, db) = (a.join("sphere").join(sensor), b.join("sphere").join(sensor));
+        let (ca, cb) = (std::fs::read(da.join("poses.csv")).expect("recorded csv"), std::fs::read(db.join("poses.csv")).expect("replayed csv"));
+        assert_eq!(String::from_utf8_lossy(&ca), String::from_utf8_lossy(&cb), "{sensor}: poses.csv differs");
+        assert_eq!(ca.iter().filter(|&&c| c == b'\n').count(), 4, "{sensor}: header and 3 rows");
+        let mut names: Vec<PathBuf> = std::fs::read_dir(da.join("images"))
+            .expect("images dir")
+            .map(|e| e.expect("dir entry").path())
+            .collect();
+        names.sort();
+        assert_eq!(names.len(), 3, "{sensor}: 3 images");
+        names.push(da.join("reference.png"));
+        for image_a in names {
+            let rel = image_a.strip_prefix(&da).expect("under the dataset");
+            assert_same_pixels(&image_a, &db.join(rel));
+        }
+    }
+}
+
+/// Byte offset of the first pixel byte of the first frame record (layout in `record::format`).
+fn first_frame_pixel_offset(bytes: &[u8]) -> usize {
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")) as usize;
+    let mut at = 14 + u32_at(10) + 4;
+    loop {
+        let (kind, len) = (bytes[at], u32_at(at + 1));
+        if kind == 2 {
+            // kind, length, then camera, t_s, t_capture_s, seq, width, height.
+            return at + 5 + 1 + 8 + 8 + 8 + 4 + 4;
+        }
+        at += 5 + len + 4;
+    }
+}
+
+#[test]
+fn a_recorded_collection_replays_to_the_same_dataset_and_damage_is_reported() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let rec = record(tmp.path());
+
+    // Twice: the replay does not depend on timing.
+    for out in ["replayed-1", "replayed-2"] {
+        let out = tmp.path().join(out);
+        let o = replay(&rec, &out);
+        assert!(o.status.success(), "rig replay failed:\n{}", text(&o));
+        assert!(text(&o).contains("3 poses captured"), "{}", text(&o));
+        assert_same_dataset(&tmp.path().join("recorded"), &out);
+    }
+
+    let bytes = std::fs::read(&rec).expect("reading the recording");
+
+    // Cut short, as when the recording run is killed.
+    let cut = tmp.path().join("cut.bin");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("writing");
+    let o = replay(&cut, &tmp.path().join("from-cut"));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("truncated"), "a cut recording must say so:\n{}", text(&o));
+    assert!(!tmp.path().join("from-cut").exists(), "nothing is written from a damaged recording");
+
+    // One bit flipped inside the pixels of the first recorded frame.
+    let mut flipped = bytes.clone();
+    let pixel = first_frame_pixel_offset(&bytes);
+    flipped[pixel] ^= 0x10;
+    let bad = tmp.path().join("flipped.bin");
+    std::fs::write(&bad, &flipped).expect("writing");
+    let o = replay(&bad, &tmp.path().join("from-flipped"));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("corrupted") && text(&o).contains("checksum"), "{}", text(&o));
+
+    // A resumed run cannot be recorded: its replay would start from an empty dataset.
+    let o = rig()
+        .args(["collect", "--poses", "3", "--resume", "--record"])
+        .arg(tmp.path().join("resumed.bin"))
+        .arg("--out")
+        .arg(tmp.path().join("resumed"))
+        .output()
+        .expect("running rig collect");
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--resume"), "{}", text(&o));
+
+    // Not a recording at all.
+    let o = replay(&tmp.path().join("rig.toml"), &tmp.path().join("from-toml"));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("not a rig recording"), "{}", text(&o));
+}
+
+#[test]
+fn a_client_that_sends_something_else_is_a_divergence_naming_both_sides() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let rec = record(tmp.path());
+    let raw = format::decode(&std::fs::read(&rec).expect("reading")).expect("a valid recording");
+
+    // Replay with another speed factor: the client's SpeedFactor request no longer matches.
+    let mut header: serde_json::Value = serde_json::from_str(&raw.header_json).expect("json header");
+    assert_eq!(header["speed_factor_pct"], 100);
+    header["speed_factor_pct"] = 37.into();
+    let mut bytes = format::encode_preamble(&header.to_string());
+    for e in &raw.events {
+        bytes.extend(format::encode_event(e));
+    }
+    bytes.extend(format::encode_end(raw.events.len() as u64));
+    let edited = tmp.path().join("edited.bin");
+    std::fs::write(&edited, bytes).expect("writing");
+
+    let o = replay(&edited, &tmp.path().join("out"));
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("replay diverged at record"), "{t}");
+    assert!(t.contains("SpeedFactor(100)") && t.contains("SpeedFactor(37)"), "both sides must be named:\n{t}");
+    let first_write = raw.events.iter().position(|e| matches!(e, Event::Socket { direction: format::Direction::ToController, .. }));
+    assert!(first_write.is_some(), "the recording holds requests");
+}
+
+/// The client alone, through a collision alarm and its recovery: recorded against the
+/// simulated MG400 on a multi-threaded runtime (as `rig collect` runs), replayed on one thread
+/// with no simulator; every result must be the same.
+#[test]
+fn an_alarm_and_its_recovery_replay_the_same() {
+    use rig::arm::dobot::client::Mg400Client;
+    use rig::arm::{Arm, MoveKind};
+    use rig::clock::{Clock, MonotonicClock};
+    use rig::pose::Pose;
+    use rig::record::replay::ReplaySession;
+    use rig::record::{Recorder, Recording, SocketId, connect_recorded};
+    use rig::sim::mg400::{SimFaults, SimMg400, SimMg400Config};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    async fn session(arm: &mut Mg400Client) -> Vec<String> {
+        let wait = Duration::from_secs(20);
+        let (first, second) = (Pose::new(300.0, 20.0, -20.0, 0.0), Pose::new(260.0, -60.0, -30.0, 20.0));
+        let mut log = Vec::new();
+        log.push(format!("{:?}", arm.enable().await));
+        for target in [first, second] {
+            log.push(format!("{:?}", arm.move_to(target, MoveKind::Joint).await));
+            log.push(format!("{:?}", arm.wait_arrived(target, wait).await.map(|a| (a.measured, a.error_mm))));
+        }
+        log.push(format!("{:?}", arm.clear_error().await));
+        log.push(format!("{:?}", arm.move_to(second, MoveKind::Joint).await));
+        log.push(format!("{:?}", arm.wait_arrived(second, wait).await.map(|a| (a.measured, a.error_mm))));
+        log.push(format!("{:?}", arm.disable().await));
+        log
+    }
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("alarm.rec");
+    let recorded = tokio::runtime::Runtime::new().expect("runtime").block_on(async {
+        let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
+        let faults = SimFaults { collision_at_move: Some(2), ..Default::default() };
+        let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
+        let recorder = Recorder::create(&path, clock.clone()).expect("recording file");
+        let mut cfg = sim.client_config();
+        cfg.speed_factor_pct = 100;
+        let mut arm = connect_recorded(cfg, clock, recorder.clone()).await.expect("connects");
+        let header = serde_json::from_str(&format!(
+            r#"{{"rig_version":"test","command_line":[],"config_source":null,"object":{{"name":"none"}},"sensors":[],"seed":0,
+               "plan_spec":{},"plan":[],"work_frame":{},"collect":{{"settle_s":0,"frames_per_pose":1,"average_frames":false,
+               "move_timeout_s":20,"retries_per_pose":0}},"profile":{},"speed_factor_pct":100}}"#,
+            serde_json::to_string(&rig::plan::PlanSpec::default()).expect("json"),
+            serde_json::to_string(&rig::pose::WorkFrame::default()).expect("json"),
+            serde_json::to_string(&rig::arm::profile::FirmwareProfile::default_mg400()).expect("json"),
+        ))
+        .expect("header");
+        recorder.begin(&header).expect("header written");
+        let log = session(&mut arm).await;
+        recorder.finish().expect("recording closed");
+        drop(arm);
+        sim.shutdown().await;
+        log
+    });
+    assert!(recorded[4].contains("collision"), "the second move must collide: {recorded:#?}");
+
+    let recording = Recording::read(&path).expect("reading the recording");
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+    let replayed = runtime.block_on(async {
+        let replay = ReplaySession::new(recording.events.clone(), vec![]);
+        let watchdog = tokio::spawn(replay.clone().watchdog(Duration::from_secs(10)));
+        let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
+        cfg.speed_factor_pct = 100;
+        let clock: Arc<dyn Clock> = Arc::new(replay.clock());
+        let mut arm = Mg400Client::attach(
+            cfg,
+            clock,
+            replay.stream(SocketId::Dashboard),
+            replay.stream(SocketId::Motion),
+            replay.stream(SocketId::Feedback),
+        );
+        arm.wait_first_feedback().await.expect("first feedback");
+        let log = session(&mut arm).await;
+        watchdog.abort();
+        assert_eq!(replay.divergence(), None);
+        replay.check_finished().expect("every recorded step replayed");
+        log
+    });
+    assert_eq!(replayed, recorded);
+}
