@@ -107,7 +107,8 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         } else {
             DatasetWriter::create(&dir, manifest)
         }
-        .with_context(|| format!("opening dataset {}", dir.display()))?;
+        .with_context(|| format!("opening dataset {}", dir.display()))?
+        .with_byte_budget(config.faults.disk_budget_bytes);
         streams.push(SensorStream { camera, writer });
     }
 
@@ -142,7 +143,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         bail!(crate::cli::ExitStatus(4));
     }
     println!(
-        "collected {} poses ({} already present, {} arm faults recovered) into {}",
+        "collected {} poses ({} already present, {} arm or camera faults recovered) into {}",
         summary.captured,
         summary.skipped,
         summary.recovered_faults,

@@ -83,15 +83,42 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         return 2;
     }
     for cause in e.chain() {
-        if cause.downcast_ref::<crate::arm::ArmError>().is_some() {
+        if cause.downcast_ref::<crate::arm::ArmError>().is_some()
+            || cause.downcast_ref::<crate::camera::CameraError>().is_some()
+        {
             return 3;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
+            use crate::collect::CollectError as C;
+            match e {
+                C::RetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
+                C::Unreachable { .. } | C::Mismatch { .. } => return 2,
+                C::Dataset(_) => {}
+            }
+        }
+        if cause.downcast_ref::<crate::config::ConfigError>().is_some() {
+            return 2;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
+            use crate::rigs::RigError as R;
+            if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
+                return 2;
+            }
         }
         if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
             return 2;
         }
         if let Some(e) = cause.downcast_ref::<crate::dataset::DatasetError>() {
             use crate::dataset::DatasetError as D;
-            if matches!(e, D::NotEmpty { .. } | D::NotADataset { .. } | D::ManifestMismatch { .. } | D::MalformedMds { .. }) {
+            if matches!(
+                e,
+                D::NotEmpty { .. }
+                    | D::NotADataset { .. }
+                    | D::ManifestMismatch { .. }
+                    | D::MalformedMds { .. }
+                    | D::BadHeader { .. }
+                    | D::ManifestParse { .. }
+            ) {
                 return 2;
             }
         }
