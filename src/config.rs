@@ -186,8 +186,9 @@ pub enum SensorBackend {
 /// injects nothing.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct FaultConfig {
-    /// The simulated controller's own switches.
-    pub controller: crate::sim::mg400::SimFaults,
+    /// The simulated controller's own switches (the fields of `sim::mg400::SimFaults`,
+    /// which `rigs` hands it; kept here so the config reader needs nothing of the simulator).
+    pub controller: ControllerFaults,
     /// Close every controller socket this often, rig-clock seconds.
     pub drop_sockets_every_s: Option<f64>,
     /// Per-camera frame requests (1-based) that fail with a timeout.
@@ -196,6 +197,17 @@ pub struct FaultConfig {
     pub camera_timeout: std::time::Duration,
     /// Byte budget of each dataset writer (a full disk once spent).
     pub disk_budget_bytes: Option<u64>,
+}
+
+/// Faults the simulated MG400 controller injects itself.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControllerFaults {
+    pub reply_delay: std::time::Duration,
+    pub split_replies: bool,
+    pub feedback_garbage_every: Option<u32>,
+    pub feedback_start_mid_frame: bool,
+    pub collision_at_moves: Vec<u64>,
+    pub drop_dashboard_after: Option<u64>,
 }
 
 impl FaultConfig {
@@ -452,12 +464,11 @@ fn resolve_faults(raw: &RawFaults, path: &PathBuf) -> Result<FaultConfig, Config
         return Err(invalid("sim.faults.camera_timeout_ms", format!("must be at most 60000 ms, got {camera_timeout_ms}")));
     }
     let mut faults = FaultConfig {
-        controller: crate::sim::mg400::SimFaults {
+        controller: ControllerFaults {
             reply_delay: std::time::Duration::from_millis(reply_delay_ms),
             split_replies: raw.split_replies.unwrap_or(false),
             feedback_garbage_every: raw.feedback_garbage_every,
             feedback_start_mid_frame: raw.feedback_start_mid_frame.unwrap_or(false),
-            collision_at_move: None,
             collision_at_moves: moves,
             drop_dashboard_after: raw.drop_dashboard_after,
         },

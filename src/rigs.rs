@@ -24,7 +24,7 @@ use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
-use crate::sim::mg400::{SimMg400, SimMg400Config, SimPort};
+use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
 
 /// Errors assembling the rig.
@@ -237,7 +237,7 @@ impl Rig {
             ArmBackend::Simulated { .. } => {
                 let sim_cfg = SimMg400Config {
                     profile: profile.clone(),
-                    faults: config.faults.controller.clone(),
+                    faults: sim_faults(&config.faults),
                     ..SimMg400Config::default()
                 };
                 let sim = SimMg400::start(sim_cfg, Arc::clone(&clock)).await.map_err(RigError::Sim)?;
@@ -343,6 +343,20 @@ impl Rig {
         if let Some(sim) = sim {
             sim.shutdown().await;
         }
+    }
+}
+
+/// The simulator's switches for the configured faults.
+fn sim_faults(faults: &FaultConfig) -> SimFaults {
+    let c = &faults.controller;
+    SimFaults {
+        reply_delay: c.reply_delay,
+        split_replies: c.split_replies,
+        feedback_garbage_every: c.feedback_garbage_every,
+        feedback_start_mid_frame: c.feedback_start_mid_frame,
+        collision_at_move: None,
+        collision_at_moves: c.collision_at_moves.clone(),
+        drop_dashboard_after: c.drop_dashboard_after,
     }
 }
 
