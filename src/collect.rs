@@ -39,10 +39,16 @@ pub enum CollectError {
     Dataset(#[from] DatasetError),
     #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
     RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
-    #[error("plan pose {pose_id} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}")]
+    #[error("plan pose {} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", pose_label(*pose_id))]
     Unreachable { pose_id: u32, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
+}
+
+/// A pose id for messages: [`check_plan`] checks the no-contact reference pose under the id
+/// `u32::MAX`, which a user should not see.
+fn pose_label(pose_id: u32) -> String {
+    if pose_id == u32::MAX { "of the reference frame (plan origin)".to_string() } else { pose_id.to_string() }
 }
 
 /// One sensor of the job: where its frames come from and where they go.

@@ -20,13 +20,13 @@ use crate::pose::WorkFrame;
 /// Errors reading or validating the rig configuration.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read rig config {path}: {source}")]
+    #[error("cannot read rig config {path}")]
     Read {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("rig config {path} is not valid: {source}")]
+    #[error("rig config {path} is not valid")]
     Parse {
         path: PathBuf,
         #[source]

@@ -73,8 +73,10 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// Exit codes: 1 general failure, 2 bad input (usage, files, plans), 3 hardware or protocol
-/// fault, 4 interrupted.
+/// Exit codes: 1 general failure (including a full disk), 2 bad input (usage, config, plan,
+/// object, calibration, profile, model package and dataset files; a plan outside the
+/// workspace), 3 hardware or protocol fault (arm alarms and lost connections once retries are
+/// spent, camera failures), 4 interrupted. `docs/bad-input.md` lists each bad input.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     if let Some(code) = e.downcast_ref::<ExitStatus>() {
         return code.0;
@@ -98,6 +100,12 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         }
         if cause.downcast_ref::<crate::config::ConfigError>().is_some() {
             return 2;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::synth::SynthError>() {
+            use crate::synth::SynthError as S;
+            if matches!(e, S::MissingFiles { .. } | S::ModelToml { .. } | S::BadModelConfig { .. } | S::BadRequest { .. }) {
+                return 2;
+            }
         }
         if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
             use crate::rigs::RigError as R;
