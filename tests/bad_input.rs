@@ -51,7 +51,10 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();
     let write = |name: &str, text: &[u8]| std::fs::write(dir.join(name), text).expect("writing a fixture");
-    write("garbage.stl", b"solid x\nfacet normal 0 0 1\n  outer loop\n    vertex 0 0 nan\nendsolid\n");
+    write(
+        "garbage.stl",
+        b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 nan\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n",
+    );
     write("truncated.stl", &[0u8; 90]);
     write("syntax.toml", b"[arm\nbackend = sim\n");
     write("unknown-field.toml", b"[arm]\nspeed = 3\n");
@@ -84,7 +87,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("unknown sensor name", &["collect", "--sensor", "gelsight", "--dry-run"], 2, "unknown sensor"),
         case("unknown object name", &["collect", "--object", "teapot", "--dry-run"], 2, "unknown object"),
         case("missing STL file", &["collect", "--stl", "nope.stl", "--dry-run"], 2, "cannot read"),
-        case("STL with a NaN vertex", &["collect", "--stl", "garbage.stl", "--dry-run"], 2, "garbage"),
+        case("STL with a NaN vertex", &["collect", "--stl", "garbage.stl", "--dry-run"], 2, "STL"),
         case("truncated binary STL", &["collect", "--stl", "truncated.stl", "--dry-run"], 2, "truncated"),
         case("missing rig config", &["collect", "--config", "nope.toml", "--dry-run"], 2, "cannot read rig config"),
         case("rig config TOML syntax error", &["collect", "--config", "syntax.toml", "--dry-run"], 2, "is not valid"),
