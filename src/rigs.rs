@@ -81,7 +81,6 @@ pub struct ObjectChoice {
 impl ObjectChoice {
     /// A library object by name, or an STL file (whose stem becomes the name).
     pub fn resolve(name: &str, stl: Option<&Path>) -> Result<Self, RigError> {
-        let err = |reason: String| RigError::Object { name: name.to_string(), reason };
         let (name, path) = match stl {
             Some(p) => (
                 p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()),
@@ -95,6 +94,8 @@ impl ObjectChoice {
                 (name.to_string(), found)
             }
         };
+        // Named after the resolved object (an STL's stem), not the --object default.
+        let err = |reason: String| RigError::Object { name: name.clone(), reason };
         match path {
             Some(path) => {
                 let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
