@@ -140,10 +140,10 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         let above_origin = self.work_frame.approach_pose(&origin);
 
         // The no-contact reference frame, for every sensor that has none yet.
-        if self.sensors.iter().any(|s| !has_reference(&s.writer)) {
-            if let Err(e) = self.reference_frames(above_origin).await {
-                return Err(self.stop_after(above_origin, e).await);
-            }
+        if self.sensors.iter().any(|s| !has_reference(&s.writer))
+            && let Err(e) = self.reference_frames(above_origin).await
+        {
+            return Err(self.stop_after(above_origin, e).await);
         }
 
         for (k, planned) in todo.iter().enumerate() {

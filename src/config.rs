@@ -402,7 +402,7 @@ impl RigConfig {
                 height: s.height.unwrap_or(512),
             });
         }
-        let faults = resolve_faults(&raw.sim.faults, &path.to_path_buf())?;
+        let faults = resolve_faults(&raw.sim.faults, path)?;
         if !faults.is_empty() && !matches!(backend, ArmBackend::Simulated { .. }) {
             return Err(invalid("sim.faults", "only applies to the simulated arm (arm.backend = \"sim\")".into()));
         }
@@ -436,8 +436,8 @@ impl RigConfig {
 }
 
 /// Validates `[sim.faults]`.
-fn resolve_faults(raw: &RawFaults, path: &PathBuf) -> Result<FaultConfig, ConfigError> {
-    let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.clone(), field, problem };
+fn resolve_faults(raw: &RawFaults, path: &Path) -> Result<FaultConfig, ConfigError> {
+    let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.to_path_buf(), field, problem };
     if raw.feedback_garbage_every == Some(0) {
         return Err(invalid("sim.faults.feedback_garbage_every", "must be at least 1".into()));
     }
