@@ -39,6 +39,8 @@ pub enum CollectError {
     Dataset(#[from] DatasetError),
     #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
     RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
+    #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
+    CameraRetriesExhausted { pose_id: u32, attempts: u32, last: CameraError },
     #[error("plan pose {} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", pose_label(*pose_id))]
     Unreachable { pose_id: u32, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
@@ -180,6 +182,9 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
                     }
                     Err(CollectError::Arm(e)) if e.is_recoverable() => {
                         CollectError::RetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
+                    }
+                    Err(CollectError::Camera(e @ CameraError::Timeout { .. })) => {
+                        CollectError::CameraRetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
                     }
                     Err(e) => e,
                 };

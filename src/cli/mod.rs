@@ -93,7 +93,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
             use crate::collect::CollectError as C;
             match e {
-                C::RetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
+                C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
                 C::Unreachable { .. } | C::Mismatch { .. } => return 2,
                 C::Dataset(_) => {}
             }
