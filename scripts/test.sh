@@ -1,7 +1,16 @@
 #!/usr/bin/env bash
-# The test command: installs what the tests need, then runs the whole suite.
+# The test command: installs what the tests need, runs the whole suite, then smoke-runs every
+# fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
+#
+# The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
+# not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
+# (about 15 minutes cold on 2 shared cores, seconds once fuzz/target is warm).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
 export RIG_SHARED="${RIG_SHARED:-$(cd .. && pwd)/shared}"
 cargo test --all-targets --locked
+fuzz_seconds="${FUZZ_SECONDS:-5}"
+if [ "$fuzz_seconds" != 0 ]; then
+  ./scripts/fuzz-smoke.sh "$fuzz_seconds"
+fi

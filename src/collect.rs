@@ -5,8 +5,10 @@
 //! (Sync plus the feedback pose), waits the settle time, captures frames exposed after that
 //! instant from each sensor that still lacks the pose, writes image and row durably, and
 //! retracts. A no-contact reference frame is taken first. A recoverable arm fault (alarm,
-//! timeout, dropped socket) is cleared and the pose retried; a cancel request (Ctrl-C) retracts,
-//! disables the arm and leaves every dataset consistent for `--resume`.
+//! timeout, dropped socket) is cleared and the pose retried, and so is a camera timeout; a
+//! cancel request (Ctrl-C) retracts, disables the arm and leaves every dataset consistent for
+//! `--resume`. A fault that ends the run (retries spent, a dead camera, a full disk) also
+//! lifts the arm off the sensor and disables it before the error is returned.
 //!
 //! The job only sees the [`Arm`] and [`Camera`] traits: the same code drives the real and the
 //! simulated rig.
@@ -37,6 +39,8 @@ pub enum CollectError {
     Dataset(#[from] DatasetError),
     #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
     RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
+    #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
+    CameraRetriesExhausted { pose_id: u32, attempts: u32, last: CameraError },
     /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
     #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
     Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
@@ -66,7 +70,7 @@ pub struct CollectSummary {
     pub skipped: usize,
     /// Poses left when the run was interrupted.
     pub remaining: usize,
-    /// Arm faults cleared and retried.
+    /// Arm faults cleared and camera timeouts, each followed by a retry of the pose.
     pub recovered_faults: usize,
     pub interrupted: bool,
 }
@@ -141,13 +145,10 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         let above_origin = self.work_frame.approach_pose(&origin);
 
         // The no-contact reference frame, for every sensor that has none yet.
-        if self.sensors.iter().any(|s| !has_reference(&s.writer)) {
-            let arrival = self.go(above_origin, MoveKind::Joint).await?;
-            let not_before = arrival.t_s + self.options.settle_s;
-            for s in self.sensors.iter_mut().filter(|s| !has_reference(&s.writer)) {
-                let (image, _) = capture(&mut s.camera, not_before, &self.options).await?;
-                s.writer.write_reference(&image)?;
-            }
+        if self.sensors.iter().any(|s| !has_reference(&s.writer))
+            && let Err(e) = self.reference_frames(above_origin).await
+        {
+            return Err(self.stop_after(above_origin, e).await);
         }
 
         for (k, planned) in todo.iter().enumerate() {
@@ -159,22 +160,38 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
             let mut attempt = 0u32;
             loop {
                 attempt += 1;
-                match self.one_pose(planned).await {
+                let failure = match self.one_pose(planned).await {
                     Ok(()) => break,
                     Err(CollectError::Arm(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
                         warn!(pose_id = planned.pose_id, attempt, error = %e, "arm fault; clearing and retrying the pose");
                         self.progress.println(format!("pose {}: {e}; clearing and retrying", planned.pose_id));
-                        let alarms = self.arm.clear_error().await?;
-                        if !alarms.is_empty() {
-                            info!(?alarms, "cleared alarms");
+                        match self.arm.clear_error().await {
+                            Ok(alarms) if !alarms.is_empty() => info!(?alarms, "cleared alarms"),
+                            Ok(_) => {}
+                            Err(e) => return Err(self.stop_after(above_origin, e.into()).await),
                         }
                         summary.recovered_faults += 1;
+                        continue;
+                    }
+                    // A frame that did not come is retried like an arm fault: a camera that
+                    // stalls once (USB hiccup) must not end a long collection.
+                    Err(CollectError::Camera(e @ CameraError::Timeout { .. }))
+                        if attempt <= self.options.retries_per_pose =>
+                    {
+                        warn!(pose_id = planned.pose_id, attempt, error = %e, "camera timeout; retrying the pose");
+                        self.progress.println(format!("pose {}: {e}; retrying", planned.pose_id));
+                        summary.recovered_faults += 1;
+                        continue;
                     }
                     Err(CollectError::Arm(e)) if e.is_recoverable() => {
-                        return Err(CollectError::RetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e });
+                        CollectError::RetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
                     }
-                    Err(e) => return Err(e),
-                }
+                    Err(CollectError::Camera(e @ CameraError::Timeout { .. })) => {
+                        CollectError::CameraRetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
+                    }
+                    Err(e) => e,
+                };
+                return Err(self.stop_after(above_origin, failure).await);
             }
             summary.captured += 1;
             self.progress.inc(1);
@@ -197,6 +214,36 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         end?;
         info!(?summary, "collection finished");
         Ok(summary)
+    }
+
+    /// Captures the no-contact reference frame of every sensor that has none yet.
+    async fn reference_frames(&mut self, above_origin: Pose) -> Result<(), CollectError> {
+        let arrival = self.go(above_origin, MoveKind::Joint).await?;
+        let not_before = arrival.t_s + self.options.settle_s;
+        for s in self.sensors.iter_mut().filter(|s| !has_reference(&s.writer)) {
+            let (image, _) = capture(&mut s.camera, not_before, &self.options).await?;
+            s.writer.write_reference(&image)?;
+        }
+        Ok(())
+    }
+
+    /// Leaves the arm safe after a fault that ends the run: lifts it off the sensor (the
+    /// pose may have stopped in contact) and disables it. Best effort, since the arm may be
+    /// what failed; returns `error` for the caller to report. Every row written is already
+    /// durable, so the datasets resume as they are.
+    async fn stop_after(&mut self, above_origin: Pose, error: CollectError) -> CollectError {
+        warn!(error = %error, "stopping the collection: retracting and disabling the arm");
+        if let Err(e) = self.arm.clear_error().await {
+            warn!(error = %e, "could not clear the arm's error state");
+        }
+        if let Err(e) = self.go(above_origin, MoveKind::Linear).await {
+            warn!(error = %e, "could not retract after the fault");
+        }
+        if let Err(e) = self.arm.disable().await {
+            warn!(error = %e, "could not disable the arm after the fault");
+        }
+        self.progress.finish_and_clear();
+        error
     }
 
     /// Approach, descend, settle, capture, write, retract: one pose.

@@ -5,6 +5,11 @@
 //! rig runs on the built-in simulated rig ([`ArmBackend::Simulated`], simulated sensors).
 //!
 //! Lookup order: `--config FILE`, then `$RIG_CONFIG`, then `./rig.toml`.
+//!
+//! `[sim.faults]` (simulated rig only) injects faults into a run, for the fault matrix
+//! (`tests/fault_matrix.rs`) and for trying recovery by hand: controller reply delays and
+//! split replies, feedback garbage, alarms at chosen moves, dropped sockets, camera timeouts
+//! and a full disk (a byte budget the dataset writer honours). See [`FaultConfig`].
 
 use std::path::{Path, PathBuf};
 
@@ -15,13 +20,13 @@ use crate::pose::WorkFrame;
 /// Errors reading or validating the rig configuration.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read rig config {path}: {source}")]
+    #[error("cannot read rig config {path}")]
     Read {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("rig config {path} is not valid: {source}")]
+    #[error("rig config {path} is not valid")]
     Parse {
         path: PathBuf,
         #[source]
@@ -76,10 +81,46 @@ pub struct RawSensor {
     pub height: Option<u32>,
 }
 
+/// `[sim]` as written in the file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSim {
+    #[serde(default)]
+    pub faults: RawFaults,
+}
+
+/// `[sim.faults]` as written in the file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawFaults {
+    /// Real time the simulated controller waits before each dashboard/motion reply, ms.
+    pub reply_delay_ms: Option<u64>,
+    /// Send every controller reply in two writes.
+    pub split_replies: Option<bool>,
+    /// Garbage bytes before every n-th feedback frame.
+    pub feedback_garbage_every: Option<u32>,
+    /// Each feedback connection starts with the tail of a frame.
+    pub feedback_start_mid_frame: Option<bool>,
+    /// Moves (1-based, counted from the start of the run) that end in a collision alarm.
+    pub collision_at_moves: Option<Vec<u64>>,
+    /// The dashboard connection is closed, unanswered, at its command n + 1.
+    pub drop_dashboard_after: Option<u64>,
+    /// Close every open controller socket (dashboard, motion, feedback) this often, rig-clock s.
+    pub drop_sockets_every_s: Option<f64>,
+    /// Camera frame requests (1-based, per camera, counted from the start) that time out.
+    pub camera_timeout_at_frames: Option<Vec<u64>>,
+    /// How long a timing-out frame request waits before failing, real ms.
+    pub camera_timeout_ms: Option<u64>,
+    /// Bytes each dataset writer may write in this run before the disk is "full" (ENOSPC).
+    pub disk_budget_bytes: Option<u64>,
+}
+
 /// The whole file.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawConfig {
+    #[serde(default)]
+    pub sim: RawSim,
     #[serde(default)]
     pub arm: RawArm,
     pub work_frame: Option<WorkFrame>,
@@ -141,6 +182,79 @@ pub enum SensorBackend {
     Nokhwa { device: String },
 }
 
+/// The validated `[sim.faults]` section: faults injected into a simulated run. The default
+/// injects nothing.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FaultConfig {
+    /// The simulated controller's own switches (the fields of `sim::mg400::SimFaults`,
+    /// which `rigs` hands it; kept here so the config reader needs nothing of the simulator).
+    pub controller: ControllerFaults,
+    /// Close every controller socket this often, rig-clock seconds.
+    pub drop_sockets_every_s: Option<f64>,
+    /// Per-camera frame requests (1-based) that fail with a timeout.
+    pub camera_timeout_at_frames: Vec<u64>,
+    /// Real time a failing frame request waits before it reports the timeout.
+    pub camera_timeout: std::time::Duration,
+    /// Byte budget of each dataset writer (a full disk once spent).
+    pub disk_budget_bytes: Option<u64>,
+}
+
+/// Faults the simulated MG400 controller injects itself.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControllerFaults {
+    pub reply_delay: std::time::Duration,
+    pub split_replies: bool,
+    pub feedback_garbage_every: Option<u32>,
+    pub feedback_start_mid_frame: bool,
+    pub collision_at_moves: Vec<u64>,
+    pub drop_dashboard_after: Option<u64>,
+}
+
+impl FaultConfig {
+    /// The faults switched on, as `name=value` pairs named like the config keys.
+    pub fn describe(&self) -> String {
+        let c = &self.controller;
+        let mut parts = Vec::new();
+        if !c.reply_delay.is_zero() {
+            parts.push(format!("reply_delay_ms={}", c.reply_delay.as_millis()));
+        }
+        if c.split_replies {
+            parts.push("split_replies".to_string());
+        }
+        if let Some(n) = c.feedback_garbage_every {
+            parts.push(format!("feedback_garbage_every={n}"));
+        }
+        if c.feedback_start_mid_frame {
+            parts.push("feedback_start_mid_frame".to_string());
+        }
+        if !c.collision_at_moves.is_empty() {
+            parts.push(format!("collision_at_moves={:?}", c.collision_at_moves));
+        }
+        if let Some(n) = c.drop_dashboard_after {
+            parts.push(format!("drop_dashboard_after={n}"));
+        }
+        if let Some(s) = self.drop_sockets_every_s {
+            parts.push(format!("drop_sockets_every_s={s}"));
+        }
+        if !self.camera_timeout_at_frames.is_empty() {
+            parts.push(format!(
+                "camera_timeout_at_frames={:?} ({} ms each)",
+                self.camera_timeout_at_frames,
+                self.camera_timeout.as_millis()
+            ));
+        }
+        if let Some(b) = self.disk_budget_bytes {
+            parts.push(format!("disk_budget_bytes={b}"));
+        }
+        parts.join(", ")
+    }
+
+    /// True when no fault is switched on.
+    pub fn is_empty(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
 /// The resolved configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RigConfig {
@@ -151,6 +265,8 @@ pub struct RigConfig {
     pub collect: CollectConfig,
     /// Configured sensors by name; empty means "the three simulated sensors".
     pub sensors: Vec<SensorConfig>,
+    /// Injected faults (simulated rig only).
+    pub faults: FaultConfig,
 }
 
 /// Default time scale of the built-in simulated rig.
@@ -169,6 +285,7 @@ impl RigConfig {
             work_frame: WorkFrame::default(),
             collect: CollectConfig::default(),
             sensors: Vec::new(),
+            faults: FaultConfig::default(),
         }
     }
 
@@ -285,17 +402,27 @@ impl RigConfig {
                 height: s.height.unwrap_or(512),
             });
         }
+        let faults = resolve_faults(&raw.sim.faults, path)?;
+        if !faults.is_empty() && !matches!(backend, ArmBackend::Simulated { .. }) {
+            return Err(invalid("sim.faults", "only applies to the simulated arm (arm.backend = \"sim\")".into()));
+        }
         Ok(Self {
             source: Some(path.to_path_buf()),
             arm: ArmConfig { backend, profile: raw.arm.profile, speed_factor },
             work_frame,
             collect,
             sensors,
+            faults,
         })
     }
 
     /// One line saying what rig will drive, printed first by commands that move hardware.
     pub fn describe(&self) -> String {
+        let rig = self.describe_rig();
+        if self.faults.is_empty() { rig } else { format!("{rig}; injecting faults: {}", self.faults.describe()) }
+    }
+
+    fn describe_rig(&self) -> String {
         match (&self.source, &self.arm.backend) {
             (None, _) => "no rig config found (--config, $RIG_CONFIG, ./rig.toml): using the built-in simulated rig (simulated MG400 over TCP on loopback, simulated sensors)".to_string(),
             (Some(p), ArmBackend::Simulated { time_scale }) => {
@@ -306,6 +433,55 @@ impl RigConfig {
             }
         }
     }
+}
+
+/// Validates `[sim.faults]`.
+fn resolve_faults(raw: &RawFaults, path: &Path) -> Result<FaultConfig, ConfigError> {
+    let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.to_path_buf(), field, problem };
+    if raw.feedback_garbage_every == Some(0) {
+        return Err(invalid("sim.faults.feedback_garbage_every", "must be at least 1".into()));
+    }
+    let moves = raw.collision_at_moves.clone().unwrap_or_default();
+    if moves.contains(&0) {
+        return Err(invalid("sim.faults.collision_at_moves", "counts moves from 1".into()));
+    }
+    let frames = raw.camera_timeout_at_frames.clone().unwrap_or_default();
+    if frames.contains(&0) {
+        return Err(invalid("sim.faults.camera_timeout_at_frames", "counts frames from 1".into()));
+    }
+    if let Some(every_s) = raw.drop_sockets_every_s
+        && !(every_s.is_finite() && every_s > 0.0)
+    {
+        return Err(invalid("sim.faults.drop_sockets_every_s", format!("must be above 0 s, got {every_s}")));
+    }
+    // A delay past the client's reply timeout would turn every command into a timeout.
+    let reply_delay_ms = raw.reply_delay_ms.unwrap_or(0);
+    if reply_delay_ms > 10_000 {
+        return Err(invalid("sim.faults.reply_delay_ms", format!("must be at most 10000 ms, got {reply_delay_ms}")));
+    }
+    let camera_timeout_ms = raw.camera_timeout_ms.unwrap_or(100);
+    if camera_timeout_ms > 60_000 {
+        return Err(invalid("sim.faults.camera_timeout_ms", format!("must be at most 60000 ms, got {camera_timeout_ms}")));
+    }
+    let mut faults = FaultConfig {
+        controller: ControllerFaults {
+            reply_delay: std::time::Duration::from_millis(reply_delay_ms),
+            split_replies: raw.split_replies.unwrap_or(false),
+            feedback_garbage_every: raw.feedback_garbage_every,
+            feedback_start_mid_frame: raw.feedback_start_mid_frame.unwrap_or(false),
+            collision_at_moves: moves,
+            drop_dashboard_after: raw.drop_dashboard_after,
+        },
+        drop_sockets_every_s: raw.drop_sockets_every_s,
+        camera_timeout_at_frames: frames,
+        camera_timeout: std::time::Duration::from_millis(camera_timeout_ms),
+        disk_budget_bytes: raw.disk_budget_bytes,
+    };
+    // The timeout length alone injects nothing; keep `is_empty` about real faults.
+    if faults.camera_timeout_at_frames.is_empty() {
+        faults.camera_timeout = FaultConfig::default().camera_timeout;
+    }
+    Ok(faults)
 }
 
 #[cfg(test)]
@@ -335,6 +511,28 @@ mod tests {
         assert!(e.to_string().contains("frames_per_pose"));
         let e = RigConfig::parse("[arm]\nspeed_factor = 0\n", Path::new("x")).unwrap_err();
         assert!(e.to_string().contains("speed_factor"));
+    }
+
+    #[test]
+    fn sim_faults_are_read_and_checked() {
+        let c = RigConfig::parse(
+            "[sim.faults]\nsplit_replies = true\ncollision_at_moves = [3, 8]\ncamera_timeout_at_frames = [2]\ndisk_budget_bytes = 4096\n",
+            Path::new("x"),
+        )
+        .unwrap();
+        assert!(c.faults.controller.split_replies);
+        assert_eq!(c.faults.controller.collision_at_moves, vec![3, 8]);
+        assert_eq!(c.faults.camera_timeout_at_frames, vec![2]);
+        assert_eq!(c.faults.disk_budget_bytes, Some(4096));
+        assert!(RigConfig::parse("", Path::new("x")).unwrap().faults.is_empty());
+        let e = RigConfig::parse("[sim.faults]\ncollision_at_moves = [0]\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("collision_at_moves"), "{e}");
+        let e = RigConfig::parse(
+            "[arm]\nbackend = \"mg400\"\nhost = \"h\"\n[sim.faults]\nsplit_replies = true\n",
+            Path::new("x"),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("simulated arm"), "{e}");
     }
 
     #[test]

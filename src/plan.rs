@@ -214,13 +214,13 @@ pub enum PlanError {
     CountWithFull { n_poses: usize },
     #[error("plan asks for 0 poses")]
     ZeroPoses,
-    #[error("cannot read plan {path}: {source}")]
+    #[error("cannot read plan {path}")]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("plan {path} is not a valid plan: {source}")]
+    #[error("plan {path} is not a valid plan")]
     Parse {
         path: PathBuf,
         #[source]

@@ -4,6 +4,11 @@
 //! simulated MG400 in-process on loopback (real TCP, real protocol) and connects the real
 //! client to it, and builds simulated sensors that read the simulated arm's true pose. The
 //! collection job never knows which it got.
+//!
+//! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
+//! simulator gets its controller switches, a task closes its sockets periodically, and each
+//! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
+//! so the job and the client see exactly what a flaky bench would show them.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -15,11 +20,11 @@ use crate::arm::profile::FirmwareProfile;
 use crate::calibration::Calibration;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
-use crate::config::{ArmBackend, RigConfig, SensorBackend};
+use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
-use crate::sim::mg400::{SimMg400, SimMg400Config};
+use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
 
 /// Errors assembling the rig.
@@ -76,7 +81,6 @@ pub struct ObjectChoice {
 impl ObjectChoice {
     /// A library object by name, or an STL file (whose stem becomes the name).
     pub fn resolve(name: &str, stl: Option<&Path>) -> Result<Self, RigError> {
-        let err = |reason: String| RigError::Object { name: name.to_string(), reason };
         let (name, path) = match stl {
             Some(p) => (
                 p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()),
@@ -90,6 +94,8 @@ impl ObjectChoice {
                 (name.to_string(), found)
             }
         };
+        // Named after the resolved object (an STL's stem), not the --object default.
+        let err = |reason: String| RigError::Object { name: name.clone(), reason };
         match path {
             Some(path) => {
                 let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
@@ -145,7 +151,31 @@ pub fn pose_cost_s(profile: &FirmwareProfile, work_frame: &WorkFrame, a: &Pose, 
 
 /// A camera of any backend this build supports.
 pub enum RigCamera {
-    Simulated { kind: SensorKind, camera: SimCamera, calibration: String },
+    Simulated { kind: SensorKind, camera: SimCamera, calibration: String, timeouts: InjectedTimeouts },
+}
+
+/// Frame requests a simulated camera fails on purpose (`[sim.faults] camera_timeout_at_frames`).
+#[derive(Debug, Clone, Default)]
+pub struct InjectedTimeouts {
+    /// 1-based frame requests that time out.
+    pub at_requests: Vec<u64>,
+    /// Real time a failing request waits before it reports the timeout, as a stalled
+    /// camera would.
+    pub wait: std::time::Duration,
+    /// Frame requests so far.
+    pub requests: u64,
+}
+
+impl InjectedTimeouts {
+    fn from_faults(faults: &FaultConfig) -> Self {
+        Self { at_requests: faults.camera_timeout_at_frames.clone(), wait: faults.camera_timeout, requests: 0 }
+    }
+
+    /// Counts a request; true when this one must time out.
+    fn next_fails(&mut self) -> bool {
+        self.requests += 1;
+        self.at_requests.contains(&self.requests)
+    }
 }
 
 impl RigCamera {
@@ -171,7 +201,16 @@ impl Camera for RigCamera {
     }
     async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
         match self {
-            RigCamera::Simulated { camera, .. } => camera.frame_after(not_before_s).await,
+            RigCamera::Simulated { camera, timeouts, .. } => {
+                if timeouts.next_fails() {
+                    tokio::time::sleep(timeouts.wait).await;
+                    return Err(CameraError::Timeout {
+                        camera: camera.name().to_string(),
+                        timeout_ms: timeouts.wait.as_millis() as u64,
+                    });
+                }
+                camera.frame_after(not_before_s).await
+            }
         }
     }
 }
@@ -181,6 +220,8 @@ pub struct Rig {
     pub arm: Mg400Client,
     pub cameras: Vec<RigCamera>,
     sim: Option<SimMg400>,
+    /// The task closing the simulator's sockets (`[sim.faults] drop_sockets_every_s`).
+    socket_dropper: Option<tokio::task::JoinHandle<()>>,
 }
 
 impl Rig {
@@ -208,7 +249,11 @@ impl Rig {
         let profile = profile_for(config)?;
         let (arm_cfg, sim) = match &config.arm.backend {
             ArmBackend::Simulated { .. } => {
-                let sim_cfg = SimMg400Config { profile: profile.clone(), ..SimMg400Config::default() };
+                let sim_cfg = SimMg400Config {
+                    profile: profile.clone(),
+                    faults: sim_faults(&config.faults),
+                    ..SimMg400Config::default()
+                };
                 let sim = SimMg400::start(sim_cfg, Arc::clone(&clock)).await.map_err(RigError::Sim)?;
                 let cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), profile.clone()).with_ports(
                     sim.dashboard_addr().port(),
@@ -226,6 +271,22 @@ impl Rig {
         let arm = match recorder {
             Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(&clock), recorder).await?,
             None => Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?,
+        };
+        let socket_dropper = match (&sim, config.faults.drop_sockets_every_s) {
+            (Some(sim), Some(every_s)) => {
+                let dropper = sim.connection_dropper();
+                let period = clock.real_duration(std::time::Duration::from_secs_f64(every_s));
+                Some(tokio::spawn(async move {
+                    loop {
+                        tokio::time::sleep(period).await;
+                        tracing::info!("fault injection: closing the simulated MG400's sockets");
+                        for port in [SimPort::Dashboard, SimPort::Motion, SimPort::Feedback] {
+                            dropper.drop_connections(port);
+                        }
+                    }
+                }))
+            }
+            _ => None,
         };
 
         let mut cameras = Vec::new();
@@ -269,7 +330,12 @@ impl Rig {
                         Arc::clone(&clock),
                         1.0 / 30.0,
                     );
-                    cameras.push(RigCamera::Simulated { kind: *kind, camera, calibration: calib_name });
+                    cameras.push(RigCamera::Simulated {
+                        kind: *kind,
+                        camera,
+                        calibration: calib_name,
+                        timeouts: InjectedTimeouts::from_faults(&config.faults),
+                    });
                 }
                 SensorBackend::V4l2 { .. } => {
                     return Err(RigError::BackendUnavailable { name: kind.to_string(), backend: "v4l2".into() });
@@ -279,18 +345,35 @@ impl Rig {
                 }
             }
         }
-        Ok(Self { arm, cameras, sim })
+        Ok(Self { arm, cameras, sim, socket_dropper })
     }
 
     /// Stops the in-process simulator, if any.
     pub async fn shutdown(self) {
-        let Rig { arm, cameras, sim } = self;
+        let Rig { arm, cameras, sim, socket_dropper } = self;
+        if let Some(task) = socket_dropper {
+            task.abort();
+        }
         // Close the client first, so it does not try to reconnect to a simulator going away.
         drop(arm);
         drop(cameras);
         if let Some(sim) = sim {
             sim.shutdown().await;
         }
+    }
+}
+
+/// The simulator's switches for the configured faults.
+fn sim_faults(faults: &FaultConfig) -> SimFaults {
+    let c = &faults.controller;
+    SimFaults {
+        reply_delay: c.reply_delay,
+        split_replies: c.split_replies,
+        feedback_garbage_every: c.feedback_garbage_every,
+        feedback_start_mid_frame: c.feedback_start_mid_frame,
+        collision_at_move: None,
+        collision_at_moves: c.collision_at_moves.clone(),
+        drop_dashboard_after: c.drop_dashboard_after,
     }
 }
 

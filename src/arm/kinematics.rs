@@ -68,7 +68,15 @@ pub enum KinematicsError {
     NonFinite,
     #[error("wrist point is {distance_mm:.1} mm from J2, beyond the arm's reach of {reach_mm:.1} mm")]
     OutOfReach { distance_mm: f64, reach_mm: f64 },
+    /// The wrist point sits on J2 itself (the two equal links folded onto each other): every
+    /// J2 reaches it, so the pose names no joint angles.
+    #[error("wrist point is {distance_mm:.2e} mm from J2: the folded, singular configuration has no unique solution")]
+    Singular { distance_mm: f64 },
 }
+
+/// Wrist-to-J2 distances below this are the folded singularity (the law of cosines divides by
+/// the distance, giving 0/0 = NaN at exactly zero).
+const SINGULAR_DISTANCE_MM: f64 = 1e-6;
 
 impl Mg400Geometry {
     /// Tool pose of the given joint angles.
@@ -93,6 +101,9 @@ impl Mg400Geometry {
         let (l2, l3) = (self.link2_mm, self.link3_mm);
         if d > l2 + l3 || d < (l2 - l3).abs() {
             return Err(KinematicsError::OutOfReach { distance_mm: d, reach_mm: l2 + l3 });
+        }
+        if d < SINGULAR_DISTANCE_MM {
+            return Err(KinematicsError::Singular { distance_mm: d });
         }
         // Angle of the wrist point from the horizontal, and the angles the two links make with
         // that line (law of cosines).
@@ -126,6 +137,9 @@ mod tests {
         assert!((j.j3_deg - 32.63).abs() < 0.05, "{j:?}");
         assert!(matches!(g.inverse(&Pose::new(800.0, 0.0, 0.0, 0.0)), Err(KinematicsError::OutOfReach { .. })));
         assert_eq!(g.inverse(&Pose::new(f64::NAN, 0.0, 0.0, 0.0)), Err(KinematicsError::NonFinite));
+        // The folded arm: wrist point exactly on J2 (gave NaN joints before the check).
+        let folded = Pose::new(g.r_offset_mm, 0.0, g.z_offset_mm, 0.0);
+        assert!(matches!(g.inverse(&folded), Err(KinematicsError::Singular { .. })));
     }
 
     proptest! {

@@ -124,7 +124,8 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         } else {
             DatasetWriter::create(&dir, manifest)
         }
-        .with_context(|| format!("opening dataset {}", dir.display()))?;
+        .with_context(|| format!("opening dataset {}", dir.display()))?
+        .with_byte_budget(config.faults.disk_budget_bytes);
         let index = u8::try_from(index).context("more than 256 sensors")?;
         streams.push(SensorStream { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), writer });
     }
@@ -166,7 +167,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         bail!(crate::cli::ExitStatus(4));
     }
     println!(
-        "collected {} poses ({} already present, {} arm faults recovered) into {}",
+        "collected {} poses ({} already present, {} arm or camera faults recovered) into {}",
         summary.captured,
         summary.skipped,
         summary.recovered_faults,

@@ -90,8 +90,10 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// Exit codes: 1 general failure, 2 bad input (usage, files, plans), 3 hardware or protocol
-/// fault, 4 interrupted.
+/// Exit codes: 1 general failure (including a full disk), 2 bad input (usage, config, plan,
+/// object, calibration, profile, model package and dataset files; a plan outside the
+/// workspace), 3 hardware or protocol fault (arm alarms and lost connections once retries are
+/// spent, camera failures), 4 interrupted. `docs/bad-input.md` lists each bad input.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     if let Some(code) = e.downcast_ref::<ExitStatus>() {
         return code.0;
@@ -102,15 +104,48 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         return 2;
     }
     for cause in e.chain() {
-        if cause.downcast_ref::<crate::arm::ArmError>().is_some() {
+        if cause.downcast_ref::<crate::arm::ArmError>().is_some()
+            || cause.downcast_ref::<crate::camera::CameraError>().is_some()
+        {
             return 3;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
+            use crate::collect::CollectError as C;
+            match e {
+                C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
+                C::Unreachable { .. } | C::Mismatch { .. } => return 2,
+                C::Dataset(_) => {}
+            }
+        }
+        if cause.downcast_ref::<crate::config::ConfigError>().is_some() {
+            return 2;
+        }
+        if let Some(e) = cause.downcast_ref::<crate::synth::SynthError>() {
+            use crate::synth::SynthError as S;
+            if matches!(e, S::MissingFiles { .. } | S::ModelToml { .. } | S::BadModelConfig { .. } | S::BadRequest { .. }) {
+                return 2;
+            }
+        }
+        if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
+            use crate::rigs::RigError as R;
+            if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
+                return 2;
+            }
         }
         if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
             return 2;
         }
         if let Some(e) = cause.downcast_ref::<crate::dataset::DatasetError>() {
             use crate::dataset::DatasetError as D;
-            if matches!(e, D::NotEmpty { .. } | D::NotADataset { .. } | D::ManifestMismatch { .. } | D::MalformedMds { .. }) {
+            if matches!(
+                e,
+                D::NotEmpty { .. }
+                    | D::NotADataset { .. }
+                    | D::ManifestMismatch { .. }
+                    | D::MalformedMds { .. }
+                    | D::BadHeader { .. }
+                    | D::ManifestParse { .. }
+            ) {
                 return 2;
             }
         }

@@ -120,6 +120,7 @@ pub fn sim_config(args: &Args) -> anyhow::Result<SimMg400Config> {
             feedback_garbage_every: args.feedback_garbage_every,
             feedback_start_mid_frame: args.feedback_start_mid_frame,
             collision_at_move: args.collision_at_move,
+            collision_at_moves: Vec::new(),
             drop_dashboard_after: args.drop_dashboard_after,
         },
         profile,

@@ -221,6 +221,17 @@ pub enum DatasetError {
         #[source]
         source: std::io::Error,
     },
+    /// The disk (or the injected byte budget) is full. Nothing durable was lost: the writer
+    /// only ever lands whole images before their rows.
+    #[error(
+        "disk full while {op} {path} (everything written before is intact: free some space, then run the same command again with --resume)"
+    )]
+    DiskFull {
+        op: &'static str,
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{dir} already holds a dataset (or other files); refusing to overwrite it. Use --resume to continue it")]
     NotEmpty { dir: PathBuf },
     #[error("{dir} is not a dataset: {missing} is missing")]
@@ -274,7 +285,14 @@ pub enum DatasetError {
 impl DatasetError {
     pub(crate) fn io(op: &'static str, path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
         let path = path.into();
-        move |source| DatasetError::Io { op, path, source }
+        move |source| {
+            // ENOSPC and EDQUOT: say what to do, not only what failed.
+            if source.kind() == std::io::ErrorKind::StorageFull || source.kind() == std::io::ErrorKind::QuotaExceeded {
+                DatasetError::DiskFull { op, path, source }
+            } else {
+                DatasetError::Io { op, path, source }
+            }
+        }
     }
 }
 

@@ -39,6 +39,9 @@ pub struct DatasetWriter {
     /// Length of `poses.csv` after the last complete line, to undo a failed partial append.
     csv_len: u64,
     done: BTreeSet<u32>,
+    /// Bytes this writer may still write before it reports a full disk (fault injection:
+    /// `[sim.faults] disk_budget_bytes`); `None` = only the real disk's limit.
+    budget_left_bytes: Option<u64>,
 }
 
 impl DatasetWriter {
@@ -158,7 +161,29 @@ impl DatasetWriter {
             manifest.store(dir)?;
         }
         let csv_len = csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len();
-        Ok(Self { dir: dir.to_path_buf(), manifest, csv, csv_len, done })
+        Ok(Self { dir: dir.to_path_buf(), manifest, csv, csv_len, done, budget_left_bytes: None })
+    }
+
+    /// Limits the bytes of images and rows this writer may write; past it every write fails
+    /// as a full disk would (`ENOSPC`), before anything of that write lands. Simulates a full
+    /// disk without a size-limited filesystem.
+    pub fn with_byte_budget(mut self, budget_bytes: Option<u64>) -> Self {
+        self.budget_left_bytes = budget_bytes;
+        self
+    }
+
+    /// Takes `bytes` from the budget, or fails with the error a full disk gives.
+    fn spend(&mut self, bytes: u64, path: &Path) -> Result<(), DatasetError> {
+        match self.budget_left_bytes {
+            Some(left) if bytes > left => {
+                Err(DatasetError::io("writing", path)(std::io::Error::from_raw_os_error(libc::ENOSPC)))
+            }
+            Some(left) => {
+                self.budget_left_bytes = Some(left - bytes);
+                Ok(())
+            }
+            None => Ok(()),
+        }
     }
 
     /// The dataset directory.
@@ -179,6 +204,7 @@ impl DatasetWriter {
     /// Writes (or replaces) `reference.png` atomically.
     pub fn write_reference(&mut self, image: &RgbImage) -> Result<(), DatasetError> {
         let png = encode_png(image, u32::MAX)?;
+        self.spend(png.len() as u64, &self.dir.join(REFERENCE_FILE))?;
         write_atomic(&self.dir, REFERENCE_FILE, &png)
     }
 
@@ -208,6 +234,7 @@ impl DatasetWriter {
         }
 
         let images = self.dir.join(IMAGES_DIR);
+        self.spend((png.len() + line.len()) as u64, &images.join(format!("{pose_id}.png")))?;
         write_atomic(&images, &format!("{pose_id}.png"), png)?;
 
         let csv_path = self.dir.join(POSES_FILE);
@@ -221,7 +248,7 @@ impl DatasetWriter {
         if let Err(e) = result {
             // Undo a partial line so later appends do not glue onto it.
             let _ = self.csv.set_len(self.csv_len);
-            return Err(DatasetError::Io { op: "appending to", path: csv_path, source: e });
+            return Err(DatasetError::io("appending to", csv_path)(e));
         }
         self.csv_len += line.len() as u64;
         self.done.insert(pose_id);
@@ -354,6 +381,33 @@ mod tests {
 
     fn row(id: u32) -> PoseRow {
         PoseRow::real(id, Pose::new(id as f64, 0.0, 0.0, 0.0), Pose::new(id as f64 + 0.01, 0.0, 0.0, 0.0), id as f64)
+    }
+
+    #[test]
+    fn a_spent_byte_budget_is_a_full_disk_and_the_dataset_resumes() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let one = encode_png(&img(1), 1).unwrap().len() as u64 + row_line(&row(1)).unwrap().len() as u64;
+        // Room for two poses and a part of a third.
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap().with_byte_budget(Some(2 * one + one / 2));
+        w.append(row(1), &img(1)).unwrap();
+        w.append(row(2), &img(2)).unwrap();
+        let e = w.append(row(3), &img(3)).unwrap_err();
+        assert!(matches!(&e, DatasetError::DiskFull { source, .. } if source.raw_os_error() == Some(libc::ENOSPC)), "{e}");
+        assert!(e.to_string().contains("--resume"), "{e}");
+        drop(w);
+        let mut w = DatasetWriter::resume(&dir, manifest()).unwrap();
+        assert_eq!(w.done_ids().iter().copied().collect::<Vec<_>>(), vec![1, 2]);
+        w.append(row(3), &img(3)).unwrap();
+        assert_eq!(crate::dataset::read_rows(&dir).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn enospc_from_the_os_is_a_disk_full_error() {
+        let e = DatasetError::io("writing", "x")(std::io::Error::from_raw_os_error(libc::ENOSPC));
+        assert!(matches!(e, DatasetError::DiskFull { .. }), "{e}");
+        let e = DatasetError::io("writing", "x")(std::io::Error::from_raw_os_error(libc::EACCES));
+        assert!(matches!(e, DatasetError::Io { .. }), "{e}");
     }
 
     #[test]

@@ -70,6 +70,9 @@ pub struct SimFaults {
     pub feedback_start_mid_frame: bool,
     /// The k-th move executed (1-based, counted since start) ends halfway in a collision alarm.
     pub collision_at_move: Option<u64>,
+    /// More moves (1-based, counted since start) that end halfway in a collision alarm, so a
+    /// fault matrix can place alarms at several (seeded random) moves of one run.
+    pub collision_at_moves: Vec<u64>,
     /// Close each dashboard connection, unanswered, when it delivers command n + 1.
     pub drop_dashboard_after: Option<u64>,
 }
@@ -206,6 +209,7 @@ pub struct Controller {
     freeze_queue_depth: usize,
     stats: SimStats,
     collision_at_move: Option<u64>,
+    collision_at_moves: Vec<u64>,
 }
 
 /// What a request asks of the connection handler.
@@ -241,6 +245,7 @@ impl Controller {
             freeze_queue_depth,
             stats: SimStats::default(),
             collision_at_move: None,
+            collision_at_moves: Vec::new(),
         })
     }
 
@@ -532,7 +537,8 @@ impl Controller {
         }
         let Some(motion) = self.queue.pop_front() else { return false };
         self.stats.moves_started += 1;
-        let collides = self.collision_at_move == Some(self.stats.moves_started);
+        let collides = self.collision_at_move == Some(self.stats.moves_started)
+            || self.collision_at_moves.contains(&self.stats.moves_started);
         let linear = matches!(motion, Motion::Linear(_));
         let target = match motion {
             Motion::Joint(p) | Motion::Linear(p) => self.profile.reach(&p).map(|j| (j, p)),
@@ -711,6 +717,7 @@ impl SimMg400 {
         let mut controller =
             Controller::new(cfg.profile.clone(), start_pose, cfg.freeze_queue_depth).map_err(unreachable)?;
         controller.collision_at_move = cfg.faults.collision_at_move;
+        controller.collision_at_moves = cfg.faults.collision_at_moves.clone();
         controller.last_t_s = clock.now_s();
         let dashboard = TcpListener::bind((cfg.bind, cfg.dashboard_port)).await?;
         let motion = TcpListener::bind((cfg.bind, cfg.motion_port)).await?;
@@ -770,7 +777,11 @@ impl SimMg400 {
 
     /// Replaces the fault-injection switches; takes effect on the next request, frame or move.
     pub fn set_faults(&self, faults: SimFaults) {
-        self.shared.controller().collision_at_move = faults.collision_at_move;
+        {
+            let mut controller = self.shared.controller();
+            controller.collision_at_move = faults.collision_at_move;
+            controller.collision_at_moves = faults.collision_at_moves.clone();
+        }
         *self.shared.faults.lock().unwrap_or_else(|e| e.into_inner()) = faults;
     }
 
@@ -782,6 +793,12 @@ impl SimMg400 {
     /// Closes every open connection of `port` (new connections are still accepted).
     pub fn drop_connections(&self, port: SimPort) {
         self.shared.drop_tx[port_index(port)].send_modify(|g| *g += 1);
+    }
+
+    /// A handle that does [`drop_connections`](Self::drop_connections) from another task
+    /// while the simulator itself is owned elsewhere (the rig's socket-dropping fault).
+    pub fn connection_dropper(&self) -> ConnectionDropper {
+        ConnectionDropper(Arc::clone(&self.shared))
     }
 
     /// The robot mode now.
@@ -813,6 +830,16 @@ impl SimMg400 {
             t.abort();
             let _ = t.await;
         }
+    }
+}
+
+/// Closes the simulator's connections on request; see [`SimMg400::connection_dropper`].
+pub struct ConnectionDropper(Arc<Shared>);
+
+impl ConnectionDropper {
+    /// Closes every open connection of `port` (new connections are still accepted).
+    pub fn drop_connections(&self, port: SimPort) {
+        self.0.drop_tx[port_index(port)].send_modify(|g| *g += 1);
     }
 }
 

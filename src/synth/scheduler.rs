@@ -103,6 +103,10 @@ enum Prediction {
     Sample,
 }
 
+/// Smallest usable cumulative alpha: its square root (1e-6) still divides a latent without
+/// overflowing f32.
+const MIN_ALPHA_PROD: f32 = 1e-12;
+
 impl NoiseSchedule {
     /// Builds the schedule, rejecting options rig does not implement.
     pub fn new(config: SchedulerConfig) -> Result<Self, SchedulerError> {
@@ -160,11 +164,21 @@ impl NoiseSchedule {
                 }
             }
         };
+        // A beta outside (0, 1) (a NaN from a bad config included) makes alpha_prod NaN, zero or
+        // negative, and every step then divides by its square root: refuse it here.
+        if let Some(&b) = betas.iter().find(|b| !(b.is_finite() && **b > 0.0 && **b < 1.0)) {
+            return Err(SchedulerError::OutOfRange { field: "betas", value: b as f64 });
+        }
         let mut alphas_cumprod = Vec::with_capacity(n);
         let mut acc = 1.0f32;
         for b in &betas {
             acc *= 1.0 - b;
             alphas_cumprod.push(acc);
+        }
+        // The noisiest step divides by sqrt(alpha_prod); a product that underflowed to about 0
+        // would turn it into Inf.
+        if let Some(&last) = alphas_cumprod.last().filter(|a| **a < MIN_ALPHA_PROD) {
+            return Err(SchedulerError::OutOfRange { field: "alphas_cumprod (last)", value: last as f64 });
         }
         let final_alpha_cumprod = if config.set_alpha_to_one { 1.0 } else { alphas_cumprod[0] };
         Ok(Self { config, alphas_cumprod, final_alpha_cumprod })
@@ -438,7 +452,11 @@ impl Scheduler {
             // diffusers (lower_order_final / final_sigmas_type "zero") and handled above.
             let second_order = !last;
             match (&self.previous_x0, second_order) {
-                (Some((prev_x0, lambda_prev)), true) => {
+                // The second-order term divides by the previous step's lambda change: a
+                // repeated lambda (two timesteps clamped onto the last trained one, as with
+                // 999 steps and steps_offset 1) would make it Inf, so such a step stays first
+                // order.
+                (Some((prev_x0, lambda_prev)), true) if lambda_t - lambda_prev > 0.0 && h > 0.0 => {
                     let h_prev = lambda_t - lambda_prev;
                     let r = h_prev / h;
                     let half_over_r = (0.5 / r) as f32;

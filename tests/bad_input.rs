@@ -1,0 +1,161 @@
+//! The bad-input table: each bad input a user can give rig, what rig says and its exit code.
+//!
+//! Runs the real binary on each bad input and checks the exit code and a key phrase of the
+//! message (2 = bad input, 1 = general; see `cli::exit_code`). Nothing may panic, and nothing
+//! may move: every case fails before the arm is driven. The table prints as Markdown (run with
+//! `--nocapture`; `RIG_BAD_INPUT_TABLE=<file>` writes it, as `docs/bad-input.md` was made).
+
+use std::path::Path;
+use std::process::Command;
+
+fn rig(cwd: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(cwd);
+    c.env_remove("RIG_CONFIG");
+    c.env("RIG_LOG", "error");
+    c
+}
+
+struct Case {
+    input: &'static str,
+    args: Vec<String>,
+    code: i32,
+    phrase: &'static str,
+}
+
+fn case(input: &'static str, args: &[&str], code: i32, phrase: &'static str) -> Case {
+    Case { input, args: args.iter().map(|s| s.to_string()).collect(), code, phrase }
+}
+
+/// The message a reader sees: from the `error:` line (clap's too) on, on one line, without
+/// the source excerpts TOML errors draw (`2 | speed = 3`, `  | ^^^`) and clap's usage hints,
+/// with the temp dir shortened.
+fn message(stderr: &str, tmp: &Path) -> String {
+    let mut lines = stderr.lines().skip_while(|l| !l.starts_with("error:"));
+    let mut parts: Vec<String> = Vec::new();
+    for l in lines.by_ref() {
+        let t = l.trim();
+        let excerpt = t.starts_with('|') || t.split_once(" |").is_some_and(|(n, _)| n.chars().all(|c| c.is_ascii_digit()));
+        if t.starts_with("Usage:") || t.starts_with("For more information") {
+            break;
+        }
+        if !t.is_empty() && !excerpt {
+            parts.push(t.to_string());
+        }
+    }
+    parts.join(" ").replace(&tmp.display().to_string(), "<dir>")
+}
+
+#[test]
+fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    let write = |name: &str, text: &[u8]| std::fs::write(dir.join(name), text).expect("writing a fixture");
+    write(
+        "garbage.stl",
+        b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 nan\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n",
+    );
+    write("truncated.stl", &[0u8; 90]);
+    write("syntax.toml", b"[arm\nbackend = sim\n");
+    write("unknown-field.toml", b"[arm]\nspeed = 3\n");
+    write("zero-frames.toml", b"[collect]\nframes_per_pose = 0\n");
+    write("faults-on-real-arm.toml", b"[arm]\nbackend = \"mg400\"\nhost = \"192.0.2.1\"\n[sim.faults]\nsplit_replies = true\n");
+    write("no-host.toml", b"[arm]\nbackend = \"mg400\"\n");
+    write("no-profile.toml", b"[arm]\nprofile = \"mg999\"\n");
+    write("bad-calibration.toml", b"scale_px_per_mm = \"wide\"\n");
+    write("uses-bad-calibration.toml", b"[sensors.tactip]\ncalibration = \"bad-calibration.toml\"\n");
+    write("far.toml", b"[work_frame]\norigin = { x_mm = 500.0, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n");
+    write(
+        "negative-step.toml",
+        b"sampling = \"lhs\"\nn_poses = 1\nseed = 1\norder = \"optimised\"\nx_mm = { min = -5.0, max = 5.0, step = -1.0 }\ny_mm = { min = -5.0, max = 5.0, step = 1.0 }\nz_mm = { min = 0.0, max = 1.0, step = 0.5 }\nyaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
+    );
+    write("plan-syntax.toml", b"x_mm = { min = 1.0, max = \n");
+    write("bad.csv", b"a,b\n1,2\n");
+    write("bad-row.csv", b"image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\nf.png,d,1,x,1,2,3,4,5,6,0,0,0,0,0,0\n");
+    std::fs::create_dir_all(dir.join("not-a-dataset")).expect("mkdir");
+
+    // A real small dataset, for the "already exists" and "different plan" cases.
+    let made = rig(dir)
+        .args(["collect", "--poses", "2", "--seed", "1", "--sensor", "tactip", "--out", "ds"])
+        .output()
+        .expect("running rig collect");
+    assert!(made.status.success(), "setup collect failed: {}", String::from_utf8_lossy(&made.stderr));
+
+    let cases = vec![
+        case("unknown subcommand", &["frobnicate"], 2, "unrecognized subcommand"),
+        case("a number flag given a word", &["collect", "--poses", "many"], 2, "invalid value"),
+        case("unknown sensor name", &["collect", "--sensor", "gelsight", "--dry-run"], 2, "unknown sensor"),
+        case("unknown object name", &["collect", "--object", "teapot", "--dry-run"], 2, "unknown object"),
+        case("missing STL file", &["collect", "--stl", "nope.stl", "--dry-run"], 2, "cannot read"),
+        case("STL with a NaN vertex", &["collect", "--stl", "garbage.stl", "--dry-run"], 2, "STL"),
+        case("truncated binary STL", &["collect", "--stl", "truncated.stl", "--dry-run"], 2, "truncated"),
+        case("missing rig config", &["collect", "--config", "nope.toml", "--dry-run"], 2, "cannot read rig config"),
+        case("rig config TOML syntax error", &["collect", "--config", "syntax.toml", "--dry-run"], 2, "is not valid"),
+        case("unknown rig config field", &["collect", "--config", "unknown-field.toml", "--dry-run"], 2, "unknown field"),
+        case("rig config value out of range", &["collect", "--config", "zero-frames.toml", "--dry-run"], 2, "frames_per_pose"),
+        case("real arm without a host", &["collect", "--config", "no-host.toml", "--dry-run"], 2, "arm.host"),
+        case("fault injection on the real arm", &["collect", "--config", "faults-on-real-arm.toml", "--dry-run"], 2, "simulated arm"),
+        case("unknown firmware profile", &["collect", "--config", "no-profile.toml", "--dry-run"], 2, "mg999"),
+        case(
+            "malformed calibration file",
+            &["collect", "--config", "uses-bad-calibration.toml", "--sensor", "tactip", "--poses", "1", "--out", "cal"],
+            2,
+            "calibration",
+        ),
+        case("plan file missing", &["collect", "--plan", "nope.toml", "--dry-run"], 2, "cannot read plan"),
+        case("plan TOML syntax error", &["collect", "--plan", "plan-syntax.toml", "--dry-run"], 2, "not a valid plan"),
+        case("plan with a negative step", &["collect", "--plan", "negative-step.toml", "--dry-run"], 2, "step must be positive"),
+        case("zero poses asked for", &["collect", "--poses", "0", "--dry-run"], 2, "0 poses"),
+        case("more poses than the grid has", &["collect", "--poses", "100000000", "--dry-run"], 2, "only"),
+        case("plan outside the arm's workspace", &["collect", "--config", "far.toml", "--dry-run"], 2, "outside the arm's workspace"),
+        case(
+            "collecting into an existing dataset without --resume",
+            &["collect", "--poses", "2", "--seed", "1", "--sensor", "tactip", "--out", "ds"],
+            2,
+            "--resume",
+        ),
+        case(
+            "--resume with a different plan",
+            &["collect", "--poses", "3", "--seed", "9", "--sensor", "tactip", "--out", "ds", "--resume"],
+            2,
+            "different",
+        ),
+        case("verify a folder that is not a dataset", &["dataset", "verify", "not-a-dataset"], 2, "is not a dataset"),
+        case("import a CSV that is not MDS", &["dataset", "import", "bad.csv"], 2, "missing column"),
+        case("import an MDS row with a bad number", &["dataset", "import", "bad-row.csv"], 2, "malformed MDS row"),
+        case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "missing"),
+    ];
+
+    let mut table = vec!["| bad input | command | rig says | exit |".to_string(), "|---|---|---|---|".to_string()];
+    let mut failures = Vec::new();
+    for c in &cases {
+        let o = rig(dir).args(&c.args).output().expect("running rig");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        let msg = message(&stderr, dir);
+        let code = o.status.code();
+        table.push(format!(
+            "| {} | `rig {}` | {} | {} |",
+            c.input,
+            c.args.join(" "),
+            msg.replace('|', "\\|"),
+            code.map_or("signal".to_string(), |c| c.to_string())
+        ));
+        if code != Some(c.code) {
+            failures.push(format!("{}: exit {code:?}, expected {}: {stderr}", c.input, c.code));
+        }
+        if !msg.contains(c.phrase) {
+            failures.push(format!("{}: message lacks {:?}: {stderr}", c.input, c.phrase));
+        }
+        if stderr.contains("panicked") {
+            failures.push(format!("{}: panicked: {stderr}", c.input));
+        }
+    }
+    // Nothing of a refused run may be left as a dataset.
+    assert!(!dir.join("cal/sphere/tactip/poses.csv").exists(), "a refused calibration started a dataset");
+    let table = table.join("\n");
+    println!("\n{table}\n");
+    if let Ok(path) = std::env::var("RIG_BAD_INPUT_TABLE") {
+        std::fs::write(&path, format!("{table}\n")).unwrap_or_else(|e| panic!("writing {path}: {e}"));
+    }
+    assert!(failures.is_empty(), "bad inputs:\n{}\n\n{table}", failures.join("\n"));
+}
