@@ -9,6 +9,7 @@ pub mod collect;
 pub mod fill;
 pub mod sim;
 pub mod dataset;
+pub mod devices;
 pub mod plan;
 pub mod sensor;
 pub mod synth;
@@ -41,6 +42,8 @@ pub enum Command {
     Sensor(sensor::Args),
     /// Synthesise tactile images with a diffusion model package (ONNX Runtime).
     Synth(synth::Args),
+    /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
+    Devices(devices::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -60,6 +63,7 @@ pub fn main() -> ExitCode {
         Command::Dataset(args) => dataset::run(args),
         Command::Sensor(args) => sensor::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::Devices(args) => devices::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
