@@ -2,10 +2,14 @@
 # Smoke-runs the cargo-fuzz targets in fuzz/ for a few seconds each (CI) and exits non-zero
 # if any target finds a crash. Installs cargo-fuzz when it is missing.
 #
+# Targets: reply_decoder and feedback_decoder (MG400), magician_decoder (Dobot Magician serial
+# packets, src/arm/magician/proto.rs).
+#
 # Only a stable toolchain is installed here; cargo fuzz passes nightly-only flags (-Z...),
 # which RUSTC_BOOTSTRAP=1 unlocks on stable. Where cargo fuzz cannot run at all, the same
 # decoders are covered by the proptest fallbacks `decoders_never_panic` and
-# `mutated_valid_input_never_panics` in src/arm/dobot/proto.rs (part of `cargo test`).
+# `mutated_valid_input_never_panics` in src/arm/dobot/proto.rs and `decoder_never_panics` in
+# src/arm/magician/proto.rs (part of `cargo test`).
 #
 # Usage: scripts/fuzz-smoke.sh [seconds-per-target]   (default 10)
 set -euo pipefail
