@@ -51,7 +51,10 @@ pub fn list_serial_ports_in(dev: &Path, sys_tty: &Path) -> Vec<SerialPortInfo> {
             // serial8250 placeholders have a device link but no driver bound to a real port.
             let device = e.path().join("device");
             let driver = std::fs::read_link(device.join("driver")).ok();
-            let is_placeholder = driver.as_ref().and_then(|d| d.file_name()).is_some_and(|d| d == "serial8250");
+            // A UART whose `type` is 0 (PORT_UNKNOWN) has no hardware behind it.
+            let unknown_uart = std::fs::read_to_string(e.path().join("type")).is_ok_and(|t| t.trim() == "0");
+            let is_placeholder =
+                unknown_uart || driver.as_ref().and_then(|d| d.file_name()).is_some_and(|d| d == "serial8250");
             if device.exists() && !is_placeholder && !names.contains(&name) {
                 names.push(name);
             }
