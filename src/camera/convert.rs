@@ -106,7 +106,7 @@ pub fn yuyv_to_rgb(bytes: &[u8], width: u32, height: u32) -> Result<RgbImage, Co
     if width == 0 || height == 0 || width > 16384 || height > 16384 {
         return Err(ConvertError::BadSize { width, height });
     }
-    if width % 2 != 0 {
+    if !width.is_multiple_of(2) {
         return Err(ConvertError::OddWidth { width });
     }
     let expected = width as usize * height as usize * 2;
@@ -130,7 +130,7 @@ pub fn rgb_to_yuyv(image: &RgbImage) -> Vec<u8> {
         for pair in pixels.chunks(2) {
             let a = pair[0];
             let b = *pair.get(1).unwrap_or(&a);
-            let avg = |i: usize| ((u16::from(a[i]) + u16::from(b[i]) + 1) / 2) as u8;
+            let avg = |i: usize| (u16::from(a[i]) + u16::from(b[i])).div_ceil(2) as u8;
             out.extend_from_slice(&[a[0], avg(1), b[0], avg(2)]);
         }
     }

@@ -239,14 +239,13 @@ pub fn list_usb_devices() -> Vec<UsbIdentity> {
             product_id: desc.product_id(),
             ..UsbIdentity::default()
         };
-        if let Ok(handle) = device.open() {
-            if let Ok(languages) = handle.read_languages(timeout)
-                && let Some(lang) = languages.first()
-            {
-                identity.serial = handle.read_serial_number_string(*lang, &desc, timeout).ok();
-                identity.manufacturer = handle.read_manufacturer_string(*lang, &desc, timeout).ok();
-                identity.product = handle.read_product_string(*lang, &desc, timeout).ok();
-            }
+        if let Ok(handle) = device.open()
+            && let Ok(languages) = handle.read_languages(timeout)
+            && let Some(lang) = languages.first()
+        {
+            identity.serial = handle.read_serial_number_string(*lang, &desc, timeout).ok();
+            identity.manufacturer = handle.read_manufacturer_string(*lang, &desc, timeout).ok();
+            identity.product = handle.read_product_string(*lang, &desc, timeout).ok();
         }
         out.push(identity);
     }

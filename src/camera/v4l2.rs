@@ -342,7 +342,7 @@ fn capture_loop(
             continue;
         }
         // Re-measure the clock offset now and then: rig clock and CLOCK_MONOTONIC may drift.
-        if n % 300 == 0 {
+        if n.is_multiple_of(300) {
             mapping = TimeMapping::new(clock.now_s(), monotonic_now_s(), exposure_s);
         }
         let driver_s = meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6;
