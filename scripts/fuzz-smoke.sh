@@ -3,6 +3,7 @@
 # if any target finds a crash. Installs cargo-fuzz when it is missing.
 #
 # Targets: MG400 replies and requests (reply_decoder), feedback frames (feedback_decoder),
+# Dobot Magician serial packets (magician_decoder), the recording file (recording_decoder),
 # STL (stl_decoder), calibration TOML, rig config TOML and plan TOML. The firmware profile
 # TOML and the MDS CSV import have no cargo-fuzz target (they reach too far into rig to
 # compile alone); tests/decoders_never_panic.rs covers them, and every decoder here, with
@@ -11,8 +12,8 @@
 # Only a stable toolchain is installed here; cargo fuzz passes nightly-only flags (-Z...),
 # which RUSTC_BOOTSTRAP=1 unlocks on stable. Where cargo fuzz cannot run at all, the same
 # decoders are covered by the proptest fallbacks `decoders_never_panic` and
-# `mutated_valid_input_never_panics` in src/arm/dobot/proto.rs and by
-# tests/decoders_never_panic.rs (part of `cargo test`).
+# `mutated_valid_input_never_panics` in src/arm/dobot/proto.rs, `decoder_never_panics` in
+# src/arm/magician/proto.rs and tests/decoders_never_panic.rs (part of `cargo test`).
 #
 # Cost on a fresh machine (2 cores): installing cargo-fuzz was not timed here (it was
 # preinstalled); the first build of the six targets took 15 min on 2 shared cores; each run is the given

@@ -10,6 +10,10 @@
 //! (`tests/fault_matrix.rs`) and for trying recovery by hand: controller reply delays and
 //! split replies, feedback garbage, alarms at chosen moves, dropped sockets, camera timeouts
 //! and a full disk (a byte budget the dataset writer honours). See [`FaultConfig`].
+//! A real bench (see `examples/bench-rig.toml`) names the arm (`mg400` by address, `magician`
+//! by serial port), binds each sensor to a camera by USB identity (`port:1-2.3`,
+//! `serial:...`; see `camera::usb::DeviceSelector`), locks its exposure, gain and white
+//! balance, and lists Modbus peripherals under `[modbus.<name>]`.
 
 use std::path::{Path, PathBuf};
 
@@ -40,8 +44,10 @@ pub enum ConfigError {
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawArm {
-    /// `sim` (default) or `mg400`.
+    /// `sim` (default), `mg400` or `magician`.
     pub backend: Option<String>,
+    /// Magician only: its serial port (`/dev/ttyUSB0`).
+    pub serial_port: Option<PathBuf>,
     pub host: Option<String>,
     pub dashboard_port: Option<u16>,
     pub motion_port: Option<u16>,
@@ -79,6 +85,20 @@ pub struct RawSensor {
     pub scene: Option<String>,
     pub width: Option<u32>,
     pub height: Option<u32>,
+    /// Hardware backends: frame rate to run the camera at.
+    pub fps: Option<u32>,
+    /// Hardware backends: `yuyv` or `mjpeg` instead of the automatic choice.
+    pub pixel_format: Option<String>,
+    /// Hardware backends: manual exposure, units of 100 us (V4L2 `exposure_time_absolute`).
+    pub exposure_100us: Option<i64>,
+    /// Hardware backends: manual gain (camera units).
+    pub gain: Option<i64>,
+    /// Hardware backends: manual white balance, K.
+    pub white_balance_k: Option<i64>,
+    /// Hardware backends: frames dropped after the stream starts.
+    pub warmup_frames: Option<u32>,
+    /// Hardware backends: mmap buffers.
+    pub buffers: Option<u32>,
 }
 
 /// `[sim]` as written in the file.
@@ -128,6 +148,9 @@ pub struct RawConfig {
     pub collect: RawCollect,
     #[serde(default)]
     pub sensors: std::collections::BTreeMap<String, RawSensor>,
+    /// Modbus peripherals read or written around each capture.
+    #[serde(default)]
+    pub modbus: std::collections::BTreeMap<String, crate::io::modbus::RawModbusPeripheral>,
 }
 
 /// Which arm to drive.
@@ -137,6 +160,8 @@ pub enum ArmBackend {
     Simulated { time_scale: f64 },
     /// A real MG400 at `host`.
     Mg400 { host: String, dashboard_port: u16, motion_port: u16, feedback_port: u16 },
+    /// A Dobot Magician on a serial port.
+    Magician { serial_port: PathBuf },
 }
 
 /// The validated `[arm]` section.
@@ -172,6 +197,8 @@ pub struct SensorConfig {
     pub scene: String,
     pub width: u32,
     pub height: u32,
+    /// Rate, format and locked controls for hardware backends (size = `width` x `height`).
+    pub camera: crate::camera::v4l2::CameraSettings,
 }
 
 /// Where a sensor's frames come from.
@@ -267,6 +294,8 @@ pub struct RigConfig {
     pub sensors: Vec<SensorConfig>,
     /// Injected faults (simulated rig only).
     pub faults: FaultConfig,
+    /// Modbus peripherals by name.
+    pub modbus: std::collections::BTreeMap<String, crate::io::modbus::ModbusPeripheralConfig>,
 }
 
 /// Default time scale of the built-in simulated rig.
@@ -286,6 +315,7 @@ impl RigConfig {
             collect: CollectConfig::default(),
             sensors: Vec::new(),
             faults: FaultConfig::default(),
+            modbus: std::collections::BTreeMap::new(),
         }
     }
 
@@ -347,7 +377,12 @@ impl RigConfig {
                     feedback_port: raw.arm.feedback_port.unwrap_or(30004),
                 }
             }
-            other => return Err(invalid("arm.backend", format!("must be sim or mg400, got {other:?}"))),
+            "magician" => ArmBackend::Magician {
+                serial_port: raw.arm.serial_port.clone().ok_or_else(|| {
+                    invalid("arm.serial_port", "is required for backend magician (e.g. /dev/ttyUSB0)".into())
+                })?,
+            },
+            other => return Err(invalid("arm.backend", format!("must be sim, mg400 or magician, got {other:?}"))),
         };
         let speed_factor = raw.arm.speed_factor.unwrap_or(100);
         if !(1..=100).contains(&speed_factor) {
@@ -393,18 +428,54 @@ impl RigConfig {
                 },
                 other => return Err(invalid("sensors.*.backend", format!("sensor {name}: must be sim, v4l2 or nokhwa, got {other:?}"))),
             };
+            if let SensorBackend::V4l2 { device } | SensorBackend::Nokhwa { device } = &backend {
+                crate::camera::usb::DeviceSelector::parse(device)
+                    .map_err(|e| invalid("sensors.*.device", format!("sensor {name}: {e}")))?;
+            }
+            let width = s.width.unwrap_or(512);
+            let height = s.height.unwrap_or(512);
+            let defaults = crate::camera::v4l2::CameraSettings::default();
+            let pixel_format = match s.pixel_format.as_deref() {
+                None => None,
+                Some("yuyv") => Some(crate::camera::convert::PixelFormat::Yuyv),
+                Some("mjpeg") => Some(crate::camera::convert::PixelFormat::Mjpeg),
+                Some(other) => {
+                    return Err(invalid("sensors.*.pixel_format", format!("sensor {name}: must be yuyv or mjpeg, got {other:?}")));
+                }
+            };
+            let camera = crate::camera::v4l2::CameraSettings {
+                width,
+                height,
+                fps: s.fps.unwrap_or(defaults.fps),
+                pixel_format,
+                exposure_100us: s.exposure_100us,
+                gain: s.gain,
+                white_balance_k: s.white_balance_k,
+                buffers: s.buffers.unwrap_or(defaults.buffers),
+                warmup_frames: s.warmup_frames.unwrap_or(defaults.warmup_frames),
+            };
+            if !(1..=240).contains(&camera.fps) || !(2..=32).contains(&camera.buffers) {
+                return Err(invalid("sensors.*.fps", format!("sensor {name}: fps must be 1..240 and buffers 2..32")));
+            }
             sensors.push(SensorConfig {
                 name,
                 backend,
                 calibration: s.calibration,
                 scene: s.scene.unwrap_or_else(|| "full".into()),
-                width: s.width.unwrap_or(512),
-                height: s.height.unwrap_or(512),
+                width,
+                height,
+                camera,
             });
         }
         let faults = resolve_faults(&raw.sim.faults, path)?;
         if !faults.is_empty() && !matches!(backend, ArmBackend::Simulated { .. }) {
             return Err(invalid("sim.faults", "only applies to the simulated arm (arm.backend = \"sim\")".into()));
+        }
+        let mut modbus = std::collections::BTreeMap::new();
+        for (name, raw_peripheral) in raw.modbus {
+            let resolved = crate::io::modbus::ModbusPeripheralConfig::resolve(&name, raw_peripheral)
+                .map_err(|e| invalid("modbus", e.to_string()))?;
+            modbus.insert(name, resolved);
         }
         Ok(Self {
             source: Some(path.to_path_buf()),
@@ -413,6 +484,7 @@ impl RigConfig {
             collect,
             sensors,
             faults,
+            modbus,
         })
     }
 
@@ -430,6 +502,9 @@ impl RigConfig {
             }
             (Some(p), ArmBackend::Mg400 { host, dashboard_port, .. }) => {
                 format!("rig config {}: MG400 at {host}:{dashboard_port}", p.display())
+            }
+            (Some(p), ArmBackend::Magician { serial_port }) => {
+                format!("rig config {}: Dobot Magician on {}", p.display(), serial_port.display())
             }
         }
     }
@@ -533,6 +608,22 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("simulated arm"), "{e}");
+    }
+
+    #[test]
+    fn the_bench_example_resolves() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/bench-rig.toml");
+        let c = RigConfig::load(&path).unwrap();
+        assert!(matches!(c.arm.backend, ArmBackend::Mg400 { .. }));
+        let tactip = c.sensors.iter().find(|s| s.name == "tactip").unwrap();
+        assert_eq!(tactip.backend, SensorBackend::V4l2 { device: "port:1-2.1".into() });
+        assert_eq!(tactip.camera.exposure_100us, Some(156));
+        assert_eq!(c.modbus.len(), 2);
+        let e = RigConfig::parse("[sensors.tactip]\nbackend = \"v4l2\"\ndevice = \"video0\"\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("port:"), "{e}");
+        let c = RigConfig::parse("[arm]\nbackend = \"magician\"\nserial_port = \"/dev/ttyUSB0\"\n", Path::new("x")).unwrap();
+        assert_eq!(c.arm.backend, ArmBackend::Magician { serial_port: "/dev/ttyUSB0".into() });
+        assert!(RigConfig::parse("[arm]\nbackend = \"magician\"\n", Path::new("x")).is_err());
     }
 
     #[test]

@@ -15,6 +15,7 @@ pub mod collect;
 pub mod config;
 pub mod dataset;
 pub mod geometry;
+pub mod io;
 pub mod plan;
 pub mod metrics;
 pub mod pose;

@@ -3,7 +3,8 @@
 //! This is the one place that names backends. With the built-in simulated rig it starts the
 //! simulated MG400 in-process on loopback (real TCP, real protocol) and connects the real
 //! client to it, and builds simulated sensors that read the simulated arm's true pose. The
-//! collection job never knows which it got.
+//! collection job never knows which it got. Real hardware: the MG400 over TCP or the Magician
+//! over serial ([`RigArm`]), V4L2 or nokhwa cameras bound by USB identity ([`RigCamera`]).
 //!
 //! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
 //! simulator gets its controller switches, a task closes its sockets periodically, and each
@@ -15,7 +16,14 @@ use std::sync::Arc;
 
 use sha2::{Digest, Sha256};
 
+use std::time::Duration;
+
 use crate::arm::dobot::client::{Mg400Client, Mg400Config};
+use crate::arm::magician::{MagicianArm, MagicianProfile};
+use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
+use crate::camera::nokhwa_backend::NokhwaCamera;
+use crate::camera::usb::DeviceSelector;
+use crate::camera::v4l2::V4l2Camera;
 use crate::arm::profile::FirmwareProfile;
 use crate::calibration::Calibration;
 use crate::camera::{Camera, CameraError, Frame};
@@ -44,6 +52,12 @@ pub enum RigError {
     Arm(#[from] crate::arm::ArmError),
     #[error("sensor {name}: backend {backend} is not available in this build of rig")]
     BackendUnavailable { name: String, backend: String },
+    #[error("sensor {name}: {source}")]
+    Camera {
+        name: String,
+        #[source]
+        source: CameraError,
+    },
 }
 
 /// Which sensors a command asked for.
@@ -139,7 +153,7 @@ pub fn profile_for(config: &RigConfig) -> Result<FirmwareProfile, RigError> {
 pub fn clock_for(config: &RigConfig) -> Arc<dyn Clock> {
     match config.arm.backend {
         ArmBackend::Simulated { time_scale } => Arc::new(MonotonicClock::scaled(time_scale)),
-        ArmBackend::Mg400 { .. } => Arc::new(MonotonicClock::new()),
+        ArmBackend::Mg400 { .. } | ArmBackend::Magician { .. } => Arc::new(MonotonicClock::new()),
     }
 }
 
@@ -150,8 +164,11 @@ pub fn pose_cost_s(profile: &FirmwareProfile, work_frame: &WorkFrame, a: &Pose, 
 }
 
 /// A camera of any backend this build supports.
+#[allow(clippy::large_enum_variant, reason = "a rig holds three cameras; boxing buys nothing")]
 pub enum RigCamera {
     Simulated { kind: SensorKind, camera: SimCamera, calibration: String, timeouts: InjectedTimeouts },
+    V4l2 { kind: SensorKind, camera: V4l2Camera, calibration: String },
+    Nokhwa { kind: SensorKind, camera: NokhwaCamera, calibration: String },
 }
 
 /// Frame requests a simulated camera fails on purpose (`[sim.faults] camera_timeout_at_frames`).
@@ -182,13 +199,17 @@ impl RigCamera {
     /// Directory name of its dataset (`tactip`, `vitac`, `vitactip`).
     pub fn sensor_dir(&self) -> String {
         match self {
-            RigCamera::Simulated { kind, .. } => kind.to_string(),
+            RigCamera::Simulated { kind, .. } | RigCamera::V4l2 { kind, .. } | RigCamera::Nokhwa { kind, .. } => {
+                kind.to_string()
+            }
         }
     }
     /// The calibration it renders or was fitted with, for the manifest.
     pub fn calibration_name(&self) -> String {
         match self {
-            RigCamera::Simulated { calibration, .. } => calibration.clone(),
+            RigCamera::Simulated { calibration, .. }
+            | RigCamera::V4l2 { calibration, .. }
+            | RigCamera::Nokhwa { calibration, .. } => calibration.clone(),
         }
     }
 }
@@ -197,6 +218,8 @@ impl Camera for RigCamera {
     fn name(&self) -> &str {
         match self {
             RigCamera::Simulated { camera, .. } => camera.name(),
+            RigCamera::V4l2 { camera, .. } => camera.name(),
+            RigCamera::Nokhwa { camera, .. } => camera.name(),
         }
     }
     async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
@@ -211,13 +234,80 @@ impl Camera for RigCamera {
                 }
                 camera.frame_after(not_before_s).await
             }
+            RigCamera::V4l2 { camera, .. } => camera.frame_after(not_before_s).await,
+            RigCamera::Nokhwa { camera, .. } => camera.frame_after(not_before_s).await,
         }
     }
 }
 
+/// The arm of any backend this build supports; [`Arm`] by delegation.
+#[allow(clippy::large_enum_variant, reason = "one arm per rig; boxing buys nothing")]
+pub enum RigArm {
+    Mg400(Mg400Client),
+    Magician(MagicianArm),
+}
+
+impl Arm for RigArm {
+    async fn enable(&mut self) -> Result<(), ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.enable().await,
+            RigArm::Magician(a) => a.enable().await,
+        }
+    }
+    async fn move_to(&mut self, target: Pose, kind: MoveKind) -> Result<(), ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.move_to(target, kind).await,
+            RigArm::Magician(a) => a.move_to(target, kind).await,
+        }
+    }
+    async fn wait_arrived(&mut self, target: Pose, timeout: Duration) -> Result<Arrival, ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.wait_arrived(target, timeout).await,
+            RigArm::Magician(a) => a.wait_arrived(target, timeout).await,
+        }
+    }
+    async fn pose(&mut self) -> Result<Pose, ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.pose().await,
+            RigArm::Magician(a) => a.pose().await,
+        }
+    }
+    async fn stop(&mut self) -> Result<(), ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.stop().await,
+            RigArm::Magician(a) => a.stop().await,
+        }
+    }
+    async fn clear_error(&mut self) -> Result<Vec<Alarm>, ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.clear_error().await,
+            RigArm::Magician(a) => a.clear_error().await,
+        }
+    }
+    async fn disable(&mut self) -> Result<(), ArmError> {
+        match self {
+            RigArm::Mg400(a) => a.disable().await,
+            RigArm::Magician(a) => a.disable().await,
+        }
+    }
+}
+
+/// The Magician profile the configuration names (`arm.profile`), or the embedded one.
+pub fn magician_profile_for(config: &RigConfig) -> Result<MagicianProfile, RigError> {
+    let Some(name) = &config.arm.profile else { return Ok(MagicianProfile::default_magician()) };
+    let as_path = Path::new(name);
+    let path = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
+        as_path.to_path_buf()
+    } else {
+        let local = Path::new("firmware-profiles").join(format!("{name}.toml"));
+        if local.is_file() { local } else { Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles").join(format!("{name}.toml")) }
+    };
+    MagicianProfile::load(&path).map_err(|e| RigError::Profile { name: name.clone(), reason: e.to_string() })
+}
+
 /// An opened rig: the arm client, the cameras, and the simulator when one runs in-process.
 pub struct Rig {
-    pub arm: Mg400Client,
+    pub arm: RigArm,
     pub cameras: Vec<RigCamera>,
     sim: Option<SimMg400>,
     /// The task closing the simulator's sockets (`[sim.faults] drop_sockets_every_s`).
@@ -246,7 +336,12 @@ impl Rig {
         clock: Arc<dyn Clock>,
         recorder: Option<crate::record::Recorder>,
     ) -> Result<Self, RigError> {
-        let profile = profile_for(config)?;
+        // The Magician has its own profile format; the MG400 profile then only feeds the
+        // motion-time model of plan ordering, so the embedded one stands in.
+        let profile = match config.arm.backend {
+            ArmBackend::Magician { .. } => FirmwareProfile::default_mg400(),
+            _ => profile_for(config)?,
+        };
         let (arm_cfg, sim) = match &config.arm.backend {
             ArmBackend::Simulated { .. } => {
                 let sim_cfg = SimMg400Config {
@@ -260,17 +355,30 @@ impl Rig {
                     sim.motion_addr().port(),
                     sim.feedback_addr().port(),
                 );
-                (cfg, Some(sim))
+                (Some(cfg), Some(sim))
             }
             ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port } => {
-                (Mg400Config::new(host.clone(), profile.clone()).with_ports(*dashboard_port, *motion_port, *feedback_port), None)
+                (Some(Mg400Config::new(host.clone(), profile.clone()).with_ports(*dashboard_port, *motion_port, *feedback_port)), None)
             }
+            ArmBackend::Magician { .. } => (None, None),
         };
-        let mut arm_cfg = arm_cfg;
-        arm_cfg.speed_factor_pct = config.arm.speed_factor;
-        let arm = match recorder {
-            Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(&clock), recorder).await?,
-            None => Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?,
+        let arm = match arm_cfg {
+            Some(mut arm_cfg) => {
+                arm_cfg.speed_factor_pct = config.arm.speed_factor;
+                RigArm::Mg400(match recorder {
+                    Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(&clock), recorder).await?,
+                    None => Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?,
+                })
+            }
+            None => {
+                // Only the Magician backend builds no MG400 config.
+                let serial_port = match &config.arm.backend {
+                    ArmBackend::Magician { serial_port } => serial_port.clone(),
+                    _ => PathBuf::new(),
+                };
+                let magician_profile = magician_profile_for(config)?;
+                RigArm::Magician(MagicianArm::open(&serial_port, magician_profile, Arc::clone(&clock))?)
+            }
         };
         let socket_dropper = match (&sim, config.faults.drop_sockets_every_s) {
             (Some(sim), Some(every_s)) => {
@@ -337,11 +445,25 @@ impl Rig {
                         timeouts: InjectedTimeouts::from_faults(&config.faults),
                     });
                 }
-                SensorBackend::V4l2 { .. } => {
-                    return Err(RigError::BackendUnavailable { name: kind.to_string(), backend: "v4l2".into() });
-                }
-                SensorBackend::Nokhwa { .. } => {
-                    return Err(RigError::BackendUnavailable { name: kind.to_string(), backend: "nokhwa".into() });
+                SensorBackend::V4l2 { ref device } | SensorBackend::Nokhwa { ref device } => {
+                    let is_v4l2 = matches!(backend, SensorBackend::V4l2 { .. });
+                    let Some(sensor_cfg) = sensor_cfg else {
+                        return Err(RigError::BackendUnavailable { name: kind.to_string(), backend: "hardware camera without a [sensors] entry".into() });
+                    };
+                    let camera_err = |e: CameraError| RigError::Camera { name: kind.to_string(), source: e };
+                    let selector = DeviceSelector::parse(device).map_err(|e| RigError::BackendUnavailable {
+                        name: kind.to_string(),
+                        backend: e.to_string(),
+                    })?;
+                    let calibration = sensor_cfg.calibration.as_ref().map_or_else(|| "none".to_string(), |p| p.display().to_string());
+                    let name = kind.to_string();
+                    if is_v4l2 {
+                        let camera = V4l2Camera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
+                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration });
+                    } else {
+                        let camera = NokhwaCamera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
+                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration });
+                    }
                 }
             }
         }

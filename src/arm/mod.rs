@@ -10,6 +10,7 @@
 
 pub mod dobot;
 pub mod kinematics;
+pub mod magician;
 pub mod profile;
 
 use std::future::Future;

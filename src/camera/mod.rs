@@ -4,6 +4,11 @@
 //! it was captured on the rig's clock, so the job can throw away frames exposed before the arm
 //! arrived. Backends: simulated sensors (`sim::sensor`), V4L2, nokhwa.
 
+pub mod convert;
+pub mod nokhwa_backend;
+pub mod usb;
+pub mod v4l2;
+
 use std::future::Future;
 
 /// One RGB frame with its capture time.

@@ -9,6 +9,7 @@ pub mod collect;
 pub mod fill;
 pub mod sim;
 pub mod dataset;
+pub mod devices;
 pub mod plan;
 pub mod replay;
 pub mod sensor;
@@ -54,6 +55,8 @@ pub enum Command {
     CompareReal(compare::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
     Replay(replay::Args),
+    /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
+    Devices(devices::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -77,6 +80,7 @@ pub fn main() -> ExitCode {
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Devices(args) => devices::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -5,6 +5,7 @@
 //! the simulated controller on a `tokio::sync::watch` channel and read by the sensors at
 //! capture time.
 
+pub mod magician;
 pub mod mg400;
 pub mod sensor;
 
