@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod calibrate;
 pub mod collect;
 pub mod fill;
 pub mod sim;
@@ -49,6 +50,8 @@ pub enum Command {
     Render(render::Args),
     /// The STL object library: regenerate it, or draw a contact sheet.
     Objects(objects::Args),
+    /// Calibrate a sensor's pixel-to-mm mapping (automatic presses, wizard, or from a dataset).
+    Calibrate(calibrate::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
     CompareReal(compare::Args),
 }
@@ -73,6 +76,7 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,224 @@
+//! Contact detection: where in the image the indenter (or object) presses, to sub-pixel.
+//!
+//! Against the no-contact reference frame: the per-pixel change (largest of the three channel
+//! differences), smoothed by a box blur applied three times (close to a Gaussian, and wide
+//! enough that a marker skin's discrete pins merge into one blob), a noise floor (median plus
+//! a multiple of the median absolute deviation of the smoothed change), and the connected
+//! region around the strongest change above `floor + fraction * (peak - floor)`. The contact
+//! is that region's centroid weighted by how far each pixel rises above the threshold, which
+//! lands between pixels (sub-pixel) and does not depend on where the peak pixel happens to be.
+//!
+//! Works on any bytes: mismatched sizes and empty images are errors, never panics.
+
+use image::RgbImage;
+
+/// Why no contact was found.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DetectError {
+    #[error("frame is {frame:?} px but the reference is {reference:?} px")]
+    SizeMismatch { frame: [u32; 2], reference: [u32; 2] },
+    #[error("empty image")]
+    Empty,
+    #[error("no contact: strongest change {peak:.2} levels is within {contrast:.2} of the noise floor {floor:.2}")]
+    NoContact { peak: f64, floor: f64, contrast: f64 },
+}
+
+/// Settings of [`detect_contact`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectOptions {
+    /// Box-blur radius, px (applied three times).
+    pub blur_px: u32,
+    /// Region threshold between the floor (0) and the peak (1).
+    pub fraction: f64,
+    /// Least rise of the peak above the floor counted as a contact, grey levels.
+    pub min_contrast: f64,
+    /// Floor = median + this many MADs of the smoothed change.
+    pub floor_mads: f64,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        Self { blur_px: 6, fraction: 0.3, min_contrast: 3.0, floor_mads: 4.0 }
+    }
+}
+
+impl DetectOptions {
+    /// Defaults with the blur scaled to the image width (6 px at 512 px).
+    pub fn for_width(width: u32) -> Self {
+        Self { blur_px: ((6 * width) / 512).max(1), ..Self::default() }
+    }
+}
+
+/// A detected contact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Contact {
+    /// Weighted centroid (column, row) in pixel coordinates where pixel (i, j) covers
+    /// `[i, i+1) x [j, j+1)`, i.e. its centre is at `i + 0.5`.
+    pub centroid_px: [f64; 2],
+    /// Pixels in the contact region.
+    pub area_px: usize,
+    /// Strongest smoothed change, grey levels.
+    pub peak: f64,
+    /// Noise floor, grey levels.
+    pub floor: f64,
+}
+
+impl std::fmt::Display for Contact {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "contact at ({:.2}, {:.2}) px, {} px region, contrast {:.1} levels",
+            self.centroid_px[0],
+            self.centroid_px[1],
+            self.area_px,
+            self.peak - self.floor
+        )
+    }
+}
+
+/// Locates the contact in `frame` against the no-contact `reference`.
+pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOptions) -> Result<Contact, DetectError> {
+    let (w, h) = frame.dimensions();
+    if reference.dimensions() != (w, h) {
+        return Err(DetectError::SizeMismatch { frame: [w, h], reference: [reference.width(), reference.height()] });
+    }
+    if w == 0 || h == 0 {
+        return Err(DetectError::Empty);
+    }
+    let (w, h) = (w as usize, h as usize);
+    let mut change: Vec<f32> = frame
+        .as_raw()
+        .chunks_exact(3)
+        .zip(reference.as_raw().chunks_exact(3))
+        .map(|(a, b)| (0..3).map(|k| (a[k] as i32 - b[k] as i32).unsigned_abs()).max().unwrap_or(0) as f32)
+        .collect();
+    let r = options.blur_px as usize;
+    for _ in 0..3 {
+        box_blur(&mut change, w, h, r);
+    }
+    let mut sorted = change.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2] as f64;
+    let mut dev: Vec<f32> = change.iter().map(|v| (*v as f64 - median).abs() as f32).collect();
+    dev.sort_by(f32::total_cmp);
+    let mad = dev[dev.len() / 2] as f64;
+    let floor = median + options.floor_mads * mad;
+    let (peak_i, peak) = change
+        .iter()
+        .enumerate()
+        .fold((0, f32::MIN), |best, (i, &v)| if v > best.1 { (i, v) } else { best });
+    let peak = peak as f64;
+    if !(peak - floor >= options.min_contrast) {
+        return Err(DetectError::NoContact { peak, floor, contrast: options.min_contrast });
+    }
+    let threshold = floor + options.fraction.clamp(0.0, 1.0) * (peak - floor);
+    // Flood fill (4-connected) from the peak over pixels above the threshold.
+    let mut seen = vec![false; w * h];
+    let mut stack = vec![peak_i];
+    seen[peak_i] = true;
+    let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    while let Some(i) = stack.pop() {
+        let (x, y) = (i % w, i / w);
+        let weight = change[i] as f64 - threshold;
+        su += weight * (x as f64 + 0.5);
+        sv += weight * (y as f64 + 0.5);
+        sw += weight;
+        area += 1;
+        let mut push = |j: usize| {
+            if !seen[j] && change[j] as f64 > threshold {
+                seen[j] = true;
+                stack.push(j);
+            }
+        };
+        if x > 0 {
+            push(i - 1);
+        }
+        if x + 1 < w {
+            push(i + 1);
+        }
+        if y > 0 {
+            push(i - w);
+        }
+        if y + 1 < h {
+            push(i + w);
+        }
+    }
+    let centroid_px = if sw > 0.0 {
+        [su / sw, sv / sw]
+    } else {
+        // Only the peak itself (a flat top at the threshold): its centre.
+        [(peak_i % w) as f64 + 0.5, (peak_i / w) as f64 + 0.5]
+    };
+    Ok(Contact { centroid_px, area_px: area, peak, floor })
+}
+
+/// In-place box blur of radius `r` (window `2r + 1`, clamped at the borders: the mean over the
+/// part of the window inside the image), rows then columns.
+fn box_blur(buf: &mut [f32], w: usize, h: usize, r: usize) {
+    if r == 0 {
+        return;
+    }
+    let mut line = Vec::new();
+    let mut prefix = Vec::new();
+    let mut pass = |buf: &mut [f32], n: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
+        for k in 0..count {
+            line.clear();
+            line.extend((0..n).map(|i| buf[index(k, i)] as f64));
+            prefix.clear();
+            prefix.push(0.0);
+            let mut acc = 0.0;
+            for v in &line {
+                acc += v;
+                prefix.push(acc);
+            }
+            for i in 0..n {
+                let lo = i.saturating_sub(r);
+                let hi = (i + r + 1).min(n);
+                buf[index(k, i)] = ((prefix[hi] - prefix[lo]) / (hi - lo) as f64) as f32;
+            }
+        }
+    };
+    pass(buf, w, h, &|row, i| row * w + i);
+    pass(buf, h, w, &|col, i| i * w + col);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disc(w: u32, h: u32, cx: f64, cy: f64, r: f64) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| {
+            // Anti-aliased disc: 4x4 samples per pixel.
+            let mut hits = 0;
+            for a in 0..4 {
+                for b in 0..4 {
+                    let (px, py) = (x as f64 + (a as f64 + 0.5) / 4.0, y as f64 + (b as f64 + 0.5) / 4.0);
+                    if (px - cx).hypot(py - cy) < r {
+                        hits += 1;
+                    }
+                }
+            }
+            let v = 20 + (hits * 200 / 16) as u8;
+            image::Rgb([v, v, v])
+        })
+    }
+
+    #[test]
+    fn finds_a_disc_to_sub_pixel() {
+        let reference = RgbImage::from_pixel(128, 96, image::Rgb([20, 20, 20]));
+        for (cx, cy) in [(40.3, 50.7), (80.5, 30.25), (64.0, 48.0)] {
+            let c = detect_contact(&disc(128, 96, cx, cy, 7.0), &reference, &DetectOptions::default()).unwrap();
+            assert!((c.centroid_px[0] - cx).abs() < 0.1 && (c.centroid_px[1] - cy).abs() < 0.1, "{c} vs ({cx}, {cy})");
+        }
+    }
+
+    #[test]
+    fn no_contact_and_bad_sizes_are_errors() {
+        let reference = RgbImage::from_pixel(64, 64, image::Rgb([20, 20, 20]));
+        assert!(matches!(detect_contact(&reference, &reference, &DetectOptions::default()), Err(DetectError::NoContact { .. })));
+        let other = RgbImage::new(32, 64);
+        assert!(matches!(detect_contact(&other, &reference, &DetectOptions::default()), Err(DetectError::SizeMismatch { .. })));
+        let empty = RgbImage::new(0, 0);
+        assert_eq!(detect_contact(&empty, &empty, &DetectOptions::default()), Err(DetectError::Empty));
+    }
+}
