@@ -8,6 +8,10 @@
 //! is that region's centroid weighted by how far each pixel rises above the threshold, which
 //! lands between pixels (sub-pixel) and does not depend on where the peak pixel happens to be.
 //!
+//! On marker skins ([`detect_marker_contact`]) the pins are found in both images, matched,
+//! and the contact is the centre their displacements point away from (see there).
+//! [`ContactDetector`] picks one per sensor kind.
+//!
 //! Works on any bytes: mismatched sizes and empty images are errors, never panics.
 
 use image::RgbImage;
@@ -21,6 +25,40 @@ pub enum DetectError {
     Empty,
     #[error("no contact: strongest change {peak:.2} levels is within {contrast:.2} of the noise floor {floor:.2}")]
     NoContact { peak: f64, floor: f64, contrast: f64 },
+    #[error("only {found} markers found in the reference (need {needed})")]
+    TooFewMarkers { found: usize, needed: usize },
+    #[error("no contact: {moved} markers moved more than {min_shift_px} px (need {needed})")]
+    MarkersStill { moved: usize, min_shift_px: f64, needed: usize },
+    #[error("the marker displacements do not point away from one centre")]
+    NoCentre,
+}
+
+/// How contacts are located: by the changed pixels (see-through skins, where the object
+/// itself shows) or by the markers' displacement field (marker skins, where the pins move
+/// but the object is invisible and a changed-pixel centroid jumps between pins).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ContactDetector {
+    Difference(DetectOptions),
+    Markers(MarkerOptions),
+}
+
+impl ContactDetector {
+    /// The detector suited to a sensor kind at an image width: markers for TacTip (white
+    /// pins), the changed pixels for ViTac and ViTacTip.
+    pub fn for_sensor(kind: crate::sim::sensor::SensorKind, width: u32) -> Self {
+        match kind {
+            crate::sim::sensor::SensorKind::TacTip => Self::Markers(MarkerOptions::default()),
+            _ => Self::Difference(DetectOptions::for_width(width)),
+        }
+    }
+
+    /// Locates the contact in `frame` against the no-contact `reference`.
+    pub fn detect(&self, frame: &RgbImage, reference: &RgbImage) -> Result<Contact, DetectError> {
+        match self {
+            Self::Difference(o) => detect_contact(frame, reference, o),
+            Self::Markers(o) => detect_marker_contact(frame, reference, o),
+        }
+    }
 }
 
 /// Settings of [`detect_contact`].
@@ -74,6 +112,148 @@ impl std::fmt::Display for Contact {
             self.peak - self.floor
         )
     }
+}
+
+/// Settings of [`detect_marker_contact`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerOptions {
+    /// Markers are brighter than the skin (TacTip: white pins on black); `false` for dark
+    /// markers on a bright skin.
+    pub bright: bool,
+    /// Smallest and largest marker blob, px.
+    pub min_area_px: usize,
+    pub max_area_px: usize,
+    /// Least displacement counted as moved, px.
+    pub min_shift_px: f64,
+    /// Fewest moved markers for a detection.
+    pub min_moved: usize,
+}
+
+impl Default for MarkerOptions {
+    fn default() -> Self {
+        Self { bright: true, min_area_px: 4, max_area_px: 4000, min_shift_px: 0.25, min_moved: 4 }
+    }
+}
+
+/// Sub-pixel marker centroids: connected blobs brighter (or darker) than halfway between the
+/// image's median and its 99.5th (0.5th) percentile, weighted by how far they pass it.
+pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    let sign = if options.bright { 1.0 } else { -1.0 };
+    let g: Vec<f32> =
+        image.as_raw().chunks_exact(3).map(|p| sign * (p[0] as f32 * 0.299 + p[1] as f32 * 0.587 + p[2] as f32 * 0.114)).collect();
+    let mut sorted = g.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let high = sorted[((sorted.len() - 1) as f64 * 0.995) as usize];
+    let threshold = (median + high) / 2.0;
+    if !(high - median > 10.0) {
+        return Vec::new();
+    }
+    let mut seen = vec![false; w * h];
+    let mut markers = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if seen[start] || g[start] <= threshold {
+            continue;
+        }
+        seen[start] = true;
+        stack.push(start);
+        let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            let wt = (g[i] - threshold) as f64;
+            su += wt * (x as f64 + 0.5);
+            sv += wt * (y as f64 + 0.5);
+            sw += wt;
+            area += 1;
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then(|| i + 1),
+                (y > 0).then(|| i - w),
+                (y + 1 < h).then(|| i + w),
+            ];
+            for j in neighbours.into_iter().flatten() {
+                if !seen[j] && g[j] > threshold {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        if (options.min_area_px..=options.max_area_px).contains(&area) && sw > 0.0 {
+            markers.push([su / sw, sv / sw]);
+        }
+    }
+    markers
+}
+
+/// Locates the contact on a marker skin: markers are matched between the reference and the
+/// frame (nearest within half the typical marker spacing), and the contact is the point the
+/// displacements point away from (least squares on `d x (p - c) = 0`, each marker weighted by
+/// its displacement squared). Independent of where the lattice's markers happen to lie, unlike
+/// a centroid of the changed pixels.
+pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &MarkerOptions) -> Result<Contact, DetectError> {
+    if frame.dimensions() != reference.dimensions() {
+        return Err(DetectError::SizeMismatch {
+            frame: [frame.width(), frame.height()],
+            reference: [reference.width(), reference.height()],
+        });
+    }
+    let before = find_markers(reference, options);
+    let after = find_markers(frame, options);
+    if before.len() < options.min_moved || after.is_empty() {
+        return Err(DetectError::TooFewMarkers { found: before.len(), needed: options.min_moved });
+    }
+    let dist2 = |a: &[f64; 2], b: &[f64; 2]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+    let nearest = |p: &[f64; 2], set: &[[f64; 2]], skip_self: bool| -> Option<(usize, f64)> {
+        set.iter()
+            .enumerate()
+            .map(|(j, q)| (j, dist2(p, q)))
+            .filter(|(_, d)| !skip_self || *d > 0.0)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    let mut spacings: Vec<f64> = before.iter().filter_map(|p| nearest(p, &before, true)).map(|(_, d)| d.sqrt()).collect();
+    spacings.sort_by(f64::total_cmp);
+    let spacing = spacings.get(spacings.len() / 2).copied().unwrap_or(0.0);
+    let max_shift = spacing / 2.0;
+    let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut moved, mut peak) = (0usize, 0.0f64);
+    for p in &before {
+        let Some((j, d2)) = nearest(p, &after, false) else { continue };
+        let shift = d2.sqrt();
+        if !(shift > options.min_shift_px && shift < max_shift) {
+            continue;
+        }
+        // Only mutual matches: the frame marker's nearest reference marker is this one.
+        if nearest(&after[j], &before, false).is_none_or(|(_, back)| back < d2) {
+            continue;
+        }
+        let d = [after[j][0] - p[0], after[j][1] - p[1]];
+        // Row [d.y, -d.x] . c = d.y p.x - d.x p.y.
+        let (r1, r2, rhs) = (d[1], -d[0], d[1] * p[0] - d[0] * p[1]);
+        a11 += r1 * r1;
+        a12 += r1 * r2;
+        a22 += r2 * r2;
+        b1 += r1 * rhs;
+        b2 += r2 * rhs;
+        moved += 1;
+        peak = peak.max(shift);
+    }
+    if moved < options.min_moved {
+        return Err(DetectError::MarkersStill { moved, min_shift_px: options.min_shift_px, needed: options.min_moved });
+    }
+    let det = a11 * a22 - a12 * a12;
+    if !(det.abs() > 1e-9 * (a11 * a22).abs().max(f64::MIN_POSITIVE)) {
+        return Err(DetectError::NoCentre);
+    }
+    let c = [(b1 * a22 - b2 * a12) / det, (a11 * b2 - a12 * b1) / det];
+    if !c.iter().all(|v| v.is_finite()) {
+        return Err(DetectError::NoCentre);
+    }
+    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0 })
 }
 
 /// Locates the contact in `frame` against the no-contact `reference`.

@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use image::RgbImage;
 
-use super::detect::{Contact, DetectError, DetectOptions, detect_contact};
+use super::detect::{Contact, ContactDetector, DetectError};
 use super::fit::{FitError, FitOptions, PointFit, fit_points};
 use super::FitPoint;
 use crate::arm::{Arm, ArmError, MoveKind};
@@ -27,8 +27,10 @@ use crate::config::CollectConfig;
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
 
-/// Radius of the calibration indenter, mm (a small sphere gives a compact, round imprint).
-pub const INDENTER_RADIUS_MM: f32 = 3.0;
+/// Radius of the calibration indenter, mm. Large enough that its dent moves a few dozen
+/// markers of a TacTip (whose displacement field locates it to a fraction of a pixel), small
+/// enough that its imprint stays inside the field of view over the press pattern.
+pub const INDENTER_RADIUS_MM: f32 = 8.0;
 
 /// The calibration indenter: a sphere of [`INDENTER_RADIUS_MM`] whose top is at the library
 /// objects' top height, so it presses like them.
@@ -127,7 +129,7 @@ pub struct ArmStation<'a, A: Arm, C: Camera> {
     pub camera: C,
     pub work_frame: WorkFrame,
     pub options: CollectConfig,
-    pub detect: DetectOptions,
+    pub detector: ContactDetector,
     pub reference: Option<RgbImage>,
     /// Not used for timing (arrival times come from the arm), kept so callers hand in the rig
     /// clock like every job does.
@@ -160,7 +162,7 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
         let (image, _) = crate::collect::capture(&mut self.camera, arrival.t_s + self.options.settle_s, &self.options).await?;
         crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
         let reference = self.reference.as_ref().ok_or(PressError::NoReference)?;
-        let contact = detect_contact(&image, reference, &self.detect);
+        let contact = self.detector.detect(&image, reference);
         Ok(Press { offset, measured: self.work_frame.plan_pose(&arrival.measured), contact })
     }
 

@@ -70,7 +70,7 @@ pub async fn run_wizard<S: PressStation, I: WizardIo>(
     save_to: &str,
 ) -> Result<WizardOutcome, WizardError> {
     io.say(&format!("Calibrating {what}: pixel-to-mm mapping from {} presses.", pattern.offsets.len()))?;
-    io.say("Mount the calibration indenter (a 3 mm radius sphere) on the plinth at the work-frame origin,")?;
+    io.say("Mount the calibration indenter (an 8 mm radius sphere) on the plinth at the work-frame origin,")?;
     io.say("directly under the sensor centre, and keep the sensor skin clean and unpressed.")?;
     if matches!(answer(io.ask("Press Enter when it is mounted (q to quit): ")?, true), Answer::Quit) {
         return Ok(WizardOutcome::Quit);

@@ -28,7 +28,7 @@ use clap::Args as ClapArgs;
 use image::RgbImage;
 use sha2::{Digest, Sha256};
 
-use crate::calibration::detect::{DetectOptions, detect_contact};
+use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit, fit_points};
 use crate::calibration::press::{ArmStation, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
 use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
@@ -151,12 +151,13 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     let clock = crate::rigs::clock_for(&config);
     let mut rig = Rig::open(&config, &object, &SensorChoice(vec![args.sensor]), args.seed, Arc::clone(&clock)).await?;
     let camera = rig.cameras.pop().context("the rig opened no camera")?;
+    let sensor_name = args.sensor.to_string();
     let mut station = ArmStation {
         arm: &mut rig.arm,
         camera,
         work_frame: config.work_frame,
         options: config.collect.clone(),
-        detect: DetectOptions::default(),
+        detector: ContactDetector::for_sensor(args.sensor, config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width)),
         reference: None,
         clock,
     };
@@ -232,11 +233,11 @@ fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
         rig_dataset_frames(dir)?
     };
     println!("{}: {} frames of {} with known poses", dir.display(), frames.len(), args.sensor);
-    let opts = DetectOptions::for_width(reference.width());
+    let detector = ContactDetector::for_sensor(args.sensor, reference.width());
     let mut points = Vec::new();
     let mut names = Vec::new();
     for (name, pose, image) in &frames {
-        match detect_contact(image, &reference, &opts) {
+        match detector.detect(image, &reference) {
             Ok(c) => {
                 println!("{name}: pose ({:+.2}, {:+.2}) mm yaw {:+.1}: {c}", pose.x_mm, pose.y_mm, pose.yaw_deg);
                 points.push(FitPoint { mm: sensor_point_mm(pose), px: c.centroid_px });
