@@ -125,3 +125,14 @@ fn from_dataset_refuses_a_degenerate_dataset_clearly() {
     assert!(all.contains("one spot"), "{all}");
     assert!(!dir.path().join("x.toml").exists());
 }
+
+#[test]
+fn collect_uses_the_saved_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("calibration")).unwrap();
+    std::fs::write(dir.path().join("calibration/tactip.toml"), TRUTH).unwrap();
+    let out = rig(dir.path(), &["collect", "--object", "sphere", "--sensor", "tactip", "--poses", "1", "--out", "ds"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let manifest = std::fs::read_to_string(dir.path().join("ds/sphere/tactip/manifest.toml")).unwrap();
+    assert!(manifest.contains("calibration/tactip.toml"), "{manifest}");
+}

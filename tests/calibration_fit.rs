@@ -112,3 +112,30 @@ fn the_fit_record_keeps_points_and_residuals() {
     assert_eq!(record.residuals_px.len(), 5);
     assert!(fit.residual_line().starts_with("residual 0.00 px"), "{}", fit.residual_line());
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    /// Detection never panics, whatever the bytes and sizes.
+    #[test]
+    fn detectors_never_panic(
+        w in 0u32..24, h in 0u32..24, w2 in 0u32..24,
+        bytes in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
+        bytes2 in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
+    ) {
+        use rig::calibration::detect::{ContactDetector, DetectOptions, MarkerOptions};
+        let img = |w: u32, h: u32, b: &[u8]| {
+            image::RgbImage::from_fn(w, h, |x, y| {
+                let i = ((y * w + x) * 3) as usize;
+                image::Rgb([0, 1, 2].map(|k| b.get(i + k).copied().unwrap_or(0)))
+            })
+        };
+        let (a, b, c) = (img(w, h, &bytes), img(w, h, &bytes2), img(w2, h, &bytes2));
+        for d in [ContactDetector::Difference(DetectOptions::default()), ContactDetector::Markers(MarkerOptions::default())] {
+            if let Ok(found) = d.detect(&a, &b) {
+                prop_assert!(found.centroid_px.iter().all(|v| v.is_finite()));
+            }
+            let _ = d.detect(&a, &c);
+        }
+    }
+}

@@ -99,10 +99,20 @@ pub struct Contact {
     pub peak: f64,
     /// Noise floor, grey levels.
     pub floor: f64,
+    /// Marker detection: how many markers moved (then `peak` is the largest shift in px and
+    /// `area_px` the same count); `None` for a changed-pixel detection.
+    pub moved_markers: Option<usize>,
 }
 
 impl std::fmt::Display for Contact {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(n) = self.moved_markers {
+            return write!(
+                f,
+                "contact at ({:.2}, {:.2}) px, {n} markers moved, up to {:.2} px",
+                self.centroid_px[0], self.centroid_px[1], self.peak
+            );
+        }
         write!(
             f,
             "contact at ({:.2}, {:.2}) px, {} px region, contrast {:.1} levels",
@@ -253,7 +263,7 @@ pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &M
     if !c.iter().all(|v| v.is_finite()) {
         return Err(DetectError::NoCentre);
     }
-    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0 })
+    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0, moved_markers: Some(moved) })
 }
 
 /// Locates the contact in `frame` against the no-contact `reference`.
@@ -329,7 +339,7 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
         // Only the peak itself (a flat top at the threshold): its centre.
         [(peak_i % w) as f64 + 0.5, (peak_i / w) as f64 + 0.5]
     };
-    Ok(Contact { centroid_px, area_px: area, peak, floor })
+    Ok(Contact { centroid_px, area_px: area, peak, floor, moved_markers: None })
 }
 
 /// In-place box blur of radius `r` (window `2r + 1`, clamped at the borders: the mean over the
@@ -390,6 +400,48 @@ mod tests {
             let c = detect_contact(&disc(128, 96, cx, cy, 7.0), &reference, &DetectOptions::default()).unwrap();
             assert!((c.centroid_px[0] - cx).abs() < 0.1 && (c.centroid_px[1] - cy).abs() < 0.1, "{c} vs ({cx}, {cy})");
         }
+    }
+
+    /// Bright discs on a square lattice, pushed away from `centre` by a Gaussian-profile shift.
+    fn pins(centre: Option<[f64; 2]>) -> RgbImage {
+        let mut pos = Vec::new();
+        for j in 0..9 {
+            for i in 0..9 {
+                let p = [16.0 + 20.0 * i as f64 + 3.0 * (j % 2) as f64, 16.0 + 20.0 * j as f64];
+                let q = match centre {
+                    Some(c) => {
+                        let (dx, dy) = (p[0] - c[0], p[1] - c[1]);
+                        let r = dx.hypot(dy).max(1e-9);
+                        let shift = 4.0 * (r / 25.0) * (-(r * r) / (2.0 * 25.0 * 25.0)).exp();
+                        [p[0] + shift * dx / r, p[1] + shift * dy / r]
+                    }
+                    None => p,
+                };
+                pos.push(q);
+            }
+        }
+        RgbImage::from_fn(200, 200, |x, y| {
+            let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+            let d = pos.iter().map(|q| (q[0] - px).hypot(q[1] - py)).fold(f64::MAX, f64::min);
+            let v = (10.0 + 200.0 * (3.5 - d).clamp(0.0, 1.0)) as u8;
+            image::Rgb([v, v, v])
+        })
+    }
+
+    #[test]
+    fn marker_field_points_at_the_contact() {
+        let reference = pins(None);
+        for c in [[100.0, 100.0], [83.3, 111.7], [120.4, 90.9]] {
+            let got = detect_marker_contact(&pins(Some(c)), &reference, &MarkerOptions::default()).unwrap();
+            assert!((got.centroid_px[0] - c[0]).hypot(got.centroid_px[1] - c[1]) < 0.3, "{got} vs {c:?}");
+            assert!(got.moved_markers.unwrap() >= 8, "{got}");
+        }
+        assert!(matches!(
+            detect_marker_contact(&reference, &reference, &MarkerOptions::default()),
+            Err(DetectError::MarkersStill { moved: 0, .. })
+        ));
+        let blank = RgbImage::from_pixel(200, 200, image::Rgb([10, 10, 10]));
+        assert!(matches!(detect_marker_contact(&blank, &blank, &MarkerOptions::default()), Err(DetectError::TooFewMarkers { .. })));
     }
 
     #[test]

@@ -212,7 +212,7 @@ mod tests {
             let contact = if self.presses == 2 {
                 Err(DetectError::NoContact { peak: 1.0, floor: 0.5, contrast: 3.0 })
             } else {
-                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0 })
+                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0, moved_markers: None })
             };
             Ok(Press { offset, measured: offset, contact })
         }

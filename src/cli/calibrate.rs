@@ -193,11 +193,12 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     if let Some(size) = size {
         fit.calibration.image_size = size;
     }
-    save_and_report(&fit, out, args.sim_truth.as_deref())
+    save_and_report(&fit, out, args.sim_truth.as_deref(), !args.interactive)
 }
 
-/// Saves the calibration and prints the mapping; the residual is the last line.
-fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>) -> anyhow::Result<()> {
+/// Saves the calibration and prints the mapping (only the residual when the wizard has shown
+/// it already); the residual is the last line.
+fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>, mapping: bool) -> anyhow::Result<()> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
@@ -219,8 +220,12 @@ fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>) -> anyhow::
             crate::pose::wrap_deg(c.rotation_deg - t.rotation_deg)
         );
     }
-    for line in describe_fit(fit) {
-        println!("{line}");
+    if mapping {
+        for line in describe_fit(fit) {
+            println!("{line}");
+        }
+    } else {
+        println!("{}", fit.residual_line());
     }
     Ok(())
 }
@@ -255,7 +260,7 @@ fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
     if let Some(record) = fit.calibration.fit.as_mut() {
         record.frames = names;
     }
-    save_and_report(&fit, out, None)
+    save_and_report(&fit, out, None, true)
 }
 
 type KnownFrames = (Vec<(String, Pose, RgbImage)>, RgbImage);
