@@ -109,7 +109,7 @@ fn from_dataset_refuses_a_degenerate_dataset_clearly() {
             frame.put_pixel(x, y, image::Rgb([200, 200, 200]));
         }
     }
-    let mut csv = String::from(rig::dataset::COLUMNS.join(","));
+    let mut csv = rig::dataset::COLUMNS.join(",");
     csv.push('\n');
     for id in 0..3u32 {
         frame.save(ds.join(format!("images/{id}.png"))).unwrap();

@@ -14,6 +14,9 @@
 //!
 //! Works on any bytes: mismatched sizes and empty images are errors, never panics.
 
+// `!(a > b)` is deliberate here: a NaN must fail every check, which `a <= b` would not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use image::RgbImage;
 
 /// Why no contact was found.

@@ -23,6 +23,9 @@
 //! Whatever the input, the result is either an error or a calibration whose numbers are all
 //! finite (checked last, so a numerically hopeless input is an error, never NaN).
 
+// `!(a > b)` is deliberate here: a NaN must fail every check, which `a <= b` would not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::{Calibration, FitPoint, FitRecord};
 
 /// Fewest points the fit accepts (five parameters; three points in general position fix an
@@ -376,8 +379,9 @@ fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; 
         b.swap(col, pivot);
         for row in col + 1..N {
             let f = a[row][col] / a[col][col];
-            for k in col..N {
-                a[row][k] -= f * a[col][k];
+            let pivot_row = a[col];
+            for (v, p) in a[row].iter_mut().zip(pivot_row).skip(col) {
+                *v -= f * p;
             }
             b[row] -= f * b[col];
         }
