@@ -38,6 +38,9 @@ use crate::pose::Pose;
 use crate::rigs::{ObjectChoice, Rig, SensorChoice};
 use crate::sim::sensor::SensorKind;
 
+/// The accuracy the calibration should reach (the paper's figure), px RMS.
+pub const TARGET_RMS_PX: f64 = 5.0;
+
 /// Arguments of `rig calibrate`.
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -259,6 +262,12 @@ fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
     }
     if let Some(record) = fit.calibration.fit.as_mut() {
         record.frames = names;
+    }
+    if fit.rms_px > TARGET_RMS_PX {
+        println!(
+            "warning: the residual is above the {TARGET_RMS_PX} px target: the logged poses do not move the contact as a rigid \
+             pixel-to-mm map says (check the poses, or fit with a pose correction: rig compare-real --fit)"
+        );
     }
     save_and_report(&fit, out, None, true)
 }
