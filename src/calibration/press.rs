@@ -13,7 +13,6 @@
 //! whole [`PressPattern`] and hands the points to [`fit_points`].
 
 use std::future::Future;
-use std::sync::Arc;
 use std::time::Duration;
 
 use image::RgbImage;
@@ -130,10 +129,8 @@ pub struct ArmStation<'a, A: Arm, C: Camera> {
     pub work_frame: WorkFrame,
     pub options: CollectConfig,
     pub detector: ContactDetector,
+    /// The no-contact frame, once [`PressStation::take_reference`] has run.
     pub reference: Option<RgbImage>,
-    /// Not used for timing (arrival times come from the arm), kept so callers hand in the rig
-    /// clock like every job does.
-    pub clock: Arc<dyn crate::clock::Clock>,
 }
 
 impl<A: Arm, C: Camera> ArmStation<'_, A, C> {

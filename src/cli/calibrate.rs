@@ -152,7 +152,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         mesh: Arc::new(mesh),
     };
     let clock = crate::rigs::clock_for(&config);
-    let mut rig = Rig::open(&config, &object, &SensorChoice(vec![args.sensor]), args.seed, Arc::clone(&clock)).await?;
+    let mut rig = Rig::open(&config, &object, &SensorChoice(vec![args.sensor]), args.seed, clock).await?;
     let camera = rig.cameras.pop().context("the rig opened no camera")?;
     let sensor_name = args.sensor.to_string();
     let mut station = ArmStation {
@@ -162,7 +162,6 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         options: config.collect.clone(),
         detector: ContactDetector::for_sensor(args.sensor, config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width)),
         reference: None,
-        clock,
     };
     let sensor = args.sensor.to_string();
     let fit = if args.interactive {
