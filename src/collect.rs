@@ -123,9 +123,8 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
 
     /// Moves to `target` and waits for arrival.
     async fn go(&mut self, target: Pose, kind: MoveKind) -> Result<crate::arm::Arrival, ArmError> {
-        self.arm.move_to(target, kind).await?;
         let timeout = self.move_timeout();
-        self.arm.wait_arrived(target, timeout).await
+        go(&mut *self.arm, target, kind, timeout).await
     }
 
     /// Runs the plan. Poses already present in every sensor's dataset are skipped.
@@ -264,13 +263,19 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
     }
 }
 
+/// Moves `arm` to `target` and waits for arrival (the step every job repeats).
+pub async fn go<A: Arm>(arm: &mut A, target: Pose, kind: MoveKind, timeout: Duration) -> Result<crate::arm::Arrival, ArmError> {
+    arm.move_to(target, kind).await?;
+    arm.wait_arrived(target, timeout).await
+}
+
 fn has_reference(writer: &DatasetWriter) -> bool {
     writer.dir().join("reference.png").is_file()
 }
 
 /// Captures `frames_per_pose` frames exposed after `not_before_s`; returns the last frame (or the
 /// pixel mean when averaging) and the mean capture time.
-async fn capture<C: Camera>(
+pub async fn capture<C: Camera>(
     camera: &mut C,
     not_before_s: f64,
     options: &CollectConfig,

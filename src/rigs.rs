@@ -411,7 +411,10 @@ impl Rig {
                     };
                     let (width, height) = sensor_cfg.map(|s| (s.width, s.height)).unwrap_or((512, 512));
                     let scene_name = sensor_cfg.map(|s| s.scene.clone()).unwrap_or_else(|| "full".into());
-                    let (calib, calib_name) = match sensor_cfg.and_then(|s| s.calibration.clone()) {
+                    // The configured file, else the one `rig calibrate` saved, else the default.
+                    let saved = crate::calibration::saved_path(&kind.to_string());
+                    let configured = sensor_cfg.and_then(|s| s.calibration.clone());
+                    let (calib, calib_name) = match configured.or_else(|| saved.is_file().then_some(saved)) {
                         Some(p) => (
                             Calibration::load(&p).map_err(|e| RigError::Calibration { path: p.clone(), reason: e.to_string() })?,
                             p.display().to_string(),

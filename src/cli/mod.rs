@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod calibrate;
 pub mod collect;
 pub mod fill;
 pub mod sim;
@@ -51,6 +52,8 @@ pub enum Command {
     Render(render::Args),
     /// The STL object library: regenerate it, or draw a contact sheet.
     Objects(objects::Args),
+    /// Calibrate a sensor's pixel-to-mm mapping (automatic presses, wizard, or from a dataset).
+    Calibrate(calibrate::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
     CompareReal(compare::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
@@ -81,6 +84,7 @@ pub fn main() -> ExitCode {
         Command::CompareReal(args) => compare::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Devices(args) => devices::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

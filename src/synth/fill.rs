@@ -248,7 +248,14 @@ fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
 /// The calibration named in the manifest ("default": the default for the image size).
 fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> Result<Calibration, FillError> {
     match manifest.calibration.as_deref() {
-        None | Some("default") => Ok(Calibration::default_for(width, height)),
+        // An uncalibrated collection: the calibration `rig calibrate` saved since, if any.
+        None | Some("default") => {
+            let saved = crate::calibration::saved_path(&manifest.sensor);
+            if saved.is_file() {
+                return calibration_of(dir, &Manifest { calibration: Some(saved.display().to_string()), ..manifest.clone() }, width, height);
+            }
+            Ok(Calibration::default_for(width, height))
+        }
         Some(path) => Calibration::load(Path::new(path)).map_err(|e| FillError::Calibration {
             dir: dir.to_path_buf(),
             calibration: path.to_string(),

@@ -1,0 +1,459 @@
+//! Contact detection: where in the image the indenter (or object) presses, to sub-pixel.
+//!
+//! Against the no-contact reference frame: the per-pixel change (largest of the three channel
+//! differences), smoothed by a box blur applied three times (close to a Gaussian, and wide
+//! enough that a marker skin's discrete pins merge into one blob), a noise floor (median plus
+//! a multiple of the median absolute deviation of the smoothed change), and the connected
+//! region around the strongest change above `floor + fraction * (peak - floor)`. The contact
+//! is that region's centroid weighted by how far each pixel rises above the threshold, which
+//! lands between pixels (sub-pixel) and does not depend on where the peak pixel happens to be.
+//!
+//! On marker skins ([`detect_marker_contact`]) the pins are found in both images, matched,
+//! and the contact is the centre their displacements point away from (see there).
+//! [`ContactDetector`] picks one per sensor kind.
+//!
+//! Works on any bytes: mismatched sizes and empty images are errors, never panics.
+
+// `!(a > b)` is deliberate here: a NaN must fail every check, which `a <= b` would not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use image::RgbImage;
+
+/// Why no contact was found.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DetectError {
+    #[error("frame is {frame:?} px but the reference is {reference:?} px")]
+    SizeMismatch { frame: [u32; 2], reference: [u32; 2] },
+    #[error("empty image")]
+    Empty,
+    #[error("no contact: strongest change {peak:.2} levels is within {contrast:.2} of the noise floor {floor:.2}")]
+    NoContact { peak: f64, floor: f64, contrast: f64 },
+    #[error("only {found} markers found in the reference (need {needed})")]
+    TooFewMarkers { found: usize, needed: usize },
+    #[error("no contact: {moved} markers moved more than {min_shift_px} px (need {needed})")]
+    MarkersStill { moved: usize, min_shift_px: f64, needed: usize },
+    #[error("the marker displacements do not point away from one centre")]
+    NoCentre,
+}
+
+/// How contacts are located: by the changed pixels (see-through skins, where the object
+/// itself shows) or by the markers' displacement field (marker skins, where the pins move
+/// but the object is invisible and a changed-pixel centroid jumps between pins).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ContactDetector {
+    Difference(DetectOptions),
+    Markers(MarkerOptions),
+}
+
+impl ContactDetector {
+    /// The detector suited to a sensor kind at an image width: markers for TacTip (white
+    /// pins), the changed pixels for ViTac and ViTacTip.
+    pub fn for_sensor(kind: crate::sim::sensor::SensorKind, width: u32) -> Self {
+        match kind {
+            crate::sim::sensor::SensorKind::TacTip => Self::Markers(MarkerOptions::default()),
+            _ => Self::Difference(DetectOptions::for_width(width)),
+        }
+    }
+
+    /// Locates the contact in `frame` against the no-contact `reference`.
+    pub fn detect(&self, frame: &RgbImage, reference: &RgbImage) -> Result<Contact, DetectError> {
+        match self {
+            Self::Difference(o) => detect_contact(frame, reference, o),
+            Self::Markers(o) => detect_marker_contact(frame, reference, o),
+        }
+    }
+}
+
+/// Settings of [`detect_contact`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectOptions {
+    /// Box-blur radius, px (applied three times).
+    pub blur_px: u32,
+    /// Region threshold between the floor (0) and the peak (1).
+    pub fraction: f64,
+    /// Least rise of the peak above the floor counted as a contact, grey levels.
+    pub min_contrast: f64,
+    /// Floor = median + this many MADs of the smoothed change.
+    pub floor_mads: f64,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        Self { blur_px: 6, fraction: 0.3, min_contrast: 3.0, floor_mads: 4.0 }
+    }
+}
+
+impl DetectOptions {
+    /// Defaults with the blur scaled to the image width (6 px at 512 px).
+    pub fn for_width(width: u32) -> Self {
+        Self { blur_px: ((6 * width) / 512).max(1), ..Self::default() }
+    }
+}
+
+/// A detected contact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Contact {
+    /// Weighted centroid (column, row) in pixel coordinates where pixel (i, j) covers
+    /// `[i, i+1) x [j, j+1)`, i.e. its centre is at `i + 0.5`.
+    pub centroid_px: [f64; 2],
+    /// Pixels in the contact region.
+    pub area_px: usize,
+    /// Strongest smoothed change, grey levels.
+    pub peak: f64,
+    /// Noise floor, grey levels.
+    pub floor: f64,
+    /// Marker detection: how many markers moved (then `peak` is the largest shift in px and
+    /// `area_px` the same count); `None` for a changed-pixel detection.
+    pub moved_markers: Option<usize>,
+}
+
+impl std::fmt::Display for Contact {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(n) = self.moved_markers {
+            return write!(
+                f,
+                "contact at ({:.2}, {:.2}) px, {n} markers moved, up to {:.2} px",
+                self.centroid_px[0], self.centroid_px[1], self.peak
+            );
+        }
+        write!(
+            f,
+            "contact at ({:.2}, {:.2}) px, {} px region, contrast {:.1} levels",
+            self.centroid_px[0],
+            self.centroid_px[1],
+            self.area_px,
+            self.peak - self.floor
+        )
+    }
+}
+
+/// Settings of [`detect_marker_contact`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerOptions {
+    /// Markers are brighter than the skin (TacTip: white pins on black); `false` for dark
+    /// markers on a bright skin.
+    pub bright: bool,
+    /// Smallest and largest marker blob, px.
+    pub min_area_px: usize,
+    pub max_area_px: usize,
+    /// Least displacement counted as moved, px.
+    pub min_shift_px: f64,
+    /// Fewest moved markers for a detection.
+    pub min_moved: usize,
+}
+
+impl Default for MarkerOptions {
+    fn default() -> Self {
+        Self { bright: true, min_area_px: 4, max_area_px: 4000, min_shift_px: 0.25, min_moved: 4 }
+    }
+}
+
+/// Sub-pixel marker centroids: connected blobs brighter (or darker) than halfway between the
+/// image's median and its 99.5th (0.5th) percentile, weighted by how far they pass it.
+pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    let sign = if options.bright { 1.0 } else { -1.0 };
+    let g: Vec<f32> =
+        image.as_raw().chunks_exact(3).map(|p| sign * (p[0] as f32 * 0.299 + p[1] as f32 * 0.587 + p[2] as f32 * 0.114)).collect();
+    let mut sorted = g.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let high = sorted[((sorted.len() - 1) as f64 * 0.995) as usize];
+    let threshold = (median + high) / 2.0;
+    if !(high - median > 10.0) {
+        return Vec::new();
+    }
+    let mut seen = vec![false; w * h];
+    let mut markers = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if seen[start] || g[start] <= threshold {
+            continue;
+        }
+        seen[start] = true;
+        stack.push(start);
+        let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            let wt = (g[i] - threshold) as f64;
+            su += wt * (x as f64 + 0.5);
+            sv += wt * (y as f64 + 0.5);
+            sw += wt;
+            area += 1;
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then(|| i + 1),
+                (y > 0).then(|| i - w),
+                (y + 1 < h).then(|| i + w),
+            ];
+            for j in neighbours.into_iter().flatten() {
+                if !seen[j] && g[j] > threshold {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        if (options.min_area_px..=options.max_area_px).contains(&area) && sw > 0.0 {
+            markers.push([su / sw, sv / sw]);
+        }
+    }
+    markers
+}
+
+/// Locates the contact on a marker skin: markers are matched between the reference and the
+/// frame (nearest within half the typical marker spacing), and the contact is the point the
+/// displacements point away from (least squares on `d x (p - c) = 0`, each marker weighted by
+/// its displacement squared). Independent of where the lattice's markers happen to lie, unlike
+/// a centroid of the changed pixels.
+pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &MarkerOptions) -> Result<Contact, DetectError> {
+    if frame.dimensions() != reference.dimensions() {
+        return Err(DetectError::SizeMismatch {
+            frame: [frame.width(), frame.height()],
+            reference: [reference.width(), reference.height()],
+        });
+    }
+    let before = find_markers(reference, options);
+    let after = find_markers(frame, options);
+    if before.len() < options.min_moved || after.is_empty() {
+        return Err(DetectError::TooFewMarkers { found: before.len(), needed: options.min_moved });
+    }
+    let dist2 = |a: &[f64; 2], b: &[f64; 2]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+    let nearest = |p: &[f64; 2], set: &[[f64; 2]], skip_self: bool| -> Option<(usize, f64)> {
+        set.iter()
+            .enumerate()
+            .map(|(j, q)| (j, dist2(p, q)))
+            .filter(|(_, d)| !skip_self || *d > 0.0)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    let mut spacings: Vec<f64> = before.iter().filter_map(|p| nearest(p, &before, true)).map(|(_, d)| d.sqrt()).collect();
+    spacings.sort_by(f64::total_cmp);
+    let spacing = spacings.get(spacings.len() / 2).copied().unwrap_or(0.0);
+    let max_shift = spacing / 2.0;
+    let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut moved, mut peak) = (0usize, 0.0f64);
+    for p in &before {
+        let Some((j, d2)) = nearest(p, &after, false) else { continue };
+        let shift = d2.sqrt();
+        if !(shift > options.min_shift_px && shift < max_shift) {
+            continue;
+        }
+        // Only mutual matches: the frame marker's nearest reference marker is this one.
+        if nearest(&after[j], &before, false).is_none_or(|(_, back)| back < d2) {
+            continue;
+        }
+        let d = [after[j][0] - p[0], after[j][1] - p[1]];
+        // Row [d.y, -d.x] . c = d.y p.x - d.x p.y.
+        let (r1, r2, rhs) = (d[1], -d[0], d[1] * p[0] - d[0] * p[1]);
+        a11 += r1 * r1;
+        a12 += r1 * r2;
+        a22 += r2 * r2;
+        b1 += r1 * rhs;
+        b2 += r2 * rhs;
+        moved += 1;
+        peak = peak.max(shift);
+    }
+    if moved < options.min_moved {
+        return Err(DetectError::MarkersStill { moved, min_shift_px: options.min_shift_px, needed: options.min_moved });
+    }
+    let det = a11 * a22 - a12 * a12;
+    if !(det.abs() > 1e-9 * (a11 * a22).abs().max(f64::MIN_POSITIVE)) {
+        return Err(DetectError::NoCentre);
+    }
+    let c = [(b1 * a22 - b2 * a12) / det, (a11 * b2 - a12 * b1) / det];
+    if !c.iter().all(|v| v.is_finite()) {
+        return Err(DetectError::NoCentre);
+    }
+    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0, moved_markers: Some(moved) })
+}
+
+/// Locates the contact in `frame` against the no-contact `reference`.
+pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOptions) -> Result<Contact, DetectError> {
+    let (w, h) = frame.dimensions();
+    if reference.dimensions() != (w, h) {
+        return Err(DetectError::SizeMismatch { frame: [w, h], reference: [reference.width(), reference.height()] });
+    }
+    if w == 0 || h == 0 {
+        return Err(DetectError::Empty);
+    }
+    let (w, h) = (w as usize, h as usize);
+    let mut change: Vec<f32> = frame
+        .as_raw()
+        .chunks_exact(3)
+        .zip(reference.as_raw().chunks_exact(3))
+        .map(|(a, b)| (0..3).map(|k| (a[k] as i32 - b[k] as i32).unsigned_abs()).max().unwrap_or(0) as f32)
+        .collect();
+    let r = options.blur_px as usize;
+    for _ in 0..3 {
+        box_blur(&mut change, w, h, r);
+    }
+    let mut sorted = change.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2] as f64;
+    let mut dev: Vec<f32> = change.iter().map(|v| (*v as f64 - median).abs() as f32).collect();
+    dev.sort_by(f32::total_cmp);
+    let mad = dev[dev.len() / 2] as f64;
+    let floor = median + options.floor_mads * mad;
+    let (peak_i, peak) = change
+        .iter()
+        .enumerate()
+        .fold((0, f32::MIN), |best, (i, &v)| if v > best.1 { (i, v) } else { best });
+    let peak = peak as f64;
+    if !(peak - floor >= options.min_contrast) {
+        return Err(DetectError::NoContact { peak, floor, contrast: options.min_contrast });
+    }
+    let threshold = floor + options.fraction.clamp(0.0, 1.0) * (peak - floor);
+    // Flood fill (4-connected) from the peak over pixels above the threshold.
+    let mut seen = vec![false; w * h];
+    let mut stack = vec![peak_i];
+    seen[peak_i] = true;
+    let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    while let Some(i) = stack.pop() {
+        let (x, y) = (i % w, i / w);
+        let weight = change[i] as f64 - threshold;
+        su += weight * (x as f64 + 0.5);
+        sv += weight * (y as f64 + 0.5);
+        sw += weight;
+        area += 1;
+        let mut push = |j: usize| {
+            if !seen[j] && change[j] as f64 > threshold {
+                seen[j] = true;
+                stack.push(j);
+            }
+        };
+        if x > 0 {
+            push(i - 1);
+        }
+        if x + 1 < w {
+            push(i + 1);
+        }
+        if y > 0 {
+            push(i - w);
+        }
+        if y + 1 < h {
+            push(i + w);
+        }
+    }
+    let centroid_px = if sw > 0.0 {
+        [su / sw, sv / sw]
+    } else {
+        // Only the peak itself (a flat top at the threshold): its centre.
+        [(peak_i % w) as f64 + 0.5, (peak_i / w) as f64 + 0.5]
+    };
+    Ok(Contact { centroid_px, area_px: area, peak, floor, moved_markers: None })
+}
+
+/// In-place box blur of radius `r` (window `2r + 1`, clamped at the borders: the mean over the
+/// part of the window inside the image), rows then columns.
+fn box_blur(buf: &mut [f32], w: usize, h: usize, r: usize) {
+    if r == 0 {
+        return;
+    }
+    let mut line = Vec::new();
+    let mut prefix = Vec::new();
+    let mut pass = |buf: &mut [f32], n: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
+        for k in 0..count {
+            line.clear();
+            line.extend((0..n).map(|i| buf[index(k, i)] as f64));
+            prefix.clear();
+            prefix.push(0.0);
+            let mut acc = 0.0;
+            for v in &line {
+                acc += v;
+                prefix.push(acc);
+            }
+            for i in 0..n {
+                let lo = i.saturating_sub(r);
+                let hi = (i + r + 1).min(n);
+                buf[index(k, i)] = ((prefix[hi] - prefix[lo]) / (hi - lo) as f64) as f32;
+            }
+        }
+    };
+    pass(buf, w, h, &|row, i| row * w + i);
+    pass(buf, h, w, &|col, i| i * w + col);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disc(w: u32, h: u32, cx: f64, cy: f64, r: f64) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| {
+            // Anti-aliased disc: 4x4 samples per pixel.
+            let mut hits = 0;
+            for a in 0..4 {
+                for b in 0..4 {
+                    let (px, py) = (x as f64 + (a as f64 + 0.5) / 4.0, y as f64 + (b as f64 + 0.5) / 4.0);
+                    if (px - cx).hypot(py - cy) < r {
+                        hits += 1;
+                    }
+                }
+            }
+            let v = 20 + (hits * 200 / 16) as u8;
+            image::Rgb([v, v, v])
+        })
+    }
+
+    #[test]
+    fn finds_a_disc_to_sub_pixel() {
+        let reference = RgbImage::from_pixel(128, 96, image::Rgb([20, 20, 20]));
+        for (cx, cy) in [(40.3, 50.7), (80.5, 30.25), (64.0, 48.0)] {
+            let c = detect_contact(&disc(128, 96, cx, cy, 7.0), &reference, &DetectOptions::default()).unwrap();
+            assert!((c.centroid_px[0] - cx).abs() < 0.1 && (c.centroid_px[1] - cy).abs() < 0.1, "{c} vs ({cx}, {cy})");
+        }
+    }
+
+    /// Bright discs on a square lattice, pushed away from `centre` by a Gaussian-profile shift.
+    fn pins(centre: Option<[f64; 2]>) -> RgbImage {
+        let mut pos = Vec::new();
+        for j in 0..9 {
+            for i in 0..9 {
+                let p = [16.0 + 20.0 * i as f64 + 3.0 * (j % 2) as f64, 16.0 + 20.0 * j as f64];
+                let q = match centre {
+                    Some(c) => {
+                        let (dx, dy) = (p[0] - c[0], p[1] - c[1]);
+                        let r = dx.hypot(dy).max(1e-9);
+                        let shift = 4.0 * (r / 25.0) * (-(r * r) / (2.0 * 25.0 * 25.0)).exp();
+                        [p[0] + shift * dx / r, p[1] + shift * dy / r]
+                    }
+                    None => p,
+                };
+                pos.push(q);
+            }
+        }
+        RgbImage::from_fn(200, 200, |x, y| {
+            let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+            let d = pos.iter().map(|q| (q[0] - px).hypot(q[1] - py)).fold(f64::MAX, f64::min);
+            let v = (10.0 + 200.0 * (3.5 - d).clamp(0.0, 1.0)) as u8;
+            image::Rgb([v, v, v])
+        })
+    }
+
+    #[test]
+    fn marker_field_points_at_the_contact() {
+        let reference = pins(None);
+        for c in [[100.0, 100.0], [83.3, 111.7], [120.4, 90.9]] {
+            let got = detect_marker_contact(&pins(Some(c)), &reference, &MarkerOptions::default()).unwrap();
+            assert!((got.centroid_px[0] - c[0]).hypot(got.centroid_px[1] - c[1]) < 0.3, "{got} vs {c:?}");
+            assert!(got.moved_markers.unwrap() >= 8, "{got}");
+        }
+        assert!(matches!(
+            detect_marker_contact(&reference, &reference, &MarkerOptions::default()),
+            Err(DetectError::MarkersStill { moved: 0, .. })
+        ));
+        let blank = RgbImage::from_pixel(200, 200, image::Rgb([10, 10, 10]));
+        assert!(matches!(detect_marker_contact(&blank, &blank, &MarkerOptions::default()), Err(DetectError::TooFewMarkers { .. })));
+    }
+
+    #[test]
+    fn no_contact_and_bad_sizes_are_errors() {
+        let reference = RgbImage::from_pixel(64, 64, image::Rgb([20, 20, 20]));
+        assert!(matches!(detect_contact(&reference, &reference, &DetectOptions::default()), Err(DetectError::NoContact { .. })));
+        let other = RgbImage::new(32, 64);
+        assert!(matches!(detect_contact(&other, &reference, &DetectOptions::default()), Err(DetectError::SizeMismatch { .. })));
+        let empty = RgbImage::new(0, 0);
+        assert_eq!(detect_contact(&empty, &empty, &DetectOptions::default()), Err(DetectError::Empty));
+    }
+}

@@ -1,0 +1,221 @@
+//! The automatic calibration run: press an indenter at a pattern of offsets, detect, fit.
+//!
+//! A [`PressStation`] is what the run (and the interactive [`super::wizard`]) needs from the
+//! rig: a no-contact reference frame, and a press at a work-frame offset that returns what the
+//! camera saw. [`ArmStation`] implements it over the [`Arm`] and [`Camera`] seams with the
+//! collection job's own steps ([`crate::collect::go`], [`crate::collect::capture`]): move
+//! above, descend, wait for arrival, settle, capture, retract. So the same run calibrates the
+//! simulated rig and a real bench.
+//!
+//! Each detected press gives one [`FitPoint`]: the indenter's position in the sensor frame
+//! (the negated measured work-frame offset turned by the yaw, the render convention of
+//! [`crate::geometry::raster`]) and the detected centroid in px. [`run_pattern`] presses the
+//! whole [`PressPattern`] and hands the points to [`fit_points`].
+
+use std::future::Future;
+use std::time::Duration;
+
+use image::RgbImage;
+
+use super::detect::{Contact, ContactDetector, DetectError};
+use super::fit::{FitError, FitOptions, PointFit, fit_points};
+use super::FitPoint;
+use crate::arm::{Arm, ArmError, MoveKind};
+use crate::camera::{Camera, CameraError};
+use crate::config::CollectConfig;
+use crate::geometry::stl::Mesh;
+use crate::pose::{Pose, WorkFrame};
+
+/// Radius of the calibration indenter, mm. Large enough that its dent moves a few dozen
+/// markers of a TacTip (whose displacement field locates it to a fraction of a pixel), small
+/// enough that its imprint stays inside the field of view over the press pattern.
+pub const INDENTER_RADIUS_MM: f32 = 8.0;
+
+/// The calibration indenter: a sphere of [`INDENTER_RADIUS_MM`] whose top is at the library
+/// objects' top height, so it presses like them.
+pub fn indenter_mesh() -> Mesh {
+    let top = crate::geometry::shapes::TOP_MM;
+    crate::geometry::shapes::sphere_mesh(glam::Vec3::new(0.0, 0.0, top - INDENTER_RADIUS_MM), INDENTER_RADIUS_MM, 32, 64)
+}
+
+/// Errors that stop a run (a press that sees no contact is not one: it is reported per press).
+#[derive(Debug, thiserror::Error)]
+pub enum PressError {
+    #[error(transparent)]
+    Arm(#[from] ArmError),
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    #[error("press requested before the no-contact reference frame was taken")]
+    NoReference,
+    #[error("fit: {0}")]
+    Fit(#[from] FitError),
+}
+
+/// Offsets (work frame, `z_mm` = extra indentation) the run presses at.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PressPattern {
+    pub offsets: Vec<Pose>,
+}
+
+impl PressPattern {
+    /// An `n x n` grid over `±half_span_mm` at the contact depth, plus the four corners and
+    /// the centre again at each extra indentation in `extra_depths_mm`.
+    pub fn grid(n: usize, half_span_mm: f64, extra_depths_mm: &[f64]) -> Self {
+        let n = n.max(2);
+        let at = |k: usize| -half_span_mm + 2.0 * half_span_mm * k as f64 / (n - 1) as f64;
+        let mut offsets = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                offsets.push(Pose::new(at(i), at(j), 0.0, 0.0));
+            }
+        }
+        for &dz in extra_depths_mm {
+            for (x, y) in [(0.0, 0.0), (-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                offsets.push(Pose::new(x * half_span_mm, y * half_span_mm, dz, 0.0));
+            }
+        }
+        Self { offsets }
+    }
+}
+
+impl Default for PressPattern {
+    /// 5 x 5 over ±4 mm, and five presses each 0.5 mm shallower and deeper.
+    fn default() -> Self {
+        Self::grid(5, 4.0, &[-0.5, 0.5])
+    }
+}
+
+/// What one press saw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Press {
+    /// The commanded offset.
+    pub offset: Pose,
+    /// The measured offset at arrival (work frame).
+    pub measured: Pose,
+    /// The detection, or why there was none.
+    pub contact: Result<Contact, DetectError>,
+}
+
+impl Press {
+    /// The fit correspondence, if the contact was found.
+    pub fn point(&self) -> Option<FitPoint> {
+        let c = self.contact.as_ref().ok()?;
+        Some(FitPoint { mm: sensor_point_mm(&self.measured), px: c.centroid_px })
+    }
+}
+
+/// Where the object's reference point lies in the sensor frame when the sensor is at
+/// `offset` (render convention: the object appears at minus the offset, turned by -yaw).
+pub fn sensor_point_mm(offset: &Pose) -> [f64; 2] {
+    let (s, c) = (-offset.yaw_deg).to_radians().sin_cos();
+    let (x, y) = (-offset.x_mm, -offset.y_mm);
+    [c * x - s * y, s * x + c * y]
+}
+
+/// What a calibration run needs from the rig.
+pub trait PressStation {
+    /// Takes the no-contact reference frame.
+    fn take_reference(&mut self) -> impl Future<Output = Result<(), PressError>>;
+    /// Presses at `offset` and detects the contact.
+    fn press(&mut self, offset: Pose) -> impl Future<Output = Result<Press, PressError>>;
+    /// Leaves the rig safe (retracted, disabled).
+    fn finish(&mut self) -> impl Future<Output = Result<(), PressError>>;
+}
+
+/// [`PressStation`] over an arm and one camera.
+pub struct ArmStation<'a, A: Arm, C: Camera> {
+    pub arm: &'a mut A,
+    pub camera: C,
+    pub work_frame: WorkFrame,
+    pub options: CollectConfig,
+    pub detector: ContactDetector,
+    /// The no-contact frame, once [`PressStation::take_reference`] has run.
+    pub reference: Option<RgbImage>,
+}
+
+impl<A: Arm, C: Camera> ArmStation<'_, A, C> {
+    fn timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.options.move_timeout_s)
+    }
+}
+
+impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
+    async fn take_reference(&mut self) -> Result<(), PressError> {
+        self.arm.enable().await?;
+        let above = self.work_frame.approach_pose(&Pose::default());
+        let timeout = self.timeout();
+        let arrival = crate::collect::go(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
+        let (image, _) = crate::collect::capture(&mut self.camera, arrival.t_s + self.options.settle_s, &self.options).await?;
+        self.reference = Some(image);
+        Ok(())
+    }
+
+    async fn press(&mut self, offset: Pose) -> Result<Press, PressError> {
+        let timeout = self.timeout();
+        let above = self.work_frame.approach_pose(&offset);
+        let contact_pose = self.work_frame.contact_pose(&offset);
+        crate::collect::go(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
+        let arrival = crate::collect::go(&mut *self.arm, contact_pose, MoveKind::Linear, timeout).await?;
+        let (image, _) = crate::collect::capture(&mut self.camera, arrival.t_s + self.options.settle_s, &self.options).await?;
+        crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
+        let reference = self.reference.as_ref().ok_or(PressError::NoReference)?;
+        let contact = self.detector.detect(&image, reference);
+        Ok(Press { offset, measured: self.work_frame.plan_pose(&arrival.measured), contact })
+    }
+
+    async fn finish(&mut self) -> Result<(), PressError> {
+        let above = self.work_frame.approach_pose(&Pose::default());
+        let timeout = self.timeout();
+        crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
+        self.arm.disable().await?;
+        Ok(())
+    }
+}
+
+/// A finished automatic run.
+#[derive(Debug, Clone)]
+pub struct PatternRun {
+    pub presses: Vec<Press>,
+    pub fit: PointFit,
+}
+
+/// Takes the reference, presses every offset of `pattern`, fits. `on_press` sees each press
+/// as it happens (progress output).
+pub async fn run_pattern<S: PressStation>(
+    station: &mut S,
+    pattern: &PressPattern,
+    fit_options: &FitOptions,
+    mut on_press: impl FnMut(usize, &Press),
+) -> Result<PatternRun, PressError> {
+    station.take_reference().await?;
+    let mut presses = Vec::with_capacity(pattern.offsets.len());
+    for (k, offset) in pattern.offsets.iter().enumerate() {
+        let press = station.press(*offset).await?;
+        on_press(k, &press);
+        presses.push(press);
+    }
+    station.finish().await?;
+    let points: Vec<FitPoint> = presses.iter().filter_map(Press::point).collect();
+    let fit = fit_points(&points, fit_options, "indenter-pattern")?;
+    Ok(PatternRun { presses, fit })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pattern_covers_the_grid_and_depths() {
+        let p = PressPattern::default();
+        assert_eq!(p.offsets.len(), 25 + 10);
+        assert!(p.offsets.iter().any(|o| o.x_mm == -4.0 && o.y_mm == 4.0));
+        assert_eq!(p.offsets.iter().filter(|o| o.z_mm != 0.0).count(), 10);
+    }
+
+    #[test]
+    fn sensor_point_is_the_negated_offset_turned_by_yaw() {
+        assert_eq!(sensor_point_mm(&Pose::new(2.0, -1.0, 0.0, 0.0)), [-2.0, 1.0]);
+        let p = sensor_point_mm(&Pose::new(1.0, 0.0, 0.0, 90.0));
+        assert!((p[0] - 0.0).abs() < 1e-12 && (p[1] - 1.0).abs() < 1e-12, "{p:?}");
+    }
+}

@@ -1,0 +1,307 @@
+//! `rig calibrate`: the pixel-to-mm calibration of one sensor.
+//!
+//! ```text
+//! rig calibrate --sensor tactip [--out FILE] [--sim-truth FILE] [--grid 5 --span-mm 4]
+//! rig calibrate --sensor tactip --interactive
+//! rig calibrate --sensor vitac --from-dataset DIR
+//! ```
+//!
+//! - Automatic (default): presses the calibration indenter at a grid of offsets (and depths)
+//!   on the configured rig (the built-in simulated rig without a configuration), detects each
+//!   contact, fits, prints the mapping with the residual as the last line, and saves to
+//!   `--out` (default `calibration/<sensor>.toml`, which `rig collect` and
+//!   `rig synth --fill-missing` then use). `--sim-truth FILE` gives the simulated sensor a
+//!   known ground-truth calibration to recover.
+//! - `--interactive`: the same presses, one at a time, through the terminal wizard
+//!   (`calibration::wizard`); needs a terminal.
+//! - `--from-dataset DIR`: fits from frames whose poses are known: a rig dataset
+//!   (`poses.csv`, `reference.png`, `images/`) or the MultiDiffSense example folder
+//!   (`csv/1.csv`, `tactile/1/<Sensor>/target/`), whose missing no-contact frame is estimated
+//!   as the per-pixel median of its frames.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use clap::Args as ClapArgs;
+use image::RgbImage;
+use sha2::{Digest, Sha256};
+
+use crate::calibration::detect::ContactDetector;
+use crate::calibration::fit::{FitOptions, PointFit, fit_points};
+use crate::calibration::press::{ArmStation, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
+use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
+use crate::calibration::{Calibration, FitPoint, saved_path};
+use crate::config::{RigConfig, SensorBackend, SensorConfig};
+use crate::pose::Pose;
+use crate::rigs::{ObjectChoice, Rig, SensorChoice};
+use crate::sim::sensor::SensorKind;
+
+/// The accuracy the calibration should reach (the paper's figure), px RMS.
+pub const TARGET_RMS_PX: f64 = 5.0;
+
+/// Arguments of `rig calibrate`.
+#[derive(Debug, ClapArgs)]
+pub struct Args {
+    /// Sensor to calibrate: tactip, vitac or vitactip.
+    #[arg(long)]
+    pub sensor: SensorKind,
+    /// Where to save the calibration (default `calibration/<sensor>.toml`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Run the terminal wizard: say what to mount, show each detection, allow redo and skip,
+    /// ask before saving.
+    #[arg(long, conflicts_with = "from_dataset")]
+    pub interactive: bool,
+    /// Fit from a dataset with known poses instead of pressing (a rig dataset or the
+    /// MultiDiffSense example folder).
+    #[arg(long, value_name = "DIR")]
+    pub from_dataset: Option<PathBuf>,
+    /// Simulated rig: the sensor's ground-truth calibration (what the run should recover).
+    #[arg(long, value_name = "FILE")]
+    pub sim_truth: Option<PathBuf>,
+    /// Presses per axis of the grid.
+    #[arg(long, default_value_t = 5)]
+    pub grid: usize,
+    /// Half the grid's side, mm.
+    #[arg(long, default_value_t = 4.0)]
+    pub span_mm: f64,
+    /// Extra indentations (mm, comma-separated) pressed at the centre and corners.
+    #[arg(long, value_delimiter = ',', default_value = "-0.5,0.5", allow_hyphen_values = true)]
+    pub depths_mm: Vec<f64>,
+    /// Seed of the simulated sensor's noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print the press pattern and check it against the workspace, move nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+}
+
+/// Runs `rig calibrate`.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let out = args.out.clone().unwrap_or_else(|| saved_path(&args.sensor.to_string()));
+    if let Some(dir) = &args.from_dataset {
+        return from_dataset(&args, dir, &out);
+    }
+    if args.interactive && !std::io::stdin().is_terminal() {
+        bail!(crate::cli::usage("--interactive needs a terminal on stdin (run it in a terminal, or drop --interactive)"));
+    }
+    let mut config = RigConfig::discover(args.config.as_deref())?;
+    if let Some(truth) = &args.sim_truth {
+        set_sim_truth(&mut config, args.sensor, truth)?;
+    }
+    println!("{}", config.describe());
+    let pattern = PressPattern::grid(args.grid, args.span_mm, &args.depths_mm);
+    let profile = crate::rigs::profile_for(&config)?;
+    let plan: Vec<_> = pattern
+        .offsets
+        .iter()
+        .enumerate()
+        .map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p })
+        .collect();
+    crate::collect::check_plan(&plan, &config.work_frame, |p| profile.check_reachable(p))?;
+    println!(
+        "pattern: {} presses, {}x{} grid over ±{} mm, extra depths {:?} mm",
+        pattern.offsets.len(),
+        args.grid.max(2),
+        args.grid.max(2),
+        args.span_mm,
+        args.depths_mm
+    );
+    if args.dry_run {
+        println!("dry run: pattern checked against the workspace, nothing moved");
+        return Ok(());
+    }
+    let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+    runtime.block_on(press_and_fit(&args, config, pattern, &out))
+}
+
+/// Points the configured (or added) simulated sensor entry at the ground-truth file.
+fn set_sim_truth(config: &mut RigConfig, kind: SensorKind, truth: &Path) -> anyhow::Result<()> {
+    let calib = Calibration::load(truth)?;
+    let name = kind.to_string();
+    match config.sensors.iter_mut().find(|s| s.name == name) {
+        Some(s) => {
+            if s.backend != SensorBackend::Simulated {
+                bail!(crate::cli::usage("--sim-truth needs a simulated sensor; the configuration names real hardware"));
+            }
+            s.calibration = Some(truth.to_path_buf());
+        }
+        None => config.sensors.push(SensorConfig {
+            name,
+            backend: SensorBackend::Simulated,
+            calibration: Some(truth.to_path_buf()),
+            scene: "full".into(),
+            width: calib.image_size[0],
+            height: calib.image_size[1],
+        }),
+    }
+    Ok(())
+}
+
+async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, out: &Path) -> anyhow::Result<()> {
+    let mesh = indenter_mesh();
+    let object = ObjectChoice {
+        name: "indenter".into(),
+        path: None,
+        sha256: hex::encode(Sha256::digest(mesh.to_binary_bytes("indenter"))),
+        mesh: Arc::new(mesh),
+    };
+    let clock = crate::rigs::clock_for(&config);
+    let mut rig = Rig::open(&config, &object, &SensorChoice(vec![args.sensor]), args.seed, clock).await?;
+    let camera = rig.cameras.pop().context("the rig opened no camera")?;
+    let sensor_name = args.sensor.to_string();
+    let mut station = ArmStation {
+        arm: &mut rig.arm,
+        camera,
+        work_frame: config.work_frame,
+        options: config.collect.clone(),
+        detector: ContactDetector::for_sensor(args.sensor, config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width)),
+        reference: None,
+    };
+    let sensor = args.sensor.to_string();
+    let fit = if args.interactive {
+        let stdin = std::io::stdin();
+        let mut io = LineIo { input: stdin.lock(), output: std::io::stdout() };
+        let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string())
+            .await?;
+        match outcome {
+            WizardOutcome::Save(fit) => Some(*fit),
+            _ => None,
+        }
+    } else {
+        let total = pattern.offsets.len();
+        let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| match &press.contact {
+            Ok(c) => println!(
+                "press {:>2}/{total} at ({:+.2}, {:+.2}) mm depth {:+.2}: {c}",
+                k + 1,
+                press.offset.x_mm,
+                press.offset.y_mm,
+                press.offset.z_mm
+            ),
+            Err(e) => println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm),
+        })
+        .await?;
+        Some(run.fit)
+    };
+    let size = station.reference.as_ref().map(|r| [r.width(), r.height()]);
+    drop(station);
+    rig.shutdown().await;
+    let Some(mut fit) = fit else { return Ok(()) };
+    if let Some(size) = size {
+        fit.calibration.image_size = size;
+    }
+    save_and_report(&fit, out, args.sim_truth.as_deref(), !args.interactive)
+}
+
+/// Saves the calibration and prints the mapping (only the residual when the wizard has shown
+/// it already); the residual is the last line.
+fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>, mapping: bool) -> anyhow::Result<()> {
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    fit.calibration.save(out)?;
+    println!("saved {}", out.display());
+    if let Some(truth) = truth {
+        let t = Calibration::load(truth)?;
+        let c = &fit.calibration;
+        println!(
+            "ground truth: centre ({:.2}, {:.2}) px, scale x {:.3} y {:.3} px/mm, rotation {:.3} deg; fit error: centre {:.3} px, scale {:.4} / {:.4} px/mm, rotation {:.4} deg",
+            t.centre_px[0],
+            t.centre_px[1],
+            t.scale_px_per_mm[0],
+            t.scale_px_per_mm[1],
+            t.rotation_deg,
+            (c.centre_px[0] - t.centre_px[0]).hypot(c.centre_px[1] - t.centre_px[1]),
+            c.scale_px_per_mm[0] - t.scale_px_per_mm[0],
+            c.scale_px_per_mm[1] - t.scale_px_per_mm[1],
+            crate::pose::wrap_deg(c.rotation_deg - t.rotation_deg)
+        );
+    }
+    if mapping {
+        for line in describe_fit(fit) {
+            println!("{line}");
+        }
+    } else {
+        println!("{}", fit.residual_line());
+    }
+    Ok(())
+}
+
+/// `--from-dataset`: detect every frame against the reference, fit the known poses.
+fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
+    let (frames, reference) = if dir.join("csv/1.csv").is_file() {
+        multidiffsense_frames(dir, args.sensor)?
+    } else {
+        rig_dataset_frames(dir)?
+    };
+    println!("{}: {} frames of {} with known poses", dir.display(), frames.len(), args.sensor);
+    let detector = ContactDetector::for_sensor(args.sensor, reference.width());
+    let mut points = Vec::new();
+    let mut names = Vec::new();
+    for (name, pose, image) in &frames {
+        match detector.detect(image, &reference) {
+            Ok(c) => {
+                println!("{name}: pose ({:+.2}, {:+.2}) mm yaw {:+.1}: {c}", pose.x_mm, pose.y_mm, pose.yaw_deg);
+                points.push(FitPoint { mm: sensor_point_mm(pose), px: c.centroid_px });
+                names.push(name.clone());
+            }
+            Err(e) => println!("{name}: no detection: {e}"),
+        }
+    }
+    let options = FitOptions { image_size: [reference.width(), reference.height()], ..FitOptions::default() };
+    let mut fit = fit_points(&points, &options, "dataset-contact-centroids")
+        .with_context(|| format!("fitting the {} detected contacts of {}", points.len(), dir.display()))?;
+    for (name, r) in names.iter().zip(&fit.residuals_px) {
+        println!("{name}: residual {r:.2} px");
+    }
+    if let Some(record) = fit.calibration.fit.as_mut() {
+        record.frames = names;
+    }
+    if fit.rms_px > TARGET_RMS_PX {
+        println!(
+            "warning: the residual is above the {TARGET_RMS_PX} px target: the logged poses do not move the contact as a rigid \
+             pixel-to-mm map says (check the poses, or fit with a pose correction: rig compare-real --fit)"
+        );
+    }
+    save_and_report(&fit, out, None, true)
+}
+
+type KnownFrames = (Vec<(String, Pose, RgbImage)>, RgbImage);
+
+/// A rig dataset: real rows (measured pose when logged), `reference.png`.
+fn rig_dataset_frames(dir: &Path) -> anyhow::Result<KnownFrames> {
+    let reference = load_rgb(&dir.join("reference.png"))?;
+    let rows = crate::dataset::read_rows(dir).with_context(|| format!("reading {}", dir.display()))?;
+    let mut frames = Vec::new();
+    for row in rows.iter().filter(|r| r.source == crate::dataset::Source::Real) {
+        let pose = row.measured().unwrap_or_else(|| row.commanded());
+        frames.push((row.image.clone(), pose, load_rgb(&dir.join(&row.image))?));
+    }
+    Ok((frames, reference))
+}
+
+/// The MultiDiffSense example: its logged poses and frames; reference = per-pixel median.
+fn multidiffsense_frames(dir: &Path, kind: SensorKind) -> anyhow::Result<KnownFrames> {
+    let sample = crate::cli::compare::load_real_sample(dir)?;
+    let list = sample.frames.get(kind.label()).with_context(|| format!("{}: no {} frames", dir.display(), kind.label()))?;
+    let images: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
+    if images.is_empty() {
+        bail!("{}: no {} frames", dir.display(), kind.label());
+    }
+    let reference = crate::cli::compare::median_image(&images);
+    let mut frames = Vec::new();
+    for (i, img) in list {
+        let pose = sample.poses.get(i).copied().with_context(|| format!("no pose row for frame {i}"))?;
+        frames.push((format!("1_{}_{i}.png", kind.label()), pose, img.clone()));
+    }
+    Ok((frames, reference))
+}
+
+fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {
+    Ok(image::open(path).with_context(|| format!("reading {}", path.display()))?.to_rgb8())
+}

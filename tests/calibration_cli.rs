@@ -1,0 +1,138 @@
+//! `rig calibrate` end to end on the built-in simulated rig (simulated MG400 over loopback TCP,
+//! simulated sensor rendering through a known ground-truth calibration with anisotropy and
+//! rotation), and `--from-dataset` on the real MultiDiffSense sample (`$RIG_SHARED`).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use rig::calibration::Calibration;
+
+const TRUTH: &str = "centre_px = [262.3, 249.1]\nscale_px_per_mm = [9.4, 8.6]\nrotation_deg = 6.0\nimage_size = [512, 512]\n";
+
+fn rig(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(args)
+        .current_dir(dir)
+        .env_remove("RIG_CONFIG")
+        .output()
+        .expect("running rig")
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// `residual 0.21 px (0.025 mm)` -> (0.21, 0.025).
+fn residual(last: &str) -> (f64, f64) {
+    let parts: Vec<&str> = last.split_whitespace().collect();
+    assert!(parts.len() == 5 && parts[0] == "residual" && parts[2] == "px", "last line: {last:?}");
+    (parts[1].parse().unwrap(), parts[3].trim_start_matches('(').parse().unwrap())
+}
+
+#[test]
+fn automatic_run_recovers_the_simulated_ground_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("truth.toml"), TRUTH).unwrap();
+    let out = rig(dir.path(), &["calibrate", "--sensor", "tactip", "--sim-truth", "truth.toml", "--out", "fitted.toml"]);
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let last = stdout.lines().last().unwrap_or_default();
+    let (px, mm) = residual(last);
+    assert!(px < 0.5, "{all}");
+    assert!(mm > 0.0 && mm < 0.1, "{all}");
+    let truth = Calibration::from_toml(TRUTH, "truth").unwrap();
+    let fitted = Calibration::load(dir.path().join("fitted.toml")).unwrap();
+    assert!((fitted.centre_px[0] - truth.centre_px[0]).hypot(fitted.centre_px[1] - truth.centre_px[1]) < 1.0, "{fitted:?}");
+    assert!((fitted.scale_px_per_mm[0] - 9.4).abs() < 0.15 && (fitted.scale_px_per_mm[1] - 8.6).abs() < 0.15, "{fitted:?}");
+    assert!((fitted.rotation_deg - 6.0).abs() < 0.5, "{fitted:?}");
+    let record = fitted.fit.expect("fit record");
+    assert_eq!(record.points.len(), 35);
+    assert_eq!(record.residuals_px.len(), 35);
+    // Every point was fitted where the truth puts it, to well under a pixel on average.
+    assert!(record.rms_px.unwrap() < 0.5);
+}
+
+#[test]
+fn dry_run_moves_nothing_and_saves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = rig(dir.path(), &["calibrate", "--sensor", "vitac", "--dry-run"]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("dry run"));
+    assert!(!dir.path().join("calibration").exists());
+}
+
+#[test]
+fn interactive_without_a_terminal_is_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = rig(dir.path(), &["calibrate", "--sensor", "tactip", "--interactive"]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    assert!(text(&out).contains("terminal"));
+}
+
+fn sample_dir() -> PathBuf {
+    let shared = std::env::var("RIG_SHARED").unwrap_or_else(|_| "../shared".to_string());
+    std::fs::canonicalize(Path::new(&shared).join("real-sample/multidiffsense-example"))
+        .expect("the real sample (set RIG_SHARED to the shared folder)")
+}
+
+#[test]
+fn from_dataset_on_the_real_sample_prints_the_mapping_and_residuals() {
+    let sample = sample_dir();
+    let dir = tempfile::tempdir().unwrap();
+    let out = rig(dir.path(), &["calibrate", "--sensor", "vitac", "--from-dataset", sample.to_str().unwrap(), "--out", "real.toml"]);
+    let all = text(&out);
+    assert!(out.status.success(), "{all}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for key in ["centre", "scale", "rotation", "1_ViTac_0.png: residual"] {
+        assert!(stdout.contains(key), "{key}: {all}");
+    }
+    let (px, _) = residual(stdout.lines().last().unwrap_or_default());
+    assert!(px.is_finite());
+    let saved = Calibration::load(dir.path().join("real.toml")).unwrap();
+    let record = saved.fit.unwrap();
+    assert_eq!(record.frames.len(), 6, "{record:?}");
+    assert_eq!(record.method, "dataset-contact-centroids");
+}
+
+#[test]
+fn from_dataset_refuses_a_degenerate_dataset_clearly() {
+    // A rig dataset whose three frames all press the same spot: detected, but not fittable.
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("ds");
+    std::fs::create_dir_all(ds.join("images")).unwrap();
+    let reference = image::RgbImage::from_pixel(64, 64, image::Rgb([10, 10, 10]));
+    reference.save(ds.join("reference.png")).unwrap();
+    let mut frame = reference.clone();
+    for y in 28..36 {
+        for x in 28..36 {
+            frame.put_pixel(x, y, image::Rgb([200, 200, 200]));
+        }
+    }
+    let mut csv = rig::dataset::COLUMNS.join(",");
+    csv.push('\n');
+    for id in 0..3u32 {
+        frame.save(ds.join(format!("images/{id}.png"))).unwrap();
+        let row = rig::dataset::PoseRow::real(id, rig::pose::Pose::new(1.0, 1.0, 0.0, 0.0), rig::pose::Pose::new(1.0, 1.0, 0.0, 0.0), 0.0);
+        let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
+        w.serialize(&row).unwrap();
+        csv.push_str(&String::from_utf8(w.into_inner().unwrap()).unwrap());
+    }
+    std::fs::write(ds.join("poses.csv"), csv).unwrap();
+    let out = rig(dir.path(), &["calibrate", "--sensor", "vitac", "--from-dataset", "ds", "--out", "x.toml"]);
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(all.contains("one spot"), "{all}");
+    assert!(!dir.path().join("x.toml").exists());
+}
+
+#[test]
+fn collect_uses_the_saved_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("calibration")).unwrap();
+    std::fs::write(dir.path().join("calibration/tactip.toml"), TRUTH).unwrap();
+    let out = rig(dir.path(), &["collect", "--object", "sphere", "--sensor", "tactip", "--poses", "1", "--out", "ds"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let manifest = std::fs::read_to_string(dir.path().join("ds/sphere/tactip/manifest.toml")).unwrap();
+    assert!(manifest.contains("calibration/tactip.toml"), "{manifest}");
+}

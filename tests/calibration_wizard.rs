@@ -1,0 +1,111 @@
+//! The interactive wizard, driven through a pseudo-terminal: the real binary runs with a pty
+//! (from `libc::openpty`) as its stdin, stdout and stderr, so it sees a terminal as a user's
+//! would; the test answers each prompt as it appears (redo, skip, accept, save) and checks the
+//! transcript and the saved file. Set `RIG_TRANSCRIPT_OUT=FILE` to keep the transcript.
+
+use std::fs::File;
+use std::io::{Read, Write};
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const TRUTH: &str = "centre_px = [258.0, 252.0]\nscale_px_per_mm = [9.0, 8.2]\nrotation_deg = -4.0\nimage_size = [512, 512]\n";
+
+/// The pty's output so far, with line ends normalised.
+fn transcript(buf: &Arc<Mutex<Vec<u8>>>) -> String {
+    String::from_utf8_lossy(&buf.lock().unwrap()).replace("\r\n", "\n")
+}
+
+/// Waits until `needle` has appeared `count` times.
+fn wait_for(buf: &Arc<Mutex<Vec<u8>>>, needle: &str, count: usize) {
+    let start = Instant::now();
+    while transcript(buf).matches(needle).count() < count {
+        assert!(start.elapsed() < Duration::from_secs(120), "waiting for {needle:?} #{count}:\n{}", transcript(buf));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn wizard_through_a_pseudo_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("truth.toml"), TRUTH).unwrap();
+    let (mut master, mut slave) = (-1, -1);
+    // SAFETY: openpty writes two new descriptors into the two ints; the null pointers ask for
+    // no name, default terminal settings and default size.
+    let rc = unsafe { libc::openpty(&mut master, &mut slave, std::ptr::null_mut(), std::ptr::null(), std::ptr::null()) };
+    assert_eq!(rc, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: both descriptors were just opened by openpty and are owned by nothing else.
+    let (master, slave) = unsafe { (File::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
+    let mut child = {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_rig"));
+        cmd.args([
+            "calibrate", "--sensor", "tactip", "--interactive", "--sim-truth", "truth.toml", "--out", "wizard.toml",
+            "--grid", "3", "--depths-mm", "0.5",
+        ])
+        .current_dir(dir.path())
+        .env_remove("RIG_CONFIG")
+        .stdin(Stdio::from(slave.try_clone().unwrap()))
+        .stdout(Stdio::from(slave.try_clone().unwrap()))
+        .stderr(Stdio::from(slave));
+        cmd.spawn().expect("spawning rig")
+        // The command (and with it the parent's copies of the slave) is dropped here, so the
+        // reader sees the end when the child exits.
+    };
+    let buf = Arc::new(Mutex::new(Vec::new()));
+    let mut reader = master.try_clone().unwrap();
+    let sink = Arc::clone(&buf);
+    let reading = std::thread::spawn(move || {
+        let mut chunk = [0u8; 4096];
+        // EIO once the child side is closed: the end of the session.
+        while let Ok(n) = reader.read(&mut chunk) {
+            if n == 0 {
+                break;
+            }
+            sink.lock().unwrap().extend_from_slice(&chunk[..n]);
+        }
+    });
+    let mut master = master;
+    let mut answer = |s: &str| master.write_all(s.as_bytes()).unwrap();
+
+    wait_for(&buf, "(q to quit): ", 1);
+    answer("\n");
+    // 9 grid presses + 5 deeper ones; the first is redone, the second skipped.
+    let mut prompts = 0;
+    prompts += 1;
+    wait_for(&buf, "q = quit: ", prompts);
+    answer("r\n");
+    prompts += 1;
+    wait_for(&buf, "q = quit: ", prompts);
+    answer("\n");
+    prompts += 1;
+    wait_for(&buf, "q = quit: ", prompts);
+    answer("s\n");
+    for _ in 0..12 {
+        prompts += 1;
+        wait_for(&buf, "q = quit: ", prompts);
+        answer("a\n");
+    }
+    wait_for(&buf, "[y/N]: ", 1);
+    answer("y\n");
+    let status = child.wait().unwrap();
+    reading.join().unwrap();
+    let text = transcript(&buf);
+    if let Ok(path) = std::env::var("RIG_TRANSCRIPT_OUT") {
+        std::fs::write(path, &text).unwrap();
+    }
+    assert!(status.success(), "{text}");
+    assert!(text.contains("Mount the calibration indenter"), "{text}");
+    assert!(text.contains("[1/14] pressing at x -4.00 mm, y -4.00 mm"), "{text}");
+    assert_eq!(text.matches("[1/14]").count(), 2, "redo presses again: {text}");
+    assert!(text.contains("      again") && text.contains("      skipped"), "{text}");
+    assert!(text.contains("Fitting 13 accepted points"), "{text}");
+    assert!(text.contains("saved wizard.toml"), "{text}");
+    let last = text.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or_default();
+    assert!(last.starts_with("residual ") && last.ends_with(" mm)"), "{last:?}");
+    let saved = rig::calibration::Calibration::load(dir.path().join("wizard.toml")).unwrap();
+    let record = saved.fit.clone().unwrap();
+    assert_eq!(record.method, "indenter-wizard");
+    assert_eq!(record.points.len(), 13);
+    assert!((saved.rotation_deg + 4.0).abs() < 0.5 && (saved.scale_px_per_mm[1] - 8.2).abs() < 0.2, "{saved:?}");
+}
