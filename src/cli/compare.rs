@@ -26,7 +26,8 @@ use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 use image::{Rgb, RgbImage, imageops};
 
-use super::sensor_bridge::{TactileSensor, render_tactile, simulator_available};
+use super::sensor_bridge::{TactileSensor, render_tactile_with, simulator_available};
+use crate::sim::sensor::{Scene, Stage};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
 use crate::geometry::raster::render_depth;
@@ -57,6 +58,14 @@ pub struct Args {
     /// Refit the calibrations to the frames and write them before comparing.
     #[arg(long)]
     pub fit: bool,
+    /// Render the simulator's modelled static look (skin, pins, tube) instead of starting
+    /// from the no-contact look measured on the other real frames.
+    #[arg(long)]
+    pub procedural: bool,
+    /// Simulator scene (preset or TOML file); default: every stage but noise and stale frames
+    /// (the expected image, see `comparison_scene`).
+    #[arg(long)]
+    pub scene: Option<String>,
     /// Write side-by-side panels (real | baseline | footprint | contact region | simulator) here.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -270,6 +279,37 @@ fn mean_correction(seeds: &[Calibration]) -> [[f64; 2]; 2] {
     m
 }
 
+/// The scene the comparison renders by default: every stage except `noise` and
+/// `stale_frame`. SSIM against one noisy real frame is highest for the noise-free expected
+/// image (independent noise only lowers it), and the baseline, a mean of frames, is nearly
+/// noise-free too; a still frame has nothing stale.
+pub fn comparison_scene() -> Scene {
+    let stages: Vec<Stage> = Stage::ALL.into_iter().filter(|s| !matches!(s, Stage::Noise | Stage::StaleFrame)).collect();
+    Scene::with_stages("compare", &stages)
+}
+
+/// The measured no-contact look the simulator starts from, from the *other* real frames of the
+/// sensor only (leave one out: the simulator never sees the frame it is scored on).
+/// - TacTip: the per-pixel median. Its pins shift a little between frames; one median over the
+///   same frames everywhere keeps them whole (switching frame sets per pixel tears them).
+/// - ViTac, ViTacTip: per pixel, the second darkest of the frames by luminance. A contact only
+///   brightens a see-through skin (the object, its glow), so this drops up to all but two
+///   frames' contacts wherever they fall, without trusting the calibration's footprints.
+pub fn simulator_reference(sensor: TactileSensor, others: &[&RgbImage]) -> RgbImage {
+    match sensor {
+        TactileSensor::TacTip => median_image(others),
+        TactileSensor::ViTac | TactileSensor::ViTacTip => {
+            let (w, h) = others.first().map(|f| f.dimensions()).unwrap_or((0, 0));
+            let rank = 1.min(others.len().saturating_sub(1));
+            RgbImage::from_fn(w, h, |x, y| {
+                let mut px: Vec<Rgb<u8>> = others.iter().map(|f| *f.get_pixel(x, y)).collect();
+                px.sort_by_key(|p| 2 * p.0[0] as u32 + 5 * p.0[1] as u32 + p.0[2] as u32);
+                px.get(rank).copied().unwrap_or(Rgb([0, 0, 0]))
+            })
+        }
+    }
+}
+
 /// Scores of one frame.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameScores {
@@ -283,7 +323,16 @@ pub struct FrameScores {
 }
 
 /// Compares one sensor; writes panels into `out` if given.
-pub fn compare_sensor(sample: &RealSample, sensor: TactileSensor, calib: &Calibration, out: Option<&Path>) -> anyhow::Result<Vec<FrameScores>> {
+/// `procedural`: render the simulator's own modelled look instead of starting from the
+/// measured (leave-one-out) no-contact look.
+pub fn compare_sensor(
+    sample: &RealSample,
+    sensor: TactileSensor,
+    calib: &Calibration,
+    out: Option<&Path>,
+    procedural: bool,
+    scene: &Scene,
+) -> anyhow::Result<Vec<FrameScores>> {
     let list = sample.frames.get(sensor.dataset_name()).map(Vec::as_slice).unwrap_or(&[]);
     if list.len() < 2 {
         bail!("{sensor}: need at least two real frames, have {}", list.len());
@@ -306,7 +355,10 @@ pub fn compare_sensor(sample: &RealSample, sensor: TactileSensor, calib: &Calibr
         let baseline = mean_image(&others);
         let mask = difference_mask(real, &no_contact, CONTACT_THRESHOLD);
         let contact_fraction = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
-        let sim = render_tactile(sensor, &depths[k], &calib, *index as u64).ok();
+        // The simulator's static look: the no-contact look measured on the *other* frames
+        // (leave one out), the same information the baseline has; the simulator adds the contact.
+        let reference = (!procedural).then(|| simulator_reference(sensor, &others));
+        let sim = render_tactile_with(sensor, &depths[k], &calib, *index as u64, scene, reference.as_ref()).ok();
         let masked = |img: &RgbImage| ssim_masked(real, img, &mask).ok();
         let s = FrameScores {
             index: *index,
@@ -392,11 +444,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<9} {:>5} {:>8} {:>8} | {:>10} {:>10} | {:>10} {:>10}",
         "sensor", "frame", "contact%", "fp-IoU", "sim whole", "base whole", "sim cont.", "base cont."
     );
+    let scene = match &args.scene {
+        Some(spec) => Scene::preset_or_file(spec)?,
+        None => comparison_scene(),
+    };
     let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
     for sensor in TactileSensor::ALL {
         let path = args.calibration_dir.join(format!("mds-example-{}.toml", sensor.slug()));
         let calib = Calibration::load(&path).with_context(|| format!("{sensor}: run with --fit to create {}", path.display()))?;
-        let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref())?;
+        let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref(), args.procedural, &scene)?;
         for s in &scores {
             println!(
                 "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",

@@ -180,6 +180,10 @@ pub struct StaticLook {
     pub markers: Vec<[f32; 2]>,
     /// The no-contact frame before vignetting and noise: background plus markers at rest.
     pub rest_frame: Vec<f32>,
+    /// True when the background is a measured no-contact frame of a real sensor (see
+    /// [`StaticLook::from_reference`]): its pins are in the image already, so contact moves
+    /// them by warping the skin instead of drawing the lattice.
+    pub measured: bool,
 }
 
 impl StaticLook {
@@ -262,7 +266,33 @@ impl StaticLook {
         if let Some(m) = look.markers {
             super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
         }
-        Self { background, vignette, fov, markers, rest_frame }
+        Self { background, vignette, fov, markers, rest_frame, measured: false }
+    }
+
+    /// The static look taken from a measured no-contact frame of one real sensor
+    /// (`reference`: RGB interleaved, 8-bit, `width` x `height`): the skin, its illumination,
+    /// the pins at rest, the tube and the dust are what that sensor shows, and the effect stages
+    /// add the contact on top. A real rig captures such a frame at start-up anyway (tactile
+    /// pipelines subtract it); this is the honest way to look like one particular sensor
+    /// rather than like the average of its kind. The frame is divided by the vignetting gain so
+    /// that the vignetting stage gives it back unchanged; the field of view stays the modelled
+    /// circle (it only limits where see-through applies). Returns `None` when the buffer does
+    /// not hold `width * height * 3` bytes.
+    pub fn from_reference(look: &Look, reference: &[u8], width: u32, height: u32, seed: u64) -> Option<Self> {
+        let n = width as usize * height as usize;
+        if reference.len() != n * 3 {
+            return None;
+        }
+        let mut out = Self::build(look, width, height, seed);
+        for (i, (dst, src)) in out.background.chunks_exact_mut(3).zip(reference.chunks_exact(3)).enumerate() {
+            let g = out.vignette[i].max(0.05);
+            for c in 0..3 {
+                dst[c] = src[c] as f32 / g;
+            }
+        }
+        out.rest_frame = out.background.clone();
+        out.measured = true;
+        Some(out)
     }
 }
 
