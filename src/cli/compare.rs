@@ -288,26 +288,13 @@ pub fn comparison_scene() -> Scene {
     Scene::with_stages("compare", &stages)
 }
 
-/// The measured no-contact look the simulator starts from, from the *other* real frames of the
-/// sensor only (leave one out: the simulator never sees the frame it is scored on).
-/// - TacTip: the per-pixel median. Its pins shift a little between frames; one median over the
-///   same frames everywhere keeps them whole (switching frame sets per pixel tears them).
-/// - ViTac, ViTacTip: per pixel, the second darkest of the frames by luminance. A contact only
-///   brightens a see-through skin (the object, its glow), so this drops up to all but two
-///   frames' contacts wherever they fall, without trusting the calibration's footprints.
-pub fn simulator_reference(sensor: TactileSensor, others: &[&RgbImage]) -> RgbImage {
-    match sensor {
-        TactileSensor::TacTip => median_image(others),
-        TactileSensor::ViTac | TactileSensor::ViTacTip => {
-            let (w, h) = others.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-            let rank = 1.min(others.len().saturating_sub(1));
-            RgbImage::from_fn(w, h, |x, y| {
-                let mut px: Vec<Rgb<u8>> = others.iter().map(|f| *f.get_pixel(x, y)).collect();
-                px.sort_by_key(|p| 2 * p.0[0] as u32 + 5 * p.0[1] as u32 + p.0[2] as u32);
-                px.get(rank).copied().unwrap_or(Rgb([0, 0, 0]))
-            })
-        }
-    }
+/// The measured no-contact look the simulator starts from: the per-pixel median of the
+/// *other* real frames of the sensor only (leave one out: the simulator never sees the frame it
+/// is scored on, and has the same information as the baseline). One median over the same
+/// frames everywhere keeps the pins whole (they shift a little between frames; switching frame
+/// sets per pixel, as the footprint-aware `no_contact_estimate` does, tears them).
+pub fn simulator_reference(others: &[&RgbImage]) -> RgbImage {
+    median_image(others)
 }
 
 /// Scores of one frame.
@@ -357,7 +344,7 @@ pub fn compare_sensor(
         let contact_fraction = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
         // The simulator's static look: the no-contact look measured on the *other* frames
         // (leave one out), the same information the baseline has; the simulator adds the contact.
-        let reference = (!procedural).then(|| simulator_reference(sensor, &others));
+        let reference = (!procedural).then(|| simulator_reference(&others));
         let sim = render_tactile_with(sensor, &depths[k], &calib, *index as u64, scene, reference.as_ref()).ok();
         let masked = |img: &RgbImage| ssim_masked(real, img, &mask).ok();
         let s = FrameScores {

@@ -176,9 +176,9 @@ mod skin {
     pub const GLOW_FAR_PX: f32 = 70.0;
     /// Longest lateral travel of the skin, mm (real pins move well under a millimetre at the
     /// rig's 1.5 mm contact depth).
-    pub const MAX_TRAVEL_MM: f32 = 0.5;
-    /// Shading gain per unit slope.
-    pub const SHADING_GAIN: f32 = 0.3;
+    pub const MAX_TRAVEL_MM: f32 = 0.25;
+    /// How far the object's outline is softened by the skin it is seen through, at 512x512, px.
+    pub const SEE_THROUGH_BLUR_PX: f32 = 2.0;
     /// Direction the light comes from in the image (unit vector; up-left).
     pub const LIGHT: [f32; 2] = [-0.6, -0.8];
 }
@@ -347,9 +347,12 @@ impl SensorSim {
                 // Without the elastic spread the skin moves only right at the dent.
                 let spread_px =
                     if self.runs(Stage::ContactDeformation) { skin::SPREAD_MM * self.px_per_mm } else { cell as f32 };
+                // The skin moves with the object's own dent, smoothed by the skin; the broad
+                // skirt of the deformation field (which shades) would drag pins far away.
                 let u = stages::displacement_field(
-                    &indent,
+                    &raw,
                     spread_px,
+                    0.5 * look::RING_PITCH_PX * s,
                     self.px_per_mm,
                     skin::LATERAL_MM,
                     skin::MAX_TRAVEL_MM,
@@ -385,6 +388,8 @@ impl SensorSim {
                     self.look.glow_rgb,
                     &glow,
                     skin::SEE_THROUGH_GAP_MM,
+                    skin::SEE_THROUGH_BLUR_PX * s,
+                    self.fixed.skin_lum.as_deref(),
                 );
             });
         }
@@ -394,7 +399,7 @@ impl SensorSim {
         }
 
         self.stage(Stage::Shading, || {
-            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, skin::SHADING_GAIN)
+            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain)
         });
         self.stage(Stage::MotionBlur, || {
             let len = motion.streak_px().min(self.scene.max_blur_px);

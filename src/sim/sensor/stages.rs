@@ -145,12 +145,19 @@ pub fn contact_deformation(indent: &mut CellField, spread_px: f32) {
 }
 
 /// Lateral skin displacement, px, per cell: down the gradient of the indentation smoothed
-/// over `spread_px` (away from the indenter), `lateral_mm` of travel per unit slope, at most
+/// over half of `spread_px` (away from the indenter), `lateral_mm` of travel per unit slope, at most
 /// `max_travel_mm`. The skin surface moves smoothly even where the object's outline is sharp:
 /// taking the slope of the unsmoothed dent would throw pins at its edges across the image.
-pub fn displacement_field(indent: &CellField, spread_px: f32, px_per_mm: f32, lateral_mm: f32, max_travel_mm: f32) -> [CellField; 2] {
+pub fn displacement_field(
+    indent: &CellField,
+    spread_px: f32,
+    rigid_px: f32,
+    px_per_mm: f32,
+    lateral_mm: f32,
+    max_travel_mm: f32,
+) -> [CellField; 2] {
     let mut smooth = indent.clone();
-    smooth.blur((spread_px / indent.cell_px as f32).round().max(1.0) as usize, 3);
+    smooth.blur((0.5 * spread_px / indent.cell_px as f32).round().max(1.0) as usize, 3);
     let (mut ux, mut uy) = (indent.clone(), indent.clone());
     let c = indent.cell_px as f32;
     // g is mm of indentation per px; the slope in mm/mm is g * px_per_mm, the travel in px is
@@ -168,6 +175,12 @@ pub fn displacement_field(indent: &CellField, spread_px: f32, px_per_mm: f32, la
             ux.v[cy * indent.w + cx] = dx;
             uy.v[cy * indent.w + cx] = dy;
         }
+    }
+    // Pins are rigid: each moves as a whole with the skin around it, so the field is averaged
+    // over `rigid_px` (about half a pin pitch). Without this, a pin straddling the middle of
+    // an edge-like dent is torn in two; with it, pins right under the object stay put.
+    for f in [&mut ux, &mut uy] {
+        f.blur((rigid_px / c).round() as usize, 2);
     }
     [ux, uy]
 }
@@ -249,6 +262,12 @@ pub fn draw_markers(
 
 /// See-through: the object under a transparent skin, bright where it presses, faint where a
 /// small gap is left, with the glow it scatters into the skin (`glow` is 0..1 on cells).
+///
+/// The object is seen through about a millimetre of elastomer, which scatters: its outline is
+/// softened over `edge_blur_px`. `skin_lum`, when given, is the skin's luminance smoothed over
+/// a few marker widths (a measured look): whatever sits in front of the object in the skin
+/// (markers, dust) keeps its share `lum / skin_lum` of the light, so dark pins stay visible
+/// over the object as they do on the real sensors.
 #[allow(clippy::too_many_arguments)]
 pub fn see_through(
     buf: &mut [f32],
@@ -258,27 +277,48 @@ pub fn see_through(
     glow_rgb: [f32; 3],
     glow: &CellField,
     gap_mm: f32,
+    edge_blur_px: f32,
+    skin_lum: Option<&[f32]>,
 ) {
     let (w, h) = (depth.width as usize, depth.height as usize);
+    let transmit: Option<Vec<f32>> = skin_lum.filter(|l| l.len() == w * h).map(|l| {
+        buf.chunks_exact(3)
+            .zip(l)
+            .map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 })
+            .collect()
+    });
+    let t_at = |i: usize| transmit.as_ref().map(|t| t[i]).unwrap_or(1.0);
     let glow_strength = 0.75;
     glow.for_each_pixel(w, h, 0.0, |i, g| {
         let a = (g * glow_strength * fov[i]).min(1.0);
+        let t = t_at(i);
         for c in 0..3 {
             let p = &mut buf[i * 3 + c];
-            *p += (glow_rgb[c] - *p) * a;
+            *p += (glow_rgb[c] * t - *p) * a;
         }
     });
-    for (i, &d) in depth.height_mm.iter().enumerate() {
-        if d <= -gap_mm {
+    // Visibility of the object per pixel, then softened by the scattering of the skin.
+    let mut vis = CellField { w, h, cell_px: 1, v: depth.height_mm.iter().map(|&d| if d <= -gap_mm { 0.0 } else { smoothstep(-gap_mm, 0.0, d) }).collect() };
+    if vis.v.iter().all(|&v| v == 0.0) {
+        return;
+    }
+    vis.blur(edge_blur_px.round().max(0.0) as usize, 2);
+    for (i, &v) in vis.v.iter().enumerate() {
+        if v <= 0.0 {
             continue;
         }
-        let vis = smoothstep(-gap_mm, 0.0, d);
-        let a = vis * vis * 0.97 * fov[i];
+        let a = v * v * 0.97 * fov[i];
+        let t = t_at(i);
         for c in 0..3 {
             let p = &mut buf[i * 3 + c];
-            *p += (object_rgb[c] * (0.8 + 0.2 * vis) - *p) * a;
+            *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
         }
     }
+}
+
+/// Luminance of an RGB pixel (Rec. 601 weights), 8-bit scale.
+pub fn luma(p: &[f32]) -> f32 {
+    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
 }
 
 /// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,
