@@ -106,10 +106,12 @@ fn marker_displacement_pushes_pins_away_from_the_indenter() {
     assert_eq!(rest.len(), 137);
     assert_eq!(moved.len(), 137, "pins must stay separate spots");
     let (r0, r1) = (radii(&rest), radii(&moved));
-    // The ring at ~50 px sits on the flank of the dent: pushed outwards by a few px.
+    // The ring at ~50 px sits on the flank of the dent: pushed outwards, at most by the
+    // skin's longest travel (0.15 mm, 1.3 px here, as measured on the real TacTip).
     let ring = |r: &[f32]| r.iter().filter(|v| **v > 40.0 && **v < 65.0).sum::<f32>();
     let (a, b) = (ring(&r0), ring(&r1));
-    assert!(b > a + 16.0 * 1.5, "ring 2 should move out by >1.5 px per pin: {a} -> {b}");
+    assert!(b > a + 16.0 * 0.5, "ring 2 should move out by >0.5 px per pin: {a} -> {b}");
+    assert!(b < a + 16.0 * 1.5, "ring 2 should move out by <1.5 px per pin: {a} -> {b}");
     // Far from the contact nothing moves.
     let outer = |r: &[f32]| r.iter().rev().take(32).sum::<f32>() / 32.0;
     assert!((outer(&r0) - outer(&r1)).abs() < 1.0);
