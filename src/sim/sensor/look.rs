@@ -286,9 +286,9 @@ impl StaticLook {
     /// the pins at rest, the tube and the dust are what that sensor shows, and the effect stages
     /// add the contact on top. A real rig captures such a frame at start-up anyway (tactile
     /// pipelines subtract it); this is the honest way to look like one particular sensor
-    /// rather than like the average of its kind. The frame is divided by the vignetting gain so
-    /// that the vignetting stage gives it back unchanged; the field of view stays the modelled
-    /// circle (it only limits where see-through applies). Returns `None` when the buffer does
+    /// rather than like the average of its kind. The frame already holds the sensor's vignetting,
+    /// so the vignetting gain becomes 1; the field of view stays the modelled circle (it only
+    /// limits where see-through applies). Returns `None` when the buffer does
     /// not hold `width * height * 3` bytes.
     pub fn from_reference(look: &Look, reference: &[u8], width: u32, height: u32, seed: u64) -> Option<Self> {
         let n = width as usize * height as usize;
@@ -296,12 +296,10 @@ impl StaticLook {
             return None;
         }
         let mut out = Self::build(look, width, height, seed);
-        for (i, (dst, src)) in out.background.chunks_exact_mut(3).zip(reference.chunks_exact(3)).enumerate() {
-            let g = out.vignette[i].max(0.05);
-            for c in 0..3 {
-                dst[c] = src[c] as f32 / g;
-            }
-        }
+        // The measured frame holds the sensor's own fall-off: the vignetting stage has nothing
+        // left to add.
+        out.vignette.fill(1.0);
+        out.background = reference.iter().map(|&v| v as f32).collect();
         out.rest_frame = out.background.clone();
         out.measured = true;
         // Smoothing over about three pin pitches leaves the skin without its pins; a pin's
