@@ -96,9 +96,7 @@ pub fn render_tactile(
     seed: u64,
 ) -> Result<RgbImage, SensorUnavailable> {
     let scene = Scene::preset("full").map_err(|e| SensorUnavailable { sensor, reason: e.to_string() })?;
-    let px_per_mm = ((calib.scale_px_per_mm[0].abs() + calib.scale_px_per_mm[1].abs()) / 2.0) as f32;
-    let sim = SensorSim::new(sensor.into(), scene, depth.width, depth.height, px_per_mm, seed);
-    Ok(sim.render(depth, &MotionState::STILL, seed))
+    render_tactile_with(sensor, depth, calib, seed, &scene, None)
 }
 
 /// As [`render_tactile`], with the stages of `scene` and, when `reference` is given, the
