@@ -10,7 +10,14 @@
 //! next to the pose-blind baseline (the mean of the other real frames of that sensor).
 //!
 //! - Logged pose to render pose: x, y, yaw as logged; indentation = 1.5 mm (the contact depth
-//!   of the collection, `WorkFrame::contact_depth_mm`) + the logged z.
+//!   of the collection, `WorkFrame::contact_depth_mm`) - the logged z. The sign is read off the
+//!   frames: the two frames with the lowest z (2 and 3, z = -0.77 and -0.93 mm) show the
+//!   largest contact regions on all three sensors and the largest TacTip pin shifts (3-5 px,
+//!   against 0-1 px for frames 4 and 5), and rendering with `+ z` lowers the TacTip
+//!   contact-region SSIM from 0.420 to 0.381 with everything else equal.
+//! - The simulator starts from the median of the sensor's *other* real frames
+//!   ([`simulator_reference`], leave one out) and renders the scene of [`comparison_scene`]
+//!   (no noise); `--procedural` uses its modelled look instead, `--scene` another scene.
 //! - No-contact look: per pixel, the median of the sensor's real frames whose rendered
 //!   footprint (dilated by [`FOOTPRINT_MARGIN_PX`]) does not cover that pixel (all frames where
 //!   every frame covers it). There is no real no-contact frame in the sample.
@@ -26,7 +33,8 @@ use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 use image::{Rgb, RgbImage, imageops};
 
-use super::sensor_bridge::{TactileSensor, render_tactile, simulator_available};
+use super::sensor_bridge::{TactileSensor, render_tactile_with, simulator_available};
+use crate::sim::sensor::{Scene, Stage};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
 use crate::geometry::raster::render_depth;
@@ -34,7 +42,8 @@ use crate::geometry::stl::Mesh;
 use crate::metrics::{ssim, ssim_masked};
 use crate::pose::Pose;
 
-/// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm).
+/// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm); the indentation
+/// of a frame is this minus its logged z.
 pub const CONTACT_DEPTH_MM: f64 = 1.5;
 /// Margin around a rendered footprint that counts as "touched" for the no-contact estimate, px.
 pub const FOOTPRINT_MARGIN_PX: u32 = 16;
@@ -57,6 +66,14 @@ pub struct Args {
     /// Refit the calibrations to the frames and write them before comparing.
     #[arg(long)]
     pub fit: bool,
+    /// Render the simulator's modelled static look (skin, pins, tube) instead of starting
+    /// from the no-contact look measured on the other real frames.
+    #[arg(long)]
+    pub procedural: bool,
+    /// Simulator scene (preset or TOML file); default: every stage but noise and stale frames
+    /// (the expected image, see `comparison_scene`).
+    #[arg(long)]
+    pub scene: Option<String>,
     /// Write side-by-side panels (real | baseline | footprint | contact region | simulator) here.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -103,7 +120,8 @@ pub fn read_lepora_poses(path: &Path) -> anyhow::Result<BTreeMap<usize, Pose>> {
                 format!("{}: row {}: {:?} is not a number", path.display(), row + 2, get(c))
             })
         };
-        poses.insert(index, Pose::new(num(cx)?, num(cy)?, CONTACT_DEPTH_MM + num(cz)?, num(cyaw)?));
+        // Logged z grows away from the object (see the module docs): a lower z presses deeper.
+        poses.insert(index, Pose::new(num(cx)?, num(cy)?, CONTACT_DEPTH_MM - num(cz)?, num(cyaw)?));
     }
     Ok(poses)
 }
@@ -270,6 +288,24 @@ fn mean_correction(seeds: &[Calibration]) -> [[f64; 2]; 2] {
     m
 }
 
+/// The scene the comparison renders by default: every stage except `noise` and
+/// `stale_frame`. SSIM against one noisy real frame is highest for the noise-free expected
+/// image (independent noise only lowers it), and the baseline, a mean of frames, is nearly
+/// noise-free too; a still frame has nothing stale.
+pub fn comparison_scene() -> Scene {
+    let stages: Vec<Stage> = Stage::ALL.into_iter().filter(|s| !matches!(s, Stage::Noise | Stage::StaleFrame)).collect();
+    Scene::with_stages("compare", &stages)
+}
+
+/// The measured no-contact look the simulator starts from: the per-pixel median of the
+/// *other* real frames of the sensor only (leave one out: the simulator never sees the frame it
+/// is scored on, and has the same information as the baseline). One median over the same
+/// frames everywhere keeps the pins whole (they shift a little between frames; switching frame
+/// sets per pixel, as the footprint-aware `no_contact_estimate` does, tears them).
+pub fn simulator_reference(others: &[&RgbImage]) -> RgbImage {
+    median_image(others)
+}
+
 /// Scores of one frame.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameScores {
@@ -283,7 +319,16 @@ pub struct FrameScores {
 }
 
 /// Compares one sensor; writes panels into `out` if given.
-pub fn compare_sensor(sample: &RealSample, sensor: TactileSensor, calib: &Calibration, out: Option<&Path>) -> anyhow::Result<Vec<FrameScores>> {
+/// `procedural`: render the simulator's own modelled look instead of starting from the
+/// measured (leave-one-out) no-contact look.
+pub fn compare_sensor(
+    sample: &RealSample,
+    sensor: TactileSensor,
+    calib: &Calibration,
+    out: Option<&Path>,
+    procedural: bool,
+    scene: &Scene,
+) -> anyhow::Result<Vec<FrameScores>> {
     let list = sample.frames.get(sensor.dataset_name()).map(Vec::as_slice).unwrap_or(&[]);
     if list.len() < 2 {
         bail!("{sensor}: need at least two real frames, have {}", list.len());
@@ -306,7 +351,10 @@ pub fn compare_sensor(sample: &RealSample, sensor: TactileSensor, calib: &Calibr
         let baseline = mean_image(&others);
         let mask = difference_mask(real, &no_contact, CONTACT_THRESHOLD);
         let contact_fraction = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
-        let sim = render_tactile(sensor, &depths[k], &calib, *index as u64).ok();
+        // The simulator's static look: the no-contact look measured on the *other* frames
+        // (leave one out), the same information the baseline has; the simulator adds the contact.
+        let reference = (!procedural).then(|| simulator_reference(&others));
+        let sim = render_tactile_with(sensor, &depths[k], &calib, *index as u64, scene, reference.as_ref()).ok();
         let masked = |img: &RgbImage| ssim_masked(real, img, &mask).ok();
         let s = FrameScores {
             index: *index,
@@ -392,11 +440,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{:<9} {:>5} {:>8} {:>8} | {:>10} {:>10} | {:>10} {:>10}",
         "sensor", "frame", "contact%", "fp-IoU", "sim whole", "base whole", "sim cont.", "base cont."
     );
+    let scene = match &args.scene {
+        Some(spec) => Scene::preset_or_file(spec)?,
+        None => comparison_scene(),
+    };
     let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
     for sensor in TactileSensor::ALL {
         let path = args.calibration_dir.join(format!("mds-example-{}.toml", sensor.slug()));
         let calib = Calibration::load(&path).with_context(|| format!("{sensor}: run with --fit to create {}", path.display()))?;
-        let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref())?;
+        let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref(), args.procedural, &scene)?;
         for s in &scores {
             println!(
                 "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",

@@ -96,8 +96,26 @@ pub fn render_tactile(
     seed: u64,
 ) -> Result<RgbImage, SensorUnavailable> {
     let scene = Scene::preset("full").map_err(|e| SensorUnavailable { sensor, reason: e.to_string() })?;
+    render_tactile_with(sensor, depth, calib, seed, &scene, None)
+}
+
+/// As [`render_tactile`], with the stages of `scene` and, when `reference` is given, the
+/// sensor's static look taken from it: a measured no-contact frame of the real sensor (same
+/// size as `depth`), to which the simulator adds only the contact (see
+/// `SensorSim::with_reference`).
+pub fn render_tactile_with(
+    sensor: TactileSensor,
+    depth: &DepthMap,
+    calib: &Calibration,
+    seed: u64,
+    scene: &Scene,
+    reference: Option<&RgbImage>,
+) -> Result<RgbImage, SensorUnavailable> {
     let px_per_mm = ((calib.scale_px_per_mm[0].abs() + calib.scale_px_per_mm[1].abs()) / 2.0) as f32;
-    let sim = SensorSim::new(sensor.into(), scene, depth.width, depth.height, px_per_mm, seed);
+    let mut sim = SensorSim::new(sensor.into(), scene.clone(), depth.width, depth.height, px_per_mm, seed);
+    if let Some(r) = reference {
+        sim = sim.with_reference(r).map_err(|e| SensorUnavailable { sensor, reason: e.to_string() })?;
+    }
     Ok(sim.render(depth, &MotionState::STILL, seed))
 }
 

@@ -58,6 +58,11 @@ pub struct Look {
     pub object_rgb: Option<[f32; 3]>,
     /// Colour of the glow the pressed object scatters into the skin.
     pub glow_rgb: [f32; 3],
+    /// Brightness change per unit slope of the skin under the sensor's light. The opaque
+    /// TacTip skin is lit from inside and shades visibly; through a transparent skin one sees
+    /// the object, which the skin's tilt barely darkens (the real ViTac and ViTacTip frames
+    /// show no dark rim around a contact).
+    pub shading_gain: f32,
 }
 
 impl Look {
@@ -79,6 +84,7 @@ impl Look {
                 markers: Some(MarkerLook { rgb: [188.0, 198.0, 202.0], opacity: 1.0, radius_px: 5.0, halo: -0.5 }),
                 object_rgb: None,
                 glow_rgb: [0.0; 3],
+                shading_gain: 0.3,
             },
             SensorKind::ViTac => Look {
                 profile: vec![
@@ -98,6 +104,7 @@ impl Look {
                 markers: None,
                 object_rgb: Some([252.0, 254.0, 254.0]),
                 glow_rgb: [240.0, 240.0, 234.0],
+                shading_gain: 0.05,
             },
             SensorKind::ViTacTip => Look {
                 profile: vec![
@@ -117,6 +124,7 @@ impl Look {
                 markers: Some(MarkerLook { rgb: [38.0, 35.0, 37.0], opacity: 0.92, radius_px: 4.7, halo: 0.08 }),
                 object_rgb: Some([235.0, 242.0, 240.0]),
                 glow_rgb: [225.0, 228.0, 222.0],
+                shading_gain: 0.05,
             },
         }
     }
@@ -180,6 +188,14 @@ pub struct StaticLook {
     pub markers: Vec<[f32; 2]>,
     /// The no-contact frame before vignetting and noise: background plus markers at rest.
     pub rest_frame: Vec<f32>,
+    /// True when the background is a measured no-contact frame of a real sensor (see
+    /// [`StaticLook::from_reference`]): its pins are in the image already, so contact moves
+    /// them by warping the skin instead of drawing the lattice.
+    pub measured: bool,
+    /// For a measured look: the skin's luminance smoothed over a few marker widths, per pixel
+    /// (what the skin looks like without its pins); see-through uses it to keep pins in front
+    /// of the object.
+    pub skin_lum: Option<Vec<f32>>,
 }
 
 impl StaticLook {
@@ -262,7 +278,42 @@ impl StaticLook {
         if let Some(m) = look.markers {
             super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
         }
-        Self { background, vignette, fov, markers, rest_frame }
+        Self { background, vignette, fov, markers, rest_frame, measured: false, skin_lum: None }
+    }
+
+    /// The static look taken from a measured no-contact frame of one real sensor
+    /// (`reference`: RGB interleaved, 8-bit, `width` x `height`): the skin, its illumination,
+    /// the pins at rest, the tube and the dust are what that sensor shows, and the effect stages
+    /// add the contact on top. A real rig captures such a frame at start-up anyway (tactile
+    /// pipelines subtract it); this is the honest way to look like one particular sensor
+    /// rather than like the average of its kind. The frame already holds the sensor's vignetting,
+    /// so the vignetting gain becomes 1; the field of view stays the modelled circle (it only
+    /// limits where see-through applies). Returns `None` when the buffer does
+    /// not hold `width * height * 3` bytes.
+    pub fn from_reference(look: &Look, reference: &[u8], width: u32, height: u32, seed: u64) -> Option<Self> {
+        let n = width as usize * height as usize;
+        if reference.len() != n * 3 {
+            return None;
+        }
+        let mut out = Self::build(look, width, height, seed);
+        // The measured frame holds the sensor's own fall-off: the vignetting stage has nothing
+        // left to add.
+        out.vignette.fill(1.0);
+        out.background = reference.iter().map(|&v| v as f32).collect();
+        out.rest_frame = out.background.clone();
+        out.measured = true;
+        // Smoothing over about three pin pitches leaves the skin without its pins; a pin's
+        // luminance over it is the share of light the pin lets through.
+        let s = scale(width, height);
+        let mut lum = super::stages::CellField {
+            w: width as usize,
+            h: height as usize,
+            cell_px: 1,
+            v: out.background.chunks_exact(3).map(super::stages::luma).collect(),
+        };
+        lum.blur((RING_PITCH_PX * s).round().max(1.0) as usize, 3);
+        out.skin_lum = Some(lum.v);
+        Some(out)
     }
 }
 

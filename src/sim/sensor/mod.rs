@@ -98,6 +98,16 @@ impl FromStr for SensorKind {
     }
 }
 
+/// A measured reference frame whose size differs from the simulator's.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("reference frame is {width}x{height}, the simulator renders {expected_width}x{expected_height}")]
+pub struct ReferenceSizeError {
+    pub width: u32,
+    pub height: u32,
+    pub expected_width: u32,
+    pub expected_height: u32,
+}
+
 /// Motion of the contact in the image during the exposure (for motion blur).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MotionState {
@@ -164,8 +174,13 @@ mod skin {
     pub const GLOW_NEAR_PX: f32 = 22.0;
     /// Reach of the broad haze around the contact at 512x512, px.
     pub const GLOW_FAR_PX: f32 = 70.0;
-    /// Shading gain per unit slope.
-    pub const SHADING_GAIN: f32 = 0.3;
+    /// Longest lateral travel of the skin, mm. Measured on the real TacTip frames of the
+    /// MultiDiffSense sample (patch-wise cross-correlation against the median of the other
+    /// frames): pins beside a pressed edge shift 1-5 px at 18 px/mm, 0.05-0.28 mm; 0.15 mm
+    /// scored best of 0.12, 0.15, 0.2 and 0.25 in `rig compare-real`.
+    pub const MAX_TRAVEL_MM: f32 = 0.15;
+    /// How far the object's outline is softened by the skin it is seen through, at 512x512, px.
+    pub const SEE_THROUGH_BLUR_PX: f32 = 2.0;
     /// Direction the light comes from in the image (unit vector; up-left).
     pub const LIGHT: [f32; 2] = [-0.6, -0.8];
 }
@@ -234,6 +249,24 @@ impl SensorSim {
             counts: std::array::from_fn(|_| AtomicU64::new(0)),
             nanos: std::array::from_fn(|_| AtomicU64::new(0)),
         }
+    }
+
+    /// The same simulator with its static look taken from a measured no-contact frame of a
+    /// real sensor (see [`look::StaticLook::from_reference`]); the reference must have the
+    /// simulator's size.
+    pub fn with_reference(mut self, reference: &RgbImage) -> Result<Self, ReferenceSizeError> {
+        let wrong = || ReferenceSizeError {
+            width: reference.width(),
+            height: reference.height(),
+            expected_width: self.width,
+            expected_height: self.height,
+        };
+        if reference.dimensions() != (self.width, self.height) {
+            return Err(wrong());
+        }
+        let fixed = StaticLook::from_reference(&self.look, reference.as_raw(), self.width, self.height, self.seed).ok_or_else(wrong)?;
+        self.fixed = fixed;
+        Ok(self)
     }
 
     pub fn kind(&self) -> SensorKind {
@@ -307,13 +340,33 @@ impl SensorSim {
         });
 
         let mut markers = self.fixed.markers.clone();
+        let mut buf = self.fixed.background.clone();
         if self.look.markers.is_some() {
             self.stage(Stage::MarkerDisplacement, || {
-                stages::marker_displacement(&mut markers, &indent, self.px_per_mm, skin::LATERAL_MM)
+                if !touching {
+                    return;
+                }
+                // Without the elastic spread the skin moves only right at the dent.
+                let spread_px =
+                    if self.runs(Stage::ContactDeformation) { skin::SPREAD_MM * self.px_per_mm } else { cell as f32 };
+                // The skin moves with the object's own dent, smoothed by the skin; the broad
+                // skirt of the deformation field (which shades) would drag pins far away.
+                let u = stages::displacement_field(
+                    &raw,
+                    spread_px,
+                    0.5 * look::RING_PITCH_PX * s,
+                    self.px_per_mm,
+                    skin::LATERAL_MM,
+                    skin::MAX_TRAVEL_MM,
+                );
+                if self.fixed.measured {
+                    stages::warp_skin(&mut buf, w, h, &u);
+                } else {
+                    stages::marker_displacement(&mut markers, &u);
+                }
             });
         }
 
-        let mut buf = self.fixed.background.clone();
         if let Some(object_rgb) = self.look.object_rgb {
             self.stage(Stage::SeeThrough, || {
                 let mut near = raw.clone();
@@ -337,16 +390,18 @@ impl SensorSim {
                     self.look.glow_rgb,
                     &glow,
                     skin::SEE_THROUGH_GAP_MM,
+                    skin::SEE_THROUGH_BLUR_PX * s,
+                    self.fixed.skin_lum.as_deref(),
                 );
             });
         }
 
-        if let Some(m) = self.look.markers {
+        if let Some(m) = self.look.markers.filter(|_| !self.fixed.measured) {
             stages::draw_markers(&mut buf, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
         }
 
         self.stage(Stage::Shading, || {
-            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, skin::SHADING_GAIN)
+            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain)
         });
         self.stage(Stage::MotionBlur, || {
             let len = motion.streak_px().min(self.scene.max_blur_px);

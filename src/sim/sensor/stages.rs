@@ -144,15 +144,85 @@ pub fn contact_deformation(indent: &mut CellField, spread_px: f32) {
     }
 }
 
-/// Marker displacement: each marker moves down the indentation gradient (away from the
-/// indenter) by `lateral_mm` per unit slope.
-pub fn marker_displacement(markers: &mut [[f32; 2]], indent: &CellField, px_per_mm: f32, lateral_mm: f32) {
+/// Lateral skin displacement, px, per cell: down the gradient of the indentation smoothed
+/// over half of `spread_px` (away from the indenter), `lateral_mm` of travel per unit slope, at most
+/// `max_travel_mm`. The skin surface moves smoothly even where the object's outline is sharp:
+/// taking the slope of the unsmoothed dent would throw pins at its edges across the image.
+pub fn displacement_field(
+    indent: &CellField,
+    spread_px: f32,
+    rigid_px: f32,
+    px_per_mm: f32,
+    lateral_mm: f32,
+    max_travel_mm: f32,
+) -> [CellField; 2] {
+    let mut smooth = indent.clone();
+    smooth.blur((0.5 * spread_px / indent.cell_px as f32).round().max(1.0) as usize, 3);
+    let (mut ux, mut uy) = (indent.clone(), indent.clone());
+    let c = indent.cell_px as f32;
+    // g is mm of indentation per px; the slope in mm/mm is g * px_per_mm, the travel in px is
+    // slope * lateral_mm * px_per_mm.
+    let k = lateral_mm * px_per_mm * px_per_mm;
+    let cap_px = max_travel_mm * px_per_mm;
+    for cy in 0..indent.h {
+        for cx in 0..indent.w {
+            let g = smooth.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
+            let (mut dx, mut dy) = (-k * g[0], -k * g[1]);
+            let len = (dx * dx + dy * dy).sqrt();
+            if len > cap_px && len > 0.0 {
+                (dx, dy) = (dx * cap_px / len, dy * cap_px / len);
+            }
+            ux.v[cy * indent.w + cx] = dx;
+            uy.v[cy * indent.w + cx] = dy;
+        }
+    }
+    // Pins are rigid: each moves as a whole with the skin around it, so the field is averaged
+    // over `rigid_px` (about half a pin pitch). Without this, a pin straddling the middle of
+    // an edge-like dent is torn in two; with it, pins right under the object stay put.
+    for f in [&mut ux, &mut uy] {
+        f.blur((rigid_px / c).round() as usize, 2);
+    }
+    [ux, uy]
+}
+
+/// Marker displacement: each marker moves by the skin displacement at its rest position
+/// (see [`displacement_field`]).
+pub fn marker_displacement(markers: &mut [[f32; 2]], displacement: &[CellField; 2]) {
     for m in markers.iter_mut() {
-        let g = indent.gradient_per_px(m[0], m[1]);
-        // g is mm of indentation per px; slope in mm/mm is g * px_per_mm.
-        let k = lateral_mm * px_per_mm * px_per_mm;
-        m[0] -= k * g[0];
-        m[1] -= k * g[1];
+        let (dx, dy) = (displacement[0].sample(m[0], m[1]), displacement[1].sample(m[0], m[1]));
+        m[0] += dx;
+        m[1] += dy;
+    }
+}
+
+/// Skin displacement of a measured image: everything printed on or seen in the skin (pins,
+/// texture) moves with it, so the image is resampled backwards along the displacement,
+/// `out(p) = src(p - u(p))`, bilinearly. Pixels moved by less than a hundredth of a pixel are
+/// left as they are.
+pub fn warp_skin(buf: &mut [f32], width: usize, height: usize, displacement: &[CellField; 2]) {
+    if buf.len() != width * height * 3 || width == 0 || height == 0 {
+        return;
+    }
+    let src = buf.to_vec();
+    let at = |x: usize, y: usize, c: usize| src[(y * width + x) * 3 + c];
+    for y in 0..height {
+        for x in 0..width {
+            let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
+            let (dx, dy) = (displacement[0].sample(px, py), displacement[1].sample(px, py));
+            if dx.abs() < 0.01 && dy.abs() < 0.01 {
+                continue;
+            }
+            let fx = (px - dx - 0.5).clamp(0.0, (width - 1) as f32);
+            let fy = (py - dy - 0.5).clamp(0.0, (height - 1) as f32);
+            let (x0, y0) = (fx as usize, fy as usize);
+            let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+            let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+            for c in 0..3 {
+                let a = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * tx;
+                let b = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * tx;
+                buf[(y * width + x) * 3 + c] = a + (b - a) * ty;
+            }
+        }
     }
 }
 
@@ -192,6 +262,12 @@ pub fn draw_markers(
 
 /// See-through: the object under a transparent skin, bright where it presses, faint where a
 /// small gap is left, with the glow it scatters into the skin (`glow` is 0..1 on cells).
+///
+/// The object is seen through about a millimetre of elastomer, which scatters: its outline is
+/// softened over `edge_blur_px`. `skin_lum`, when given, is the skin's luminance smoothed over
+/// a few marker widths (a measured look): whatever sits in front of the object in the skin
+/// (markers, dust) keeps its share `lum / skin_lum` of the light, so dark pins stay visible
+/// over the object as they do on the real sensors.
 #[allow(clippy::too_many_arguments)]
 pub fn see_through(
     buf: &mut [f32],
@@ -201,27 +277,48 @@ pub fn see_through(
     glow_rgb: [f32; 3],
     glow: &CellField,
     gap_mm: f32,
+    edge_blur_px: f32,
+    skin_lum: Option<&[f32]>,
 ) {
     let (w, h) = (depth.width as usize, depth.height as usize);
+    let transmit: Option<Vec<f32>> = skin_lum.filter(|l| l.len() == w * h).map(|l| {
+        buf.chunks_exact(3)
+            .zip(l)
+            .map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 })
+            .collect()
+    });
+    let t_at = |i: usize| transmit.as_ref().map(|t| t[i]).unwrap_or(1.0);
     let glow_strength = 0.75;
     glow.for_each_pixel(w, h, 0.0, |i, g| {
         let a = (g * glow_strength * fov[i]).min(1.0);
+        let t = t_at(i);
         for c in 0..3 {
             let p = &mut buf[i * 3 + c];
-            *p += (glow_rgb[c] - *p) * a;
+            *p += (glow_rgb[c] * t - *p) * a;
         }
     });
-    for (i, &d) in depth.height_mm.iter().enumerate() {
-        if d <= -gap_mm {
+    // Visibility of the object per pixel, then softened by the scattering of the skin.
+    let mut vis = CellField { w, h, cell_px: 1, v: depth.height_mm.iter().map(|&d| if d <= -gap_mm { 0.0 } else { smoothstep(-gap_mm, 0.0, d) }).collect() };
+    if vis.v.iter().all(|&v| v == 0.0) {
+        return;
+    }
+    vis.blur(edge_blur_px.round().max(0.0) as usize, 2);
+    for (i, &v) in vis.v.iter().enumerate() {
+        if v <= 0.0 {
             continue;
         }
-        let vis = smoothstep(-gap_mm, 0.0, d);
-        let a = vis * vis * 0.97 * fov[i];
+        let a = v * v * 0.97 * fov[i];
+        let t = t_at(i);
         for c in 0..3 {
             let p = &mut buf[i * 3 + c];
-            *p += (object_rgb[c] * (0.8 + 0.2 * vis) - *p) * a;
+            *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
         }
     }
+}
+
+/// Luminance of an RGB pixel (Rec. 601 weights), 8-bit scale.
+pub fn luma(p: &[f32]) -> f32 {
+    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
 }
 
 /// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,
