@@ -138,6 +138,11 @@ fn set_sim_truth(config: &mut RigConfig, kind: SensorKind, truth: &Path) -> anyh
             scene: "full".into(),
             width: calib.image_size[0],
             height: calib.image_size[1],
+            camera: crate::camera::v4l2::CameraSettings {
+                width: calib.image_size[0],
+                height: calib.image_size[1],
+                ..Default::default()
+            },
         }),
     }
     Ok(())
