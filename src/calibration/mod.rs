@@ -111,7 +111,7 @@ pub struct Calibration {
     /// Maps a commanded work-frame x/y offset (mm) to the offset the object really shows under
     /// the sensor (row-major 2 x 2 matrix); `None` is the identity, the rigid model. Fitted
     /// when a rig's logged poses do not move the image as the rigid model says (the
-    /// MultiDiffSense example does not: see `docs/geometry.md`).
+    /// MultiDiffSense example does not: see the README, "Comparing with reality").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pose_xy_correction: Option<[[f64; 2]; 2]>,
 }

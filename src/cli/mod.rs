@@ -101,7 +101,7 @@ pub fn main() -> ExitCode {
 /// Exit codes: 1 general failure (including a full disk), 2 bad input (usage, config, plan,
 /// object, calibration, profile, model package and dataset files; a plan outside the
 /// workspace), 3 hardware or protocol fault (arm alarms and lost connections once retries are
-/// spent, camera failures), 4 interrupted. `docs/bad-input.md` lists each bad input.
+/// spent, camera failures), 4 interrupted. the README's "Bad input" table lists each bad input.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     if let Some(code) = e.downcast_ref::<ExitStatus>() {
         return code.0;
