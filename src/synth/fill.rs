@@ -174,10 +174,12 @@ pub fn fill_missing(
         Some(out) => DatasetWriter::resume(out, manifest.clone())?,
         None => DatasetWriter::resume(dataset, manifest.clone())?,
     };
-    if let (Some(out), Ok(reference)) = (out, image::open(dataset.join("reference.png"))) {
-        if !out.join("reference.png").is_file() {
-            writer.write_reference(&reference.to_rgb8())?;
-        }
+    // A shard's own dataset gets the collection's reference frame (decoded only when missing).
+    if let Some(out) = out
+        && !out.join("reference.png").is_file()
+        && let Ok(reference) = image::open(dataset.join("reference.png"))
+    {
+        writer.write_reference(&reference.to_rgb8())?;
     }
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
