@@ -37,15 +37,33 @@ pub enum CollectError {
     Camera(#[from] CameraError),
     #[error(transparent)]
     Dataset(#[from] DatasetError),
-    #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
-    RetriesExhausted { pose_id: u32, attempts: u32, last: ArmError },
-    #[error("pose {pose_id} gave up after {attempts} attempts: {last}")]
-    CameraRetriesExhausted { pose_id: u32, attempts: u32, last: CameraError },
+    /// `pose_id` is `None` for the no-contact reference pose.
+    #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
+    RetriesExhausted { pose_id: Option<u32>, attempts: u32, last: ArmError },
+    #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
+    CameraRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: CameraError },
     /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
     #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
     Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
+}
+
+/// One retryable step of the job.
+#[derive(Debug, Clone, Copy)]
+enum Step<'p> {
+    /// The no-contact reference frames above the plan origin.
+    Reference,
+    Pose(&'p PlannedPose),
+}
+
+impl Step<'_> {
+    fn pose_id(&self) -> Option<u32> {
+        match self {
+            Step::Reference => None,
+            Step::Pose(p) => Some(p.pose_id),
+        }
+    }
 }
 
 fn describe_pose(pose_id: Option<u32>) -> String {
@@ -145,7 +163,7 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
 
         // The no-contact reference frame, for every sensor that has none yet.
         if self.sensors.iter().any(|s| !has_reference(&s.writer))
-            && let Err(e) = self.reference_frames(above_origin).await
+            && let Err(e) = self.with_retries(Step::Reference, above_origin, &mut summary).await
         {
             return Err(self.stop_after(above_origin, e).await);
         }
@@ -156,41 +174,8 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
                 summary.interrupted = true;
                 break;
             }
-            let mut attempt = 0u32;
-            loop {
-                attempt += 1;
-                let failure = match self.one_pose(planned).await {
-                    Ok(()) => break,
-                    Err(CollectError::Arm(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
-                        warn!(pose_id = planned.pose_id, attempt, error = %e, "arm fault; clearing and retrying the pose");
-                        self.progress.println(format!("pose {}: {e}; clearing and retrying", planned.pose_id));
-                        match self.arm.clear_error().await {
-                            Ok(alarms) if !alarms.is_empty() => info!(?alarms, "cleared alarms"),
-                            Ok(_) => {}
-                            Err(e) => return Err(self.stop_after(above_origin, e.into()).await),
-                        }
-                        summary.recovered_faults += 1;
-                        continue;
-                    }
-                    // A frame that did not come is retried like an arm fault: a camera that
-                    // stalls once (USB hiccup) must not end a long collection.
-                    Err(CollectError::Camera(e @ CameraError::Timeout { .. }))
-                        if attempt <= self.options.retries_per_pose =>
-                    {
-                        warn!(pose_id = planned.pose_id, attempt, error = %e, "camera timeout; retrying the pose");
-                        self.progress.println(format!("pose {}: {e}; retrying", planned.pose_id));
-                        summary.recovered_faults += 1;
-                        continue;
-                    }
-                    Err(CollectError::Arm(e)) if e.is_recoverable() => {
-                        CollectError::RetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
-                    }
-                    Err(CollectError::Camera(e @ CameraError::Timeout { .. })) => {
-                        CollectError::CameraRetriesExhausted { pose_id: planned.pose_id, attempts: attempt, last: e }
-                    }
-                    Err(e) => e,
-                };
-                return Err(self.stop_after(above_origin, failure).await);
+            if let Err(e) = self.with_retries(Step::Pose(planned), above_origin, &mut summary).await {
+                return Err(self.stop_after(above_origin, e).await);
             }
             summary.captured += 1;
             self.progress.inc(1);
@@ -213,6 +198,55 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         end?;
         info!(?summary, "collection finished");
         Ok(summary)
+    }
+
+    /// Runs one step, clearing and retrying it after a recoverable arm fault (alarm, timeout,
+    /// dropped socket) or a camera timeout, up to `retries_per_pose` times.
+    async fn with_retries(
+        &mut self,
+        step: Step<'_>,
+        above_origin: Pose,
+        summary: &mut CollectSummary,
+    ) -> Result<(), CollectError> {
+        let pose_id = step.pose_id();
+        let label = describe_pose(pose_id);
+        let mut attempt = 0u32;
+        loop {
+            attempt += 1;
+            let result = match step {
+                Step::Reference => self.reference_frames(above_origin).await,
+                Step::Pose(planned) => self.one_pose(planned).await,
+            };
+            match result {
+                Ok(()) => return Ok(()),
+                Err(CollectError::Arm(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
+                    warn!(?pose_id, attempt, error = %e, "arm fault; clearing and retrying");
+                    self.progress.println(format!("{label}: {e}; clearing and retrying"));
+                    match self.arm.clear_error().await {
+                        Ok(alarms) if !alarms.is_empty() => info!(?alarms, "cleared alarms"),
+                        Ok(_) => {}
+                        Err(e) => return Err(e.into()),
+                    }
+                    summary.recovered_faults += 1;
+                }
+                // A frame that did not come is retried like an arm fault: a camera that
+                // stalls once (USB hiccup) must not end a long collection.
+                Err(CollectError::Camera(e @ CameraError::Timeout { .. }))
+                    if attempt <= self.options.retries_per_pose =>
+                {
+                    warn!(?pose_id, attempt, error = %e, "camera timeout; retrying");
+                    self.progress.println(format!("{label}: {e}; retrying"));
+                    summary.recovered_faults += 1;
+                }
+                Err(CollectError::Arm(e)) if e.is_recoverable() => {
+                    return Err(CollectError::RetriesExhausted { pose_id, attempts: attempt, last: e });
+                }
+                Err(CollectError::Camera(e @ CameraError::Timeout { .. })) => {
+                    return Err(CollectError::CameraRetriesExhausted { pose_id, attempts: attempt, last: e });
+                }
+                Err(e) => return Err(e),
+            }
+        }
     }
 
     /// Captures the no-contact reference frame of every sensor that has none yet.
