@@ -4,9 +4,9 @@
 #
 # Targets: MG400 replies and requests (reply_decoder), feedback frames (feedback_decoder),
 # Dobot Magician serial packets (magician_decoder), the recording file (recording_decoder),
-# STL (stl_decoder), calibration TOML, rig config TOML and plan TOML. The firmware profile
-# TOML and the MDS CSV import have no cargo-fuzz target (they reach too far into rig to
-# compile alone); tests/decoders_never_panic.rs covers them, and every decoder here, with
+# STL (stl_decoder) and plan TOML. The firmware profile, calibration and rig config TOML and
+# the MDS CSV import have no cargo-fuzz target (they reach too far into rig to compile
+# alone); tests/decoders_never_panic.rs covers them, and every decoder here, with
 # proptest as part of `cargo test`.
 #
 # Only a stable toolchain is installed here; cargo fuzz passes nightly-only flags (-Z...),
