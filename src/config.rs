@@ -17,7 +17,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::pose::WorkFrame;
 
@@ -172,8 +172,8 @@ pub struct ArmConfig {
     pub speed_factor: u8,
 }
 
-/// The validated `[collect]` section.
-#[derive(Debug, Clone, PartialEq)]
+/// The validated `[collect]` section (also stored as is in recordings).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CollectConfig {
     pub settle_s: f64,
     pub frames_per_pose: u32,

@@ -98,30 +98,18 @@ pub fn default_sample_dir() -> PathBuf {
 /// Reads the Lepora/MultiDiffSense pose CSV: image index -> render pose. Rows with an empty
 /// pose (the unfilled template rows) are skipped.
 pub fn read_lepora_poses(path: &Path) -> anyhow::Result<BTreeMap<usize, Pose>> {
-    let mut reader = csv::Reader::from_path(path).with_context(|| format!("reading {}", path.display()))?;
-    let headers = reader.headers()?.clone();
-    let col = |name: &str| headers.iter().position(|h| h.trim() == name).with_context(|| format!("{}: no column {name}", path.display()));
-    let (ci, cx, cy, cz, cyaw) = (col("image_name")?, col("pose_1")?, col("pose_2")?, col("pose_3")?, col("pose_6")?);
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let mut poses = BTreeMap::new();
-    for (row, rec) in reader.records().enumerate() {
-        let rec = rec.with_context(|| format!("{}: row {}", path.display(), row + 2))?;
-        let get = |c: usize| rec.get(c).map(str::trim).unwrap_or("");
-        if get(cx).is_empty() {
-            continue;
-        }
+    for row in crate::dataset::export::parse_mds(&bytes, path)? {
         // image_name is frame_<i>_0.png.
-        let index = get(ci)
+        let index = row
+            .image_name
             .strip_prefix("frame_")
             .and_then(|s| s.split('_').next())
             .and_then(|s| s.parse::<usize>().ok())
-            .with_context(|| format!("{}: row {}: image_name {:?} is not frame_<i>_0.png", path.display(), row + 2, get(ci)))?;
-        let num = |c: usize| -> anyhow::Result<f64> {
-            get(c).parse::<f64>().ok().filter(|v| v.is_finite()).with_context(|| {
-                format!("{}: row {}: {:?} is not a number", path.display(), row + 2, get(c))
-            })
-        };
+            .with_context(|| format!("{}: image_name {:?} is not frame_<i>_0.png", path.display(), row.image_name))?;
         // Logged z grows away from the object (see the module docs): a lower z presses deeper.
-        poses.insert(index, Pose::new(num(cx)?, num(cy)?, CONTACT_DEPTH_MM - num(cz)?, num(cyaw)?));
+        poses.insert(index, Pose::new(row.pose[0], row.pose[1], CONTACT_DEPTH_MM - row.pose[2], row.pose[5]));
     }
     Ok(poses)
 }

@@ -98,7 +98,7 @@ pub(crate) fn recording_header(
         plan_spec: spec.clone(),
         plan: plan.to_vec(),
         work_frame: config.work_frame,
-        collect: (&config.collect).into(),
+        collect: config.collect.clone(),
         profile: profile.clone(),
         speed_factor_pct: config.arm.speed_factor,
     }

@@ -67,40 +67,6 @@ pub enum RecordError {
     NoHeader { path: PathBuf },
 }
 
-/// The collect options as recorded (mirrors [`CollectConfig`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RecordedCollectOptions {
-    pub settle_s: f64,
-    pub frames_per_pose: u32,
-    pub average_frames: bool,
-    pub move_timeout_s: f64,
-    pub retries_per_pose: u32,
-}
-
-impl From<&CollectConfig> for RecordedCollectOptions {
-    fn from(c: &CollectConfig) -> Self {
-        Self {
-            settle_s: c.settle_s,
-            frames_per_pose: c.frames_per_pose,
-            average_frames: c.average_frames,
-            move_timeout_s: c.move_timeout_s,
-            retries_per_pose: c.retries_per_pose,
-        }
-    }
-}
-
-impl From<&RecordedCollectOptions> for CollectConfig {
-    fn from(c: &RecordedCollectOptions) -> Self {
-        Self {
-            settle_s: c.settle_s,
-            frames_per_pose: c.frames_per_pose,
-            average_frames: c.average_frames,
-            move_timeout_s: c.move_timeout_s,
-            retries_per_pose: c.retries_per_pose,
-        }
-    }
-}
-
 /// One camera of the recorded run, in the order of the job's sensor list.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RecordedSensor {
@@ -127,7 +93,7 @@ pub struct RecordingHeader {
     /// The poses in the order the job ran them.
     pub plan: Vec<PlannedPose>,
     pub work_frame: WorkFrame,
-    pub collect: RecordedCollectOptions,
+    pub collect: CollectConfig,
     pub profile: FirmwareProfile,
     pub speed_factor_pct: u8,
 }
@@ -416,7 +382,7 @@ mod tests {
             plan_spec: PlanSpec::default(),
             plan: vec![PlannedPose { pose_id: 4, pose: crate::pose::Pose::new(1.0, 2.0, 0.5, 15.0) }],
             work_frame: WorkFrame::default(),
-            collect: (&CollectConfig::default()).into(),
+            collect: CollectConfig::default(),
             profile: FirmwareProfile::default_mg400(),
             speed_factor_pct: 100,
         }

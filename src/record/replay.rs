@@ -527,7 +527,7 @@ async fn run_job(
         arm: &mut arm,
         sensors,
         work_frame: h.work_frame,
-        options: (&h.collect).into(),
+        options: h.collect.clone(),
         clock,
         cancel,
         progress: indicatif::ProgressBar::hidden(),
