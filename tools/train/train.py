@@ -59,6 +59,9 @@ def parse_args(argv=None):
     ap.add_argument("--ckpt-every", type=int, default=100)
     ap.add_argument("--log-every", type=int, default=10)
     ap.add_argument("--width", type=int, default=32, help="UNet base channels")
+    ap.add_argument("--polish-steps", type=int, default=0,
+                    help="after the run: this many more steps at --polish-lr, the text encoder at 4x (diffusion-polish.pt)")
+    ap.add_argument("--polish-lr", type=float, default=3e-4)
     ap.add_argument("--bench", type=int, default=0, help="time this many steps of each stage and exit")
     return ap.parse_args(argv)
 
@@ -175,8 +178,8 @@ def alphas_cumprod():
     return torch.cumprod(1 - betas, 0).float()
 
 
-def diffusion_stage(args, data, tok, latents, device):
-    path = os.path.join(args.out, "diffusion.pt")
+def diffusion_stage(args, data, tok, latents, device, polish=False):
+    path = os.path.join(args.out, "diffusion-polish.pt" if polish else "diffusion.pt")
     eos, bos = tok.token_to_id("<|endoftext|>"), tok.token_to_id("<|startoftext|>")
     torch.manual_seed(args.seed + 2)
     text_encoder = build_text_encoder(tok.get_vocab_size(), bos, eos).to(device)
@@ -184,27 +187,38 @@ def diffusion_stage(args, data, tok, latents, device):
     unet, controlnet = unet.to(device), controlnet.to(device)
     modules = torch.nn.ModuleDict({"text_encoder": text_encoder, "unet": unet, "controlnet": controlnet})
     ema = copy.deepcopy(modules).requires_grad_(False)
-    opt = torch.optim.AdamW(modules.parameters(), lr=args.lr, weight_decay=0.01)
+    text_params = list(text_encoder.parameters())
+    other = [p for k, m in modules.items() if k != "text_encoder" for p in m.parameters()]
+    opt = torch.optim.AdamW([{"params": other, "k": 1.0}, {"params": text_params, "k": 4.0 if polish else 1.0}],
+                            lr=args.lr, weight_decay=0.01)
     step = 0
     ck = load(path)
+    if polish and ck is None:
+        # Start from the finished main run's weights (its EMA goes on as the EMA).
+        base = load(os.path.join(args.out, "diffusion.pt"))
+        modules.load_state_dict(base["model"]), ema.load_state_dict(base["ema"])
     if ck is not None:
-        modules.load_state_dict(ck["model"]), ema.load_state_dict(ck["ema"]), opt.load_state_dict(ck["opt"])
+        modules.load_state_dict(ck["model"]), ema.load_state_dict(ck["ema"])
         step = ck["step"]
         if ck.get("done"):
             return ema
+        opt.load_state_dict(ck["opt"])
     n_params = {k: sum(p.numel() for p in m.parameters()) for k, m in modules.items()}
     log(args.out, f"diffusion params: {n_params}")
     ids_all = encode_prompts(tok, data.prompts, eos)
     ac = alphas_cumprod().to(device)
     rng = np.random.default_rng(args.seed + 3 + step)
     torch.manual_seed(args.seed + 3 + step)
-    n_steps = args.bench or args.steps
+    n_steps = args.bench or (args.polish_steps if polish else args.steps)
     t0, seen, run_loss = time.time(), 0, 0.0
     modules.train()
     while step < n_steps:
-        lr = args.lr * min(1.0, (step + 1) / 50) * (0.5 * (1 + math.cos(math.pi * step / n_steps)) * 0.9 + 0.1)
+        if polish:
+            lr = args.polish_lr
+        else:
+            lr = args.lr * min(1.0, (step + 1) / 50) * (0.5 * (1 + math.cos(math.pi * step / n_steps)) * 0.9 + 0.1)
         for g in opt.param_groups:
-            g["lr"] = lr
+            g["lr"] = lr * g["k"]
         idx = rng.integers(0, data.n, args.batch)
         img, hint, ref = data.batch(idx)
         x0 = latents[idx].to(device)
@@ -244,8 +258,8 @@ def diffusion_stage(args, data, tok, latents, device):
         if step % args.ckpt_every == 0 or step == n_steps:
             save(path, model=modules.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
                  done=step == n_steps)
-            save(os.path.join(args.out, f"ema-{step:06d}.pt"), ema=ema.state_dict(), step=step)
-            for old in sorted(f for f in os.listdir(args.out) if f.startswith("ema-"))[:-3]:
+            save(os.path.join(args.out, f"ema-{'polish-' if polish else ''}{step:06d}.pt"), ema=ema.state_dict(), step=step)
+            for old in sorted(f for f in os.listdir(args.out) if f.startswith("ema-0"))[:-3]:
                 os.remove(os.path.join(args.out, old))
     return ema
 
@@ -265,6 +279,8 @@ def main(argv=None):
     latents = encode_all(vae, data, device, args.out)
     log(args.out, f"latents: {tuple(latents.shape)} std {latents.std():.3f}")
     diffusion_stage(args, data, tok, latents, device)
+    if args.polish_steps:
+        diffusion_stage(args, data, tok, latents, device, polish=True)
     log(args.out, "done")
 
 
