@@ -104,8 +104,11 @@ def main():
                      vae_scale_factor=4)
     write_scheduler_config(out, SCHEDULER_CONFIG)
     with open(os.path.join(out, "TRAINING.txt"), "w") as f:
-        f.write(f"Trained by tools/train/train.py ({step} diffusion steps, EMA weights of {os.path.basename(ckpt)}).\n"
-                f"See docs/training.md (README: \"Training the default model\") to retrain.\n")
+        targs = json.load(open(os.path.join(args.train_dir, "args.json")))
+        polish = "polish" in os.path.basename(ckpt)
+        done = f"{targs['steps']} steps + {step} polish steps" if polish else f"{step} of {targs['steps']} steps"
+        f.write(f"Trained by tools/train/train.py ({done}, EMA weights of {os.path.basename(ckpt)}).\n"
+                f"See docs/training.md (README: \"Training the default synthesis model\") to retrain.\n")
     check_onnx(out, text_encoder, controlnet, unet, vae, tok)
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
     print(f"exported step {step} of {ckpt} to {out} ({total / 1e6:.1f} MB)")
