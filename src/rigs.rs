@@ -426,7 +426,10 @@ impl Rig {
                         backend: format!("sim scene {scene_name:?}: {e}"),
                     })?;
                     let px_per_mm = calib.scale_px_per_mm[0] as f32;
-                    let renderer = SensorSim::new(*kind, scene, width, height, px_per_mm, seed ^ sensor_salt(*kind));
+                    let mut renderer = SensorSim::new(*kind, scene, width, height, px_per_mm, seed ^ sensor_salt(*kind));
+                    if let Some(unit) = config.sensor_unit_seed {
+                        renderer = renderer.with_unit_seed(unit ^ sensor_salt(*kind));
+                    }
                     let mesh = Arc::clone(&object.mesh);
                     let depth_calib = calib.clone();
                     let depth_source = Box::new(move |object_pose: &Pose| {
