@@ -60,6 +60,8 @@ pub const ISOTROPY_RATIO: f64 = 0.5;
 pub enum EvalError {
     #[error("--size {size_px}: images must be at least {min} px (the SSIM window)")]
     BadSize { size_px: u32, min: u32 },
+    #[error("--object {object}: no real dataset of that object under {dir}")]
+    UnknownObject { object: String, dir: PathBuf },
     #[error("no dataset under {dir} (--{side}: a dataset has a manifest.toml)")]
     NoDatasets { side: &'static str, dir: PathBuf },
     #[error("{side}: two datasets for object {object:?} and sensor {sensor:?}: {first} and {second}")]
@@ -115,12 +117,21 @@ pub struct EvalOptions {
     pub mask_threshold: f64,
     /// The region is then dilated by this many pixels (square).
     pub mask_dilate_px: u32,
+    /// Only these objects of the real and synthetic sides (empty: all). The collected set is
+    /// not filtered: baselines may use any object of the sensor.
+    pub objects: Vec<String>,
 }
 
 impl EvalOptions {
     /// Defaults at a size: threshold 10 levels, dilation `size / 64` px (2 px at 128).
     pub fn at_size(size_px: u32, label: &str) -> Self {
-        Self { size_px, label: label.to_string(), mask_threshold: 10.0, mask_dilate_px: (size_px / 64).max(1) }
+        Self {
+            size_px,
+            label: label.to_string(),
+            mask_threshold: 10.0,
+            mask_dilate_px: (size_px / 64).max(1),
+            objects: Vec::new(),
+        }
     }
 }
 
@@ -675,8 +686,15 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
     if size < MIN_SIZE_PX {
         return Err(EvalError::BadSize { size_px: size, min: MIN_SIZE_PX });
     }
-    let real = load_side(real_root, "real")?;
-    let synthetic = load_side(synthetic_root, "synthetic")?;
+    let mut real = load_side(real_root, "real")?;
+    let mut synthetic = load_side(synthetic_root, "synthetic")?;
+    if !options.objects.is_empty() {
+        if let Some(object) = options.objects.iter().find(|o| !real.keys().any(|(name, _)| name == *o)) {
+            return Err(EvalError::UnknownObject { object: object.clone(), dir: real_root.to_path_buf() });
+        }
+        real.retain(|(name, _), _| options.objects.contains(name));
+        synthetic.retain(|(name, _), _| options.objects.contains(name));
+    }
     let collected_sets: Vec<DatasetInfo> = if collected.is_empty() {
         synthetic.values().map(|d| DatasetInfo { dir: d.dir.clone(), manifest: d.manifest.clone(), rows: d.rows.clone() }).collect()
     } else {

@@ -160,6 +160,10 @@ fn an_identical_twin_scores_ssim_one_mse_zero_and_the_true_image_pose_errors() {
     }
     let md = report.to_markdown();
     assert!(md.contains("| vitac | model | 8 | 1.000 | inf | 0.0 |"), "{md}");
+    // Only the edge.
+    let edge_only = EvalOptions { objects: vec!["edge".into()], ..options.clone() };
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &edge_only).expect("evaluate");
+    assert_eq!((report.counts.pairs, report.counts.real_datasets, report.counts.yaw_unobservable), (4, 1, 0));
     assert!(!md.contains("NaN"), "{md}");
 }
 
@@ -285,6 +289,10 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     // A size below the SSIM window.
     let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--size", "8"]));
     assert_eq!(code, 2, "{out}");
+    // An object filter naming an object the real side lacks.
+    let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--object", "wedge"]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("--object wedge"), "{out}");
 }
 
 #[test]

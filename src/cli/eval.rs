@@ -22,6 +22,9 @@ pub struct Args {
     /// Repeatable; default: the real rows of the --synthetic datasets.
     #[arg(long, value_name = "DIR")]
     pub collected: Vec<PathBuf>,
+    /// Only this object of the real and synthetic sides (repeatable; default: all).
+    #[arg(long, value_name = "NAME")]
+    pub object: Vec<String>,
     /// Every image is resized to N x N px before it is measured (128: the default model's).
     #[arg(long, value_name = "N", default_value_t = 128)]
     pub size: u32,
@@ -46,7 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bail!(crate::cli::usage(&format!("{flag} {}: no such directory", dir.display())));
         }
     }
-    let options = EvalOptions::at_size(args.size, &args.label);
+    let options = EvalOptions { objects: args.object.clone(), ..EvalOptions::at_size(args.size, &args.label) };
     // Every evaluation error is bad input: missing, unpaired or inconsistent datasets.
     let report = evaluate(&args.real, &args.synthetic, &args.collected, &options)
         .map_err(|e| anyhow::Error::new(crate::cli::usage(&e.to_string())))?;
