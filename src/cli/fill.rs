@@ -189,7 +189,8 @@ fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
         .iter()
         .map(|d| {
             let rel = d.strip_prefix(source).map(Path::to_path_buf).unwrap_or_default();
-            (d.clone(), out.join(rel))
+            let twin = if rel.as_os_str().is_empty() { out.clone() } else { out.join(rel) };
+            (d.clone(), twin)
         })
         .collect();
     if args.dry_run {
