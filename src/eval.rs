@@ -31,6 +31,9 @@
 //! empty mask skips the contact metrics for that pose (counted), and the table says `n/a`
 //! where a figure has no data.
 
+// `!(a > b)` is deliberate here: a NaN must fail every check, which `a <= b` would not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -461,8 +464,8 @@ pub fn axis_difference_deg(a_deg: f64, b_deg: f64) -> f64 {
 }
 
 /// Estimates the contact in `image` against the no-contact `reference` (same size): the
-/// change (largest channel difference) smoothed by a box blur of radius `size / 64` (at least
-/// 1) applied three times, a noise floor (median + 4 MADs), and the connected region around
+/// change (largest channel difference) smoothed by a box blur of radius `size / 64` (at
+/// least one pixel) applied three times, a noise floor (median + 4 MADs), and the connected region around
 /// the strongest change above `floor + 0.3 (peak - floor)`, weighted by how far it rises
 /// above that. `None` when the peak is within 3 levels of the floor (no contact), or on a size
 /// mismatch or an empty image.

@@ -70,6 +70,9 @@ fn train_poses() -> Vec<(u32, Pose)> {
     ]
 }
 
+/// Picks the synthetic side's poses from the test poses.
+type PoseSelection = dyn Fn(&[(u32, Pose)]) -> Vec<(u32, Pose)>;
+
 struct Sets {
     _tmp: tempfile::TempDir,
     real: PathBuf,
@@ -82,7 +85,7 @@ struct Sets {
 fn make_sets(
     objects: &[&str],
     twin: &dyn Fn(u32, &RgbImage) -> RgbImage,
-    synthetic_poses: &dyn Fn(&[(u32, Pose)]) -> Vec<(u32, Pose)>,
+    synthetic_poses: &PoseSelection,
     extra_train: &[(u32, Pose)],
 ) -> Sets {
     let tmp = tempfile::tempdir().expect("tempdir");
