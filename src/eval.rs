@@ -227,6 +227,9 @@ pub struct EvalCounts {
     pub no_geometric_contact: usize,
     /// Sensors with no collected image: their baseline rows are `n/a`.
     pub sensors_without_baseline: Vec<String>,
+    /// Real datasets whose manifest names a calibration file that cannot be loaded here: the
+    /// default calibration for the image size stands in (pose errors in mm are then approximate).
+    pub default_calibration_for: Vec<String>,
 }
 
 /// The result of [`evaluate`].
@@ -764,7 +767,10 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         let native = image::image_dimensions(&reference_path)
             .map_err(|source| EvalError::Image { path: reference_path.clone(), source })?;
         let reference = load_at(&reference_path, size)?;
-        let calib = calibration_at(r, native, size).unwrap_or_else(|| Calibration::default_for(size, size));
+        let calib = calibration_at(r, native, size).unwrap_or_else(|| {
+            counts.default_calibration_for.push(format!("{object}/{sensor}"));
+            Calibration::default_for(size, size)
+        });
         let mesh = mesh_of(&r.manifest);
         let contact_depth_mm = r.manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
         let collected_here = by_sensor.get(sensor);
@@ -944,6 +950,12 @@ impl EvalReport {
         }
         if !c.unmatched_datasets.is_empty() {
             s += &format!("Datasets without a counterpart: {}.\n", c.unmatched_datasets.join("; "));
+        }
+        if !c.default_calibration_for.is_empty() {
+            s += &format!(
+                "Calibration file not found, default calibration used (pose errors approximate) for: {}.\n",
+                c.default_calibration_for.join(", ")
+            );
         }
         if !c.sensors_without_baseline.is_empty() {
             s += &format!("No collected images (baselines n/a) for: {}.\n", c.sensors_without_baseline.join(", "));
