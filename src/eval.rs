@@ -244,6 +244,7 @@ pub struct EvalReport {
 }
 
 /// One dataset read from disk.
+#[derive(Clone)]
 struct DatasetInfo {
     dir: PathBuf,
     manifest: Manifest,
@@ -585,6 +586,49 @@ struct CollectedSensor {
     mean: Option<RgbImage>,
 }
 
+/// The collected (training) set at the measuring size.
+struct Collected {
+    /// Per sensor: poses and the pose-blind mean image.
+    by_sensor: BTreeMap<String, CollectedSensor>,
+    /// Each collected dataset's `reference.png`, when it has one.
+    references: Vec<Option<RgbImage>>,
+    /// Collected images (real rows).
+    images: usize,
+}
+
+impl Collected {
+    /// Lists the real rows of `sets` per sensor and averages their images (each read once).
+    fn load(sets: &[DatasetInfo], size: u32) -> Result<Self, EvalError> {
+        let mut by_sensor: BTreeMap<String, CollectedSensor> = BTreeMap::new();
+        let mut references = Vec::new();
+        for (index, d) in sets.iter().enumerate() {
+            references.push(load_at(&d.dir.join(REFERENCE_FILE), size).ok());
+            let (object, sensor) = d.key();
+            let entry = by_sensor.entry(sensor).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
+            for r in d.rows_of(Source::Real) {
+                entry.poses.push(CollectedPose { object: object.clone(), pose: r.commanded(), path: d.dir.join(&r.image), dataset: index });
+            }
+        }
+        let mut images = 0;
+        for sensor in by_sensor.values_mut() {
+            let mut sum = vec![0.0f64; (size * size * 3) as usize];
+            for p in &sensor.poses {
+                let img = load_at(&p.path, size)?;
+                for (s, &v) in sum.iter_mut().zip(img.as_raw()) {
+                    *s += v as f64;
+                }
+            }
+            images += sensor.poses.len();
+            if !sensor.poses.is_empty() {
+                let n = sensor.poses.len() as f64;
+                let raw: Vec<u8> = sum.iter().map(|s| (s / n).round().clamp(0.0, 255.0) as u8).collect();
+                sensor.mean = RgbImage::from_raw(size, size, raw);
+            }
+        }
+        Ok(Self { by_sensor, references, images })
+    }
+}
+
 /// Sums of one table row.
 #[derive(Default)]
 struct RowSums {
@@ -694,15 +738,9 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
     }
     let mut real = load_side(real_root, "real")?;
     let mut synthetic = load_side(synthetic_root, "synthetic")?;
-    if !options.objects.is_empty() {
-        if let Some(object) = options.objects.iter().find(|o| !real.keys().any(|(name, _)| name == *o)) {
-            return Err(EvalError::UnknownObject { object: object.clone(), dir: real_root.to_path_buf() });
-        }
-        real.retain(|(name, _), _| options.objects.contains(name));
-        synthetic.retain(|(name, _), _| options.objects.contains(name));
-    }
+    // Before the object filter: baselines may use any object of the sensor.
     let collected_sets: Vec<DatasetInfo> = if collected.is_empty() {
-        synthetic.values().map(|d| DatasetInfo { dir: d.dir.clone(), manifest: d.manifest.clone(), rows: d.rows.clone() }).collect()
+        synthetic.values().cloned().collect()
     } else {
         let mut v = Vec::new();
         for root in collected {
@@ -716,33 +754,20 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         }
         v
     };
-    let mut counts = EvalCounts { real_datasets: real.len(), synthetic_datasets: synthetic.len(), ..EvalCounts::default() };
-
-    // The collected set per sensor: poses, and the pose-blind mean image.
-    let mut by_sensor: BTreeMap<String, CollectedSensor> = BTreeMap::new();
-    let mut collected_refs: Vec<Option<RgbImage>> = Vec::new();
-    for (index, d) in collected_sets.iter().enumerate() {
-        collected_refs.push(load_at(&d.dir.join(REFERENCE_FILE), size).ok());
-        let entry = by_sensor.entry(d.key().1).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
-        for r in d.rows_of(Source::Real) {
-            entry.poses.push(CollectedPose { object: d.key().0, pose: r.commanded(), path: d.dir.join(&r.image), dataset: index });
+    if !options.objects.is_empty() {
+        if let Some(object) = options.objects.iter().find(|o| !real.keys().any(|(name, _)| name == *o)) {
+            return Err(EvalError::UnknownObject { object: object.clone(), dir: real_root.to_path_buf() });
         }
+        real.retain(|(name, _), _| options.objects.contains(name));
+        synthetic.retain(|(name, _), _| options.objects.contains(name));
     }
-    for sensor in by_sensor.values_mut() {
-        let mut sum = vec![0.0f64; (size * size * 3) as usize];
-        for p in &sensor.poses {
-            let img = load_at(&p.path, size)?;
-            for (s, &v) in sum.iter_mut().zip(img.as_raw()) {
-                *s += v as f64;
-            }
-        }
-        counts.collected_images += sensor.poses.len();
-        if !sensor.poses.is_empty() {
-            let n = sensor.poses.len() as f64;
-            let raw: Vec<u8> = sum.iter().map(|s| (s / n).round().clamp(0.0, 255.0) as u8).collect();
-            sensor.mean = RgbImage::from_raw(size, size, raw);
-        }
-    }
+    let Collected { by_sensor, references: collected_refs, images } = Collected::load(&collected_sets, size)?;
+    let mut counts = EvalCounts {
+        real_datasets: real.len(),
+        synthetic_datasets: synthetic.len(),
+        collected_images: images,
+        ..EvalCounts::default()
+    };
 
     let mut sums: BTreeMap<(String, Method), RowSums> = BTreeMap::new();
     let mut matched = 0usize;
