@@ -14,6 +14,7 @@ pub mod clock;
 pub mod collect;
 pub mod config;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod io;
 pub mod plan;

@@ -347,7 +347,7 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
 
 /// In-place box blur of radius `r` (window `2r + 1`, clamped at the borders: the mean over the
 /// part of the window inside the image), rows then columns.
-fn box_blur(buf: &mut [f32], w: usize, h: usize, r: usize) {
+pub(crate) fn box_blur(buf: &mut [f32], w: usize, h: usize, r: usize) {
     if r == 0 {
         return;
     }

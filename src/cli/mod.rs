@@ -11,6 +11,7 @@ pub mod fill;
 pub mod sim;
 pub mod dataset;
 pub mod devices;
+pub mod eval;
 pub mod plan;
 pub mod replay;
 pub mod sensor;
@@ -56,6 +57,9 @@ pub enum Command {
     Calibrate(calibrate::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
     CompareReal(compare::Args),
+    /// Judge synthetic images against real ones (SSIM, PSNR, MSE, pose recoverability) beside
+    /// pose-blind and nearest-neighbour baselines.
+    Eval(eval::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
     Replay(replay::Args),
     /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
@@ -82,6 +86,7 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
+        Command::Eval(args) => eval::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),

@@ -296,6 +296,30 @@ impl DatasetError {
     }
 }
 
+/// Dataset directories under `root`: `root` itself when it holds a manifest, else its
+/// subfolders that do, and theirs (two levels: `<object>/<sensor>`), sorted.
+pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
+    if root.join(MANIFEST_FILE).is_file() {
+        return vec![root.to_path_buf()];
+    }
+    let children = |d: &std::path::Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let mut found = Vec::new();
+    for a in children(root) {
+        if a.join(MANIFEST_FILE).is_file() {
+            found.push(a);
+            continue;
+        }
+        found.extend(children(&a).into_iter().filter(|b| b.join(MANIFEST_FILE).is_file()));
+    }
+    found
+}
+
 /// Reads every row of `dir/poses.csv`, failing on a malformed or duplicated row (a torn last
 /// line is ignored, as resume would truncate it). Rows come in file order.
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {

@@ -236,6 +236,114 @@ pub fn fill_missing(
     })
 }
 
+/// What `rig synth --poses-of` did for one dataset.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PosesOfSummary {
+    /// Rows of the source with `source=real`: the poses to twin.
+    pub real: usize,
+    /// Of those, poses the output already had (a resumed run).
+    pub present: usize,
+    /// Poses synthesised now.
+    pub synthesised: usize,
+    /// Poses left to other shards or beyond the limit.
+    pub left: usize,
+}
+
+/// Synthesises exactly the poses of `source`'s real rows into the dataset `out` (created with
+/// `source`'s manifest: object, sensor, calibration, plan, work frame; its `reference.png` is
+/// copied), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
+/// `rig eval`. Seeds are [`pose_seed`]`(plan seed, pose_id)` as in [`fill_missing`], so a pose
+/// gets the same image either way. Resumable: poses `out` already has are not redone.
+/// `options.shard` and `options.limit` apply as in a fill.
+pub fn synthesise_poses_of(
+    source: &Path,
+    out: &Path,
+    pipeline: &mut Pipeline,
+    options: &FillOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<PosesOfSummary, FillError> {
+    let source_manifest = Manifest::load(source)?;
+    let dir = source.to_path_buf();
+    let real: Vec<PlannedPose> = read_rows(source)?
+        .iter()
+        .filter(|r| r.source == crate::dataset::Source::Real)
+        .map(|r| PlannedPose { pose_id: r.pose_id, pose: r.commanded() })
+        .collect();
+    let manifest = Manifest {
+        started_utc: crate::dataset::manifest::utc_now(),
+        resumed_utc: Vec::new(),
+        ended_utc: None,
+        rig_version: crate::version().to_string(),
+        ..source_manifest.clone()
+    };
+    let mut writer = DatasetWriter::resume(out, manifest)?;
+    let present: std::collections::BTreeSet<u32> = writer.done_ids().clone();
+    let mut todo: Vec<PlannedPose> =
+        real.iter().filter(|p| !present.contains(&p.pose_id) && options.shard.owns(p.pose_id)).copied().collect();
+    let waiting = real.iter().filter(|p| !present.contains(&p.pose_id)).count();
+    if let Some(limit) = options.limit {
+        todo.truncate(limit);
+    }
+    if !out.join(crate::dataset::REFERENCE_FILE).is_file()
+        && let Ok(reference) = image::open(source.join(crate::dataset::REFERENCE_FILE))
+    {
+        writer.write_reference(&reference.to_rgb8())?;
+    }
+    let kind = SensorKind::from_str(&source_manifest.sensor)
+        .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
+    let mesh = object_mesh(&dir, &source_manifest)?;
+    let (width, height) = pipeline.resolution();
+    let calibration = calibration_of(&dir, &source_manifest, width, height)?;
+    let contact_depth_mm = source_manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+    let output_size = reference_size(source);
+    let spec_seed = source_manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
+    let model = pipeline.package_hash().to_string();
+    progress.set_length(todo.len() as u64);
+    for chunk in todo.chunks(options.batch.max(1)) {
+        let controls: Vec<RgbImage> = chunk
+            .iter()
+            .map(|p| {
+                let object_pose = Pose { z_mm: p.pose.z_mm + contact_depth_mm, ..p.pose };
+                let depth = crate::geometry::raster::render_depth(&mesh, &object_pose, &calibration, width, height, options.supersample);
+                crate::geometry::control::control_image(&depth)
+            })
+            .collect();
+        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
+        let requests: Vec<GenerateRequest> = chunk
+            .iter()
+            .zip(controls.iter().zip(&prompts))
+            .map(|(p, (control, prompt))| GenerateRequest {
+                steps: options.steps,
+                guidance: options.guidance,
+                eta: options.eta,
+                scheduler: options.scheduler,
+                conditioning_scale: options.conditioning_scale,
+                seed: pose_seed(spec_seed, p.pose_id),
+                ..GenerateRequest::new(control, prompt)
+            })
+            .collect();
+        let outputs = pipeline.generate_batch(&requests)?;
+        for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
+            let image = match output_size {
+                Some((w, h)) if (w, h) != output.image.dimensions() => {
+                    image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
+                }
+                _ => output.image,
+            };
+            let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
+            writer.append(row, &image)?;
+        }
+        progress.inc(chunk.len() as u64);
+    }
+    writer.finish()?;
+    Ok(PosesOfSummary {
+        real: real.len(),
+        present: real.len() - waiting,
+        synthesised: todo.len(),
+        left: waiting - todo.len(),
+    })
+}
+
 /// The object mesh the dataset was collected on: its STL when the file still matches, else the
 /// library object of that name.
 fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
