@@ -254,6 +254,20 @@ impl ModbusPeripheralConfig {
     }
 }
 
+impl ModbusPeripheralConfig {
+    /// `force (sim force sensor, required)`: one line for the start-up banner.
+    pub fn describe(&self) -> String {
+        let transport = match &self.transport {
+            ModbusTransport::Tcp { address } => format!("tcp {address}"),
+            ModbusTransport::Rtu { device, baud } => format!("rtu {} {baud} Bd", device.display()),
+            ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { .. }, .. } => "sim force sensor".into(),
+            ModbusTransport::Sim { device: SimPeripheralKind::Illumination, .. } => "sim light".into(),
+        };
+        let policy = if self.required { "required" } else { "optional" };
+        format!("{} ({transport} unit {}, {policy})", self.name, self.unit)
+    }
+}
+
 /// Decodes a reading's registers into its scaled value.
 pub fn decode_reading(read: &RegisterRead, words: &[u16]) -> Option<f64> {
     let raw = match (read.words, read.signed, words) {
