@@ -716,6 +716,22 @@ mod tests {
         assert!(matches!(ModbusPeripheralConfig::resolve("x", raw), Err(ModbusError::Invalid { field: "device", .. })));
         let raw: RawModbusPeripheral = toml::from_str("transport = \"udp\"\n").unwrap();
         assert!(ModbusPeripheralConfig::resolve("x", raw).is_err());
+        // Simulated devices, the policy flag, and sim options where they do not belong.
+        let raw: RawModbusPeripheral = toml::from_str("transport = \"sim\"\nsim = \"force\"\nrequired = false\n").unwrap();
+        let c = ModbusPeripheralConfig::resolve("force", raw).unwrap();
+        assert!(!c.required);
+        assert_eq!(c.transport, ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { stiffness_n_per_mm: 2.0 }, stop_answering_after: None });
+        assert_eq!(c.describe(), "force (sim force sensor unit 1, optional)");
+        for bad in [
+            "transport = \"sim\"\nsim = \"laser\"\n",
+            "transport = \"sim\"\nsim = \"force\"\nsim_stiffness_n_per_mm = -1.0\n",
+            "transport = \"tcp\"\naddress = \"h\"\nsim_stop_answering_after = 3\n",
+            "transport = \"tcp\"\naddress = \"h\"\ntimeout_ms = 0\n",
+        ] {
+            let raw: RawModbusPeripheral = toml::from_str(bad).unwrap();
+            let e = ModbusPeripheralConfig::resolve("x", raw).unwrap_err();
+            assert!(matches!(e, ModbusError::Invalid { .. }) && !e.is_recoverable(), "{bad}: {e}");
+        }
         let r = RegisterRead { name: "v".into(), kind: RegisterKind::Input, register: 0, words: 1, signed: true, scale: 2.0, offset: 1.0 };
         assert_eq!(decode_reading(&r, &[0xFFFF]), Some(-1.0));
         assert_eq!(decode_reading(&r, &[]), None);
