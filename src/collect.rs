@@ -50,16 +50,23 @@ pub enum CollectError {
     RetriesExhausted { pose_id: Option<u32>, attempts: u32, last: ArmError },
     #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
     CameraRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: CameraError },
-    /// A required Modbus peripheral's fault (timeout, lost connection, exception).
+    /// A required Modbus peripheral's fault (timeout, lost connection, exception). Boxed:
+    /// the error is large and rare, and every `Result` of the job carries its size.
     #[error(transparent)]
-    Peripheral(#[from] ModbusError),
+    Peripheral(Box<ModbusError>),
     #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
-    PeripheralRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: ModbusError },
+    PeripheralRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: Box<ModbusError> },
     /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
     #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
     Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
+}
+
+impl From<ModbusError> for CollectError {
+    fn from(e: ModbusError) -> Self {
+        CollectError::Peripheral(Box::new(e))
+    }
 }
 
 /// One retryable step of the job.
