@@ -498,7 +498,11 @@ impl RigConfig {
 
     /// One line saying what rig will drive, printed first by commands that move hardware.
     pub fn describe(&self) -> String {
-        let rig = self.describe_rig();
+        let mut rig = self.describe_rig();
+        if !self.modbus.is_empty() {
+            let list: Vec<String> = self.modbus.values().map(|m| m.describe()).collect();
+            rig.push_str(&format!("; Modbus peripherals: {}", list.join(", ")));
+        }
         if self.faults.is_empty() { rig } else { format!("{rig}; injecting faults: {}", self.faults.describe()) }
     }
 

@@ -6,6 +6,10 @@
 //! collection job never knows which it got. Real hardware: the MG400 over TCP or the Magician
 //! over serial ([`RigArm`]), V4L2 or nokhwa cameras bound by USB identity ([`RigCamera`]).
 //!
+//! Modbus peripherals (`[modbus.<name>]`) come out as a [`ModbusBench`], connected before the
+//! arm moves; a `transport = "sim"` one is a simulated device ([`SimModbusServer`]) started
+//! here on loopback, a force sensor reading the simulated arm's truth.
+//!
 //! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
 //! simulator gets its controller switches, a task closes its sockets periodically, and each
 //! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
@@ -32,7 +36,9 @@ use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
+use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
+use crate::sim::modbus::{ArmContact, SimModbusServer};
 use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
 
 /// Errors assembling the rig.
@@ -58,6 +64,9 @@ pub enum RigError {
         #[source]
         source: CameraError,
     },
+    /// A required Modbus peripheral could not be reached (or a simulated one started).
+    #[error(transparent)]
+    Modbus(#[from] ModbusError),
 }
 
 /// Which sensors a command asked for.
@@ -309,7 +318,11 @@ pub fn magician_profile_for(config: &RigConfig) -> Result<MagicianProfile, RigEr
 pub struct Rig {
     pub arm: RigArm,
     pub cameras: Vec<RigCamera>,
+    /// The Modbus peripherals of `[modbus.*]` (empty when none), for the job.
+    pub peripherals: ModbusBench,
     sim: Option<SimMg400>,
+    /// Simulated Modbus devices (`transport = "sim"`), running until shutdown.
+    modbus_sims: Vec<SimModbusServer>,
     /// The task closing the simulator's sockets (`[sim.faults] drop_sockets_every_s`).
     socket_dropper: Option<tokio::task::JoinHandle<()>>,
 }
@@ -473,14 +486,19 @@ impl Rig {
                 }
             }
         }
-        Ok(Self { arm, cameras, sim, socket_dropper })
+        let (peripherals, modbus_sims) = open_peripherals(config, sim.as_ref()).await?;
+        Ok(Self { arm, cameras, peripherals, sim, modbus_sims, socket_dropper })
     }
 
     /// Stops the in-process simulator, if any.
     pub async fn shutdown(self) {
-        let Rig { arm, cameras, sim, socket_dropper } = self;
+        let Rig { arm, cameras, peripherals, sim, modbus_sims, socket_dropper } = self;
         if let Some(task) = socket_dropper {
             task.abort();
+        }
+        drop(peripherals);
+        for server in modbus_sims {
+            server.shutdown();
         }
         // Close the client first, so it does not try to reconnect to a simulator going away.
         drop(arm);
@@ -489,6 +507,36 @@ impl Rig {
             sim.shutdown().await;
         }
     }
+}
+
+/// The configured Modbus peripherals, connected, with the simulated ones started first (on
+/// loopback; the client then speaks Modbus TCP to them like to a real device).
+async fn open_peripherals(config: &RigConfig, sim: Option<&SimMg400>) -> Result<(ModbusBench, Vec<SimModbusServer>), RigError> {
+    let mut configs = std::collections::BTreeMap::new();
+    let mut servers = Vec::new();
+    for (name, peripheral) in &config.modbus {
+        let mut peripheral = peripheral.clone();
+        if let ModbusTransport::Sim { device, stop_answering_after } = peripheral.transport {
+            let contact = match (device, sim) {
+                (SimPeripheralKind::ForceSensor { .. }, Some(sim)) => {
+                    Some(ArmContact { truth: sim.truth(), work_frame: config.work_frame })
+                }
+                (SimPeripheralKind::ForceSensor { .. }, None) => {
+                    return Err(RigError::BackendUnavailable {
+                        name: format!("modbus.{name}"),
+                        backend: "sim force sensor (it presses with the simulated arm; use arm backend sim)".into(),
+                    });
+                }
+                (SimPeripheralKind::Illumination, _) => None,
+            };
+            let server = SimModbusServer::start(device, contact, stop_answering_after).await.map_err(RigError::Sim)?;
+            tracing::info!(peripheral = %name, addr = %server.addr(), "simulated Modbus device started");
+            peripheral.transport = ModbusTransport::Tcp { address: server.addr().to_string() };
+            servers.push(server);
+        }
+        configs.insert(name.clone(), peripheral);
+    }
+    Ok((ModbusBench::connect(&configs).await?, servers))
 }
 
 /// The simulator's switches for the configured faults.

@@ -150,6 +150,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         clock: Arc::clone(&clock),
         cancel: cancel_rx,
         progress,
+        peripherals: std::mem::take(&mut rig.peripherals),
     };
     let summary = job.run(&plan.poses).await;
     // Close the recording even when the run failed: its replay reproduces the failure.

@@ -125,7 +125,13 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
             use crate::collect::CollectError as C;
             match e {
-                C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
+                C::RetriesExhausted { .. }
+                | C::CameraRetriesExhausted { .. }
+                | C::PeripheralRetriesExhausted { .. }
+                | C::Arm(_)
+                | C::Camera(_) => return 3,
+                C::Peripheral(e) if e.is_recoverable() => return 3,
+                C::Peripheral(_) => return 2,
                 C::Unreachable { .. } | C::Mismatch { .. } => return 2,
                 C::Dataset(_) => {}
             }
@@ -143,6 +149,9 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
             use crate::rigs::RigError as R;
             if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
                 return 2;
+            }
+            if let R::Modbus(m) = e {
+                return if m.is_recoverable() { 3 } else { 2 };
             }
         }
         if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
