@@ -8,10 +8,11 @@
 //!   the two captures of a pose divided by √2: the noise of one capture, in 8-bit levels,
 //!   including whatever the re-approach does not repeat. It needs no noise-free image, so
 //!   the same measure works on a real rig.
-//! - **seconds per pose** are given three ways: *modelled* arm time (the firmware profile's
+//! - **seconds per pose** are given two ways: *modelled* arm time (the firmware profile's
 //!   motion model for travel, descent and retract, plus the settle time, plus one frame
-//!   period per frame), *simulated* (the rig clock's seconds over the run divided by the
-//!   captures, the reference frame and final retract included), and the bench's wall time.
+//!   period per frame) and the bench's wall time per capture on the simulated rig. The
+//!   simulated rig's own clock is not reported: it runs at a multiple of real time, so this
+//!   machine's rendering time enters it multiplied by the time scale.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -82,7 +83,6 @@ pub fn modelled_s_per_pose(profile: &FirmwareProfile, work_frame: &WorkFrame, po
 pub struct CollectRun {
     pub noise_levels: f64,
     pub modelled_s_per_pose: f64,
-    pub simulated_s_per_pose: f64,
     pub wall_s_per_pose: f64,
 }
 
@@ -130,9 +130,9 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         cancel,
         progress: indicatif::ProgressBar::hidden(),
     };
-    let (t_sim, t_wall) = (clock.now_s(), Instant::now());
+    let t_wall = Instant::now();
     let result = job.run(&plan).await;
-    let (sim_s, wall_s) = (clock.now_s() - t_sim, t_wall.elapsed().as_secs_f64());
+    let wall_s = t_wall.elapsed().as_secs_f64();
     rig.shutdown().await;
     result?;
 
@@ -150,7 +150,6 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
     Ok(CollectRun {
         noise_levels: mean(&noise),
         modelled_s_per_pose: modelled,
-        simulated_s_per_pose: sim_s / captures,
         wall_s_per_pose: wall_s / captures,
     })
 }
@@ -169,9 +168,9 @@ pub async fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport
         k += 1;
         rows.push(Row {
             label: format!("settle {settle} s, {first_frames} frame(s)"),
-            values: vec![settle, first_frames as f64, r.noise_levels, r.modelled_s_per_pose, r.simulated_s_per_pose, r.wall_s_per_pose],
+            values: vec![settle, first_frames as f64, r.noise_levels, r.modelled_s_per_pose, r.wall_s_per_pose],
         });
-        settle_series.points.push([r.simulated_s_per_pose, r.noise_levels]);
+        settle_series.points.push([r.modelled_s_per_pose, r.noise_levels]);
         settle_series.labels.push(format!("{settle} s"));
     }
     for &frames in &config.collect_frames {
@@ -179,9 +178,9 @@ pub async fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport
         k += 1;
         rows.push(Row {
             label: format!("settle {default_settle} s, {frames} frame(s) averaged"),
-            values: vec![default_settle, frames as f64, r.noise_levels, r.modelled_s_per_pose, r.simulated_s_per_pose, r.wall_s_per_pose],
+            values: vec![default_settle, frames as f64, r.noise_levels, r.modelled_s_per_pose, r.wall_s_per_pose],
         });
-        frame_series.points.push([r.simulated_s_per_pose, r.noise_levels]);
+        frame_series.points.push([r.modelled_s_per_pose, r.noise_levels]);
         frame_series.labels.push(format!("{frames} fr"));
     }
     if rows.is_empty() {
@@ -195,9 +194,8 @@ pub async fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport
             Column::new("settle [s]", 2),
             Column::new("frames", 0),
             Column::new("noise [levels]", 3),
-            Column::new("s per pose, modelled", 3),
-            Column::new("s per pose, simulated", 3),
-            Column::new("s per pose, wall", 3),
+            Column::new("arm s per pose, modelled", 3),
+            Column::new("wall s per capture, sim. rig", 3),
         ],
         rows,
         notes: vec![
@@ -213,19 +211,19 @@ pub async fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport
              channels), mean over the poses. Averaging n frames should divide it by about √n (8-bit rounding sets a floor)."
                 .to_string(),
             format!(
-                "s per pose: *modelled* = firmware-profile motion time (travel between approach poses, descent, retract) + \
-                 settle + frames x {:.1} ms frame period: arm time on a real MG400 at 100 % speed; *simulated* = the simulated \
-                 rig's clock over the run / captures (reference frame and final retract included); *wall* = this machine's \
-                 time for the same (scaled clock plus rendering).",
+                "*arm s per pose, modelled* = firmware-profile motion time (travel between approach poses, descent, retract) \
+                 + settle + frames x {:.1} ms frame period: arm time on a real MG400 at 100 % speed. *wall s per capture* = this \
+                 machine's time per capture of the simulated run (scaled clock plus rendering; the reference frame and the \
+                 final retract included).",
                 FRAME_PERIOD_S * 1e3
             ),
-            "The simulated arm stops dead on arrival (no ringing), so settle time buys nothing here: on a real rig \
-             measure the noise per settle time with this same measure."
+            "The simulated arm has no ringing after arrival: once the settle time covers the end of the move the noise stops \
+             changing. A real arm's settle time has to be chosen on the real rig, with this same two-capture measure."
                 .to_string(),
         ],
         plot: Plot {
             title: "Collection: image noise against time per pose".into(),
-            x_label: "s per pose (simulated rig clock)".into(),
+            x_label: "arm s per pose (modelled)".into(),
             y_label: "noise of one capture [8-bit levels]".into(),
             series: vec![settle_series, frame_series],
             lines: true,
