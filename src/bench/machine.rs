@@ -20,6 +20,9 @@ pub struct MachineInfo {
     pub build_profile: &'static str,
     /// UTC date and time the report was started.
     pub date_utc: String,
+    /// 1, 5 and 15 minute load averages when the run started (`/proc/loadavg`): other work
+    /// on the machine slows every timing.
+    pub load_avg: Option<String>,
 }
 
 impl MachineInfo {
@@ -39,16 +42,21 @@ impl MachineInfo {
             git_commit: git_commit(Path::new(env!("CARGO_MANIFEST_DIR"))),
             build_profile: if cfg!(debug_assertions) { "debug" } else { "release" },
             date_utc: crate::dataset::manifest::utc_now(),
+            load_avg: std::fs::read_to_string("/proc/loadavg")
+                .ok()
+                .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+                .filter(|l| !l.is_empty()),
         }
     }
 
     /// The header lines of the report (a Markdown list).
     pub fn markdown(&self) -> String {
         format!(
-            "- machine: {} ({} logical CPUs listed, {} available to rig)\n- OS: {}\n- rig {} (commit {}), {} build\n- date: {}\n",
+            "- machine: {} ({} logical CPUs listed, {} available to rig; load average at the start {})\n- OS: {}\n- rig {} (commit {}), {} build\n- date: {}\n",
             self.cpu_model,
             self.cpus_listed,
             self.cpus_available,
+            self.load_avg.as_deref().unwrap_or("unknown"),
             self.os,
             self.rig_version,
             self.git_commit.as_deref().unwrap_or("unknown"),
