@@ -347,7 +347,7 @@ pub fn write_report(report: &BenchReport, dir: &Path) -> Result<Vec<PathBuf>, Be
     ));
     md.push_str(
         "- every figure of this report was measured in this one run, on this machine; times are wall \
-         time unless a column says *modelled* or *simulated*. Plots: SVG drawn with `plotters` built \
+         time unless a column says *modelled*. Plots: SVG drawn with `plotters` built \
          without default features (SVG backend, line and point series only), to keep rig's build time down.\n\n",
     );
     for k in &report.knobs {
