@@ -7,6 +7,7 @@
 //! the simulated MG400 and sensors behind the same seams.
 
 pub mod arm;
+pub mod bench;
 pub mod calibration;
 pub mod camera;
 pub mod cli;

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod bench;
 pub mod calibrate;
 pub mod collect;
 pub mod fill;
@@ -64,6 +65,8 @@ pub enum Command {
     Replay(replay::Args),
     /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
     Devices(devices::Args),
+    /// Measure what accuracy costs in time, knob by knob; write a Markdown report with SVG plots.
+    Bench(bench::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -90,6 +93,7 @@ pub fn main() -> ExitCode {
         Command::Replay(args) => replay::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),
+        Command::Bench(args) => bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
