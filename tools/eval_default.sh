@@ -11,6 +11,9 @@
 # --object O --sensor all --out out/train-data` per training object) as the collected set the
 # baselines come from.
 #
+# The test sets are collected with tools/train/training-unit.toml: the same simulated sensor
+# units (static specks and dust) as the training collection.
+#
 # Usage: tools/eval_default.sh [MODEL]        (default models/default)
 # Environment (for a quick try): RIG (binary, default target/release/rig, built if missing),
 # OUT (default out), TEST_PLAN (default plans/test.toml), STEPS (sampling steps, default 20),
@@ -42,7 +45,8 @@ fi
 
 echo "== collecting the test sets ($TEST_PLAN) into $OUT/test-data"
 for o in $TRAIN_OBJECTS $TEST_OBJECTS; do
-    "$RIG" collect --plan "$TEST_PLAN" --object "$o" --sensor all --out "$OUT/test-data" --resume
+    "$RIG" collect --config tools/train/training-unit.toml --plan "$TEST_PLAN" --object "$o" \
+        --sensor all --out "$OUT/test-data" --resume
 done
 
 echo "== synthesising their poses with $MODEL into $OUT/synth-test"

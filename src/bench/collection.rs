@@ -129,6 +129,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         clock: Arc::clone(&clock),
         cancel,
         progress: indicatif::ProgressBar::hidden(),
+        peripherals: crate::io::modbus::NoPeripherals,
     };
     let t_wall = Instant::now();
     let result = job.run(&plan).await;
