@@ -1,6 +1,6 @@
 //! `rig synth --fill-missing`: synthesise every planned pose a dataset lacks.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use clap::Args;
@@ -57,42 +57,7 @@ pub struct FillArgs {
     pub ort_lib: Option<PathBuf>,
 }
 
-/// The default model package: `models/default` when present, else the tiny test package.
-pub fn default_model() -> PathBuf {
-    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
-    for rel in ["models/default", "tests/data/tiny-package"] {
-        for root in &roots {
-            let p = root.join(rel);
-            if p.join("model.toml").is_file() {
-                return p;
-            }
-        }
-    }
-    PathBuf::from("models/default")
-}
-
-/// Dataset directories under `root` (itself, or up to two levels below).
-pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
-    if root.join("manifest.toml").is_file() {
-        return vec![root.to_path_buf()];
-    }
-    let mut found = Vec::new();
-    let children = |d: &Path| -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
-            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
-            .unwrap_or_default();
-        v.sort();
-        v
-    };
-    for a in children(root) {
-        if a.join("manifest.toml").is_file() {
-            found.push(a);
-            continue;
-        }
-        found.extend(children(&a).into_iter().filter(|b| b.join("manifest.toml").is_file()));
-    }
-    found
-}
+pub use crate::synth::fill::{default_model, find_datasets};
 
 /// Runs `rig synth --fill-missing`.
 pub fn run(args: FillArgs) -> anyhow::Result<()> {
