@@ -198,6 +198,9 @@ pub struct RigContext<'r> {
 pub struct JobEnd {
     pub message: String,
     pub cancelled: bool,
+    /// Progress units done, when the job counts them itself (its progress bar jumps to the
+    /// end when finished, also early).
+    pub done: Option<u64>,
 }
 
 /// Runs `spec` on the opened rig.
@@ -276,6 +279,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
                 summary.captured, summary.remaining
             ),
             cancelled: true,
+            done: Some((summary.skipped + summary.captured) as u64),
         });
     }
     Ok(JobEnd {
@@ -287,6 +291,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
             where_.display()
         ),
         cancelled: false,
+        done: Some((summary.skipped + summary.captured) as u64),
     })
 }
 
@@ -359,7 +364,7 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
             }
         }
         let message = if cancelled { format!("cancelled; {}", lines.join("; ")) } else { lines.join("; ") };
-        (Some((model, runtime, loaded)), Ok(JobEnd { message, cancelled }))
+        (Some((model, runtime, loaded)), Ok(JobEnd { message, cancelled, done: None }))
     });
     match task.await {
         Ok((loaded, result)) => {
@@ -423,7 +428,7 @@ async fn run_calibrate(spec: &CalibrateSpec, ctx: RigContext<'_>) -> Result<JobE
         std::fs::create_dir_all(dir).map_err(|e| JobError::SaveCalibration { path: out.clone(), reason: e.to_string() })?;
     }
     save(&fit.calibration, &out)?;
-    Ok(JobEnd { message: format!("saved {}; {}", out.display(), fit.residual_line()), cancelled: false })
+    Ok(JobEnd { message: format!("saved {}; {}", out.display(), fit.residual_line()), cancelled: false, done: None })
 }
 
 fn save(calibration: &Calibration, out: &std::path::Path) -> Result<(), JobError> {

@@ -43,13 +43,15 @@ impl<'a> LiveArm<'a> {
         Self { arm, state, targets }
     }
 
-    /// Publishes the mode the controller reports, else `fallback`.
-    fn publish_mode(&self, fallback: &str) {
-        self.state.set_arm(Some(reported_mode(self.arm).unwrap_or_else(|| fallback.to_string())), None);
+    /// Publishes the mode a command just set. Not the feedback's mode: the controller
+    /// accepted the command, and the next feedback frames may still show the old mode.
+    fn publish_mode(&self, mode: &str) {
+        self.state.set_arm(Some(mode.to_string()), None);
     }
 }
 
-/// The robot mode the controller itself reports (MG400 feedback), lower case.
+/// The robot mode the controller itself reports (MG400 feedback, up to one feedback period
+/// old), lower case.
 pub fn reported_mode(arm: &RigArm) -> Option<String> {
     match arm {
         RigArm::Mg400(client) => client.latest_feedback().map(|s| format!("{:?}", s.frame.mode()).to_lowercase()),
@@ -73,7 +75,7 @@ impl Arm for LiveArm<'_> {
             Ok(arrival) => {
                 self.state.set_arm(reported_mode(self.arm), Some(arrival.measured));
             }
-            Err(_) => self.publish_mode("error"),
+            Err(_) => self.state.set_arm(reported_mode(self.arm), None),
         }
         r
     }

@@ -12,7 +12,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, watch};
 
 use super::jobs::JobSpec;
@@ -24,7 +24,7 @@ const KEEP_FINISHED: usize = 200;
 const KEEP_ERRORS: usize = 20;
 
 /// Where a job is in its life.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum JobState {
     Queued,
@@ -42,7 +42,7 @@ impl JobState {
 }
 
 /// Progress of a job in its own unit (poses for collect and synth, presses for calibrate).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Progress {
     pub done: u64,
     pub total: u64,
@@ -51,7 +51,7 @@ pub struct Progress {
 }
 
 /// One job as the API shows it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct JobView {
     pub id: u64,
     pub spec: JobSpec,
@@ -85,8 +85,14 @@ impl Job {
         if self.view.state != JobState::Running {
             return;
         }
-        let done = self.progress.position();
         let total = self.progress.length().unwrap_or(0);
+        if self.progress.is_finished() {
+            // Finishing a bar moves it to its end, also when the job stopped early: keep the
+            // last position seen; the worker reports the true count when it knows it.
+            self.view.progress.total = total;
+            return;
+        }
+        let done = self.progress.position();
         let now = Instant::now();
         let (pos0, t0) = *self.rate_origin.get_or_insert((done, now));
         let elapsed_s = now.duration_since(t0).as_secs_f64();
@@ -97,7 +103,7 @@ impl Job {
 }
 
 /// The arm as last published by the worker.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct ArmView {
     /// The controller's robot mode when it reports one (MG400 feedback), else what rig last
     /// asked of it (`enabled`, `disabled`).
@@ -109,7 +115,7 @@ pub struct ArmView {
 }
 
 /// An error worth showing: a failed job, or a fault the worker met.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ErrorEntry {
     pub unix_s: f64,
     pub job_id: Option<u64>,
@@ -140,11 +146,11 @@ pub struct SynthPair {
 }
 
 /// `GET /api/status`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StatusView {
     pub version: String,
     /// `running` or `stopping`.
-    pub daemon: &'static str,
+    pub daemon: String,
     pub rig: String,
     pub uptime_s: f64,
     pub arm: ArmView,
@@ -158,7 +164,7 @@ pub struct StatusView {
 }
 
 /// A sensor in the status.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SensorView {
     pub name: String,
     pub seq: u64,
@@ -168,7 +174,7 @@ pub struct SensorView {
 }
 
 /// The synth pair in the status.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SynthView {
     pub seq: u64,
     pub job_id: u64,
@@ -326,11 +332,15 @@ impl DaemonState {
     }
 
     /// Records how the running job `id` ended.
-    pub fn finish(&self, id: u64, outcome: JobOutcome) {
+    /// `done`, when known, is the job's true final progress count.
+    pub fn finish(&self, id: u64, outcome: JobOutcome, done: Option<u64>) {
         let mut inner = self.lock();
         let Some(job) = inner.jobs.iter_mut().find(|j| j.view.id == id) else { return };
         job.refresh();
         job.view.progress.eta_s = None;
+        if let Some(done) = done {
+            job.view.progress.done = done;
+        }
         job.view.finished_unix_s = Some(unix_now_s());
         let mut error = None;
         match outcome {
@@ -460,7 +470,7 @@ impl DaemonState {
         }
         StatusView {
             version: crate::version().to_string(),
-            daemon: if inner.accepting { "running" } else { "stopping" },
+            daemon: if inner.accepting { "running" } else { "stopping" }.to_string(),
             rig: self.rig.clone(),
             uptime_s: self.started.elapsed().as_secs_f64(),
             arm: inner.arm.clone(),

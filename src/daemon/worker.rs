@@ -15,7 +15,7 @@ use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::config::RigConfig;
 use crate::pose::Pose;
-use crate::rigs::Rig;
+use crate::rigs::{Rig, RigArm};
 use crate::synth::{Pipeline, RuntimeOptions};
 
 /// Longest wait for one idle frame or pose reading (a stalled camera must not stall the queue).
@@ -48,17 +48,17 @@ pub(crate) async fn run_worker(
                 progress: job.progress,
                 pipeline: &mut pipeline,
             };
-            let outcome = match run_job(&job.spec, ctx).await {
-                Ok(end) if end.cancelled => JobOutcome::Cancelled { message: end.message },
-                Ok(end) => JobOutcome::Done { message: end.message },
+            let (outcome, done) = match run_job(&job.spec, ctx).await {
+                Ok(end) if end.cancelled => (JobOutcome::Cancelled { message: end.message }, end.done),
+                Ok(end) => (JobOutcome::Done { message: end.message }, end.done),
                 Err(e) => {
                     let (error, exit_code) = describe_failure(e);
                     warn!(id = job.id, %error, "job failed");
-                    JobOutcome::Failed { error, exit_code }
+                    (JobOutcome::Failed { error, exit_code }, None)
                 }
             };
             info!(id = job.id, ?outcome, "job ended");
-            state.finish(job.id, outcome);
+            state.finish(job.id, outcome, done);
             continue;
         }
         match idle_period {
@@ -122,7 +122,14 @@ async fn idle_tick(rig: &mut Rig, state: &DaemonState, clock: &Arc<dyn Clock>, l
 /// Shutdown: lift the arm above the plan origin when it is enabled (it may have stopped in
 /// contact), then disable it. Best effort: each failure is logged and recorded.
 async fn make_safe(rig: &mut Rig, config: &RigConfig, state: &DaemonState) {
-    let mode = reported_mode(&rig.arm).unwrap_or_else(|| state.status().arm.mode);
+    // Asked now, not read from feedback, which may lag the job's last command.
+    let mode = match &mut rig.arm {
+        RigArm::Mg400(client) => match client.robot_mode().await {
+            Ok(mode) => format!("{mode:?}").to_lowercase(),
+            Err(_) => state.status().arm.mode,
+        },
+        RigArm::Magician(_) => state.status().arm.mode,
+    };
     if matches!(mode.as_str(), "enabled" | "running") {
         let above = config.work_frame.approach_pose(&Pose::default());
         let timeout = Duration::from_secs_f64(config.collect.move_timeout_s);
@@ -132,7 +139,7 @@ async fn make_safe(rig: &mut Rig, config: &RigConfig, state: &DaemonState) {
         }
     }
     match rig.arm.disable().await {
-        Ok(()) => state.set_arm(Some(reported_mode(&rig.arm).unwrap_or_else(|| "disabled".into())), None),
+        Ok(()) => state.set_arm(Some("disabled".into()), None),
         Err(e) => {
             warn!(error = %e, "shutdown: could not disable the arm");
             state.record_error(None, format!("shutdown: could not disable the arm: {e}"));
