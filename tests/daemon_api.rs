@@ -258,3 +258,49 @@ async fn a_synth_job_publishes_the_control_and_synthetic_images() {
     assert!(sizes.iter().all(|&(w, h)| w > 0 && h > 0), "{sizes:?}");
     daemon.shutdown().await.expect("clean shutdown");
 }
+
+/// `rig collect --daemon URL` (the binary) against an in-process daemon.
+async fn rig_cli(args: Vec<String>) -> (i32, String) {
+    let out = tokio::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(&args)
+        .env_remove("RIG_CONFIG")
+        .env_remove("RIG_DAEMON_TOKEN")
+        .output()
+        .await
+        .expect("running rig");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    (out.status.code().unwrap_or(-1), text)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(Some("cli-token")).await;
+    let url = format!("http://{}", daemon.addr());
+    let out = tmp.path().display().to_string();
+    let args = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = ["collect", "--daemon", &url, "--daemon-token", "cli-token", "--out", &out].iter().map(|s| s.to_string()).collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let (code, text) = rig_cli(args(&["--object", "edge", "--sensor", "vitac", "--poses", "3"])).await;
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("submitted collect job 1") && text.contains("collected 3 poses"), "{text}");
+    assert_eq!(rows(&tmp.path().join("edge/vitac")), 3);
+
+    let (code, text) = rig_cli(args(&["--object", "no_such_object"])).await;
+    assert_eq!(code, 2, "a bad object is bad input, as standalone: {text}");
+    assert!(text.contains("no_such_object"), "{text}");
+
+    let (code, text) = rig_cli(args(&["--object", "cone", "--sensor", "tactip", "--poses", "2", "--detach"])).await;
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("submitted collect job 3"), "{text}");
+    let done = poll_until(&client, 3, final_state).await.pop().expect("view");
+    assert_eq!(done.state, JobState::Done, "{done:?}");
+
+    // Without the token the daemon refuses, and the command says why.
+    let (code, text) = rig_cli(vec!["collect".into(), "--daemon".into(), url.clone(), "--poses".into(), "2".into()]).await;
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("401"), "{text}");
+    daemon.shutdown().await.expect("clean shutdown");
+}

@@ -55,6 +55,29 @@ pub struct FillArgs {
     /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
     #[arg(long = "fill-ort-lib", value_name = "PATH")]
     pub ort_lib: Option<PathBuf>,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
+}
+
+impl FillArgs {
+    /// The same fill as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::SynthSpec {
+        use crate::cli::collect::absolute;
+        crate::daemon::SynthSpec {
+            dataset: absolute(&self.dataset),
+            model: self.model.as_deref().map(absolute),
+            shard: self.shard.map(|s| format!("{}/{}", s.index, s.count)),
+            out: self.out.as_deref().map(absolute),
+            steps: self.steps,
+            guidance: self.guidance,
+            eta: self.eta,
+            sampler: self.sampler.to_string(),
+            batch: self.batch,
+            supersample: self.supersample,
+            limit: self.limit,
+            ort_lib: self.ort_lib.as_deref().map(absolute),
+        }
+    }
 }
 
 pub use crate::synth::fill::{default_model, find_datasets};
@@ -63,6 +86,12 @@ pub use crate::synth::fill::{default_model, find_datasets};
 pub fn run(args: FillArgs) -> anyhow::Result<()> {
     if !args.fill_missing {
         bail!(crate::cli::usage("rig synth needs a mode: `rig synth --fill-missing ...`, `rig synth one ...` or `rig synth info ...`"));
+    }
+    if args.daemon.daemon.is_some() {
+        if args.dry_run {
+            bail!(crate::cli::usage("--daemon runs the fill on the daemon: drop --dry-run, or run it standalone"));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Synth(args.job_spec()));
     }
     let shard = args.shard.unwrap_or(Shard::ALL);
     if args.shard.is_some() && args.out.is_none() {

@@ -15,13 +15,13 @@ const REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
 pub enum ClientError {
     #[error("daemon URL {url:?}: {reason}")]
     BadUrl { url: String, reason: &'static str },
-    #[error("connecting to the daemon at {addr}: {source}")]
+    #[error("connecting to the daemon at {addr}")]
     Connect {
         addr: String,
         #[source]
         source: std::io::Error,
     },
-    #[error("talking to the daemon at {addr}: {source}")]
+    #[error("talking to the daemon at {addr}")]
     Io {
         addr: String,
         #[source]
