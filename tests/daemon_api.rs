@@ -84,6 +84,10 @@ async fn a_collection_reports_progress_pose_and_frames() {
     assert!(dones.windows(2).all(|w| w[0] <= w[1]), "{dones:?}");
     assert!(dones.iter().any(|&d| d > 0 && d < 6), "no intermediate progress among {dones:?}");
     assert!(!pose_ids.is_empty(), "the status never named a plan pose");
+    assert!(
+        seen.iter().any(|v| v.state == JobState::Running && v.progress.done > 0 && v.progress.eta_s.is_some()),
+        "no ETA while running with progress"
+    );
 
     // The sensors of the job have frames (valid JPEGs); the one not used has none yet.
     for sensor in ["tactip", "vitac"] {

@@ -78,6 +78,8 @@ struct Job {
     /// First progress seen while running, and when: the origin of the rate behind the ETA
     /// (poses a resumed run skips at once must not count as speed).
     rate_origin: Option<(u64, Instant)>,
+    /// When it started running.
+    started: Option<Instant>,
 }
 
 impl Job {
@@ -95,9 +97,12 @@ impl Job {
         let done = self.progress.position();
         let now = Instant::now();
         let (pos0, t0) = *self.rate_origin.get_or_insert((done, now));
-        let elapsed_s = now.duration_since(t0).as_secs_f64();
-        let eta_s = (done > pos0 && total >= done)
-            .then(|| elapsed_s / (done - pos0) as f64 * (total - done) as f64);
+        // The rate since the first look (which excludes poses a resumed run skipped at
+        // once); until that has moved, the rate since the start.
+        let origin = if done > pos0 { Some((pos0, t0)) } else { self.started.filter(|_| done > 0).map(|t| (0, t)) };
+        let eta_s = origin.filter(|_| total >= done).map(|(pos0, t0)| {
+            now.duration_since(t0).as_secs_f64() / (done - pos0) as f64 * (total - done) as f64
+        });
         self.view.progress = Progress { done, total, eta_s };
     }
 }
@@ -274,7 +279,7 @@ impl DaemonState {
             error: None,
             exit_code: None,
         };
-        inner.jobs.push(Job { view: view.clone(), cancel, progress: indicatif::ProgressBar::hidden(), rate_origin: None });
+        inner.jobs.push(Job { view: view.clone(), cancel, progress: indicatif::ProgressBar::hidden(), rate_origin: None, started: None });
         drop(inner);
         self.wake.notify_one();
         Some(view)
@@ -311,6 +316,7 @@ impl DaemonState {
             }
             JobState::Running => {
                 let _ = job.cancel.send(true);
+                job.refresh();
             }
             state => return Err(CancelError::AlreadyFinal { id, state }),
         }
@@ -323,6 +329,7 @@ impl DaemonState {
         let job = inner.jobs.iter_mut().find(|j| j.view.state == JobState::Queued)?;
         job.view.state = JobState::Running;
         job.view.started_unix_s = Some(unix_now_s());
+        job.started = Some(Instant::now());
         Some(StartedJob {
             id: job.view.id,
             spec: job.view.spec.clone(),
