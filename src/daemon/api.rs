@@ -100,15 +100,12 @@ async fn list_jobs(State(api): State<ApiState>) -> Response {
     axum::Json(api.state.jobs()).into_response()
 }
 
-fn parse_id(text: &str) -> Result<u64, Response> {
-    text.parse().map_err(|_| error(StatusCode::BAD_REQUEST, format!("job id {text:?} is not a number")))
+fn bad_id(text: &str) -> Response {
+    error(StatusCode::BAD_REQUEST, format!("job id {text:?} is not a number"))
 }
 
 async fn get_job(State(api): State<ApiState>, Path(id): Path<String>) -> Response {
-    let id = match parse_id(&id) {
-        Ok(id) => id,
-        Err(r) => return r,
-    };
+    let Ok(id) = id.parse::<u64>() else { return bad_id(&id) };
     match api.state.job(id) {
         Some(job) => axum::Json(job).into_response(),
         None => error(StatusCode::NOT_FOUND, format!("no job {id}")),
@@ -141,10 +138,7 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
 }
 
 async fn cancel_job(State(api): State<ApiState>, Path(id): Path<String>) -> Response {
-    let id = match parse_id(&id) {
-        Ok(id) => id,
-        Err(r) => return r,
-    };
+    let Ok(id) = id.parse::<u64>() else { return bad_id(&id) };
     match api.state.cancel(id) {
         Ok(job) => axum::Json(job).into_response(),
         Err(e @ CancelError::NoSuchJob { .. }) => error(StatusCode::NOT_FOUND, e.to_string()),

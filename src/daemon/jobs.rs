@@ -19,7 +19,6 @@ use tokio::sync::watch;
 use super::live::{LiveArm, LiveCamera, png_bytes};
 use super::state::DaemonState;
 use crate::arm::Arm;
-use crate::calibration::Calibration;
 use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::FitOptions;
 use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern};
@@ -427,10 +426,6 @@ async fn run_calibrate(spec: &CalibrateSpec, ctx: RigContext<'_>) -> Result<JobE
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| JobError::SaveCalibration { path: out.clone(), reason: e.to_string() })?;
     }
-    save(&fit.calibration, &out)?;
+    fit.calibration.save(&out).map_err(|e| JobError::SaveCalibration { path: out.clone(), reason: e.to_string() })?;
     Ok(JobEnd { message: format!("saved {}; {}", out.display(), fit.residual_line()), cancelled: false, done: None })
-}
-
-fn save(calibration: &Calibration, out: &std::path::Path) -> Result<(), JobError> {
-    calibration.save(out).map_err(|e| JobError::SaveCalibration { path: out.to_path_buf(), reason: e.to_string() })
 }
