@@ -308,3 +308,22 @@ async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
     assert!(text.contains("401"), "{text}");
     daemon.shutdown().await.expect("clean shutdown");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calibrate_job_presses_fits_and_saves() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("tactip.toml");
+    let (daemon, client) = start(None).await;
+    let j = submit(&client, json!({"kind": "calibrate", "sensor": "tactip", "grid": 3, "out": out})).await;
+    let done = poll_until(&client, j.id, final_state).await.pop().expect("view");
+    assert_eq!(done.state, JobState::Done, "{done:?}");
+    assert_eq!(done.progress.done, done.progress.total);
+    assert!(done.progress.total >= 9, "{done:?}");
+    assert!(done.message.as_deref().is_some_and(|m| m.contains("residual")), "{done:?}");
+    let saved = rig::calibration::Calibration::load(&out).expect("a saved calibration");
+    assert!(saved.scale_px_per_mm[0] > 0.0);
+    let bad = submit(&client, json!({"kind": "calibrate", "sensor": "thermometer"})).await;
+    let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
+    assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}

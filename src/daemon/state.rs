@@ -506,3 +506,63 @@ fn push_error(inner: &mut Inner, job_id: Option<u64>, message: String) {
         inner.errors.pop_front();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::jobs::CollectSpec;
+
+    fn spec() -> JobSpec {
+        JobSpec::Collect(CollectSpec::default())
+    }
+
+    #[test]
+    fn jobs_run_in_order_and_a_queued_cancel_is_final_at_once() {
+        let state = DaemonState::new("test rig".into());
+        let a = state.submit(spec()).expect("accepting");
+        let b = state.submit(spec()).expect("accepting");
+        let c = state.submit(spec()).expect("accepting");
+        assert_eq!(state.cancel(b.id).expect("cancel").state, JobState::Cancelled);
+        assert_eq!(state.start_next().map(|j| j.id), Some(a.id));
+        assert_eq!(state.status().current.map(|j| j.id), Some(a.id));
+        state.finish(a.id, JobOutcome::Failed { error: "boom".into(), exit_code: 3 }, None);
+        // The cancelled job is skipped.
+        assert_eq!(state.start_next().map(|j| j.id), Some(c.id));
+        let status = state.status();
+        assert_eq!(status.errors.len(), 1);
+        assert_eq!((status.errors[0].job_id, status.errors[0].message.as_str()), (Some(a.id), "boom"));
+        assert_eq!(state.job(a.id).map(|j| (j.state, j.exit_code)), Some((JobState::Failed, Some(3))));
+        assert_eq!(state.cancel(a.id).map(|j| j.id), Err(CancelError::AlreadyFinal { id: a.id, state: JobState::Failed }));
+        assert_eq!(state.cancel(99).map(|j| j.id), Err(CancelError::NoSuchJob { id: 99 }));
+    }
+
+    #[test]
+    fn a_running_cancel_signals_the_job_and_shutdown_cancels_the_queue() {
+        let state = DaemonState::new("test rig".into());
+        let a = state.submit(spec()).expect("accepting");
+        let b = state.submit(spec()).expect("accepting");
+        let running = state.start_next().expect("a job");
+        assert!(!*running.cancel.borrow());
+        assert_eq!(state.cancel(a.id).expect("cancel").state, JobState::Running, "stops at its next safe point");
+        assert!(*running.cancel.borrow());
+        state.begin_shutdown();
+        assert!(state.submit(spec()).is_none());
+        assert_eq!(state.job(b.id).map(|j| j.state), Some(JobState::Cancelled));
+        assert!(state.start_next().is_none());
+        assert_eq!(state.status().daemon, "stopping");
+    }
+
+    #[test]
+    fn errors_and_finished_jobs_are_bounded() {
+        let state = DaemonState::new("test rig".into());
+        for k in 0..(KEEP_FINISHED + 5) {
+            let j = state.submit(spec()).expect("accepting");
+            state.start_next();
+            state.finish(j.id, JobOutcome::Failed { error: format!("e{k}"), exit_code: 1 }, None);
+        }
+        assert_eq!(state.jobs().len(), KEEP_FINISHED);
+        let errors = state.status().errors;
+        assert_eq!(errors.len(), KEEP_ERRORS);
+        assert_eq!(errors.last().map(|e| e.message.clone()), Some(format!("e{}", KEEP_FINISHED + 4)));
+    }
+}
