@@ -422,18 +422,9 @@ impl Rig {
                             backend: "sim (a simulated sensor needs the simulated arm)".into(),
                         });
                     };
-                    let (width, height) = sensor_cfg.map(|s| (s.width, s.height)).unwrap_or((512, 512));
+                    let (width, height) = sim_size(sensor_cfg);
                     let scene_name = sensor_cfg.map(|s| s.scene.clone()).unwrap_or_else(|| "full".into());
-                    // The configured file, else the one `rig calibrate` saved, else the default.
-                    let saved = crate::calibration::saved_path(&kind.to_string());
-                    let configured = sensor_cfg.and_then(|s| s.calibration.clone());
-                    let (calib, calib_name) = match configured.or_else(|| saved.is_file().then_some(saved)) {
-                        Some(p) => (
-                            Calibration::load(&p).map_err(|e| RigError::Calibration { path: p.clone(), reason: e.to_string() })?,
-                            p.display().to_string(),
-                        ),
-                        None => (Calibration::default_for(width, height), "default".to_string()),
-                    };
+                    let (calib, calib_name) = sim_calibration(*kind, sensor_cfg, width, height)?;
                     let scene = Scene::preset(&scene_name).map_err(|e| RigError::BackendUnavailable {
                         name: kind.to_string(),
                         backend: format!("sim scene {scene_name:?}: {e}"),
@@ -443,11 +434,7 @@ impl Rig {
                     if let Some(unit) = config.sensor_unit_seed {
                         renderer = renderer.with_unit_seed(unit ^ sensor_salt(*kind));
                     }
-                    let mesh = Arc::clone(&object.mesh);
-                    let depth_calib = calib.clone();
-                    let depth_source = Box::new(move |object_pose: &Pose| {
-                        crate::geometry::raster::render_depth(&mesh, object_pose, &depth_calib, width, height, 1)
-                    });
+                    let depth_source = sim_depth_source(object, calib.clone(), width, height);
                     let camera = SimCamera::new(
                         kind.to_string(),
                         renderer,
@@ -488,6 +475,21 @@ impl Rig {
         }
         let (peripherals, modbus_sims) = open_peripherals(config, sim.as_ref()).await?;
         Ok(Self { arm, cameras, peripherals, sim, modbus_sims, socket_dropper })
+    }
+
+    /// Puts `object` under the simulated sensors (their depth maps now come from its mesh),
+    /// keeping every camera and the arm connection open. Hardware cameras are left alone:
+    /// what they see is whatever lies on the bench.
+    pub fn set_object(&mut self, config: &RigConfig, object: &ObjectChoice) -> Result<(), RigError> {
+        for camera in &mut self.cameras {
+            if let RigCamera::Simulated { kind, camera, .. } = camera {
+                let sensor_cfg = config.sensors.iter().find(|s| s.name == kind.to_string());
+                let (width, height) = sim_size(sensor_cfg);
+                let (calib, _) = sim_calibration(*kind, sensor_cfg, width, height)?;
+                camera.set_depth_source(sim_depth_source(object, calib, width, height));
+            }
+        }
+        Ok(())
     }
 
     /// Stops the in-process simulator, if any.
@@ -537,6 +539,36 @@ async fn open_peripherals(config: &RigConfig, sim: Option<&SimMg400>) -> Result<
         configs.insert(name.clone(), peripheral);
     }
     Ok((ModbusBench::connect(&configs).await?, servers))
+}
+
+/// Image size of a simulated sensor (512 x 512 unless configured).
+fn sim_size(sensor_cfg: Option<&crate::config::SensorConfig>) -> (u32, u32) {
+    sensor_cfg.map(|s| (s.width, s.height)).unwrap_or((512, 512))
+}
+
+/// A simulated sensor's calibration and its name for the manifest: the configured file, else
+/// the one `rig calibrate` saved, else the default for the image size.
+fn sim_calibration(
+    kind: SensorKind,
+    sensor_cfg: Option<&crate::config::SensorConfig>,
+    width: u32,
+    height: u32,
+) -> Result<(Calibration, String), RigError> {
+    let saved = crate::calibration::saved_path(&kind.to_string());
+    let configured = sensor_cfg.and_then(|s| s.calibration.clone());
+    match configured.or_else(|| saved.is_file().then_some(saved)) {
+        Some(p) => Ok((
+            Calibration::load(&p).map_err(|e| RigError::Calibration { path: p.clone(), reason: e.to_string() })?,
+            p.display().to_string(),
+        )),
+        None => Ok((Calibration::default_for(width, height), "default".to_string())),
+    }
+}
+
+/// The depth maps of `object` a simulated sensor renders.
+fn sim_depth_source(object: &ObjectChoice, calib: Calibration, width: u32, height: u32) -> crate::sim::sensor::DepthSource {
+    let mesh = Arc::clone(&object.mesh);
+    Box::new(move |object_pose: &Pose| crate::geometry::raster::render_depth(&mesh, object_pose, &calib, width, height, 1))
 }
 
 /// The simulator's switches for the configured faults.

@@ -79,10 +79,33 @@ pub struct Args {
     /// Print the press pattern and check it against the workspace, move nothing.
     #[arg(long)]
     pub dry_run: bool,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
+}
+
+impl Args {
+    /// The same automatic calibration as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::CalibrateSpec {
+        crate::daemon::CalibrateSpec {
+            sensor: self.sensor.to_string(),
+            out: self.out.as_deref().map(crate::cli::collect::absolute),
+            grid: self.grid,
+            span_mm: self.span_mm,
+            depths_mm: self.depths_mm.clone(),
+        }
+    }
 }
 
 /// Runs `rig calibrate`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.daemon.daemon.is_some() {
+        if args.interactive || args.from_dataset.is_some() || args.sim_truth.is_some() || args.config.is_some() || args.dry_run {
+            bail!(crate::cli::usage(
+                "--daemon runs the automatic presses on the daemon's rig: --interactive, --from-dataset, --sim-truth, --config and --dry-run apply to a standalone run only"
+            ));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Calibrate(args.job_spec()));
+    }
     let out = args.out.clone().unwrap_or_else(|| saved_path(&args.sensor.to_string()));
     if let Some(dir) = &args.from_dataset {
         return from_dataset(&args, dir, &out);

@@ -62,27 +62,32 @@ pub struct FillArgs {
     /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
     #[arg(long = "fill-ort-lib", value_name = "PATH")]
     pub ort_lib: Option<PathBuf>,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
 }
 
-/// The default model package: `models/default` when present, else the tiny test package.
-pub fn default_model() -> PathBuf {
-    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
-    for rel in ["models/default", "tests/data/tiny-package"] {
-        for root in &roots {
-            let p = root.join(rel);
-            if p.join("model.toml").is_file() {
-                return p;
-            }
+impl FillArgs {
+    /// The same fill as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::SynthSpec {
+        use crate::cli::collect::absolute;
+        crate::daemon::SynthSpec {
+            dataset: absolute(&self.dataset),
+            model: self.model.as_deref().map(absolute),
+            shard: self.shard.map(|s| format!("{}/{}", s.index, s.count)),
+            out: self.out.as_deref().map(absolute),
+            steps: self.steps,
+            guidance: self.guidance,
+            eta: self.eta,
+            sampler: self.sampler.to_string(),
+            batch: self.batch,
+            supersample: self.supersample,
+            limit: self.limit,
+            ort_lib: self.ort_lib.as_deref().map(absolute),
         }
     }
-    PathBuf::from("models/default")
 }
 
-/// Dataset directories under `root` (itself, or up to two levels below); see
-/// [`crate::dataset::find_datasets`].
-pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
-    crate::dataset::find_datasets(root)
-}
+pub use crate::synth::fill::{default_model, find_datasets};
 
 /// Runs `rig synth --fill-missing`.
 pub fn run(args: FillArgs) -> anyhow::Result<()> {
@@ -93,6 +98,12 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         bail!(crate::cli::usage(
             "rig synth needs a mode: `rig synth --fill-missing ...`, `rig synth --poses-of DATASET --out DIR`, `rig synth one ...` or `rig synth info ...`"
         ));
+    }
+    if args.daemon.daemon.is_some() {
+        if args.dry_run {
+            bail!(crate::cli::usage("--daemon runs the fill on the daemon: drop --dry-run, or run it standalone"));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Synth(args.job_spec()));
     }
     let shard = args.shard.unwrap_or(Shard::ALL);
     if args.shard.is_some() && args.out.is_none() {

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod calibrate;
 pub mod collect;
+pub mod daemon;
 pub mod fill;
 pub mod sim;
 pub mod dataset;
@@ -40,6 +41,8 @@ pub enum Command {
     Info,
     /// Drive the arm through a pose plan, capture every sensor, write the datasets.
     Collect(collect::CollectArgs),
+    /// Keep the rig open and run queued jobs; HTTP status API and live page (until SIGTERM).
+    Daemon(daemon::Args),
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
     Sim(sim::Args),
     /// Pose plans: show a plan's grid, sampled poses and motion time.
@@ -81,6 +84,7 @@ pub fn main() -> ExitCode {
             crate::config::RigConfig::discover(None).map(|c| println!("{}", c.describe())).map_err(anyhow::Error::from)
         }
         Command::Collect(args) => collect::run(args),
+        Command::Daemon(args) => daemon::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),

@@ -495,6 +495,20 @@ pub trait Peripherals: Send {
     fn after_capture(&mut self) -> impl Future<Output = Result<Vec<ModbusReading>, ModbusError>> + Send;
 }
 
+/// A borrowed set of peripherals: a long-lived owner (the daemon's open rig) lends them to
+/// one job after another.
+impl<P: Peripherals> Peripherals for &mut P {
+    fn is_empty(&self) -> bool {
+        (**self).is_empty()
+    }
+    fn before_capture(&mut self) -> impl Future<Output = Result<(), ModbusError>> + Send {
+        (**self).before_capture()
+    }
+    fn after_capture(&mut self) -> impl Future<Output = Result<Vec<ModbusReading>, ModbusError>> + Send {
+        (**self).after_capture()
+    }
+}
+
 /// No peripherals configured: nothing happens around a capture and the `modbus` column stays
 /// empty.
 #[derive(Debug, Default, Clone, Copy)]

@@ -9,6 +9,7 @@
 //! `pose_id % n == i - 1` and writes them to its own dataset directory, which
 //! `rig dataset merge` joins later.
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -127,6 +128,25 @@ pub struct FillWork {
     pub present: usize,
 }
 
+/// The default model package: `models/default` when present, else the tiny test package.
+pub fn default_model() -> PathBuf {
+    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
+    for rel in ["models/default", "tests/data/tiny-package"] {
+        for root in &roots {
+            let p = root.join(rel);
+            if p.join("model.toml").is_file() {
+                return p;
+            }
+        }
+    }
+    PathBuf::from("models/default")
+}
+
+/// Dataset directories under `root` (itself, or up to two levels below).
+pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
+    crate::dataset::find_datasets(root)
+}
+
 /// Lists the grid poses of `dataset` (and of `out`, when a shard writes elsewhere) that have
 /// no row yet and belong to `shard`.
 pub fn missing_poses(dataset: &Path, out: Option<&Path>, shard: Shard) -> Result<FillWork, FillError> {
@@ -152,6 +172,30 @@ pub fn fill_missing(
     pipeline: &mut Pipeline,
     options: &FillOptions,
     progress: &indicatif::ProgressBar,
+) -> Result<FillSummary, FillError> {
+    fill_missing_observed(dataset, out, pipeline, options, progress, &mut |_| ControlFlow::Continue(()))
+}
+
+/// One synthesised pose, shown to the observer of [`fill_missing_observed`].
+#[derive(Debug)]
+pub struct FilledPose<'a> {
+    pub pose_id: u32,
+    /// The control image (depth map) the model was conditioned on.
+    pub control: &'a RgbImage,
+    /// The synthetic image as written to the dataset.
+    pub image: &'a RgbImage,
+}
+
+/// [`fill_missing`], telling `observe` about every pose once it is written. `observe` returning
+/// `Break` stops the fill after that batch: what was written stays (durable and resumable), the
+/// dataset is not finished, and the summary counts the poses not done as `left`.
+pub fn fill_missing_observed(
+    dataset: &Path,
+    out: Option<&Path>,
+    pipeline: &mut Pipeline,
+    options: &FillOptions,
+    progress: &indicatif::ProgressBar,
+    observe: &mut dyn FnMut(&FilledPose<'_>) -> ControlFlow<()>,
 ) -> Result<FillSummary, FillError> {
     let work = missing_poses(dataset, out, options.shard)?;
     let manifest = work.manifest.clone();
@@ -183,6 +227,7 @@ pub fn fill_missing(
     }
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
+    let mut synthesised = 0usize;
     for chunk in todo.chunks(options.batch.max(1)) {
         let controls: Vec<RgbImage> = chunk
             .iter()
@@ -215,7 +260,8 @@ pub fn fill_missing(
             })
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
-        for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
+        let mut stop = false;
+        for (((p, request), output), control) in chunk.iter().zip(&requests).zip(outputs).zip(&controls) {
             let image = match output_size {
                 Some((w, h)) if (w, h) != output.image.dimensions() => {
                     image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
@@ -224,8 +270,14 @@ pub fn fill_missing(
             };
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
+            synthesised += 1;
+            stop |= observe(&FilledPose { pose_id: p.pose_id, control, image: &image }).is_break();
         }
         progress.inc(chunk.len() as u64);
+        if stop {
+            // Stopped early: the rows written are durable; an unfinished dataset resumes.
+            return Ok(FillSummary { grid: work.grid, present: work.present, synthesised, left: total_missing - synthesised });
+        }
     }
     writer.finish()?;
     Ok(FillSummary {
