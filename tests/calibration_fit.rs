@@ -123,7 +123,7 @@ proptest! {
         bytes in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
         bytes2 in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
     ) {
-        use rig::calibration::detect::{ContactDetector, DetectOptions, MarkerOptions};
+        use rig::calibration::detect::{ContactDetector, DetectOptions, ImprintOptions, MarkerOptions};
         let img = |w: u32, h: u32, b: &[u8]| {
             image::RgbImage::from_fn(w, h, |x, y| {
                 let i = ((y * w + x) * 3) as usize;
@@ -131,7 +131,12 @@ proptest! {
             })
         };
         let (a, b, c) = (img(w, h, &bytes), img(w, h, &bytes2), img(w2, h, &bytes2));
-        for d in [ContactDetector::Difference(DetectOptions::default()), ContactDetector::Markers(MarkerOptions::default())] {
+        for d in [
+            ContactDetector::Difference(DetectOptions::default()),
+            ContactDetector::Markers(MarkerOptions::default()),
+            ContactDetector::Imprint(ImprintOptions::default()),
+            ContactDetector::Imprint(ImprintOptions::with_markers(24)),
+        ] {
             if let Ok(found) = d.detect(&a, &b) {
                 prop_assert!(found.centroid_px.iter().all(|v| v.is_finite()));
             }
