@@ -120,10 +120,21 @@ pub struct Contact {
     /// Marker detection: how many markers moved (then `peak` is the largest shift in px and
     /// `area_px` the same count); `None` for a changed-pixel detection.
     pub moved_markers: Option<usize>,
+    /// Imprint detection ([`detect_imprint`]): the radius of the fitted outline, px (then
+    /// `peak` is the strongest blend towards white, 0..1); `None` otherwise, or when no
+    /// outline was found and the region centroid stands.
+    pub outline_radius_px: Option<f64>,
 }
 
 impl std::fmt::Display for Contact {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(r) = self.outline_radius_px {
+            return write!(
+                f,
+                "contact at ({:.2}, {:.2}) px, outline radius {r:.1} px, blend {:.2}",
+                self.centroid_px[0], self.centroid_px[1], self.peak
+            );
+        }
         if let Some(n) = self.moved_markers {
             return write!(
                 f,
@@ -281,7 +292,7 @@ pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &M
     if !c.iter().all(|v| v.is_finite()) {
         return Err(DetectError::NoCentre);
     }
-    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0, moved_markers: Some(moved) })
+    Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0, moved_markers: Some(moved), outline_radius_px: None })
 }
 
 /// Locates the contact in `frame` against the no-contact `reference`.
@@ -357,7 +368,7 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
         // Only the peak itself (a flat top at the threshold): its centre.
         [(peak_i % w) as f64 + 0.5, (peak_i / w) as f64 + 0.5]
     };
-    Ok(Contact { centroid_px, area_px: area, peak, floor, moved_markers: None })
+    Ok(Contact { centroid_px, area_px: area, peak, floor, moved_markers: None, outline_radius_px: None })
 }
 
 /// Settings of [`detect_imprint`].
@@ -447,16 +458,20 @@ pub fn detect_imprint(frame: &RgbImage, reference: &RgbImage, options: &ImprintO
     }
     let threshold = options.fraction.clamp(0.0, 1.0) * peak;
     let (mut centroid_px, area) = region_centroid(&blend, w, h, peak_i, threshold);
+    let mut outline_radius_px = None;
     if options.edge_rays > 0 {
         let reach = options.max_radius_frac * w.min(h) as f64;
         for _ in 0..2 {
             match imprint_circle(&blend, w, h, centroid_px, reach, options.edge_rays) {
-                Some(c) => centroid_px = c,
+                Some((c, r)) => {
+                    centroid_px = c;
+                    outline_radius_px = Some(r);
+                }
                 None => break,
             }
         }
     }
-    Ok(Contact { centroid_px, area_px: area, peak, floor: 0.0, moved_markers: None })
+    Ok(Contact { centroid_px, area_px: area, peak, floor: 0.0, moved_markers: None, outline_radius_px })
 }
 
 /// Bilinear sample of a row-major field at pixel coordinates (pixel centres at `i + 0.5`);
@@ -472,12 +487,12 @@ fn sample(values: &[f32], w: usize, h: usize, x: f64, y: f64) -> Option<f64> {
     Some((at(i, j) * (1.0 - tx) + at(i + 1, j) * tx) * (1.0 - ty) + (at(i, j + 1) * (1.0 - tx) + at(i + 1, j + 1) * tx) * ty)
 }
 
-/// The imprint's outline as a circle: along `rays` rays from `start`, the steepest fall of
+/// The imprint's outline as a circle (centre, radius): along `rays` rays from `start`, the steepest fall of
 /// `values` (sub-pixel, by a parabola through the derivative's three samples around it), then
 /// an algebraic circle fit with one round of outlier rejection. The centre of the outline
 /// depends on where the edge is, not on how bright the skin behind it is, so a gain that
 /// varies across the image barely moves it. `None` when too few rays find an edge.
-fn imprint_circle(values: &[f32], w: usize, h: usize, start: [f64; 2], reach: f64, rays: usize) -> Option<[f64; 2]> {
+fn imprint_circle(values: &[f32], w: usize, h: usize, start: [f64; 2], reach: f64, rays: usize) -> Option<([f64; 2], f64)> {
     const STEP: f64 = 0.5;
     let mut edge = Vec::with_capacity(rays);
     for k in 0..rays {
@@ -534,7 +549,7 @@ fn imprint_circle(values: &[f32], w: usize, h: usize, start: [f64; 2], reach: f6
     sorted.sort_by(f64::total_cmp);
     let limit = (3.0 * 1.4826 * sorted[sorted.len() / 2]).max(1.0);
     let kept: Vec<[f64; 2]> = edge.iter().zip(&dist).filter(|(_, d)| **d <= limit).map(|(p, _)| *p).collect();
-    fit(&kept).map(|(c, _)| c)
+    fit(&kept)
 }
 
 /// Solves a 3 x 3 system by Cramer's rule; `None` when (nearly) singular.

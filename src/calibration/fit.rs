@@ -85,6 +85,9 @@ pub struct FitOptions {
     /// px (0.03: with the usual 0.3-0.5 px of detection noise the term is known to about
     /// ±0.01 per mm, a third of a pixel over the pattern's reach).
     pub max_depth_error_per_px: f64,
+    /// Largest standard error of the fitted depth term accepted, 1/mm (from the fit's own
+    /// residuals): a term the data do not pin down is left at 0 rather than stored.
+    pub max_depth_std_error_per_mm: f64,
 }
 
 impl Default for FitOptions {
@@ -99,6 +102,7 @@ impl Default for FitOptions {
             fit_depth: true,
             min_depth_range_mm: 0.3,
             max_depth_error_per_px: 0.03,
+            max_depth_std_error_per_mm: 0.02,
         }
     }
 }
@@ -126,6 +130,8 @@ pub enum DepthRefusal {
     IllConditioned { error_per_px: f64, max_per_px: f64 },
     #[error("the fitted term {per_mm:.4} /mm is beyond ±{max:.2} /mm")]
     OutOfRange { per_mm: f64, max: f64 },
+    #[error("the fitted term {per_mm:+.4} /mm has a standard error of {std_error_per_mm:.4} /mm (at most {max:.4}): the residuals are too large to trust it")]
+    Uncertain { per_mm: f64, std_error_per_mm: f64, max: f64 },
 }
 
 impl std::fmt::Display for DepthTerm {
@@ -396,6 +402,13 @@ fn fit_depth_term(points: &[FitPoint], idx: &[usize], start: Params, options: &F
     let (h1, _) = normal(&p, false);
     let variance = solve::<6>(h1, unit).map_or(variance, |x| x[5]).max(0.0);
     let std_error_per_mm = (sum_sq / dof).sqrt() * variance.sqrt();
+    if !(std_error_per_mm <= options.max_depth_std_error_per_mm) {
+        let std_error_per_mm = if std_error_per_mm.is_finite() { std_error_per_mm } else { f64::MAX };
+        return (
+            start,
+            DepthTerm::NotFitted(DepthRefusal::Uncertain { per_mm: p.k, std_error_per_mm, max: options.max_depth_std_error_per_mm }),
+        );
+    }
     (p, DepthTerm::Fitted { per_mm: p.k, std_error_per_mm, depth_range_mm: [lo, hi] })
 }
 
@@ -694,6 +707,15 @@ mod tests {
         }
         let fit = fit_points(&centre_only, &FitOptions::default(), "t").unwrap();
         assert!(matches!(fit.depth, DepthTerm::NotFitted(DepthRefusal::IllConditioned { .. })), "{:?}", fit.depth);
+        assert_eq!(fit.calibration.depth_scale_per_mm, 0.0);
+        // Depths that would condition it, but detections too noisy to pin it down.
+        let mut noisy = grid_at_depths(&t);
+        for (i, p) in noisy.iter_mut().enumerate() {
+            p.px[0] += if i % 2 == 0 { 2.5 } else { -2.5 };
+            p.px[1] += if i % 3 == 0 { 2.5 } else { -1.5 };
+        }
+        let fit = fit_points(&noisy, &FitOptions::default(), "t").unwrap();
+        assert!(matches!(fit.depth, DepthTerm::NotFitted(DepthRefusal::Uncertain { .. })), "{:?}", fit.depth);
         assert_eq!(fit.calibration.depth_scale_per_mm, 0.0);
         let mut nan = one;
         nan[4].depth_mm = f64::NAN;

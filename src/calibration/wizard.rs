@@ -276,7 +276,7 @@ mod tests {
             let contact = if self.presses == 2 {
                 Err(DetectError::NoContact { peak: 1.0, floor: 0.5, contrast: 3.0 })
             } else {
-                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0, moved_markers: None })
+                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0, moved_markers: None, outline_radius_px: None })
             };
             Ok(Press { offset, measured: offset, depth_mm: 1.5 + offset.z_mm, contact })
         }
