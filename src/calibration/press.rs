@@ -9,8 +9,11 @@
 //!
 //! Each detected press gives one [`FitPoint`]: the indenter's position in the sensor frame
 //! (the negated measured work-frame offset turned by the yaw, the render convention of
-//! [`crate::geometry::raster`]) and the detected centroid in px. [`run_pattern`] presses the
-//! whole [`PressPattern`] and hands the points to [`fit_points`].
+//! [`crate::geometry::raster`]), the press depth at arrival (the skin indentation: the
+//! measured extra indentation plus the work frame's contact depth, which the depth-dependent
+//! scale is fitted against) and the detected centroid in px. [`run_pattern`] presses the whole
+//! [`PressPattern`] (a grid at the contact depth and 3 x 3 layers at other depths) and hands
+//! the points to [`fit_points`].
 
 use std::future::Future;
 use std::time::Duration;

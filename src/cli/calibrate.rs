@@ -6,8 +6,8 @@
 //! rig calibrate --sensor vitac --from-dataset DIR
 //! ```
 //!
-//! - Automatic (default): presses the calibration indenter at a grid of offsets (and depths)
-//!   on the configured rig (the built-in simulated rig without a configuration), detects each
+//! - Automatic (default): presses the calibration indenter at a grid of offsets and at three
+//!   press depths (for the depth-dependent scale) on the configured rig (the built-in simulated rig without a configuration), detects each
 //!   contact, fits, prints the mapping with the residual as the last line, and saves to
 //!   `--out` (default `calibration/<sensor>.toml`, which `rig collect` and
 //!   `rig synth --fill-missing` then use). `--sim-truth FILE` gives the simulated sensor a
@@ -67,7 +67,8 @@ pub struct Args {
     /// Half the grid's side, mm.
     #[arg(long, default_value_t = 4.0)]
     pub span_mm: f64,
-    /// Extra indentations (mm, comma-separated) pressed at the centre and corners.
+    /// Extra indentations (mm, comma-separated) pressed at a 3 x 3 layer (centre, edge
+    /// midpoints, corners) each; they measure the depth-dependent scale (0 = none).
     #[arg(long, value_delimiter = ',', default_value = "-0.5,0.5", allow_hyphen_values = true)]
     pub depths_mm: Vec<f64>,
     /// Seed of the simulated sensor's noise.
