@@ -209,7 +209,7 @@ impl Calibration {
         {
             return bad("pose_xy_correction", format!("{m:?}"), "must be finite");
         }
-        if !(self.depth_scale_per_mm.abs() <= MAX_DEPTH_SCALE_PER_MM) {
+        if !self.depth_scale_per_mm.is_finite() || self.depth_scale_per_mm.abs() > MAX_DEPTH_SCALE_PER_MM {
             return bad("depth_scale_per_mm", self.depth_scale_per_mm.to_string(), "must be finite and within ±0.2 per mm");
         }
         Ok(())

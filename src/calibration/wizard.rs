@@ -60,7 +60,7 @@ fn parse_depths(text: &str, current: &[f64]) -> Result<Vec<f64>, String> {
     let mut depths = Vec::new();
     for part in t.split([',', ' ']).filter(|p| !p.trim().is_empty()) {
         let v: f64 = part.trim().parse().map_err(|_| format!("{part:?} is not a number of mm"))?;
-        if !(v.abs() <= MAX_EXTRA_DEPTH_MM) {
+        if !v.is_finite() || v.abs() > MAX_EXTRA_DEPTH_MM {
             return Err(format!("{v} mm is beyond ±{MAX_EXTRA_DEPTH_MM} mm"));
         }
         if v != 0.0 && !depths.contains(&v) {
