@@ -107,3 +107,46 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// `rig render --controls-of` writes, for every row, the hint `rig synth --fill-missing` feeds
+/// the model (the object pressed in by the work frame's contact depth) and the row's prompt.
+#[test]
+fn render_controls_of_matches_single_renders_and_prompts() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let collected = tmp.path().join("collected");
+    let mut c = rig();
+    c.args(["collect", "--object", "cuboid", "--sensor", "tactip", "--poses", "4", "--seed", "5", "--out"]).arg(&collected);
+    ok(c);
+    let ds = collected.join("cuboid").join("tactip");
+    let out = tmp.path().join("controls");
+    let mut c = rig();
+    c.args(["render", "--controls-of"]).arg(&ds).args(["--size", "64x48", "--out"]).arg(&out);
+    let text = ok(c);
+    assert!(text.contains("wrote 4 control images (64x48)"), "{text}");
+
+    let manifest = rig::dataset::Manifest::load(&ds).expect("manifest");
+    let depth_mm = manifest.work_frame.map(|w| w.contact_depth_mm).expect("work frame");
+    let prompts = std::fs::read_to_string(out.join("prompts.csv")).expect("prompts.csv");
+    let rows = rig::dataset::read_rows(&ds).expect("rows");
+    assert_eq!(rows.len(), 4);
+    for row in &rows {
+        let pose = row.commanded();
+        let single = tmp.path().join(format!("single-{}.png", row.pose_id));
+        let arg = format!("{},{},{},{}", pose.x_mm, pose.y_mm, pose.z_mm + depth_mm, pose.yaw_deg);
+        let mut c = rig();
+        c.args(["render", "--object", "cuboid", "--pose", &arg, "--sensor", "control", "--size", "64x48", "--out"]).arg(&single);
+        ok(c);
+        let a = image::open(out.join(format!("{}.png", row.pose_id))).expect("batch png").to_rgb8();
+        let b = image::open(&single).expect("single png").to_rgb8();
+        assert_eq!(a.dimensions(), (64, 48));
+        assert!(a == b, "pose {}: batch and single control images differ", row.pose_id);
+        let prompt = rig::synth::prompt::mds_prompt("TacTip", &pose);
+        assert!(prompts.contains(&format!("{},TacTip,\"{}\"", row.pose_id, prompt)), "pose {}: {prompts}", row.pose_id);
+    }
+
+    // Not a dataset: bad input, exit code 2.
+    let mut c = rig();
+    c.args(["render", "--controls-of"]).arg(tmp.path()).arg("--out").arg(&out);
+    let o = c.output().expect("running rig");
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -49,9 +49,23 @@ SCHEDULER_CONFIG = {
 }
 
 
-def build_tokenizer():
+def default_corpus():
+    """The tiny package's tokenizer corpus: 150 random prompts and two phrases."""
+    corpus = []
+    rng = np.random.default_rng(0)
+    for sensor, ctx in [("TacTip", "tactile only"), ("ViTac", "vision only"), ("ViTacTip", "visuo-tactile")]:
+        for _ in range(50):
+            x, y, z, yaw = (round(float(v), 2) for v in rng.uniform([-5, -5, -1, -90], [5, 5, 2, 90]))
+            corpus.append(str({"sensor_context": f"captured by a high-resolution {ctx} sensor {sensor}.",
+                               "object_pose": {"x": x, "y": y, "z": z, "yaw": yaw}}))
+    corpus += ["a photo of a tactile sensor image", "blurry, low quality, distorted"]
+    return corpus
+
+
+def build_tokenizer(corpus=None, vocab_size=300):
     """A CLIP-shaped byte-level BPE (same normaliser, pre-tokeniser, </w> suffix and
-    start/end post-processing as openai/clip-vit-large-patch14), trained on a few prompts."""
+    start/end post-processing as openai/clip-vit-large-patch14), trained on `corpus` (default:
+    a few random prompts). Digits are single pre-tokens, so any pose value tokenises."""
     from tokenizers import Regex, Tokenizer, decoders, models, normalizers, pre_tokenizers, processors, trainers
 
     tok = Tokenizer(models.BPE(unk_token="<|endoftext|>", end_of_word_suffix="</w>"))
@@ -67,16 +81,10 @@ def build_tokenizer():
         pre_tokenizers.ByteLevel(add_prefix_space=False, use_regex=False),
     ])
     tok.decoder = decoders.ByteLevel()
-    corpus = []
-    rng = np.random.default_rng(0)
-    for sensor, ctx in [("TacTip", "tactile only"), ("ViTac", "vision only"), ("ViTacTip", "visuo-tactile")]:
-        for _ in range(50):
-            x, y, z, yaw = (round(float(v), 2) for v in rng.uniform([-5, -5, -1, -90], [5, 5, 2, 90]))
-            corpus.append(str({"sensor_context": f"captured by a high-resolution {ctx} sensor {sensor}.",
-                               "object_pose": {"x": x, "y": y, "z": z, "yaw": yaw}}))
-    corpus += ["a photo of a tactile sensor image", "blurry, low quality, distorted"]
+    if corpus is None:
+        corpus = default_corpus()
     trainer = trainers.BpeTrainer(
-        vocab_size=300,
+        vocab_size=vocab_size,
         special_tokens=["<|startoftext|>", "<|endoftext|>"],
         end_of_word_suffix="</w>",
         initial_alphabet=pre_tokenizers.ByteLevel.alphabet(),

@@ -96,14 +96,16 @@ def _export(module, args, path, input_names, output_names, dynamic_axes, opset):
 
 
 @torch.no_grad()
-def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, opset=17, timestep_dtype=torch.int64):
+def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, opset=17, timestep_dtype=torch.int64,
+                  vae_scale_factor=8):
     """Exports the four models into out_dir with the contract's tensor names.
 
     Batch and spatial sizes are dynamic; the ids are int32 (as diffusers' own ONNX export
     writes them); the timestep is a [1] tensor of timestep_dtype, broadcast over the batch.
+    vae_scale_factor: image pixels per latent pixel (the example inputs' latent size).
     """
     text_encoder.eval(), controlnet.eval(), unet.eval(), vae.eval()
-    lh, lw = height // 8, width // 8
+    lh, lw = height // vae_scale_factor, width // vae_scale_factor
     latent_channels = unet.config.in_channels
     hidden = text_encoder.config.hidden_size
     seq = text_encoder.config.max_position_embeddings
@@ -173,7 +175,7 @@ def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, o
 
 
 def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
-                     prompt_template="multidiffsense", hint_encoding="rgb01"):
+                     prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None):
     mods = ", ".join(f'"{m}"' for m in modalities)
     text = (
         f'name = "{name}"\n'
@@ -183,6 +185,8 @@ def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("Ta
         f"latent_scale = {latent_scale}\n"
         f'hint_encoding = "{hint_encoding}"  # control image RGB scaled to [0, 1]\n'
     )
+    if vae_scale_factor is not None:
+        text += f"vae_scale_factor = {vae_scale_factor}  # image pixels per latent pixel\n"
     with open(os.path.join(out_dir, "model.toml"), "w") as f:
         f.write(text)
 

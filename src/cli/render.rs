@@ -7,6 +7,16 @@
 //!
 //! `depth` writes the 16-bit depth PNG, `control` the MultiDiffSense control image, the
 //! tactile sensors go through the sensor simulator.
+//!
+//! ```text
+//! rig render --controls-of DATASET [--size WxH] [--supersample N] --out DIR
+//! ```
+//!
+//! writes, for every row of a collected dataset, the control image `rig synth --fill-missing`
+//! would feed the model for that pose (`DIR/<pose_id>.png`, through
+//! [`ControlRenderer`](crate::synth::fill::ControlRenderer)) and its MultiDiffSense prompt
+//! (`DIR/prompts.csv`: pose_id, sensor, prompt): the training pairs of a synthesis model
+//! (`tools/train/`), so training and synthesis see identical hints and prompts.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -15,12 +25,17 @@ use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
 use super::sensor_bridge::{TactileSensor, render_tactile};
+use super::usage;
 use crate::calibration::Calibration;
+use crate::dataset::{Manifest, read_rows};
 use crate::geometry::control::{control_image, depth_png16};
 use crate::geometry::objects::load_object;
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::pose::Pose;
+use crate::sim::sensor::SensorKind;
+use crate::synth::fill::ControlRenderer;
+use crate::synth::prompt::mds_prompt;
 
 /// What `rig render` produces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,7 +82,7 @@ impl FromStr for ImageSize {
 }
 
 #[derive(Debug, ClapArgs)]
-#[command(group(clap::ArgGroup::new("mesh").required(true).args(["object", "stl"])))]
+#[command(group(clap::ArgGroup::new("mesh").required(true).args(["object", "stl", "controls_of"])))]
 pub struct Args {
     /// Library object (`datasets/objects/NAME.stl`): edge, cuboid, sphere, pacman,
     /// hollow_cylinder, cross, cone, wedge.
@@ -76,12 +91,16 @@ pub struct Args {
     /// Any binary or ASCII STL file (mm).
     #[arg(long)]
     pub stl: Option<PathBuf>,
+    /// A collected dataset (`.../<object>/<sensor>`): write the control image and prompt of
+    /// every row into the folder --out, as `rig synth --fill-missing` renders them.
+    #[arg(long, value_name = "DATASET")]
+    pub controls_of: Option<PathBuf>,
     /// Sensor pose relative to the object's top centre: x,y,z,yaw (mm, mm, indentation mm, deg).
-    #[arg(long, allow_hyphen_values = true)]
-    pub pose: Pose,
+    #[arg(long, allow_hyphen_values = true, required_unless_present = "controls_of")]
+    pub pose: Option<Pose>,
     /// tactip, vitac, vitactip, depth or control.
-    #[arg(long)]
-    pub sensor: View,
+    #[arg(long, required_unless_present = "controls_of")]
+    pub sensor: Option<View>,
     /// Calibration TOML (default: centred, about 8.5 px/mm at 512 px).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
@@ -94,7 +113,7 @@ pub struct Args {
     /// Noise seed of the sensor simulator.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output PNG.
+    /// Output PNG (with --controls-of: output folder).
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -117,12 +136,19 @@ pub fn load_calibration(path: Option<&Path>, width: u32, height: u32) -> anyhow:
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(dataset) = &args.controls_of {
+        return controls_of(dataset, args.size, args.supersample, &args.out);
+    }
+    // clap enforces both without --controls-of; these are for a hand-built Args.
+    let (Some(pose), Some(sensor)) = (args.pose, args.sensor) else {
+        return Err(usage("give --pose and --sensor (or --controls-of DATASET)").into());
+    };
     let mesh = load_mesh(args.object.as_deref(), args.stl.as_deref())?;
     let ImageSize { width, height } = args.size;
     let calib = load_calibration(args.calibration.as_deref(), width, height)?;
-    let depth = render_depth(&mesh, &args.pose, &calib, width, height, args.supersample);
+    let depth = render_depth(&mesh, &pose, &calib, width, height, args.supersample);
     let out = &args.out;
-    match args.sensor {
+    match sensor {
         View::Depth => depth_png16(&depth).save(out),
         View::Control => control_image(&depth).save(out),
         View::Tactile(sensor) => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
@@ -133,8 +159,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out.display(),
         width,
         height,
-        args.sensor,
+        sensor,
         depth.max_indentation_mm()
+    );
+    Ok(())
+}
+
+/// `--controls-of`: the control image and prompt of every row of `dataset` into `out_dir`.
+fn controls_of(dataset: &Path, size: ImageSize, supersample: u32, out_dir: &Path) -> anyhow::Result<()> {
+    if !dataset.join("manifest.toml").is_file() {
+        return Err(usage(&format!("{} is not a dataset (no manifest.toml)", dataset.display())).into());
+    }
+    let manifest = Manifest::load(dataset)?;
+    let kind = SensorKind::from_str(&manifest.sensor)
+        .map_err(|_| usage(&format!("dataset {}: unknown sensor {:?}", dataset.display(), manifest.sensor)))?;
+    let rows = read_rows(dataset)?;
+    let renderer = ControlRenderer::for_dataset(dataset, &manifest, size.width, size.height, supersample)?;
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let mut prompts = csv::Writer::from_path(out_dir.join("prompts.csv"))
+        .with_context(|| format!("writing {}", out_dir.join("prompts.csv").display()))?;
+    prompts.write_record(["pose_id", "sensor", "prompt"])?;
+    for row in &rows {
+        let pose = row.commanded();
+        let path = out_dir.join(format!("{}.png", row.pose_id));
+        renderer.control_image(&pose).save(&path).with_context(|| format!("writing {}", path.display()))?;
+        prompts.write_record([row.pose_id.to_string(), kind.label().to_string(), mds_prompt(kind.label(), &pose)])?;
+    }
+    prompts.flush()?;
+    println!(
+        "wrote {} control images ({}x{}) and prompts.csv of {} into {}",
+        rows.len(),
+        size.width,
+        size.height,
+        dataset.display(),
+        out_dir.display()
     );
     Ok(())
 }

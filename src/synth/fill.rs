@@ -203,10 +203,8 @@ pub fn fill_missing_observed(
     let spec_seed = manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
     let kind = SensorKind::from_str(&manifest.sensor)
         .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: manifest.sensor.clone() })?;
-    let mesh = object_mesh(&dir, &manifest)?;
     let (width, height) = pipeline.resolution();
-    let calibration = calibration_of(&dir, &manifest, width, height)?;
-    let contact_depth_mm = manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+    let renderer = ControlRenderer::for_dataset(&dir, &manifest, width, height, options.supersample)?;
     let output_size = reference_size(dataset);
 
     let mut todo = work.todo;
@@ -229,21 +227,7 @@ pub fn fill_missing_observed(
     progress.set_length(todo.len() as u64);
     let mut synthesised = 0usize;
     for chunk in todo.chunks(options.batch.max(1)) {
-        let controls: Vec<RgbImage> = chunk
-            .iter()
-            .map(|p| {
-                let object_pose = Pose { z_mm: p.pose.z_mm + contact_depth_mm, ..p.pose };
-                let depth = crate::geometry::raster::render_depth(
-                    &mesh,
-                    &object_pose,
-                    &calibration,
-                    width,
-                    height,
-                    options.supersample,
-                );
-                crate::geometry::control::control_image(&depth)
-            })
-            .collect();
+        let controls: Vec<RgbImage> = chunk.iter().map(|p| renderer.control_image(&p.pose)).collect();
         let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
         let requests: Vec<GenerateRequest> = chunk
             .iter()
@@ -396,6 +380,57 @@ pub fn synthesise_poses_of(
     })
 }
 
+/// Renders the control images (ControlNet hints) of one dataset's poses, exactly as
+/// [`fill_missing`] feeds them to the model: the dataset's object mesh, pressed in by the work
+/// frame's contact depth, seen through its calibration at the model's resolution. Training
+/// tools (`rig render --controls-of`) use it too, so training and synthesis see the same hints.
+pub struct ControlRenderer {
+    pub mesh: Mesh,
+    pub calibration: Calibration,
+    /// Added to a pose's z (indentation) to place the object: the work frame's contact depth.
+    pub contact_depth_mm: f64,
+    pub width: u32,
+    pub height: u32,
+    /// Samples per pixel along each axis of the depth render.
+    pub supersample: u32,
+}
+
+impl ControlRenderer {
+    /// The renderer of the dataset at `dir` (whose manifest is `manifest`) for `width` x
+    /// `height` hints.
+    pub fn for_dataset(dir: &Path, manifest: &Manifest, width: u32, height: u32, supersample: u32) -> Result<Self, FillError> {
+        Ok(Self {
+            mesh: object_mesh(dir, manifest)?,
+            calibration: calibration_of(dir, manifest, width, height)?,
+            contact_depth_mm: manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
+            width,
+            height,
+            supersample,
+        })
+    }
+
+    /// The control image of the work-frame `pose`.
+    pub fn control_image(&self, pose: &Pose) -> RgbImage {
+        control_image_for(&self.mesh, &self.calibration, self.contact_depth_mm, pose, self.width, self.height, self.supersample)
+    }
+}
+
+/// The control image of `mesh` at the work-frame `pose` (z = indentation past contact, so the
+/// object sits `contact_depth_mm` deeper), rendered `width` x `height` through `calibration`.
+pub fn control_image_for(
+    mesh: &Mesh,
+    calibration: &Calibration,
+    contact_depth_mm: f64,
+    pose: &Pose,
+    width: u32,
+    height: u32,
+    supersample: u32,
+) -> RgbImage {
+    let object_pose = Pose { z_mm: pose.z_mm + contact_depth_mm, ..*pose };
+    let depth = crate::geometry::raster::render_depth(mesh, &object_pose, calibration, width, height, supersample);
+    crate::geometry::control::control_image(&depth)
+}
+
 /// The object mesh the dataset was collected on: its STL when the file still matches, else the
 /// library object of that name.
 fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
@@ -418,7 +453,8 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
             }
             Ok(Calibration::default_for(width, height))
         }
-        Some(path) => Calibration::load(Path::new(path)).map_err(|e| FillError::Calibration {
+        // A fitted calibration belongs to the frames' size; the hint is rendered at the model's.
+        Some(path) => Calibration::load(Path::new(path)).map(|c| c.scaled_to(width, height)).map_err(|e| FillError::Calibration {
             dir: dir.to_path_buf(),
             calibration: path.to_string(),
             reason: e.to_string(),

@@ -1,0 +1,115 @@
+"""Exports a train.py checkpoint as a rig model package (default: models/default).
+
+    python tools/train/export.py [--ckpt out/train/diffusion.pt] [--train-dir out/train] \
+        [--out models/default] [--name rig-default-128]
+
+Takes the exponential-moving-average weights of the checkpoint (diffusion.pt, or one of the
+ema-NNNNNN.pt snapshots), the tokenizer and the autoencoder statistics from --train-dir, and
+writes the package layout rig reads (docs/synth.md): model.toml (resolution 128 x 128,
+vae_scale_factor 4, the latent scale of the training latents), tokenizer/, text_encoder/,
+controlnet/, unet/, vae_decoder/ (ONNX) and scheduler/scheduler_config.json (DDIM,
+prediction_type "sample"). Then it checks each ONNX model against PyTorch with onnxruntime.
+"""
+
+import argparse
+import json
+import os
+import shutil
+import sys
+
+import numpy as np
+import torch
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+from model import SCHEDULER_CONFIG, SpaceToDepthAE, build_text_encoder, build_unet_controlnet  # noqa: E402
+from rig_export import export_models, write_model_toml, write_scheduler_config  # noqa: E402
+
+RESOLUTION = 128
+
+
+def load_trained(train_dir, ckpt):
+    """(tokenizer, text_encoder, unet, controlnet, vae, step) from a training directory."""
+    from tokenizers import Tokenizer
+    args = json.load(open(os.path.join(train_dir, "args.json")))
+    tok = Tokenizer.from_file(os.path.join(train_dir, "tokenizer.json"))
+    ae = torch.load(os.path.join(train_dir, "vae.pt"), map_location="cpu", weights_only=False)
+    vae = SpaceToDepthAE(ae["channel_mean"])
+    vae.config["scaling_factor"] = ae["scaling_factor"]
+    eos, bos = tok.token_to_id("<|endoftext|>"), tok.token_to_id("<|startoftext|>")
+    text_encoder = build_text_encoder(tok.get_vocab_size(), bos, eos)
+    unet, controlnet = build_unet_controlnet(args["width"], vae.config.latent_channels)
+    modules = torch.nn.ModuleDict({"text_encoder": text_encoder, "unet": unet, "controlnet": controlnet})
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    modules.load_state_dict(state["ema"])
+    for m in (text_encoder, unet, controlnet, vae):
+        m.eval()
+    return tok, text_encoder, unet, controlnet, vae, state["step"]
+
+
+def check_onnx(out, text_encoder, controlnet, unet, vae, tok):
+    """Runs every exported model on the same inputs as PyTorch; prints the largest difference."""
+    import onnxruntime as ort
+    from rig_export import ControlNetWrapper, UNetWrapper
+
+    torch.manual_seed(0)
+    ids = torch.tensor([tok.encode("{'sensor_context': 'x', 'object_pose': {'x': 1.0}}").ids + [1] * 0])
+    ids = torch.nn.functional.pad(ids, (0, 77 - ids.shape[1]), value=tok.token_to_id("<|endoftext|>")).to(torch.int32)
+    c = vae.config.latent_channels
+    sample = torch.randn(2, c, RESOLUTION // 4, RESOLUTION // 4)
+    t = torch.tensor([451], dtype=torch.int64)
+    cond = torch.rand(2, 3, RESOLUTION, RESOLUTION)
+    with torch.no_grad():
+        ehs = text_encoder(ids.long())[0].repeat(2, 1, 1)
+        res = ControlNetWrapper(controlnet)(sample, t, ehs, cond, torch.tensor(1.0))
+        pred = UNetWrapper(unet, len(res) - 1)(sample, t, ehs, *res)
+        img = vae.decode(sample)[0]
+
+    def run(name, feeds):
+        s = ort.InferenceSession(os.path.join(out, name, "model.onnx"), providers=["CPUExecutionProvider"])
+        return s.run(None, feeds)
+
+    te = run("text_encoder", {"input_ids": ids.numpy()})[0]
+    cn = run("controlnet", {"sample": sample.numpy(), "timestep": t.numpy(), "encoder_hidden_states": ehs.numpy(),
+                            "controlnet_cond": cond.numpy(), "conditioning_scale": np.array(1.0, dtype=np.float32)})
+    feeds = {"sample": sample.numpy(), "timestep": t.numpy(), "encoder_hidden_states": ehs.numpy()}
+    for i, r in enumerate(cn[:-1]):
+        feeds[f"down_block_additional_residual_{i}"] = r
+    feeds["mid_block_additional_residual"] = cn[-1]
+    un = run("unet", feeds)[0]
+    vd = run("vae_decoder", {"latent_sample": sample.numpy()})[0]
+    for name, a, b in [("text_encoder", te, ehs[:1]), ("controlnet", cn[0], res[0]), ("unet", un, pred),
+                       ("vae_decoder", vd, img)]:
+        print(f"onnx check {name}: max |onnx - torch| = {np.abs(a - b.numpy()).max():.2e}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--train-dir", default="out/train")
+    ap.add_argument("--ckpt", default=None, help="default: <train-dir>/diffusion.pt")
+    ap.add_argument("--out", default="models/default")
+    ap.add_argument("--name", default="rig-default-128")
+    args = ap.parse_args()
+    ckpt = args.ckpt or os.path.join(args.train_dir, "diffusion.pt")
+    tok, text_encoder, unet, controlnet, vae, step = load_trained(args.train_dir, ckpt)
+    out = os.path.abspath(args.out)
+    if os.path.isdir(out):
+        shutil.rmtree(out)
+    os.makedirs(os.path.join(out, "tokenizer"))
+    tok.save(os.path.join(out, "tokenizer", "tokenizer.json"))
+    export_models(out, text_encoder, controlnet, unet, vae, RESOLUTION, RESOLUTION, vae_scale_factor=4)
+    # The exporter writes one file per model; external-data files would appear beside them.
+    write_model_toml(out, args.name, RESOLUTION, RESOLUTION, round(vae.config.scaling_factor, 6),
+                     vae_scale_factor=4)
+    write_scheduler_config(out, SCHEDULER_CONFIG)
+    with open(os.path.join(out, "TRAINING.txt"), "w") as f:
+        f.write(f"Trained by tools/train/train.py ({step} diffusion steps, EMA weights of {os.path.basename(ckpt)}).\n"
+                f"See docs/training.md (README: \"Training the default model\") to retrain.\n")
+    check_onnx(out, text_encoder, controlnet, unet, vae, tok)
+    total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
+    print(f"exported step {step} of {ckpt} to {out} ({total / 1e6:.1f} MB)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Collects the training set of the default synthesis model on the simulated rig and renders,
+# for every row, the control image and prompt exactly as `rig synth --fill-missing` makes them.
+#
+#   tools/train/make_data.sh [RIG_BINARY]        (default: target/release/rig)
+#
+# Writes out/train-data/<object>/<sensor>/ (datasets), out/train-controls/<object>/<sensor>/
+# (<pose_id>.png at 128x128 + prompts.csv) and out/train/data.npz (the packed arrays train.py
+# reads). To train on a real rig's data, collect with your rig.toml instead (same command) or
+# point prepare.py at your own datasets (see docs/training.md).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+RIG=${1:-target/release/rig}
+PY=${PYTHON:-.venv/bin/python}
+OBJECTS=${OBJECTS:-"edge cuboid sphere pacman cross"}
+SIZE=${SIZE:-128}
+for o in $OBJECTS; do
+  "$RIG" collect --plan plans/train.toml --object "$o" --sensor all --out out/train-data --resume
+done
+for o in $OBJECTS; do
+  for s in tactip vitac vitactip; do
+    "$RIG" render --controls-of "out/train-data/$o/$s" --size "${SIZE}x${SIZE}" --out "out/train-controls/$o/$s"
+  done
+done
+"$PY" tools/train/prepare.py --data out/train-data --controls out/train-controls --size "$SIZE" --out out/train/data.npz

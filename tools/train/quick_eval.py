@@ -1,0 +1,230 @@
+"""Self-check of a trained model on unseen poses of the training objects, against the two
+baselines of `rig eval` (pose-blind mean image, nearest-neighbour shifted and rotated).
+
+    python tools/train/quick_eval.py --ckpt out/train/diffusion.pt [--per 4]      # PyTorch sampler
+    python tools/train/quick_eval.py --synth out/quick-synth                        # images from rig
+
+Test rows: the real rows of out/test-data/<object>/<sensor> (plans/test.toml) whose pose was not
+collected for training. Everything is compared at 128 x 128 (PIL bilinear, antialiased).
+
+- contact SSIM: Gaussian-window SSIM (11 px, sigma 1.5, per RGB channel, averaged) over the
+  pixels where the true image differs from its dataset's reference frame by more than 12/255
+  in any channel, dilated by 1 px;
+- position / yaw error: the contact region of an image (its difference to the reference,
+  thresholded) gives a centroid and a principal axis; the error is the distance between the
+  estimate from the method's image and from the true image of the same pose (mm through the
+  default calibration, 2.125 px/mm at 128 px; yaw mod 180 deg, skipped for the sphere).
+
+This is a quick proxy for `rig eval`, whose numbers are the ones the README reports.
+"""
+
+import argparse
+import csv
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+
+SIZE = 128
+PX_PER_MM = 8.5 * SIZE / 512
+THRESH = 12 / 255
+SENSORS = ["tactip", "vitac", "vitactip"]
+LABELS = {"tactip": "TacTip", "vitac": "ViTac", "vitactip": "ViTacTip"}
+
+
+def load_rgb(path):
+    img = Image.open(path).convert("RGB")
+    if img.size != (SIZE, SIZE):
+        img = img.resize((SIZE, SIZE), Image.BILINEAR)
+    return np.asarray(img, dtype=np.float32) / 255.0
+
+
+def rows_of(ds):
+    with open(os.path.join(ds, "poses.csv"), newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def gauss_window():
+    g = torch.exp(-((torch.arange(11) - 5.0) ** 2) / (2 * 1.5 ** 2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :]).view(1, 1, 11, 11).repeat(3, 1, 1, 1)
+
+
+WIN = gauss_window()
+
+
+def ssim_map(a, b):
+    """Per-pixel SSIM (mean over RGB) of two HxWx3 images in [0, 1]."""
+    x = torch.from_numpy(a).permute(2, 0, 1)[None]
+    y = torch.from_numpy(b).permute(2, 0, 1)[None]
+    f = lambda z: F.conv2d(F.pad(z, (5, 5, 5, 5), mode="reflect"), WIN, groups=3)  # noqa: E731
+    mx, my = f(x), f(y)
+    sxx, syy, sxy = f(x * x) - mx * mx, f(y * y) - my * my, f(x * y) - mx * my
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+    return s[0].mean(0).numpy()
+
+
+def contact_mask(true, ref):
+    m = (np.abs(true - ref).max(-1) > THRESH).astype(np.float32)
+    return F.max_pool2d(torch.from_numpy(m)[None, None], 3, 1, 1)[0, 0].numpy() > 0.5
+
+
+def contact_estimate(img, ref):
+    """(u_px, v_px, axis_deg) of the difference-to-reference region, or None when empty."""
+    d = np.abs(img - ref).mean(-1)
+    w = np.where(d > THRESH, d, 0.0)
+    s = w.sum()
+    if s < 1e-3:
+        return None
+    v, u = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64)
+    cu, cv = (w * u).sum() / s, (w * v).sum() / s
+    cuu, cvv, cuv = (w * (u - cu) ** 2).sum() / s, (w * (v - cv) ** 2).sum() / s, (w * (u - cu) * (v - cv)).sum() / s
+    axis = 0.5 * math.degrees(math.atan2(2 * cuv, cuu - cvv))
+    return cu, cv, axis
+
+
+def warp(img, ref, src_pose, dst_pose):
+    """The image of src_pose moved to dst_pose: translation and yaw of the object in the image
+    (raster.rs: object point p appears at c + S R(-yaw) (p - t)); outside: the reference."""
+    x1, y1, _, yaw1 = src_pose
+    x2, y2, _, yaw2 = dst_pose
+    c = (SIZE / 2, SIZE / 2)
+    v, u = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64)
+    # destination pixel -> object point -> source pixel
+    a2 = math.radians(yaw2)
+    du, dv = (u + 0.5 - c[0]) / PX_PER_MM, (v + 0.5 - c[1]) / PX_PER_MM  # pixel centres
+    px = math.cos(a2) * du - math.sin(a2) * dv + x2
+    py = math.sin(a2) * du + math.cos(a2) * dv + y2
+    a1 = -math.radians(yaw1)
+    qx, qy = px - x1, py - y1
+    su = c[0] + PX_PER_MM * (math.cos(a1) * qx - math.sin(a1) * qy)
+    sv = c[1] + PX_PER_MM * (math.sin(a1) * qx + math.cos(a1) * qy)
+    grid = torch.from_numpy(np.stack([su / SIZE * 2 - 1, sv / SIZE * 2 - 1], -1)).float()[None]
+    src = torch.from_numpy(img - ref).permute(2, 0, 1)[None]
+    out = F.grid_sample(src, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    return np.clip(out[0].permute(1, 2, 0).numpy() + ref, 0, 1)
+
+
+@torch.no_grad()
+def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0):
+    """DDIM (eta 0, rig's timesteps) with the PyTorch models of a checkpoint; images in [0, 1]."""
+    from export import load_trained
+    from train import alphas_cumprod, encode_prompts
+    tok, te, unet, cn, vae, _ = load_trained(train_dir, ckpt)
+    eos = tok.token_to_id("<|endoftext|>")
+    ac = alphas_cumprod().double()
+    ts = list(range(1, 1000, 1000 // steps))[::-1]
+    g = torch.Generator().manual_seed(seed)
+    out = []
+    for i in range(0, len(hints), 8):
+        h = torch.from_numpy(np.stack(hints[i:i + 8])).permute(0, 3, 1, 2).float()
+        ehs = te(encode_prompts(tok, prompts[i:i + 8], eos))[0]
+        x = torch.randn(len(h), vae.config.latent_channels, SIZE // 4, SIZE // 4, generator=g)
+        for t in ts:
+            tt = torch.tensor([t])
+            down, mid = cn(x, tt, encoder_hidden_states=ehs, controlnet_cond=h, return_dict=False)
+            x0 = unet(x, tt, encoder_hidden_states=ehs, down_block_additional_residuals=down,
+                      mid_block_additional_residual=mid).sample
+            a = ac[t].float()
+            a_prev = ac[t - 1000 // steps].float() if t - 1000 // steps >= 0 else ac[0].float()
+            eps = (x - a.sqrt() * x0) / (1 - a).sqrt()
+            x = a_prev.sqrt() * x0 + (1 - a_prev).sqrt() * eps
+        img = vae.decode(x / vae.config.scaling_factor)[0]
+        out.extend(((img.clamp(-1, 1) + 1) / 2).permute(0, 2, 3, 1).numpy())
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--train-data", default="out/train/data.npz")
+    ap.add_argument("--test", default="out/test-data")
+    ap.add_argument("--controls", default="out/test-controls")
+    ap.add_argument("--rig", default="target/release/rig")
+    ap.add_argument("--ckpt", default=None)
+    ap.add_argument("--train-dir", default="out/train")
+    ap.add_argument("--synth", default=None, help="<dir>/<object>/<sensor>/images/<pose_id>.png from rig")
+    ap.add_argument("--objects", default="edge cuboid sphere pacman cross")
+    ap.add_argument("--per", type=int, default=4, help="test poses per object and sensor")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+
+    train = np.load(args.train_data)
+    t_img = train["images"].astype(np.float32) / 255.0
+    t_sensors, t_objects, t_poses = train["sensors"], train["objects"], train["poses"]
+
+    cases = []  # (object, sensor, pose_id, pose, true, ref, hint, prompt)
+    for obj in args.objects.split():
+        for s in SENSORS:
+            ds = os.path.join(args.test, obj, s)
+            cdir = os.path.join(args.controls, obj, s)
+            if not os.path.isfile(os.path.join(cdir, "prompts.csv")):
+                subprocess.run([args.rig, "render", "--controls-of", ds, "--size", f"{SIZE}x{SIZE}", "--out", cdir],
+                               check=True, stdout=subprocess.DEVNULL)
+            prompts = {int(r["pose_id"]): r["prompt"] for r in csv.DictReader(open(os.path.join(cdir, "prompts.csv")))}
+            seen = {tuple(p) for p, o, ss in zip(t_poses, t_objects, t_sensors) if o == obj and ss == s}
+            ref = load_rgb(os.path.join(ds, "reference.png"))
+            n = 0
+            for r in rows_of(ds):
+                pose = tuple(float(r[k]) for k in ("x_mm", "y_mm", "z_mm", "yaw_deg"))
+                if r["source"] != "real" or pose in seen:
+                    continue
+                pid = int(r["pose_id"])
+                cases.append((obj, s, pid, pose, load_rgb(os.path.join(ds, r["image"])), ref,
+                              load_rgb(os.path.join(cdir, f"{pid}.png")), prompts[pid]))
+                n += 1
+                if n >= args.per:
+                    break
+
+    methods = {}
+    if args.ckpt:
+        methods["model"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases])
+    if args.synth:
+        methods["model"] = [load_rgb(os.path.join(args.synth, c[0], c[1], "images", f"{c[2]}.png")) for c in cases]
+    means = {s: t_img[t_sensors == s].mean(0) for s in SENSORS}
+    methods["pose-blind"] = [means[c[1]] for c in cases]
+    nn = []
+    for obj, s, _, pose, _, ref, _, _ in cases:
+        sel = np.where((t_objects == obj) & (t_sensors == s))[0]
+        d = t_poses[sel] - np.array(pose)
+        dist = np.sqrt((d[:, :3] ** 2).sum(1)) + np.abs(d[:, 3]) / 15.0
+        j = sel[int(np.argmin(dist))]
+        nn.append(warp(t_img[j], ref, t_poses[j], pose))
+    methods["nearest-neighbour"] = nn
+
+    print(f"{len(cases)} unseen test poses ({args.per} per object and sensor), {SIZE} px")
+    print(f"{'sensor':9} {'method':18} {'contact SSIM':>12} {'pos err mm':>10} {'yaw err deg':>11}")
+    for s in SENSORS:
+        idx = [i for i, c in enumerate(cases) if c[1] == s]
+        for name, imgs in [("true image", [cases[i][4] for i in range(len(cases))])] + list(methods.items()):
+            ssims, pos, yaw = [], [], []
+            for i in idx:
+                true, ref = cases[i][4], cases[i][5]
+                m = contact_mask(true, ref)
+                if m.sum() > 0:
+                    ssims.append(ssim_map(imgs[i], true)[m].mean())
+                et, em = contact_estimate(true, ref), contact_estimate(imgs[i], ref)
+                if et is None:
+                    continue
+                if em is None:
+                    em = (SIZE / 2, SIZE / 2, et[2] + 90)
+                pos.append(math.hypot(em[0] - et[0], em[1] - et[1]) / PX_PER_MM)
+                if cases[i][0] != "sphere":
+                    dy = abs(em[2] - et[2]) % 180
+                    yaw.append(min(dy, 180 - dy))
+            f = lambda v: f"{np.mean(v):.3f}" if v else "n/a"  # noqa: E731
+            print(f"{s:9} {name:18} {f(ssims):>12} {f(pos):>10} {f(yaw):>11}")
+
+
+if __name__ == "__main__":
+    main()
