@@ -1,20 +1,24 @@
 //! Total motion time of a 500-pose plan in random order and in rig's optimised order, under
-//! the stand-in trapezoidal motion model (100 mm/s, 180 deg/s, 0.4 s per pose). Prints a
-//! table; the goal is rig's order at most 0.6x the random order.
+//! the firmware profile's joint-space motion model between approach poses
+//! (`FirmwareProfile::motion_time_s` through `rigs::pose_cost_s`, what `rig collect` orders
+//! by). Prints a table; the goal is rig's order at most 0.6x the random order. `rig bench`
+//! reports the same comparison beside the other knobs.
 //!
 //! Run: `cargo bench --bench plan_order` (`cargo test` runs it too, as a one-row smoke run).
 
 use std::time::Instant;
 
-use rig::plan::{Order, PlanSpec, Sampling, TrapezoidMotionModel};
-use rig::pose::Pose;
+use rig::arm::profile::FirmwareProfile;
+use rig::plan::{Order, PlanSpec, Sampling};
+use rig::pose::{Pose, WorkFrame};
 
 fn main() {
     // `cargo bench` passes --bench; under `cargo test --all-targets` run one row only.
     let full = std::env::args().any(|a| a == "--bench");
     let seeds: &[u64] = if full { &[0, 1, 2] } else { &[0] };
-    let model = TrapezoidMotionModel::default();
-    let cost = move |a: &Pose, b: &Pose| model.time_s(a, b);
+    let profile = FirmwareProfile::default_mg400();
+    let work_frame = WorkFrame::default();
+    let cost = move |a: &Pose, b: &Pose| rig::rigs::pose_cost_s(&profile, &work_frame, a, b);
     println!("{:<8} {:>5} {:>6} {:>14} {:>14} {:>7} {:>10}", "sampling", "n", "seed", "random [s]", "rig [s]", "ratio", "order [ms]");
     let mut worst: f64 = 0.0;
     for sampling in [Sampling::Random, Sampling::Lhs] {

@@ -38,3 +38,11 @@ PY
   rm -rf "$tmp"
 fi
 echo "setup: ONNX Runtime at $ORT_LIB"
+
+# Headless Chromium for the daemon's page test (tests/daemon_browser.rs); Debian's package.
+if [ ! -x /usr/bin/chromium ]; then
+  echo "setup: installing chromium (the daemon page's browser test)"
+  as_root apt-get update -qq
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+fi
+echo "setup: chromium at /usr/bin/chromium"

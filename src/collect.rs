@@ -10,8 +10,15 @@
 //! `--resume`. A fault that ends the run (retries spent, a dead camera, a full disk) also
 //! lifts the arm off the sensor and disables it before the error is returned.
 //!
-//! The job only sees the [`Arm`] and [`Camera`] traits: the same code drives the real and the
-//! simulated rig.
+//! Modbus peripherals ([`Peripherals`]) act around every capture: their `before_capture`
+//! writes once the arm has arrived (frames are exposed only after they finished), their reads
+//! and `after_capture` writes after the frames, still in contact. The readings go into every
+//! sensor's row of that pose (`modbus` column), so rows are appended only once the whole pose
+//! succeeded. A required peripheral's fault is retried like a camera timeout; an optional
+//! one's only leaves its values empty (see [`crate::io::modbus`]).
+//!
+//! The job only sees the [`Arm`], [`Camera`] and [`Peripherals`] traits: the same code drives
+//! the real and the simulated rig.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -25,6 +32,7 @@ use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
 use crate::dataset::{DatasetError, DatasetWriter, PoseRow};
+use crate::io::modbus::{ModbusError, NoPeripherals, Peripherals, format_readings};
 use crate::plan::PlannedPose;
 use crate::pose::{Pose, WorkFrame};
 
@@ -42,11 +50,23 @@ pub enum CollectError {
     RetriesExhausted { pose_id: Option<u32>, attempts: u32, last: ArmError },
     #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
     CameraRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: CameraError },
+    /// A required Modbus peripheral's fault (timeout, lost connection, exception). Boxed:
+    /// the error is large and rare, and every `Result` of the job carries its size.
+    #[error(transparent)]
+    Peripheral(Box<ModbusError>),
+    #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
+    PeripheralRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: Box<ModbusError> },
     /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
     #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
     Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
+}
+
+impl From<ModbusError> for CollectError {
+    fn from(e: ModbusError) -> Self {
+        CollectError::Peripheral(Box::new(e))
+    }
 }
 
 /// One retryable step of the job.
@@ -88,7 +108,8 @@ pub struct CollectSummary {
     pub skipped: usize,
     /// Poses left when the run was interrupted.
     pub remaining: usize,
-    /// Arm faults cleared and camera timeouts, each followed by a retry of the pose.
+    /// Arm faults cleared, camera timeouts and required-peripheral faults, each followed by a
+    /// retry of the pose.
     pub recovered_faults: usize,
     pub interrupted: bool,
 }
@@ -117,8 +138,8 @@ pub fn check_plan(
     Ok(())
 }
 
-/// The collection job. Borrow the arm; own the sensor streams.
-pub struct CollectJob<'a, A: Arm, C: Camera> {
+/// The collection job. Borrow the arm; own the sensor streams and the peripherals.
+pub struct CollectJob<'a, A: Arm, C: Camera, P: Peripherals = NoPeripherals> {
     pub arm: &'a mut A,
     pub sensors: Vec<SensorStream<C>>,
     pub work_frame: WorkFrame,
@@ -128,9 +149,11 @@ pub struct CollectJob<'a, A: Arm, C: Camera> {
     pub cancel: watch::Receiver<bool>,
     /// Progress display (hidden when not attached to a terminal).
     pub progress: indicatif::ProgressBar,
+    /// Modbus peripherals around each capture ([`NoPeripherals`] when none are configured).
+    pub peripherals: P,
 }
 
-impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
+impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
     fn cancelled(&self) -> bool {
         *self.cancel.borrow()
     }
@@ -238,8 +261,18 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
                     self.progress.println(format!("{label}: {e}; retrying"));
                     summary.recovered_faults += 1;
                 }
+                // A peripheral that did not answer (or refused) once is retried with the pose:
+                // its rows are not written yet, so the retry captures the pose afresh.
+                Err(CollectError::Peripheral(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
+                    warn!(?pose_id, attempt, error = %e, "peripheral fault; retrying");
+                    self.progress.println(format!("{label}: {e}; retrying"));
+                    summary.recovered_faults += 1;
+                }
                 Err(CollectError::Arm(e)) if e.is_recoverable() => {
                     return Err(CollectError::RetriesExhausted { pose_id, attempts: attempt, last: e });
+                }
+                Err(CollectError::Peripheral(e)) if e.is_recoverable() => {
+                    return Err(CollectError::PeripheralRetriesExhausted { pose_id, attempts: attempt, last: e });
                 }
                 Err(CollectError::Camera(e @ CameraError::Timeout { .. })) => {
                     return Err(CollectError::CameraRetriesExhausted { pose_id, attempts: attempt, last: e });
@@ -252,12 +285,32 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
     /// Captures the no-contact reference frame of every sensor that has none yet.
     async fn reference_frames(&mut self, above_origin: Pose) -> Result<(), CollectError> {
         let arrival = self.go(above_origin, MoveKind::Joint).await?;
-        let not_before = arrival.t_s + self.options.settle_s;
-        for s in self.sensors.iter_mut().filter(|s| !has_reference(&s.writer)) {
-            let (image, _) = capture(&mut s.camera, not_before, &self.options).await?;
-            s.writer.write_reference(&image)?;
+        // The reference is lit like every pose; its readings have no row to go into.
+        let not_before = self.prepare_capture(arrival.t_s).await?;
+        let mut images = Vec::new();
+        for (k, s) in self.sensors.iter_mut().enumerate().filter(|(_, s)| !has_reference(&s.writer)) {
+            images.push((k, capture(&mut s.camera, not_before, &self.options).await?.0));
+        }
+        let readings = self.peripherals.after_capture().await?;
+        if !readings.is_empty() {
+            info!(readings = %format_readings(&readings), "peripherals at the reference frame");
+        }
+        for (k, image) in images {
+            self.sensors[k].writer.write_reference(&image)?;
         }
         Ok(())
+    }
+
+    /// The peripherals' `before_capture` writes after an arrival at `arrival_t_s`; returns the
+    /// instant frames must be exposed after: the settle time after arrival, and not before the
+    /// writes finished. Without peripherals this is exactly the settle time after arrival.
+    async fn prepare_capture(&mut self, arrival_t_s: f64) -> Result<f64, CollectError> {
+        let settled_s = arrival_t_s + self.options.settle_s;
+        if self.peripherals.is_empty() {
+            return Ok(settled_s);
+        }
+        self.peripherals.before_capture().await?;
+        Ok(settled_s.max(self.clock.now_s()))
     }
 
     /// Leaves the arm safe after a fault that ends the run: lifts it off the sensor (the
@@ -285,12 +338,19 @@ impl<'a, A: Arm, C: Camera> CollectJob<'a, A, C> {
         let contact = self.work_frame.contact_pose(&planned.pose);
         self.go(above, MoveKind::Joint).await?;
         let arrival = self.go(contact, MoveKind::Linear).await?;
-        let not_before = arrival.t_s + self.options.settle_s;
+        let not_before = self.prepare_capture(arrival.t_s).await?;
         let measured = self.work_frame.plan_pose(&arrival.measured);
-        for s in self.sensors.iter_mut().filter(|s| !s.writer.done_ids().contains(&planned.pose_id)) {
+        let mut captured = Vec::new();
+        for (k, s) in self.sensors.iter_mut().enumerate().filter(|(_, s)| !s.writer.done_ids().contains(&planned.pose_id)) {
             let (image, t_capture_s) = capture(&mut s.camera, not_before, &self.options).await?;
-            let row = PoseRow::real(planned.pose_id, planned.pose, measured, t_capture_s);
-            s.writer.append(row, &image)?;
+            captured.push((k, image, t_capture_s));
+        }
+        // Read while still pressed; only then are rows written, so a peripheral fault leaves
+        // the pose undone in every dataset and the retry captures it again.
+        let modbus = format_readings(&self.peripherals.after_capture().await?);
+        for (k, image, t_capture_s) in captured {
+            let row = PoseRow::real(planned.pose_id, planned.pose, measured, t_capture_s).with_modbus(modbus.clone());
+            self.sensors[k].writer.append(row, &image)?;
         }
         self.go(above, MoveKind::Linear).await?;
         Ok(())

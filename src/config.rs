@@ -107,6 +107,8 @@ pub struct RawSensor {
 pub struct RawSim {
     #[serde(default)]
     pub faults: RawFaults,
+    /// Simulated sensors: the physical unit (static specks and dust); default: the run's seed.
+    pub sensor_unit_seed: Option<u64>,
 }
 
 /// `[sim.faults]` as written in the file.
@@ -296,6 +298,10 @@ pub struct RigConfig {
     pub faults: FaultConfig,
     /// Modbus peripherals by name.
     pub modbus: std::collections::BTreeMap<String, crate::io::modbus::ModbusPeripheralConfig>,
+    /// Simulated sensors: the seed of the physical unit's static look (`[sim]
+    /// sensor_unit_seed`); `None`: derived from the run's seed, so each plan seed simulates
+    /// another unit.
+    pub sensor_unit_seed: Option<u64>,
 }
 
 /// Default time scale of the built-in simulated rig.
@@ -316,6 +322,7 @@ impl RigConfig {
             sensors: Vec::new(),
             faults: FaultConfig::default(),
             modbus: std::collections::BTreeMap::new(),
+            sensor_unit_seed: None,
         }
     }
 
@@ -485,12 +492,17 @@ impl RigConfig {
             sensors,
             faults,
             modbus,
+            sensor_unit_seed: raw.sim.sensor_unit_seed,
         })
     }
 
     /// One line saying what rig will drive, printed first by commands that move hardware.
     pub fn describe(&self) -> String {
-        let rig = self.describe_rig();
+        let mut rig = self.describe_rig();
+        if !self.modbus.is_empty() {
+            let list: Vec<String> = self.modbus.values().map(|m| m.describe()).collect();
+            rig.push_str(&format!("; Modbus peripherals: {}", list.join(", ")));
+        }
         if self.faults.is_empty() { rig } else { format!("{rig}; injecting faults: {}", self.faults.describe()) }
     }
 
@@ -563,6 +575,14 @@ fn resolve_faults(raw: &RawFaults, path: &Path) -> Result<FaultConfig, ConfigErr
 mod tests {
     use super::*;
     use crate::pose::Pose;
+
+    #[test]
+    fn sensor_unit_seed_is_read_and_defaults_to_none() {
+        let c = RigConfig::parse("[sim]\nsensor_unit_seed = 11\n", Path::new("x")).unwrap();
+        assert_eq!(c.sensor_unit_seed, Some(11));
+        assert_eq!(RigConfig::parse("", Path::new("x")).unwrap().sensor_unit_seed, None);
+        assert!(RigConfig::parse("[sim]\nsensor_unit_seed = -1\n", Path::new("x")).is_err());
+    }
 
     #[test]
     fn empty_file_is_the_simulated_rig() {

@@ -7,13 +7,16 @@
 //! the simulated MG400 and sensors behind the same seams.
 
 pub mod arm;
+pub mod bench;
 pub mod calibration;
 pub mod camera;
 pub mod cli;
 pub mod clock;
 pub mod collect;
 pub mod config;
+pub mod daemon;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod io;
 pub mod plan;

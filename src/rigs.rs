@@ -6,6 +6,10 @@
 //! collection job never knows which it got. Real hardware: the MG400 over TCP or the Magician
 //! over serial ([`RigArm`]), V4L2 or nokhwa cameras bound by USB identity ([`RigCamera`]).
 //!
+//! Modbus peripherals (`[modbus.<name>]`) come out as a [`ModbusBench`], connected before the
+//! arm moves; a `transport = "sim"` one is a simulated device ([`SimModbusServer`]) started
+//! here on loopback, a force sensor reading the simulated arm's truth.
+//!
 //! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
 //! simulator gets its controller switches, a task closes its sockets periodically, and each
 //! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
@@ -32,7 +36,9 @@ use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
+use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
+use crate::sim::modbus::{ArmContact, SimModbusServer};
 use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
 
 /// Errors assembling the rig.
@@ -58,6 +64,9 @@ pub enum RigError {
         #[source]
         source: CameraError,
     },
+    /// A required Modbus peripheral could not be reached (or a simulated one started).
+    #[error(transparent)]
+    Modbus(#[from] ModbusError),
 }
 
 /// Which sensors a command asked for.
@@ -309,7 +318,11 @@ pub fn magician_profile_for(config: &RigConfig) -> Result<MagicianProfile, RigEr
 pub struct Rig {
     pub arm: RigArm,
     pub cameras: Vec<RigCamera>,
+    /// The Modbus peripherals of `[modbus.*]` (empty when none), for the job.
+    pub peripherals: ModbusBench,
     sim: Option<SimMg400>,
+    /// Simulated Modbus devices (`transport = "sim"`), running until shutdown.
+    modbus_sims: Vec<SimModbusServer>,
     /// The task closing the simulator's sockets (`[sim.faults] drop_sockets_every_s`).
     socket_dropper: Option<tokio::task::JoinHandle<()>>,
 }
@@ -409,29 +422,19 @@ impl Rig {
                             backend: "sim (a simulated sensor needs the simulated arm)".into(),
                         });
                     };
-                    let (width, height) = sensor_cfg.map(|s| (s.width, s.height)).unwrap_or((512, 512));
+                    let (width, height) = sim_size(sensor_cfg);
                     let scene_name = sensor_cfg.map(|s| s.scene.clone()).unwrap_or_else(|| "full".into());
-                    // The configured file, else the one `rig calibrate` saved, else the default.
-                    let saved = crate::calibration::saved_path(&kind.to_string());
-                    let configured = sensor_cfg.and_then(|s| s.calibration.clone());
-                    let (calib, calib_name) = match configured.or_else(|| saved.is_file().then_some(saved)) {
-                        Some(p) => (
-                            Calibration::load(&p).map_err(|e| RigError::Calibration { path: p.clone(), reason: e.to_string() })?,
-                            p.display().to_string(),
-                        ),
-                        None => (Calibration::default_for(width, height), "default".to_string()),
-                    };
+                    let (calib, calib_name) = sim_calibration(*kind, sensor_cfg, width, height)?;
                     let scene = Scene::preset(&scene_name).map_err(|e| RigError::BackendUnavailable {
                         name: kind.to_string(),
                         backend: format!("sim scene {scene_name:?}: {e}"),
                     })?;
                     let px_per_mm = calib.scale_px_per_mm[0] as f32;
-                    let renderer = SensorSim::new(*kind, scene, width, height, px_per_mm, seed ^ sensor_salt(*kind));
-                    let mesh = Arc::clone(&object.mesh);
-                    let depth_calib = calib.clone();
-                    let depth_source = Box::new(move |object_pose: &Pose| {
-                        crate::geometry::raster::render_depth(&mesh, object_pose, &depth_calib, width, height, 1)
-                    });
+                    let mut renderer = SensorSim::new(*kind, scene, width, height, px_per_mm, seed ^ sensor_salt(*kind));
+                    if let Some(unit) = config.sensor_unit_seed {
+                        renderer = renderer.with_unit_seed(unit ^ sensor_salt(*kind));
+                    }
+                    let depth_source = sim_depth_source(object, calib.clone(), width, height);
                     let camera = SimCamera::new(
                         kind.to_string(),
                         renderer,
@@ -470,14 +473,34 @@ impl Rig {
                 }
             }
         }
-        Ok(Self { arm, cameras, sim, socket_dropper })
+        let (peripherals, modbus_sims) = open_peripherals(config, sim.as_ref()).await?;
+        Ok(Self { arm, cameras, peripherals, sim, modbus_sims, socket_dropper })
+    }
+
+    /// Puts `object` under the simulated sensors (their depth maps now come from its mesh),
+    /// keeping every camera and the arm connection open. Hardware cameras are left alone:
+    /// what they see is whatever lies on the bench.
+    pub fn set_object(&mut self, config: &RigConfig, object: &ObjectChoice) -> Result<(), RigError> {
+        for camera in &mut self.cameras {
+            if let RigCamera::Simulated { kind, camera, .. } = camera {
+                let sensor_cfg = config.sensors.iter().find(|s| s.name == kind.to_string());
+                let (width, height) = sim_size(sensor_cfg);
+                let (calib, _) = sim_calibration(*kind, sensor_cfg, width, height)?;
+                camera.set_depth_source(sim_depth_source(object, calib, width, height));
+            }
+        }
+        Ok(())
     }
 
     /// Stops the in-process simulator, if any.
     pub async fn shutdown(self) {
-        let Rig { arm, cameras, sim, socket_dropper } = self;
+        let Rig { arm, cameras, peripherals, sim, modbus_sims, socket_dropper } = self;
         if let Some(task) = socket_dropper {
             task.abort();
+        }
+        drop(peripherals);
+        for server in modbus_sims {
+            server.shutdown();
         }
         // Close the client first, so it does not try to reconnect to a simulator going away.
         drop(arm);
@@ -486,6 +509,66 @@ impl Rig {
             sim.shutdown().await;
         }
     }
+}
+
+/// The configured Modbus peripherals, connected, with the simulated ones started first (on
+/// loopback; the client then speaks Modbus TCP to them like to a real device).
+async fn open_peripherals(config: &RigConfig, sim: Option<&SimMg400>) -> Result<(ModbusBench, Vec<SimModbusServer>), RigError> {
+    let mut configs = std::collections::BTreeMap::new();
+    let mut servers = Vec::new();
+    for (name, peripheral) in &config.modbus {
+        let mut peripheral = peripheral.clone();
+        if let ModbusTransport::Sim { device, stop_answering_after } = peripheral.transport {
+            let contact = match (device, sim) {
+                (SimPeripheralKind::ForceSensor { .. }, Some(sim)) => {
+                    Some(ArmContact { truth: sim.truth(), work_frame: config.work_frame })
+                }
+                (SimPeripheralKind::ForceSensor { .. }, None) => {
+                    return Err(RigError::BackendUnavailable {
+                        name: format!("modbus.{name}"),
+                        backend: "sim force sensor (it presses with the simulated arm; use arm backend sim)".into(),
+                    });
+                }
+                (SimPeripheralKind::Illumination, _) => None,
+            };
+            let server = SimModbusServer::start(device, contact, stop_answering_after).await.map_err(RigError::Sim)?;
+            tracing::info!(peripheral = %name, addr = %server.addr(), "simulated Modbus device started");
+            peripheral.transport = ModbusTransport::Tcp { address: server.addr().to_string() };
+            servers.push(server);
+        }
+        configs.insert(name.clone(), peripheral);
+    }
+    Ok((ModbusBench::connect(&configs).await?, servers))
+}
+
+/// Image size of a simulated sensor (512 x 512 unless configured).
+fn sim_size(sensor_cfg: Option<&crate::config::SensorConfig>) -> (u32, u32) {
+    sensor_cfg.map(|s| (s.width, s.height)).unwrap_or((512, 512))
+}
+
+/// A simulated sensor's calibration and its name for the manifest: the configured file, else
+/// the one `rig calibrate` saved, else the default for the image size.
+fn sim_calibration(
+    kind: SensorKind,
+    sensor_cfg: Option<&crate::config::SensorConfig>,
+    width: u32,
+    height: u32,
+) -> Result<(Calibration, String), RigError> {
+    let saved = crate::calibration::saved_path(&kind.to_string());
+    let configured = sensor_cfg.and_then(|s| s.calibration.clone());
+    match configured.or_else(|| saved.is_file().then_some(saved)) {
+        Some(p) => Ok((
+            Calibration::load(&p).map_err(|e| RigError::Calibration { path: p.clone(), reason: e.to_string() })?,
+            p.display().to_string(),
+        )),
+        None => Ok((Calibration::default_for(width, height), "default".to_string())),
+    }
+}
+
+/// The depth maps of `object` a simulated sensor renders.
+fn sim_depth_source(object: &ObjectChoice, calib: Calibration, width: u32, height: u32) -> crate::sim::sensor::DepthSource {
+    let mesh = Arc::clone(&object.mesh);
+    Box::new(move |object_pose: &Pose| crate::geometry::raster::render_depth(&mesh, object_pose, &calib, width, height, 1))
 }
 
 /// The simulator's switches for the configured faults.

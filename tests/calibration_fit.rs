@@ -25,7 +25,7 @@ proptest! {
     fn any_finite_input_gives_finite_numbers_or_an_error(
         raw in prop::collection::vec((finite_f64(), finite_f64(), finite_f64(), finite_f64()), 0..12)
     ) {
-        let points: Vec<FitPoint> = raw.iter().map(|&(a, b, c, d)| FitPoint { mm: [a, b], px: [c, d] }).collect();
+        let points: Vec<FitPoint> = raw.iter().map(|&(a, b, c, d)| FitPoint::new([a, b], [c, d])).collect();
         if let Ok(fit) = fit_points(&points, &FitOptions::default(), "prop") {
             let c = &fit.calibration;
             let nums = [c.centre_px[0], c.centre_px[1], c.scale_px_per_mm[0], c.scale_px_per_mm[1], c.rotation_deg,
@@ -47,7 +47,7 @@ proptest! {
         let points: Vec<FitPoint> = ts.iter().map(|t| {
             let mm = [ox + c * t, oy + s * t];
             let (u, v) = truth.mm_to_px(mm[0], mm[1]);
-            FitPoint { mm, px: [u, v] }
+            FitPoint::new(mm, [u, v])
         }).collect();
         let r = fit_points(&points, &FitOptions::default(), "prop");
         prop_assert!(matches!(r, Err(FitError::Collinear { .. })), "{r:?}");
@@ -66,7 +66,7 @@ proptest! {
         for (k, (nu, nv)) in noise.iter().enumerate() {
             let mm = [(k % 5) as f64 * 2.0 - 4.0, (k / 5) as f64 * 2.0 - 4.0];
             let (u, v) = truth.mm_to_px(mm[0], mm[1]);
-            points.push(FitPoint { mm, px: [u + nu, v + nv] });
+            points.push(FitPoint::new(mm, [u + nu, v + nv]));
         }
         points[bad].px[0] += bad_px;
         let fit = fit_points(&points, &FitOptions::default(), "prop").unwrap();
@@ -85,7 +85,7 @@ proptest! {
 
 #[test]
 fn too_few_and_coincident_points_are_refused() {
-    let p = FitPoint { mm: [1.0, 2.0], px: [3.0, 4.0] };
+    let p = FitPoint::new([1.0, 2.0], [3.0, 4.0]);
     assert_eq!(fit_points(&[], &FitOptions::default(), ""), Err(FitError::TooFewPoints { given: 0, needed: 3 }));
     assert!(matches!(fit_points(&[p, p], &FitOptions::default(), ""), Err(FitError::TooFewPoints { given: 2, .. })));
     assert!(matches!(fit_points(&[p; 10], &FitOptions::default(), ""), Err(FitError::AllAtOneSpot { .. })));
@@ -100,7 +100,7 @@ fn the_fit_record_keeps_points_and_residuals() {
         .iter()
         .map(|&(x, y)| {
             let (u, v) = truth.mm_to_px(x, y);
-            FitPoint { mm: [x, y], px: [u, v] }
+            FitPoint::new([x, y], [u, v])
         })
         .collect();
     let fit = fit_points(&points, &FitOptions::default(), "record").unwrap();
@@ -123,7 +123,7 @@ proptest! {
         bytes in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
         bytes2 in prop::collection::vec(any::<u8>(), 0..(24 * 24 * 3)),
     ) {
-        use rig::calibration::detect::{ContactDetector, DetectOptions, MarkerOptions};
+        use rig::calibration::detect::{ContactDetector, DetectOptions, ImprintOptions, MarkerOptions};
         let img = |w: u32, h: u32, b: &[u8]| {
             image::RgbImage::from_fn(w, h, |x, y| {
                 let i = ((y * w + x) * 3) as usize;
@@ -131,7 +131,12 @@ proptest! {
             })
         };
         let (a, b, c) = (img(w, h, &bytes), img(w, h, &bytes2), img(w2, h, &bytes2));
-        for d in [ContactDetector::Difference(DetectOptions::default()), ContactDetector::Markers(MarkerOptions::default())] {
+        for d in [
+            ContactDetector::Difference(DetectOptions::default()),
+            ContactDetector::Markers(MarkerOptions::default()),
+            ContactDetector::Imprint(ImprintOptions::default()),
+            ContactDetector::Imprint(ImprintOptions::with_markers(24)),
+        ] {
             if let Ok(found) = d.detect(&a, &b) {
                 prop_assert!(found.centroid_px.iter().all(|v| v.is_finite()));
             }

@@ -10,7 +10,7 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-const TRUTH: &str = "centre_px = [258.0, 252.0]\nscale_px_per_mm = [9.0, 8.2]\nrotation_deg = -4.0\nimage_size = [512, 512]\n";
+const TRUTH: &str = "centre_px = [258.0, 252.0]\nscale_px_per_mm = [9.0, 8.2]\nrotation_deg = -4.0\nimage_size = [512, 512]\ndepth_scale_per_mm = 0.03\n";
 
 /// The pty's output so far, with line ends normalised.
 fn transcript(buf: &Arc<Mutex<Vec<u8>>>) -> String {
@@ -70,7 +70,10 @@ fn wizard_through_a_pseudo_terminal() {
 
     wait_for(&buf, "(q to quit): ", 1);
     answer("\n");
-    // 9 grid presses + 5 deeper ones; the first is redone, the second skipped.
+    // The command line asked for one extra depth; the answer asks for two.
+    wait_for(&buf, "0 = none) [+0.5]: ", 1);
+    answer("-0.5,0.5\n");
+    // 9 grid presses + 9 shallower + 9 deeper; the first is redone, the second skipped.
     let mut prompts = 0;
     prompts += 1;
     wait_for(&buf, "q = quit: ", prompts);
@@ -81,7 +84,7 @@ fn wizard_through_a_pseudo_terminal() {
     prompts += 1;
     wait_for(&buf, "q = quit: ", prompts);
     answer("s\n");
-    for _ in 0..12 {
+    for _ in 0..25 {
         prompts += 1;
         wait_for(&buf, "q = quit: ", prompts);
         answer("a\n");
@@ -96,16 +99,20 @@ fn wizard_through_a_pseudo_terminal() {
     }
     assert!(status.success(), "{text}");
     assert!(text.contains("Mount the calibration indenter"), "{text}");
-    assert!(text.contains("[1/14] pressing at x -4.00 mm, y -4.00 mm"), "{text}");
-    assert_eq!(text.matches("[1/14]").count(), 2, "redo presses again: {text}");
+    assert!(text.contains("Pressing at extra depths -0.5,+0.5 mm: 27 presses."), "{text}");
+    assert!(text.contains("[1/27] pressing at x -4.00 mm, y -4.00 mm"), "{text}");
+    assert!(text.contains("[27/27] pressing at x -4.00 mm, y +0.00 mm, extra depth +0.50 mm"), "{text}");
+    assert_eq!(text.matches("[1/27]").count(), 2, "redo presses again: {text}");
     assert!(text.contains("      again") && text.contains("      skipped"), "{text}");
-    assert!(text.contains("Fitting 13 accepted points"), "{text}");
+    assert!(text.contains("Fitting 26 accepted points"), "{text}");
+    assert!(text.contains("depth term  +0.0"), "{text}");
     assert!(text.contains("saved wizard.toml"), "{text}");
     let last = text.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or_default();
     assert!(last.starts_with("residual ") && last.ends_with(" mm)"), "{last:?}");
     let saved = rig::calibration::Calibration::load(dir.path().join("wizard.toml")).unwrap();
     let record = saved.fit.clone().unwrap();
     assert_eq!(record.method, "indenter-wizard");
-    assert_eq!(record.points.len(), 13);
+    assert_eq!(record.points.len(), 26);
     assert!((saved.rotation_deg + 4.0).abs() < 0.5 && (saved.scale_px_per_mm[1] - 8.2).abs() < 0.2, "{saved:?}");
+    assert!((saved.depth_scale_per_mm - 0.03).abs() < 0.015, "{saved:?}");
 }

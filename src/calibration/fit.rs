@@ -1,8 +1,9 @@
 //! The robust point fit: sensor-frame mm to image px from correspondences.
 //!
-//! Input: [`FitPoint`]s (a contact's sensor-frame position in mm and where it was detected in
-//! the image, px). Output: a [`Calibration`] of the module's model (centre, rotation, one scale
-//! per axis; a negative y scale is a mirrored image) plus a [`PointFit`] report.
+//! Input: [`FitPoint`]s (a contact's sensor-frame position in mm, the press depth, and where
+//! it was detected in the image, px). Output: a [`Calibration`] of the module's model (centre,
+//! rotation, one scale per axis, a negative y scale is a mirrored image; and the depth term)
+//! plus a [`PointFit`] report.
 //!
 //! Stages:
 //!
@@ -17,8 +18,17 @@
 //!    reported as [`PointFit::shear`].
 //! 3. Gauss-Newton (Levenberg damped) on the five model parameters with Huber weights
 //!    (iteratively reweighted), starting from stage 2.
-//! 4. Outlier rejection: points further than `max(k * robust sigma, floor)` from the model are
-//!    dropped and stage 2-3 rerun on the inliers (if enough remain and they are not degenerate).
+//! 4. The depth term ([`DepthTerm`]): when the points' press depths span at least
+//!    [`FitOptions::min_depth_range_mm`] and the design conditions it (the standard error the
+//!    term would have per px of detection noise, from the Gauss-Newton normal matrix, is at
+//!    most [`FitOptions::max_depth_error_per_px`]), Gauss-Newton (Huber weighted, damped) on
+//!    all six parameters from stage 3's result with the term at 0. Otherwise the term is
+//!    left at 0 and the report says why. The scales and the depth term are nearly collinear
+//!    when every press is at one depth (a deeper press looks like a larger scale), which is
+//!    why a narrow depth range is refused rather than fitted.
+//! 5. Outlier rejection: points further than `max(k * robust sigma, floor)` from the model are
+//!    dropped and stages 2-4 rerun on the inliers (if enough remain and they are not
+//!    degenerate).
 //!
 //! Whatever the input, the result is either an error or a calibration whose numbers are all
 //! finite (checked last, so a numerically hopeless input is an error, never NaN).
@@ -66,6 +76,18 @@ pub struct FitOptions {
     pub min_spread_mm: f64,
     /// Image size written into the calibration, px.
     pub image_size: [u32; 2],
+    /// Fit the depth term when the points condition it (stage 4); `false` leaves it 0.
+    pub fit_depth: bool,
+    /// Smallest spread of press depths (largest minus smallest) the depth term is fitted
+    /// from, mm.
+    pub min_depth_range_mm: f64,
+    /// Largest standard error of the depth term per px of detection noise accepted, 1/mm per
+    /// px (0.03: with the usual 0.3-0.5 px of detection noise the term is known to about
+    /// ±0.01 per mm, a third of a pixel over the pattern's reach).
+    pub max_depth_error_per_px: f64,
+    /// Largest standard error of the fitted depth term accepted, 1/mm (from the fit's own
+    /// residuals): a term the data do not pin down is left at 0 rather than stored.
+    pub max_depth_std_error_per_mm: f64,
 }
 
 impl Default for FitOptions {
@@ -77,6 +99,50 @@ impl Default for FitOptions {
             min_spread_ratio: 1e-3,
             min_spread_mm: 1e-3,
             image_size: [512, 512],
+            fit_depth: true,
+            min_depth_range_mm: 0.3,
+            max_depth_error_per_px: 0.03,
+            max_depth_std_error_per_mm: 0.02,
+        }
+    }
+}
+
+/// What became of the depth term (stage 4 of the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DepthTerm {
+    /// Fitted: the value, its standard error (from the residuals and the normal matrix), and
+    /// the range of press depths it was fitted over.
+    Fitted { per_mm: f64, std_error_per_mm: f64, depth_range_mm: [f64; 2] },
+    /// Left at 0, and why.
+    NotFitted(DepthRefusal),
+}
+
+/// Why the depth term was left at 0.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum DepthRefusal {
+    #[error("depth fit disabled")]
+    Disabled,
+    #[error("press depths span only {range_mm:.2} mm (need {min_mm:.2} mm): press at two depths or more")]
+    NarrowDepths { range_mm: f64, min_mm: f64 },
+    #[error(
+        "the pattern does not condition it: standard error {error_per_px:.3} /mm per px of noise (at most {max_per_px:.3}): press off-centre points at each depth"
+    )]
+    IllConditioned { error_per_px: f64, max_per_px: f64 },
+    #[error("the fitted term {per_mm:.4} /mm is beyond ±{max:.2} /mm")]
+    OutOfRange { per_mm: f64, max: f64 },
+    #[error("the fitted term {per_mm:+.4} /mm has a standard error of {std_error_per_mm:.4} /mm (at most {max:.4}): the residuals are too large to trust it")]
+    Uncertain { per_mm: f64, std_error_per_mm: f64, max: f64 },
+}
+
+impl std::fmt::Display for DepthTerm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Fitted { per_mm, std_error_per_mm, depth_range_mm } => write!(
+                f,
+                "{per_mm:+.4} /mm (± {std_error_per_mm:.4}), fitted over press depths {:.2}..{:.2} mm",
+                depth_range_mm[0], depth_range_mm[1]
+            ),
+            Self::NotFitted(why) => write!(f, "not fitted, left 0: {why}"),
         }
     }
 }
@@ -100,6 +166,8 @@ pub struct PointFit {
     /// Shear of the unconstrained affine fit (cosine of the angle between its image axes):
     /// what the model without shear cannot express.
     pub shear: f64,
+    /// The depth term, or why it was not fitted.
+    pub depth: DepthTerm,
 }
 
 impl PointFit {
@@ -117,8 +185,14 @@ pub fn fit_points(points: &[FitPoint], options: &FitOptions, method: &str) -> Re
             return Err(FitError::NotFinite { index, mm: p.mm, px: p.px });
         }
     }
+    if !points.iter().all(|p| p.depth_mm.is_finite()) {
+        let index = points.iter().position(|p| !p.depth_mm.is_finite()).unwrap_or(0);
+        return Err(FitError::NotFinite { index, mm: points[index].mm, px: points[index].px });
+    }
     let all: Vec<usize> = (0..points.len()).collect();
     let (mut params, mut condition, mut shear) = fit_subset(points, &all, options)?;
+    let mut depth;
+    (params, depth) = fit_depth_term(points, &all, params, options);
     let mut residuals = residuals_of(&params, points);
     let mut inlier = vec![true; points.len()];
 
@@ -131,6 +205,7 @@ pub fn fit_points(points: &[FitPoint], options: &FitOptions, method: &str) -> Re
             return Err(FitError::TooManyOutliers { inliers: keep.len(), given: points.len() });
         }
         (params, condition, shear) = fit_subset(points, &keep, options)?;
+        (params, depth) = fit_depth_term(points, &keep, params, options);
         residuals = residuals_of(&params, points);
         for (i, flag) in inlier.iter_mut().enumerate() {
             *flag = keep.contains(&i);
@@ -147,7 +222,7 @@ pub fn fit_points(points: &[FitPoint], options: &FitOptions, method: &str) -> Re
         scale_px_per_mm: [params.sx, params.sy],
         rotation_deg: crate::pose::wrap_deg(params.theta.to_degrees()),
         image_size: options.image_size,
-        depth_scale_per_mm: 0.0,
+        depth_scale_per_mm: params.k,
         fit: Some(FitRecord {
             method: method.to_string(),
             frames: Vec::new(),
@@ -156,24 +231,26 @@ pub fn fit_points(points: &[FitPoint], options: &FitOptions, method: &str) -> Re
             rms_px: Some(rms_px),
             iou: Vec::new(),
             notes: format!(
-                "robust point fit: {} of {} points inliers, max {:.3} px, condition {:.2}, affine shear {:.4}",
+                "robust point fit: {} of {} points inliers, max {:.3} px, condition {:.2}, affine shear {:.4}; depth term {}",
                 kept.len(),
                 points.len(),
                 max_px,
                 condition,
-                shear
+                shear,
+                depth
             ),
         }),
         pose_xy_correction: None,
     };
-    let numbers = [rms_px, rms_mm, max_px, condition, shear, params.cu, params.cv, params.sx, params.sy, params.theta];
+    let numbers =
+        [rms_px, rms_mm, max_px, condition, shear, params.cu, params.cv, params.sx, params.sy, params.theta, params.k];
     if !numbers.iter().chain(residuals.iter()).all(|v| v.is_finite()) || params.sx.abs() < 1e-9 || params.sy.abs() < 1e-9 {
         return Err(FitError::NonFiniteResult);
     }
-    Ok(PointFit { calibration, residuals_px: residuals, inlier, rms_px, rms_mm, max_px, condition, shear })
+    Ok(PointFit { calibration, residuals_px: residuals, inlier, rms_px, rms_mm, max_px, condition, shear, depth })
 }
 
-/// The five model parameters: centre (px), rotation (rad), scales (px/mm).
+/// The model parameters: centre (px), rotation (rad), scales (px/mm), depth term (1/mm).
 #[derive(Debug, Clone, Copy)]
 struct Params {
     cu: f64,
@@ -181,13 +258,32 @@ struct Params {
     theta: f64,
     sx: f64,
     sy: f64,
+    k: f64,
 }
 
 impl Params {
+    /// The map at press depth 0 (stages 2-3 fit this one, on normalised coordinates).
     fn apply(&self, mm: [f64; 2]) -> [f64; 2] {
+        self.apply_at(mm, 0.0)
+    }
+
+    fn apply_at(&self, mm: [f64; 2], depth_mm: f64) -> [f64; 2] {
         let (s, c) = self.theta.sin_cos();
-        let (a, b) = (self.sx * mm[0], self.sy * mm[1]);
+        let f = 1.0 + self.k * depth_mm;
+        let (a, b) = (f * self.sx * mm[0], f * self.sy * mm[1]);
         [self.cu + c * a - s * b, self.cv + s * a + c * b]
+    }
+
+    /// Derivatives of the model's (u, v) at a point by (cu, cv, theta, sx, sy, k).
+    fn jacobian(&self, mm: [f64; 2], depth_mm: f64) -> ([f64; 6], [f64; 6]) {
+        let (s, c) = self.theta.sin_cos();
+        let f = 1.0 + self.k * depth_mm;
+        let (a, b) = (f * self.sx * mm[0], f * self.sy * mm[1]);
+        let (ka, kb) = (depth_mm * self.sx * mm[0], depth_mm * self.sy * mm[1]);
+        (
+            [1.0, 0.0, -s * a - c * b, c * f * mm[0], -s * f * mm[1], c * ka - s * kb],
+            [0.0, 1.0, c * a - s * b, s * f * mm[0], c * f * mm[1], s * ka + c * kb],
+        )
     }
 }
 
@@ -195,10 +291,125 @@ fn residuals_of(p: &Params, points: &[FitPoint]) -> Vec<f64> {
     points
         .iter()
         .map(|q| {
-            let m = p.apply(q.mm);
+            let m = p.apply_at(q.mm, q.depth_mm);
             (m[0] - q.px[0]).hypot(m[1] - q.px[1])
         })
         .collect()
+}
+
+/// Stage 4: the depth term on the points `idx`, from the depth-free fit `start`. Returns the
+/// parameters to use (`start` unchanged when the term is not fitted) and what happened.
+fn fit_depth_term(points: &[FitPoint], idx: &[usize], start: Params, options: &FitOptions) -> (Params, DepthTerm) {
+    if !options.fit_depth {
+        return (start, DepthTerm::NotFitted(DepthRefusal::Disabled));
+    }
+    let depths = idx.iter().map(|&i| points[i].depth_mm);
+    let (lo, hi) = depths.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| (lo.min(d), hi.max(d)));
+    let range_mm = hi - lo;
+    if !(range_mm >= options.min_depth_range_mm) {
+        let range_mm = if range_mm.is_finite() { range_mm } else { 0.0 };
+        return (start, DepthTerm::NotFitted(DepthRefusal::NarrowDepths { range_mm, min_mm: options.min_depth_range_mm }));
+    }
+    let normal = |p: &Params, weighted: bool| {
+        let mut h = [[0.0; 6]; 6];
+        let mut g = [0.0; 6];
+        for &i in idx {
+            let q = &points[i];
+            let m = p.apply_at(q.mm, q.depth_mm);
+            let (ru, rv) = (m[0] - q.px[0], m[1] - q.px[1]);
+            let r = ru.hypot(rv);
+            let w = if !weighted || r <= options.huber_px { 1.0 } else { options.huber_px / r };
+            let (ju, jv) = p.jacobian(q.mm, q.depth_mm);
+            for a in 0..6 {
+                g[a] += w * (ju[a] * ru + jv[a] * rv);
+                for b in 0..6 {
+                    h[a][b] += w * (ju[a] * ju[b] + jv[a] * jv[b]);
+                }
+            }
+        }
+        (h, g)
+    };
+    // Conditioning: the term's variance per unit noise is the (k, k) element of the inverse
+    // normal matrix, i.e. 1 / |the k column's part that the other five cannot absorb|^2.
+    let (h0, _) = normal(&start, false);
+    let mut unit = [0.0; 6];
+    unit[5] = 1.0;
+    let variance = solve::<6>(h0, unit).map_or(f64::INFINITY, |x| x[5]);
+    let error_per_px = if variance > 0.0 { variance.sqrt() } else { f64::INFINITY };
+    if !(error_per_px <= options.max_depth_error_per_px) {
+        let error_per_px = if error_per_px.is_finite() { error_per_px } else { f64::MAX };
+        return (
+            start,
+            DepthTerm::NotFitted(DepthRefusal::IllConditioned { error_per_px, max_per_px: options.max_depth_error_per_px }),
+        );
+    }
+    let cost = |p: &Params| -> f64 {
+        idx.iter()
+            .map(|&i| {
+                let q = &points[i];
+                let m = p.apply_at(q.mm, q.depth_mm);
+                let r = (m[0] - q.px[0]).hypot(m[1] - q.px[1]);
+                let hb = options.huber_px;
+                if r <= hb { r * r / 2.0 } else { hb * (r - hb / 2.0) }
+            })
+            .sum()
+    };
+    let mut p = start;
+    let mut current = cost(&p);
+    let mut lambda = 1e-6;
+    for _ in 0..100 {
+        let (h, g) = normal(&p, true);
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut hd = h;
+            for (a, row) in hd.iter_mut().enumerate() {
+                row[a] += lambda * (h[a][a] + 1e-12);
+            }
+            let Some(step) = solve::<6>(hd, g) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = Params {
+                cu: p.cu - step[0],
+                cv: p.cv - step[1],
+                theta: p.theta - step[2],
+                sx: p.sx - step[3],
+                sy: p.sy - step[4],
+                k: p.k - step[5],
+            };
+            let c2 = cost(&trial);
+            if c2.is_finite() && c2 <= current {
+                let small = step.iter().all(|d| d.abs() < 1e-13);
+                p = trial;
+                current = c2;
+                lambda = (lambda / 10.0).max(1e-12);
+                improved = !small;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    if !(p.k.abs() <= super::MAX_DEPTH_SCALE_PER_MM) {
+        let per_mm = if p.k.is_finite() { p.k } else { f64::MAX };
+        return (start, DepthTerm::NotFitted(DepthRefusal::OutOfRange { per_mm, max: super::MAX_DEPTH_SCALE_PER_MM }));
+    }
+    // Noise estimate: the residuals' RMS with the six fitted parameters' degrees of freedom.
+    let sum_sq: f64 = residuals_of(&p, points).iter().enumerate().filter(|(i, _)| idx.contains(i)).map(|(_, r)| r * r).sum();
+    let dof = (2 * idx.len()).saturating_sub(6).max(1) as f64;
+    let (h1, _) = normal(&p, false);
+    let variance = solve::<6>(h1, unit).map_or(variance, |x| x[5]).max(0.0);
+    let std_error_per_mm = (sum_sq / dof).sqrt() * variance.sqrt();
+    if !(std_error_per_mm <= options.max_depth_std_error_per_mm) {
+        let std_error_per_mm = if std_error_per_mm.is_finite() { std_error_per_mm } else { f64::MAX };
+        return (
+            start,
+            DepthTerm::NotFitted(DepthRefusal::Uncertain { per_mm: p.k, std_error_per_mm, max: options.max_depth_std_error_per_mm }),
+        );
+    }
+    (p, DepthTerm::Fitted { per_mm: p.k, std_error_per_mm, depth_range_mm: [lo, hi] })
 }
 
 /// 1.4826 x the median absolute residual (residuals are already non-negative distances).
@@ -286,7 +497,7 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
     let shear_raw = c * col1[0] + s * col1[1];
     let shear = shear_raw / col1[0].hypot(col1[1]).max(f64::MIN_POSITIVE);
     // Normalised model: u' = t + R diag(sx, sy) x'; start from the affine translation.
-    let mut p = Params { cu: su[2], cv: sv[2], theta, sx, sy };
+    let mut p = Params { cu: su[2], cv: sv[2], theta, sx, sy, k: 0.0 };
 
     // Stage 3: damped Gauss-Newton with Huber weights.
     let huber = options.huber_px / np.scale;
@@ -330,8 +541,14 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
                 lambda *= 10.0;
                 continue;
             };
-            let trial =
-                Params { cu: p.cu - step[0], cv: p.cv - step[1], theta: p.theta - step[2], sx: p.sx - step[3], sy: p.sy - step[4] };
+            let trial = Params {
+                cu: p.cu - step[0],
+                cv: p.cv - step[1],
+                theta: p.theta - step[2],
+                sx: p.sx - step[3],
+                sy: p.sy - step[4],
+                k: 0.0,
+            };
             let c2 = cost(&trial);
             if c2.is_finite() && c2 <= current {
                 let small = step.iter().all(|d| d.abs() < 1e-13);
@@ -361,7 +578,7 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
     let (a, b) = (sx * nm.mean[0], sy * nm.mean[1]);
     let cu = np.mean[0] + np.scale * p.cu - (c * a - s * b);
     let cv = np.mean[1] + np.scale * p.cv - (s * a + c * b);
-    Ok((Params { cu, cv, theta, sx, sy }, condition, shear))
+    Ok((Params { cu, cv, theta, sx, sy, k: 0.0 }, condition, shear))
 }
 
 /// Solves `a x = b` by Gaussian elimination with partial pivoting; `None` when singular.
@@ -416,7 +633,7 @@ mod tests {
             for j in -2..=2 {
                 let mm = [i as f64 * 2.0, j as f64 * 2.0];
                 let (u, w) = c.mm_to_px(mm[0], mm[1]);
-                v.push(FitPoint { mm, px: [u, w] });
+                v.push(FitPoint::new(mm, [u, w]));
             }
         }
         v
@@ -432,6 +649,77 @@ mod tests {
         assert!((c.rotation_deg - 7.5).abs() < 1e-6, "{c:?}");
         assert!(fit.rms_px < 1e-6 && fit.shear.abs() < 1e-9);
         assert!((fit.condition - 1.0).abs() < 1e-6);
+    }
+
+    /// The grid at 1.5 mm, and its corners, edge midpoints and centre at 1.0 and 2.0 mm.
+    fn grid_at_depths(c: &Calibration) -> Vec<FitPoint> {
+        let mut v: Vec<FitPoint> = grid(c)
+            .into_iter()
+            .map(|p| {
+                let (u, w) = c.mm_to_px_at_depth(p.mm[0], p.mm[1], 1.5);
+                FitPoint { mm: p.mm, px: [u, w], depth_mm: 1.5 }
+            })
+            .collect();
+        for d in [1.0, 2.0] {
+            for i in -1..=1 {
+                for j in -1..=1 {
+                    let mm = [i as f64 * 4.0, j as f64 * 4.0];
+                    let (u, w) = c.mm_to_px_at_depth(mm[0], mm[1], d);
+                    v.push(FitPoint { mm, px: [u, w], depth_mm: d });
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn recovers_the_depth_term() {
+        let t = Calibration { depth_scale_per_mm: 0.04, ..truth() };
+        let fit = fit_points(&grid_at_depths(&t), &FitOptions::default(), "test").unwrap();
+        let c = &fit.calibration;
+        assert!((c.depth_scale_per_mm - 0.04).abs() < 1e-6, "{c:?}");
+        assert!((c.scale_px_per_mm[0] - 11.7).abs() < 1e-5 && (c.scale_px_per_mm[1] + 10.8).abs() < 1e-5, "{c:?}");
+        assert!(fit.rms_px < 1e-6, "{}", fit.rms_px);
+        let DepthTerm::Fitted { depth_range_mm, std_error_per_mm, .. } = fit.depth else { panic!("{:?}", fit.depth) };
+        assert_eq!(depth_range_mm, [1.0, 2.0]);
+        assert!(std_error_per_mm < 1e-6);
+        // Without the depth fit the same points leave a residual (the corners at 1 and 2 mm).
+        let flat = fit_points(&grid_at_depths(&t), &FitOptions { fit_depth: false, ..FitOptions::default() }, "t").unwrap();
+        assert_eq!(flat.calibration.depth_scale_per_mm, 0.0);
+        assert!(flat.rms_px > 0.3, "{}", flat.rms_px);
+        assert_eq!(flat.depth, DepthTerm::NotFitted(DepthRefusal::Disabled));
+    }
+
+    #[test]
+    fn refuses_the_depth_term_when_the_depths_do_not_condition_it() {
+        let t = Calibration { depth_scale_per_mm: 0.04, ..truth() };
+        // One depth: left at 0 (the scales absorb the factor), the fit itself still works.
+        let one: Vec<FitPoint> = grid_at_depths(&t).into_iter().filter(|p| p.depth_mm == 1.5).collect();
+        let fit = fit_points(&one, &FitOptions::default(), "t").unwrap();
+        assert!(matches!(fit.depth, DepthTerm::NotFitted(DepthRefusal::NarrowDepths { range_mm: 0.0, .. })), "{:?}", fit.depth);
+        assert_eq!(fit.calibration.depth_scale_per_mm, 0.0);
+        assert!(fit.calibration.fit.unwrap().notes.contains("not fitted"));
+        // Other depths only at the centre: no lever arm, the term is not conditioned.
+        let mut centre_only: Vec<FitPoint> = one.clone();
+        for d in [0.5, 2.5] {
+            let (u, w) = t.mm_to_px_at_depth(0.0, 0.0, d);
+            centre_only.push(FitPoint { mm: [0.0, 0.0], px: [u, w], depth_mm: d });
+        }
+        let fit = fit_points(&centre_only, &FitOptions::default(), "t").unwrap();
+        assert!(matches!(fit.depth, DepthTerm::NotFitted(DepthRefusal::IllConditioned { .. })), "{:?}", fit.depth);
+        assert_eq!(fit.calibration.depth_scale_per_mm, 0.0);
+        // Depths that would condition it, but detections too noisy to pin it down.
+        let mut noisy = grid_at_depths(&t);
+        for (i, p) in noisy.iter_mut().enumerate() {
+            p.px[0] += if i % 2 == 0 { 2.5 } else { -2.5 };
+            p.px[1] += if i % 3 == 0 { 2.5 } else { -1.5 };
+        }
+        let fit = fit_points(&noisy, &FitOptions::default(), "t").unwrap();
+        assert!(matches!(fit.depth, DepthTerm::NotFitted(DepthRefusal::Uncertain { .. })), "{:?}", fit.depth);
+        assert_eq!(fit.calibration.depth_scale_per_mm, 0.0);
+        let mut nan = one;
+        nan[4].depth_mm = f64::NAN;
+        assert!(matches!(fit_points(&nan, &FitOptions::default(), ""), Err(FitError::NotFinite { index: 4, .. })));
     }
 
     #[test]

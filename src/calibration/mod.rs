@@ -5,11 +5,18 @@
 //! sensor image:
 //!
 //! ```text
-//! [u, v] = centre_px + R(rotation_deg) * [scale_x * x_mm, scale_y * y_mm]
+//! f(d)   = 1 + depth_scale_per_mm * d
+//! [u, v] = centre_px + R(rotation_deg) * f(d) * [scale_x * x_mm, scale_y * y_mm]
 //! ```
 //!
 //! with `u` the column and `v` the row (rows grow downwards). A negative scale mirrors an axis,
-//! which is how a camera that sees the skin from behind is described. Stored as TOML
+//! which is how a camera that sees the skin from behind is described. `d` is the press depth:
+//! how far the skin is indented at the contact, mm (the `z_mm` of an object pose in
+//! [`crate::geometry::raster`]: 0 = the skin just touches the object's top). A skin pressed
+//! deeper brings the object closer to the camera behind it, so it looks larger about the
+//! centre: the px/mm scales at depth `d` are `scale_px_per_mm * f(d)`. With
+//! `depth_scale_per_mm = 0` (the default) the depth does not matter, and depth 0 is always the
+//! plain map ([`Calibration::mm_to_px`]). Stored as TOML
 //! (`calibration/<name>.toml`); the optional [`FitRecord`] keeps the data and residuals of the
 //! fit that produced it. [`contact_fit`] fits one to real frames of a known object.
 
@@ -87,9 +94,27 @@ pub struct FitRecord {
 /// One fitted correspondence.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FitPoint {
+    /// Sensor-frame position of the contact, mm.
     pub mm: [f64; 2],
+    /// Where it was detected in the image (column, row), px.
     pub px: [f64; 2],
+    /// Press depth (skin indentation) the point was taken at, mm; 0 in files from before the
+    /// depth term.
+    #[serde(default)]
+    pub depth_mm: f64,
 }
+
+impl FitPoint {
+    /// A correspondence taken at press depth 0.
+    pub fn new(mm: [f64; 2], px: [f64; 2]) -> Self {
+        Self { mm, px, depth_mm: 0.0 }
+    }
+}
+
+/// Largest `|depth_scale_per_mm|` accepted, 1/mm: 20 % per mm of indentation is already far
+/// beyond any sensor's optics, and the bound keeps the scale factor positive over any
+/// realistic press (up to 5 mm).
+pub const MAX_DEPTH_SCALE_PER_MM: f64 = 0.2;
 
 /// Sensor-frame mm to image pixels (see the module docs for the model).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -102,7 +127,9 @@ pub struct Calibration {
     pub rotation_deg: f64,
     /// Image size the calibration belongs to (width, height), px.
     pub image_size: [u32; 2],
-    /// How strongly indentation shows in the image per mm (used by sensor renderers), 0 = none.
+    /// Relative change of the px/mm scales per mm of press depth, 1/mm: at depth `d` mm the
+    /// scales are `scale_px_per_mm * (1 + depth_scale_per_mm * d)` (see the module docs);
+    /// 0 = the image scale does not depend on the depth.
     #[serde(default)]
     pub depth_scale_per_mm: f64,
     /// How this calibration was fitted, if it was.
@@ -182,8 +209,8 @@ impl Calibration {
         {
             return bad("pose_xy_correction", format!("{m:?}"), "must be finite");
         }
-        if !self.depth_scale_per_mm.is_finite() {
-            return bad("depth_scale_per_mm", self.depth_scale_per_mm.to_string(), "must be finite");
+        if !self.depth_scale_per_mm.is_finite() || self.depth_scale_per_mm.abs() > MAX_DEPTH_SCALE_PER_MM {
+            return bad("depth_scale_per_mm", self.depth_scale_per_mm.to_string(), "must be finite and within ±0.2 per mm");
         }
         Ok(())
     }
@@ -211,19 +238,48 @@ impl Calibration {
         }
     }
 
-    /// Image pixel (column, row) of a sensor-frame point in mm.
+    /// The factor `1 + depth_scale_per_mm * depth_mm` the px/mm scales are multiplied by at
+    /// press depth `depth_mm` (see the module docs). Kept at least 1e-3 so that a depth far
+    /// outside the calibrated range cannot fold the image over; a non-finite depth counts as 0.
+    pub fn depth_factor(&self, depth_mm: f64) -> f64 {
+        let d = if depth_mm.is_finite() { depth_mm } else { 0.0 };
+        (1.0 + self.depth_scale_per_mm * d).max(1e-3)
+    }
+
+    /// The px/mm scales (x, y) at press depth `depth_mm`.
+    pub fn scale_at_depth(&self, depth_mm: f64) -> [f64; 2] {
+        let f = self.depth_factor(depth_mm);
+        [self.scale_px_per_mm[0] * f, self.scale_px_per_mm[1] * f]
+    }
+
+    /// Image pixel (column, row) of a sensor-frame point in mm at press depth 0 (the plain map;
+    /// [`Self::mm_to_px_at_depth`] for a pressed point).
     pub fn mm_to_px(&self, x_mm: f64, y_mm: f64) -> (f64, f64) {
+        self.mm_to_px_at_depth(x_mm, y_mm, 0.0)
+    }
+
+    /// Image pixel (column, row) of a sensor-frame point in mm seen at press depth `depth_mm`.
+    pub fn mm_to_px_at_depth(&self, x_mm: f64, y_mm: f64, depth_mm: f64) -> (f64, f64) {
         let (s, c) = self.rotation_deg.to_radians().sin_cos();
-        let (a, b) = (self.scale_px_per_mm[0] * x_mm, self.scale_px_per_mm[1] * y_mm);
+        let [sx, sy] = self.scale_at_depth(depth_mm);
+        let (a, b) = (sx * x_mm, sy * y_mm);
         (self.centre_px[0] + c * a - s * b, self.centre_px[1] + s * a + c * b)
     }
 
-    /// Sensor-frame point in mm of an image pixel (column, row); inverse of [`Self::mm_to_px`].
+    /// Sensor-frame point in mm of an image pixel (column, row) at press depth 0; inverse of
+    /// [`Self::mm_to_px`].
     pub fn px_to_mm(&self, u_px: f64, v_px: f64) -> (f64, f64) {
+        self.px_to_mm_at_depth(u_px, v_px, 0.0)
+    }
+
+    /// Sensor-frame point in mm of an image pixel seen at press depth `depth_mm`; inverse of
+    /// [`Self::mm_to_px_at_depth`].
+    pub fn px_to_mm_at_depth(&self, u_px: f64, v_px: f64, depth_mm: f64) -> (f64, f64) {
         let (s, c) = self.rotation_deg.to_radians().sin_cos();
         let (du, dv) = (u_px - self.centre_px[0], v_px - self.centre_px[1]);
         let (a, b) = (c * du + s * dv, -s * du + c * dv);
-        (a / self.scale_px_per_mm[0], b / self.scale_px_per_mm[1])
+        let [sx, sy] = self.scale_at_depth(depth_mm);
+        (a / sx, b / sy)
     }
 }
 
@@ -260,6 +316,32 @@ mod tests {
         let r = Calibration { rotation_deg: 90.0, ..Calibration::default_for(512, 512) };
         let (u, v) = r.mm_to_px(1.0, 0.0);
         assert!((u - 256.0).abs() < 1e-9 && (v - 264.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn depth_term_scales_about_the_centre() {
+        let c = Calibration {
+            centre_px: [250.0, 261.0],
+            scale_px_per_mm: [9.0, -8.0],
+            rotation_deg: 20.0,
+            depth_scale_per_mm: 0.05,
+            ..Calibration::default_for(512, 512)
+        };
+        // Depth 0 is the plain map; at 2 mm every offset from the centre grows by 1.1.
+        assert_eq!(c.mm_to_px(3.0, -1.0), c.mm_to_px_at_depth(3.0, -1.0, 0.0));
+        let (u0, v0) = c.mm_to_px(3.0, -1.0);
+        let (u2, v2) = c.mm_to_px_at_depth(3.0, -1.0, 2.0);
+        assert!((u2 - 250.0 - 1.1 * (u0 - 250.0)).abs() < 1e-9 && (v2 - 261.0 - 1.1 * (v0 - 261.0)).abs() < 1e-9);
+        assert_eq!(c.scale_at_depth(2.0), [9.0 * 1.1, -8.0 * 1.1]);
+        let (x, y) = c.px_to_mm_at_depth(u2, v2, 2.0);
+        assert!((x - 3.0).abs() < 1e-9 && (y + 1.0).abs() < 1e-9);
+        // A depth far outside any press cannot flip the image.
+        assert!(c.depth_factor(-1e6) > 0.0 && c.depth_factor(f64::NAN) == 1.0);
+        let mut bad = c.clone();
+        bad.depth_scale_per_mm = 0.5;
+        assert!(matches!(bad.validate("b"), Err(CalibrationError::Invalid { field: "depth_scale_per_mm", .. })));
+        let text = c.to_toml().unwrap();
+        assert_eq!(Calibration::from_toml(&text, "t").unwrap(), c);
     }
 
     #[test]

@@ -9,8 +9,11 @@
 //!
 //! Each detected press gives one [`FitPoint`]: the indenter's position in the sensor frame
 //! (the negated measured work-frame offset turned by the yaw, the render convention of
-//! [`crate::geometry::raster`]) and the detected centroid in px. [`run_pattern`] presses the
-//! whole [`PressPattern`] and hands the points to [`fit_points`].
+//! [`crate::geometry::raster`]), the press depth at arrival (the skin indentation: the
+//! measured extra indentation plus the work frame's contact depth, which the depth-dependent
+//! scale is fitted against) and the detected centroid in px. [`run_pattern`] presses the whole
+//! [`PressPattern`] (a grid at the contact depth and 3 x 3 layers at other depths) and hands
+//! the points to [`fit_points`].
 
 use std::future::Future;
 use std::time::Duration;
@@ -58,8 +61,10 @@ pub struct PressPattern {
 }
 
 impl PressPattern {
-    /// An `n x n` grid over `±half_span_mm` at the contact depth, plus the four corners and
-    /// the centre again at each extra indentation in `extra_depths_mm`.
+    /// An `n x n` grid over `±half_span_mm` at the contact depth, plus a 3 x 3 layer (centre,
+    /// edge midpoints, corners) at each extra indentation in `extra_depths_mm`: the depth term
+    /// ([`super::fit::DepthTerm`]) is conditioned by off-centre presses at other depths, the
+    /// further out the better.
     pub fn grid(n: usize, half_span_mm: f64, extra_depths_mm: &[f64]) -> Self {
         let n = n.max(2);
         let at = |k: usize| -half_span_mm + 2.0 * half_span_mm * k as f64 / (n - 1) as f64;
@@ -69,17 +74,42 @@ impl PressPattern {
                 offsets.push(Pose::new(at(i), at(j), 0.0, 0.0));
             }
         }
-        for &dz in extra_depths_mm {
-            for (x, y) in [(0.0, 0.0), (-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-                offsets.push(Pose::new(x * half_span_mm, y * half_span_mm, dz, 0.0));
+        Self { offsets }.with_extra_depths(extra_depths_mm)
+    }
+
+    /// The half span of the presses at the contact depth, mm (their largest |x| or |y|).
+    pub fn half_span_mm(&self) -> f64 {
+        self.offsets.iter().filter(|o| o.z_mm == 0.0).fold(0.0, |m, o| m.max(o.x_mm.abs()).max(o.y_mm.abs()))
+    }
+
+    /// The same presses at the contact depth, with the depth layers replaced by a 3 x 3 layer
+    /// over the same half span at each of `extra_depths_mm` (0 and non-finite entries are
+    /// dropped). The wizard uses it when the user gives other depths.
+    pub fn with_extra_depths(&self, extra_depths_mm: &[f64]) -> Self {
+        let half = self.half_span_mm();
+        let mut offsets: Vec<Pose> = self.offsets.iter().copied().filter(|o| o.z_mm == 0.0).collect();
+        for &dz in extra_depths_mm.iter().filter(|d| d.is_finite() && **d != 0.0) {
+            for (x, y) in [(0.0, 0.0), (-1.0, -1.0), (0.0, -1.0), (1.0, -1.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (-1.0, 1.0), (-1.0, 0.0)] {
+                offsets.push(Pose::new(x * half, y * half, dz, 0.0));
             }
         }
         Self { offsets }
     }
+
+    /// The extra indentations pressed, mm, in order of first appearance.
+    pub fn extra_depths_mm(&self) -> Vec<f64> {
+        let mut depths: Vec<f64> = Vec::new();
+        for o in self.offsets.iter().filter(|o| o.z_mm != 0.0) {
+            if !depths.contains(&o.z_mm) {
+                depths.push(o.z_mm);
+            }
+        }
+        depths
+    }
 }
 
 impl Default for PressPattern {
-    /// 5 x 5 over ±4 mm, and five presses each 0.5 mm shallower and deeper.
+    /// 5 x 5 over ±4 mm, and a 3 x 3 layer each 0.5 mm shallower and deeper (43 presses).
     fn default() -> Self {
         Self::grid(5, 4.0, &[-0.5, 0.5])
     }
@@ -90,8 +120,12 @@ impl Default for PressPattern {
 pub struct Press {
     /// The commanded offset.
     pub offset: Pose,
-    /// The measured offset at arrival (work frame).
+    /// The measured offset at arrival (work frame; `z_mm` is the indentation beyond the
+    /// work frame's contact depth).
     pub measured: Pose,
+    /// The press depth (skin indentation) at arrival, mm: the measured `z_mm` plus the
+    /// contact depth, the `z_mm` of the object pose the sensor sees.
+    pub depth_mm: f64,
     /// The detection, or why there was none.
     pub contact: Result<Contact, DetectError>,
 }
@@ -100,7 +134,7 @@ impl Press {
     /// The fit correspondence, if the contact was found.
     pub fn point(&self) -> Option<FitPoint> {
         let c = self.contact.as_ref().ok()?;
-        Some(FitPoint { mm: sensor_point_mm(&self.measured), px: c.centroid_px })
+        Some(FitPoint { mm: sensor_point_mm(&self.measured), px: c.centroid_px, depth_mm: self.depth_mm })
     }
 }
 
@@ -160,7 +194,9 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
         crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
         let reference = self.reference.as_ref().ok_or(PressError::NoReference)?;
         let contact = self.detector.detect(&image, reference);
-        Ok(Press { offset, measured: self.work_frame.plan_pose(&arrival.measured), contact })
+        let measured = self.work_frame.plan_pose(&arrival.measured);
+        let depth_mm = measured.z_mm + self.work_frame.contact_depth_mm;
+        Ok(Press { offset, measured, depth_mm, contact })
     }
 
     async fn finish(&mut self) -> Result<(), PressError> {
@@ -207,9 +243,16 @@ mod tests {
     #[test]
     fn pattern_covers_the_grid_and_depths() {
         let p = PressPattern::default();
-        assert_eq!(p.offsets.len(), 25 + 10);
+        assert_eq!(p.offsets.len(), 25 + 18);
         assert!(p.offsets.iter().any(|o| o.x_mm == -4.0 && o.y_mm == 4.0));
-        assert_eq!(p.offsets.iter().filter(|o| o.z_mm != 0.0).count(), 10);
+        assert_eq!(p.offsets.iter().filter(|o| o.z_mm != 0.0).count(), 18);
+        assert!(p.offsets.iter().any(|o| o.x_mm == 4.0 && o.y_mm == 0.0 && o.z_mm == -0.5));
+        assert_eq!(p.half_span_mm(), 4.0);
+        assert_eq!(p.extra_depths_mm(), vec![-0.5, 0.5]);
+        let other = p.with_extra_depths(&[1.0, 0.0, f64::NAN]);
+        assert_eq!(other.offsets.len(), 25 + 9);
+        assert_eq!(other.extra_depths_mm(), vec![1.0]);
+        assert_eq!(p.with_extra_depths(&[]).offsets.len(), 25);
     }
 
     #[test]

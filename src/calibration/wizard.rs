@@ -1,7 +1,8 @@
 //! The interactive calibration wizard (`rig calibrate --interactive`).
 //!
-//! The flow: say what to mount and where, wait for the user, take the no-contact reference,
-//! then for each offset of the pattern press, show the detection and ask accept / redo / skip
+//! The flow: say what to mount and where, wait for the user, ask for the extra press depths
+//! (when the pattern presses at depths: the depth term of the calibration needs at least two),
+//! take the no-contact reference, then for each offset of the pattern press, show the detection and ask accept / redo / skip
 //! / quit; fit the accepted points, show the mapping and residuals, and ask before saving.
 //! It is written against [`WizardIo`] (print a line, ask a question) and
 //! [`PressStation`], so tests drive it with scripted answers and a fake station, and the binary
@@ -41,6 +42,38 @@ pub enum WizardOutcome {
     Unfitted,
 }
 
+/// Largest extra indentation the wizard accepts, mm (either way): further up the indenter
+/// may not touch the skin at all, further down presses harder than the pattern was checked for.
+pub const MAX_EXTRA_DEPTH_MM: f64 = 1.0;
+
+/// Parses the answer to the depth question: empty keeps `current`, `0`/`none` presses only at
+/// the contact depth, otherwise comma- or space-separated mm within
+/// ±[`MAX_EXTRA_DEPTH_MM`]. `Err` holds the text to show.
+fn parse_depths(text: &str, current: &[f64]) -> Result<Vec<f64>, String> {
+    let t = text.trim();
+    if t.is_empty() {
+        return Ok(current.to_vec());
+    }
+    if t.eq_ignore_ascii_case("none") {
+        return Ok(Vec::new());
+    }
+    let mut depths = Vec::new();
+    for part in t.split([',', ' ']).filter(|p| !p.trim().is_empty()) {
+        let v: f64 = part.trim().parse().map_err(|_| format!("{part:?} is not a number of mm"))?;
+        if !v.is_finite() || v.abs() > MAX_EXTRA_DEPTH_MM {
+            return Err(format!("{v} mm is beyond ±{MAX_EXTRA_DEPTH_MM} mm"));
+        }
+        if v != 0.0 && !depths.contains(&v) {
+            depths.push(v);
+        }
+    }
+    Ok(depths)
+}
+
+fn format_depths(depths: &[f64]) -> String {
+    if depths.is_empty() { "none".to_string() } else { depths.iter().map(|d| format!("{d:+}")).collect::<Vec<_>>().join(",") }
+}
+
 /// What the user said about a press.
 enum Answer {
     Accept,
@@ -75,6 +108,36 @@ pub async fn run_wizard<S: PressStation, I: WizardIo>(
     if matches!(answer(io.ask("Press Enter when it is mounted (q to quit): ")?, true), Answer::Quit) {
         return Ok(WizardOutcome::Quit);
     }
+    let mut owned = None;
+    let current = pattern.extra_depths_mm();
+    if !current.is_empty() {
+        io.say("The scale can change with how deep the skin is pressed; presses at other depths measure that.")?;
+        let question = format!(
+            "Extra press depths beyond the contact, mm (comma-separated, 0 = none) [{}]: ",
+            format_depths(&current)
+        );
+        loop {
+            let Some(text) = io.ask(&question)? else {
+                return Ok(WizardOutcome::Quit);
+            };
+            if matches!(text.trim(), "q" | "quit") {
+                return Ok(WizardOutcome::Quit);
+            }
+            match parse_depths(&text, &current) {
+                Ok(depths) => {
+                    let p = pattern.with_extra_depths(&depths);
+                    io.say(&format!("Pressing at extra depths {} mm: {} presses.", format_depths(&depths), p.offsets.len()))?;
+                    if depths.len() < 2 {
+                        io.say("(Fewer than two extra depths: the depth term may be left at 0.)")?;
+                    }
+                    owned = Some(p);
+                    break;
+                }
+                Err(why) => io.say(&format!("      {why}; again"))?,
+            }
+        }
+    }
+    let pattern = owned.as_ref().unwrap_or(pattern);
     io.say("Taking the no-contact reference frame above the indenter...")?;
     station.take_reference().await?;
     let mut points: Vec<FitPoint> = Vec::new();
@@ -151,6 +214,7 @@ pub fn describe_fit(fit: &PointFit) -> Vec<String> {
         format!("centre      ({:.2}, {:.2}) px", c.centre_px[0], c.centre_px[1]),
         format!("scale       x {:.3} px/mm, y {:.3} px/mm", c.scale_px_per_mm[0], c.scale_px_per_mm[1]),
         format!("rotation    {:.3} deg", c.rotation_deg),
+        format!("depth term  {}", fit.depth),
         format!(
             "points      {} ({} inliers), condition {:.2}, affine shear {:.4}, max residual {:.2} px",
             fit.inlier.len(),
@@ -212,9 +276,9 @@ mod tests {
             let contact = if self.presses == 2 {
                 Err(DetectError::NoContact { peak: 1.0, floor: 0.5, contrast: 3.0 })
             } else {
-                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0, moved_markers: None })
+                Ok(Contact { centroid_px: [u, v], area_px: 100, peak: 50.0, floor: 1.0, moved_markers: None, outline_radius_px: None })
             };
-            Ok(Press { offset, measured: offset, contact })
+            Ok(Press { offset, measured: offset, depth_mm: 1.5 + offset.z_mm, contact })
         }
         async fn finish(&mut self) -> Result<(), PressError> {
             self.finished = true;
@@ -246,6 +310,31 @@ mod tests {
         assert!((fit.calibration.rotation_deg - 4.0).abs() < 1e-6);
         assert!(text.contains("no detection"), "{text}");
         assert!(text.lines().any(|l| l.starts_with("residual ")), "{text}");
+    }
+
+    #[test]
+    fn asks_for_the_depths_when_the_pattern_presses_at_depths() {
+        let truth = Calibration { scale_px_per_mm: [9.0, 8.0], ..Calibration::default_for(512, 512) };
+        let mut station = FakeStation { truth, presses: 0, finished: false };
+        // Mounted; a bad answer, then one depth; 4 + 9 presses (the second sees nothing: redo).
+        let script = "\n2.5\n0.5\n\nr\n\n\n\n\n\n\n\n\n\n\n\n\ny\n";
+        let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
+        let pattern = PressPattern::grid(2, 3.0, &[-0.5, 0.5]);
+        let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let outcome = rt
+            .block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml"))
+            .unwrap();
+        let text = String::from_utf8_lossy(&io.output).into_owned();
+        assert!(text.contains("[-0.5,+0.5]: "), "{text}");
+        assert!(text.contains("beyond ±1 mm; again"), "{text}");
+        assert!(text.contains("extra depths +0.5 mm: 13 presses"), "{text}");
+        assert!(text.contains("[13/13] pressing at x -3.00 mm, y +0.00 mm, extra depth +0.50 mm"), "{text}");
+        let WizardOutcome::Save(fit) = outcome else { panic!("{text}") };
+        assert_eq!(fit.inlier.len(), 13);
+        assert_eq!(parse_depths("", &[0.5]), Ok(vec![0.5]));
+        assert_eq!(parse_depths("none", &[0.5]), Ok(vec![]));
+        assert_eq!(parse_depths("-0.5, 0.5 0", &[]), Ok(vec![-0.5, 0.5]));
+        assert!(parse_depths("x", &[]).is_err() && parse_depths("nan", &[]).is_err());
     }
 
     #[test]

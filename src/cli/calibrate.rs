@@ -6,8 +6,8 @@
 //! rig calibrate --sensor vitac --from-dataset DIR
 //! ```
 //!
-//! - Automatic (default): presses the calibration indenter at a grid of offsets (and depths)
-//!   on the configured rig (the built-in simulated rig without a configuration), detects each
+//! - Automatic (default): presses the calibration indenter at a grid of offsets and at three
+//!   press depths (for the depth-dependent scale) on the configured rig (the built-in simulated rig without a configuration), detects each
 //!   contact, fits, prints the mapping with the residual as the last line, and saves to
 //!   `--out` (default `calibration/<sensor>.toml`, which `rig collect` and
 //!   `rig synth --fill-missing` then use). `--sim-truth FILE` gives the simulated sensor a
@@ -67,7 +67,8 @@ pub struct Args {
     /// Half the grid's side, mm.
     #[arg(long, default_value_t = 4.0)]
     pub span_mm: f64,
-    /// Extra indentations (mm, comma-separated) pressed at the centre and corners.
+    /// Extra indentations (mm, comma-separated) pressed at a 3 x 3 layer (centre, edge
+    /// midpoints, corners) each; they measure the depth-dependent scale (0 = none).
     #[arg(long, value_delimiter = ',', default_value = "-0.5,0.5", allow_hyphen_values = true)]
     pub depths_mm: Vec<f64>,
     /// Seed of the simulated sensor's noise.
@@ -79,10 +80,33 @@ pub struct Args {
     /// Print the press pattern and check it against the workspace, move nothing.
     #[arg(long)]
     pub dry_run: bool,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
+}
+
+impl Args {
+    /// The same automatic calibration as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::CalibrateSpec {
+        crate::daemon::CalibrateSpec {
+            sensor: self.sensor.to_string(),
+            out: self.out.as_deref().map(crate::cli::collect::absolute),
+            grid: self.grid,
+            span_mm: self.span_mm,
+            depths_mm: self.depths_mm.clone(),
+        }
+    }
 }
 
 /// Runs `rig calibrate`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.daemon.daemon.is_some() {
+        if args.interactive || args.from_dataset.is_some() || args.sim_truth.is_some() || args.config.is_some() || args.dry_run {
+            bail!(crate::cli::usage(
+                "--daemon runs the automatic presses on the daemon's rig: --interactive, --from-dataset, --sim-truth, --config and --dry-run apply to a standalone run only"
+            ));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Calibrate(args.job_spec()));
+    }
     let out = args.out.clone().unwrap_or_else(|| saved_path(&args.sensor.to_string()));
     if let Some(dir) = &args.from_dataset {
         return from_dataset(&args, dir, &out);
@@ -215,16 +239,18 @@ fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>, mapping: bo
         let t = Calibration::load(truth)?;
         let c = &fit.calibration;
         println!(
-            "ground truth: centre ({:.2}, {:.2}) px, scale x {:.3} y {:.3} px/mm, rotation {:.3} deg; fit error: centre {:.3} px, scale {:.4} / {:.4} px/mm, rotation {:.4} deg",
+            "ground truth: centre ({:.2}, {:.2}) px, scale x {:.3} y {:.3} px/mm, rotation {:.3} deg, depth {:+.4} /mm; fit error: centre {:.3} px, scale {:.4} / {:.4} px/mm, rotation {:.4} deg, depth {:+.4} /mm",
             t.centre_px[0],
             t.centre_px[1],
             t.scale_px_per_mm[0],
             t.scale_px_per_mm[1],
             t.rotation_deg,
+            t.depth_scale_per_mm,
             (c.centre_px[0] - t.centre_px[0]).hypot(c.centre_px[1] - t.centre_px[1]),
             c.scale_px_per_mm[0] - t.scale_px_per_mm[0],
             c.scale_px_per_mm[1] - t.scale_px_per_mm[1],
-            crate::pose::wrap_deg(c.rotation_deg - t.rotation_deg)
+            crate::pose::wrap_deg(c.rotation_deg - t.rotation_deg),
+            c.depth_scale_per_mm - t.depth_scale_per_mm
         );
     }
     if mapping {
@@ -252,7 +278,10 @@ fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
         match detector.detect(image, &reference) {
             Ok(c) => {
                 println!("{name}: pose ({:+.2}, {:+.2}) mm yaw {:+.1}: {c}", pose.x_mm, pose.y_mm, pose.yaw_deg);
-                points.push(FitPoint { mm: sensor_point_mm(pose), px: c.centroid_px });
+                // Dataset poses log the indentation beyond the contact depth; the datasets do not
+                // record the rig's contact depth, so the default one stands in.
+                let depth_mm = pose.z_mm + crate::pose::WorkFrame::default().contact_depth_mm;
+                points.push(FitPoint { mm: sensor_point_mm(pose), px: c.centroid_px, depth_mm });
                 names.push(name.clone());
             }
             Err(e) => println!("{name}: no detection: {e}"),

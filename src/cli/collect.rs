@@ -50,10 +50,39 @@ pub struct CollectArgs {
     /// `rig replay FILE`.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
+}
+
+impl CollectArgs {
+    /// The same collection as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::CollectSpec {
+        crate::daemon::CollectSpec {
+            object: self.object.clone(),
+            stl: self.stl.as_deref().map(absolute),
+            sensor: self.sensor.clone(),
+            plan: self.plan.as_deref().map(absolute),
+            poses: self.poses,
+            seed: self.seed,
+            out: absolute(&self.out),
+            resume: self.resume,
+        }
+    }
+}
+
+/// `path` from this directory, for a daemon that may run in another.
+pub fn absolute(path: &std::path::Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
 /// Runs `rig collect`.
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
+    if args.daemon.daemon.is_some() {
+        if args.dry_run || args.record.is_some() || args.config.is_some() {
+            bail!(crate::cli::usage("--daemon runs the job on the daemon's rig: --dry-run, --record and --config apply to a standalone run only"));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Collect(args.job_spec()));
+    }
     let config = RigConfig::discover(args.config.as_deref())?;
     println!("{}", config.describe());
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
@@ -150,6 +179,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         clock: Arc::clone(&clock),
         cancel: cancel_rx,
         progress,
+        peripherals: std::mem::take(&mut rig.peripherals),
     };
     let summary = job.run(&plan.poses).await;
     // Close the recording even when the run failed: its replay reproduces the failure.

@@ -1,11 +1,13 @@
-//! `rig synth --fill-missing`: synthesise every planned pose a dataset lacks.
+//! `rig synth --fill-missing`: synthesise every planned pose a dataset lacks; `rig synth
+//! --poses-of DATASET --out DIR`: synthesise exactly the real poses of a dataset (its
+//! synthetic twin, for `rig eval`).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
 
-use crate::synth::fill::{FillOptions, Shard, fill_missing, missing_poses};
+use crate::synth::fill::{FillOptions, Shard, fill_missing, missing_poses, synthesise_poses_of};
 use crate::synth::{Pipeline, RuntimeOptions, SchedulerKind};
 
 /// Fill-missing mode of `rig synth`.
@@ -14,6 +16,11 @@ pub struct FillArgs {
     /// Synthesise every pose of the dataset's plan that has no image yet.
     #[arg(long)]
     pub fill_missing: bool,
+    /// Synthesise exactly the poses of the real rows of this dataset (or of every dataset under
+    /// this folder, two levels deep) into --out, mirroring `<object>/<sensor>`: the synthetic
+    /// twin of a test set for `rig eval`. Resumable.
+    #[arg(long, value_name = "DATASET", conflicts_with = "fill_missing")]
+    pub poses_of: Option<PathBuf>,
     /// A dataset (`.../<object>/<sensor>`) or a folder holding several (searched two levels
     /// deep for manifest.toml).
     #[arg(long, value_name = "DIR", default_value = "datasets")]
@@ -55,49 +62,48 @@ pub struct FillArgs {
     /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
     #[arg(long = "fill-ort-lib", value_name = "PATH")]
     pub ort_lib: Option<PathBuf>,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
 }
 
-/// The default model package: `models/default` when present, else the tiny test package.
-pub fn default_model() -> PathBuf {
-    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
-    for rel in ["models/default", "tests/data/tiny-package"] {
-        for root in &roots {
-            let p = root.join(rel);
-            if p.join("model.toml").is_file() {
-                return p;
-            }
+impl FillArgs {
+    /// The same fill as a daemon job.
+    pub fn job_spec(&self) -> crate::daemon::SynthSpec {
+        use crate::cli::collect::absolute;
+        crate::daemon::SynthSpec {
+            dataset: absolute(&self.dataset),
+            model: self.model.as_deref().map(absolute),
+            shard: self.shard.map(|s| format!("{}/{}", s.index, s.count)),
+            out: self.out.as_deref().map(absolute),
+            steps: self.steps,
+            guidance: self.guidance,
+            eta: self.eta,
+            sampler: self.sampler.to_string(),
+            batch: self.batch,
+            supersample: self.supersample,
+            limit: self.limit,
+            ort_lib: self.ort_lib.as_deref().map(absolute),
         }
     }
-    PathBuf::from("models/default")
 }
 
-/// Dataset directories under `root` (itself, or up to two levels below).
-pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
-    if root.join("manifest.toml").is_file() {
-        return vec![root.to_path_buf()];
-    }
-    let mut found = Vec::new();
-    let children = |d: &Path| -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
-            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
-            .unwrap_or_default();
-        v.sort();
-        v
-    };
-    for a in children(root) {
-        if a.join("manifest.toml").is_file() {
-            found.push(a);
-            continue;
-        }
-        found.extend(children(&a).into_iter().filter(|b| b.join("manifest.toml").is_file()));
-    }
-    found
-}
+pub use crate::synth::fill::{default_model, find_datasets};
 
 /// Runs `rig synth --fill-missing`.
 pub fn run(args: FillArgs) -> anyhow::Result<()> {
+    if let Some(source) = args.poses_of.clone() {
+        return run_poses_of(&source, args);
+    }
     if !args.fill_missing {
-        bail!(crate::cli::usage("rig synth needs a mode: `rig synth --fill-missing ...`, `rig synth one ...` or `rig synth info ...`"));
+        bail!(crate::cli::usage(
+            "rig synth needs a mode: `rig synth --fill-missing ...`, `rig synth --poses-of DATASET --out DIR`, `rig synth one ...` or `rig synth info ...`"
+        ));
+    }
+    if args.daemon.daemon.is_some() {
+        if args.dry_run {
+            bail!(crate::cli::usage("--daemon runs the fill on the daemon: drop --dry-run, or run it standalone"));
+        }
+        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Synth(args.job_spec()));
     }
     let shard = args.shard.unwrap_or(Shard::ALL);
     if args.shard.is_some() && args.out.is_none() {
@@ -120,32 +126,10 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    let model = args.model.clone().unwrap_or_else(default_model);
-    if model.ends_with("tests/data/tiny-package") {
-        println!("model: {} (the tiny test package with random weights: no trained default model is installed)", model.display());
-    } else {
-        println!("model: {}", model.display());
-    }
-    let runtime = RuntimeOptions { ort_lib: args.ort_lib.clone(), ..RuntimeOptions::default() };
-    let mut pipeline =
-        Pipeline::load(&model, &runtime).with_context(|| format!("loading model package {}", model.display()))?;
-    let options = FillOptions {
-        steps: args.steps,
-        guidance: args.guidance,
-        eta: args.eta,
-        scheduler: args.sampler,
-        conditioning_scale: 1.0,
-        shard,
-        batch: args.batch,
-        supersample: args.supersample,
-        limit: args.limit,
-    };
+    let mut pipeline = load_pipeline(&args)?;
+    let options = fill_options(&args, shard);
     for d in &datasets {
-        let progress = indicatif::ProgressBar::new(0);
-        progress.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
+        let progress = progress_bar();
         let t0 = std::time::Instant::now();
         let summary = fill_missing(d, args.out.as_deref(), &mut pipeline, &options, &progress)
             .with_context(|| format!("filling {}", d.display()))?;
@@ -157,6 +141,92 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
             t0.elapsed().as_secs_f64(),
             summary.present,
             summary.grid,
+            if summary.left > 0 { format!(", {} left to other shards or --limit", summary.left) } else { String::new() }
+        );
+    }
+    Ok(())
+}
+
+/// Loads `--model` (or the default), saying which package it is.
+fn load_pipeline(args: &FillArgs) -> anyhow::Result<Pipeline> {
+    let model = args.model.clone().unwrap_or_else(default_model);
+    if model.ends_with("tests/data/tiny-package") {
+        println!("model: {} (the tiny test package with random weights: no trained default model is installed)", model.display());
+    } else {
+        println!("model: {}", model.display());
+    }
+    let runtime = RuntimeOptions { ort_lib: args.ort_lib.clone(), ..RuntimeOptions::default() };
+    Pipeline::load(&model, &runtime).with_context(|| format!("loading model package {}", model.display()))
+}
+
+fn fill_options(args: &FillArgs, shard: Shard) -> FillOptions {
+    FillOptions {
+        steps: args.steps,
+        guidance: args.guidance,
+        eta: args.eta,
+        scheduler: args.sampler,
+        conditioning_scale: 1.0,
+        shard,
+        batch: args.batch,
+        supersample: args.supersample,
+        limit: args.limit,
+    }
+}
+
+fn progress_bar() -> indicatif::ProgressBar {
+    let progress = indicatif::ProgressBar::new(0);
+    progress.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    progress
+}
+
+/// `rig synth --poses-of SOURCE --out DIR`: every dataset under SOURCE gets its twin at the
+/// same relative path under DIR (DIR itself when SOURCE is one dataset).
+fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
+    let Some(out) = args.out.clone() else {
+        bail!(crate::cli::usage("--poses-of needs --out DIR: where the synthetic twin datasets go"));
+    };
+    let datasets = find_datasets(source);
+    if datasets.is_empty() {
+        bail!(crate::cli::usage(&format!(
+            "no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)",
+            source.display()
+        )));
+    }
+    let shard = args.shard.unwrap_or(Shard::ALL);
+    let pairs: Vec<(PathBuf, PathBuf)> = datasets
+        .iter()
+        .map(|d| {
+            let rel = d.strip_prefix(source).map(Path::to_path_buf).unwrap_or_default();
+            let twin = if rel.as_os_str().is_empty() { out.clone() } else { out.join(rel) };
+            (d.clone(), twin)
+        })
+        .collect();
+    if args.dry_run {
+        for (d, o) in &pairs {
+            let real = crate::dataset::read_rows(d)?.iter().filter(|r| r.source == crate::dataset::Source::Real).count();
+            println!("{}: {real} real poses to synthesise into {}", d.display(), o.display());
+        }
+        return Ok(());
+    }
+    let mut pipeline = load_pipeline(&args)?;
+    let options = fill_options(&args, shard);
+    for (d, o) in &pairs {
+        let progress = progress_bar();
+        let t0 = std::time::Instant::now();
+        let summary = synthesise_poses_of(d, o, &mut pipeline, &options, &progress)
+            .with_context(|| format!("synthesising the poses of {}", d.display()))?;
+        progress.finish_and_clear();
+        println!(
+            "{}: synthesised {} poses in {:.1} s ({} real poses in {}, {} were present{})",
+            o.display(),
+            summary.synthesised,
+            t0.elapsed().as_secs_f64(),
+            summary.real,
+            d.display(),
+            summary.present,
             if summary.left > 0 { format!(", {} left to other shards or --limit", summary.left) } else { String::new() }
         );
     }

@@ -5,12 +5,15 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod bench;
 pub mod calibrate;
 pub mod collect;
+pub mod daemon;
 pub mod fill;
 pub mod sim;
 pub mod dataset;
 pub mod devices;
+pub mod eval;
 pub mod plan;
 pub mod replay;
 pub mod sensor;
@@ -38,6 +41,8 @@ pub enum Command {
     Info,
     /// Drive the arm through a pose plan, capture every sensor, write the datasets.
     Collect(collect::CollectArgs),
+    /// Keep the rig open and run queued jobs; HTTP status API and live page (until SIGTERM).
+    Daemon(daemon::Args),
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
     Sim(sim::Args),
     /// Pose plans: show a plan's grid, sampled poses and motion time.
@@ -56,10 +61,15 @@ pub enum Command {
     Calibrate(calibrate::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
     CompareReal(compare::Args),
+    /// Judge synthetic images against real ones (SSIM, PSNR, MSE, pose recoverability) beside
+    /// pose-blind and nearest-neighbour baselines.
+    Eval(eval::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
     Replay(replay::Args),
     /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
     Devices(devices::Args),
+    /// Measure what accuracy costs in time, knob by knob; write a Markdown report with SVG plots.
+    Bench(bench::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -74,6 +84,7 @@ pub fn main() -> ExitCode {
             crate::config::RigConfig::discover(None).map(|c| println!("{}", c.describe())).map_err(anyhow::Error::from)
         }
         Command::Collect(args) => collect::run(args),
+        Command::Daemon(args) => daemon::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),
@@ -82,9 +93,11 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
+        Command::Eval(args) => eval::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),
+        Command::Bench(args) => bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -120,7 +133,13 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
             use crate::collect::CollectError as C;
             match e {
-                C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::Arm(_) | C::Camera(_) => return 3,
+                C::RetriesExhausted { .. }
+                | C::CameraRetriesExhausted { .. }
+                | C::PeripheralRetriesExhausted { .. }
+                | C::Arm(_)
+                | C::Camera(_) => return 3,
+                C::Peripheral(e) if e.is_recoverable() => return 3,
+                C::Peripheral(_) => return 2,
                 C::Unreachable { .. } | C::Mismatch { .. } => return 2,
                 C::Dataset(_) => {}
             }
@@ -138,6 +157,9 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
             use crate::rigs::RigError as R;
             if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
                 return 2;
+            }
+            if let R::Modbus(m) = e {
+                return if m.is_recoverable() { 3 } else { 2 };
             }
         }
         if cause.downcast_ref::<crate::plan::PlanError>().is_some() {

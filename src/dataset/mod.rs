@@ -44,7 +44,30 @@ pub const IMAGES_DIR: &str = "images";
 pub const REFERENCE_FILE: &str = "reference.png";
 
 /// The columns of `poses.csv`, in order (the header line).
-pub const COLUMNS: [&str; 17] = [
+pub const COLUMNS: [&str; 18] = [
+    "pose_id",
+    "x_mm",
+    "y_mm",
+    "z_mm",
+    "yaw_deg",
+    "meas_x_mm",
+    "meas_y_mm",
+    "meas_z_mm",
+    "meas_yaw_deg",
+    "image",
+    "source",
+    "t_capture_s",
+    "model",
+    "seed",
+    "steps",
+    "guidance",
+    "n_frames",
+    "modbus",
+];
+
+/// The columns of datasets written before the `modbus` column existed. Readers accept both
+/// headers; a writer that appends to such a dataset first upgrades it (see [`DatasetWriter`]).
+pub const LEGACY_COLUMNS: [&str; 17] = [
     "pose_id",
     "x_mm",
     "y_mm",
@@ -64,6 +87,35 @@ pub const COLUMNS: [&str; 17] = [
     "n_frames",
 ];
 
+/// Which header a `poses.csv` has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CsvLayout {
+    /// [`COLUMNS`]: the current header, with `modbus`.
+    Current,
+    /// [`LEGACY_COLUMNS`]: a dataset from before the `modbus` column.
+    Legacy,
+}
+
+impl CsvLayout {
+    /// The layout a header line names, if it is one rig writes or wrote.
+    pub fn of_header(header: &str) -> Option<Self> {
+        if header == COLUMNS.join(",") {
+            Some(Self::Current)
+        } else if header == LEGACY_COLUMNS.join(",") {
+            Some(Self::Legacy)
+        } else {
+            None
+        }
+    }
+
+    /// The column names of this layout.
+    pub fn columns(self) -> &'static [&'static str] {
+        match self {
+            Self::Current => &COLUMNS,
+            Self::Legacy => &LEGACY_COLUMNS,
+        }
+    }
+}
 /// Where a row's image came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -86,7 +138,11 @@ impl std::fmt::Display for Source {
 /// One row of `poses.csv`. Poses are in the work frame (z is extra indentation).
 ///
 /// Columns beyond the contract: `steps` and `guidance` (diffusion steps and guidance scale of
-/// a synthetic image), `n_frames` (frames averaged into a real image; empty when one).
+/// a synthetic image), `n_frames` (frames averaged into a real image; empty when one), and
+/// `modbus` (the Modbus peripherals' readings at capture, `<peripheral>.<reading>=<value>`
+/// joined by `;` in peripheral-name then configured order, a value left empty when an
+/// optional peripheral did not answer; empty when no peripheral is configured and for
+/// synthetic rows; see [`crate::io::modbus`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PoseRow {
@@ -118,6 +174,10 @@ pub struct PoseRow {
     pub guidance: Option<f64>,
     /// Frames averaged into a real image.
     pub n_frames: Option<u32>,
+    /// Modbus readings at capture (`light.level_permille=800;force.force_N=1.25`); absent in
+    /// datasets from before the column existed.
+    #[serde(default)]
+    pub modbus: Option<String>,
 }
 
 impl PoseRow {
@@ -141,6 +201,7 @@ impl PoseRow {
             steps: None,
             guidance: None,
             n_frames: None,
+            modbus: None,
         }
     }
 
@@ -154,6 +215,12 @@ impl PoseRow {
             t_capture_s: Some(t_capture_s),
             ..Self::commanded_only(pose_id, commanded, Source::Real)
         }
+    }
+
+    /// This row with the Modbus readings text (an empty text leaves the column empty).
+    pub fn with_modbus(mut self, readings: String) -> Self {
+        self.modbus = (!readings.is_empty()).then_some(readings);
+        self
     }
 
     /// A synthesised row with its provenance.
@@ -296,15 +363,38 @@ impl DatasetError {
     }
 }
 
+/// Dataset directories under `root`: `root` itself when it holds a manifest, else its
+/// subfolders that do, and theirs (two levels: `<object>/<sensor>`), sorted.
+pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
+    if root.join(MANIFEST_FILE).is_file() {
+        return vec![root.to_path_buf()];
+    }
+    let children = |d: &std::path::Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let mut found = Vec::new();
+    for a in children(root) {
+        if a.join(MANIFEST_FILE).is_file() {
+            found.push(a);
+            continue;
+        }
+        found.extend(children(&a).into_iter().filter(|b| b.join(MANIFEST_FILE).is_file()));
+    }
+    found
+}
+
 /// Reads every row of `dir/poses.csv`, failing on a malformed or duplicated row (a torn last
 /// line is ignored, as resume would truncate it). Rows come in file order.
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
     let path = dir.join(POSES_FILE);
     let bytes = std::fs::read(&path).map_err(DatasetError::io("reading", &path))?;
     let parsed = parse_csv(&bytes);
-    let expected = COLUMNS.join(",");
-    if parsed.header.as_deref() != Some(expected.as_str()) {
-        return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected });
+    if parsed.layout.is_none() {
+        return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected: COLUMNS.join(",") });
     }
     strict_rows(parsed.lines, &path)
 }
@@ -356,6 +446,8 @@ pub(crate) struct ParsedLine {
 #[derive(Debug)]
 pub(crate) struct ParsedCsv {
     pub header: Option<String>,
+    /// The header's layout; `None` when it is neither (every line is then malformed).
+    pub layout: Option<CsvLayout>,
     pub lines: Vec<ParsedLine>,
     pub complete_len: u64,
     pub torn_bytes: u64,
@@ -367,23 +459,26 @@ pub(crate) fn parse_csv(bytes: &[u8]) -> ParsedCsv {
     let torn_bytes = (bytes.len() - complete_len) as u64;
     let complete = &bytes[..complete_len];
     let mut header = None;
+    let mut layout = None;
     let mut lines = Vec::new();
     for (i, raw) in complete.split(|&b| b == b'\n').enumerate() {
         let line = i as u64 + 1;
         let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
         if i == 0 {
-            header = Some(String::from_utf8_lossy(raw).into_owned());
+            let text = String::from_utf8_lossy(raw).into_owned();
+            layout = CsvLayout::of_header(&text);
+            header = Some(text);
             continue;
         }
         if raw.is_empty() {
             continue; // the split after the final newline, or a blank line
         }
-        lines.push(ParsedLine { line, row: parse_row(raw) });
+        lines.push(ParsedLine { line, row: parse_row(raw, layout.unwrap_or(CsvLayout::Current)) });
     }
-    ParsedCsv { header, lines, complete_len: complete_len as u64, torn_bytes }
+    ParsedCsv { header, layout, lines, complete_len: complete_len as u64, torn_bytes }
 }
 
-fn parse_row(raw: &[u8]) -> Result<PoseRow, String> {
+fn parse_row(raw: &[u8], layout: CsvLayout) -> Result<PoseRow, String> {
     let mut rdr = csv::ReaderBuilder::new().has_headers(false).from_reader(raw);
     let mut record = csv::StringRecord::new();
     match rdr.read_record(&mut record) {
@@ -391,10 +486,11 @@ fn parse_row(raw: &[u8]) -> Result<PoseRow, String> {
         Ok(false) => return Err("empty line".to_string()),
         Err(e) => return Err(e.to_string()),
     }
-    if record.len() != COLUMNS.len() {
-        return Err(format!("{} fields, expected {}", record.len(), COLUMNS.len()));
+    let columns = layout.columns();
+    if record.len() != columns.len() {
+        return Err(format!("{} fields, expected {}", record.len(), columns.len()));
     }
-    let headers = csv::StringRecord::from(COLUMNS.to_vec());
+    let headers = csv::StringRecord::from(columns.to_vec());
     let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| e.to_string())?;
     if let Some(p) = row.problem() {
         return Err(p.to_string());
@@ -429,12 +525,37 @@ mod tests {
     fn bad_rows_are_reported_not_panicked() {
         let mut bytes = header_line().into_bytes();
         bytes.extend(b"1,2,3\n");
-        bytes.extend(b"x,0,0,0,0,,,,,images/x.png,real,,,,,,\n");
-        bytes.extend(b"5,0,0,0,0,,,,,images/6.png,real,,,,,,\n");
-        bytes.extend(b"5,0,0,0,NaN,,,,,images/5.png,real,,,,,,\n");
+        bytes.extend(b"x,0,0,0,0,,,,,images/x.png,real,,,,,,,\n");
+        bytes.extend(b"5,0,0,0,0,,,,,images/6.png,real,,,,,,,\n");
+        bytes.extend(b"5,0,0,0,NaN,,,,,images/5.png,real,,,,,,,\n");
+        // A legacy (17-column) line under the current header.
+        bytes.extend(b"5,0,0,0,0,,,,,images/5.png,real,,,,,,\n");
         bytes.extend(b"\xff\xfe,\"\n");
         let p = parse_csv(&bytes);
-        assert_eq!(p.lines.len(), 5);
+        assert_eq!(p.lines.len(), 6);
         assert!(p.lines.iter().all(|l| l.row.is_err()), "{:?}", p.lines);
+    }
+
+    #[test]
+    fn legacy_rows_read_and_modbus_round_trips() {
+        let mut bytes = format!("{}\n", LEGACY_COLUMNS.join(",")).into_bytes();
+        bytes.extend(b"5,1,2,0.5,0,1,2,0.5,0,images/5.png,real,3.25,,,,,\n");
+        let p = parse_csv(&bytes);
+        assert_eq!(p.layout, Some(CsvLayout::Legacy));
+        let row = p.lines[0].row.as_ref().unwrap();
+        assert_eq!(row.pose_id, 5);
+        assert_eq!(row.modbus, None);
+        // An 18-field line under the legacy header is malformed.
+        bytes.extend(b"6,1,2,0.5,0,1,2,0.5,0,images/6.png,real,3.25,,,,,,\n");
+        assert!(parse_csv(&bytes).lines[1].row.is_err());
+
+        let a = PoseRow::real(3, Pose::new(1.0, -2.5, 0.5, 15.0), Pose::new(1.0, -2.5, 0.5, 15.0), 1.0)
+            .with_modbus("light.level_permille=800;force.force_N=1.25;force.temp_C=".into());
+        let mut bytes = header_line().into_bytes();
+        bytes.extend(row_line(&a).unwrap());
+        let p = parse_csv(&bytes);
+        assert_eq!(p.layout, Some(CsvLayout::Current));
+        assert_eq!(p.lines[0].row.as_ref().unwrap(), &a);
+        assert_eq!(PoseRow::real(3, Pose::default(), Pose::default(), 1.0).with_modbus(String::new()).modbus, None);
     }
 }

@@ -26,7 +26,7 @@ use image::RgbImage;
 
 use super::manifest::{Manifest, utc_now};
 use super::{
-    COLUMNS, DatasetError, IMAGES_DIR, MANIFEST_FILE, POSES_FILE, PoseRow, REFERENCE_FILE, RowProblem, header_line,
+    COLUMNS, CsvLayout, DatasetError, IMAGES_DIR, MANIFEST_FILE, POSES_FILE, PoseRow, REFERENCE_FILE, RowProblem, header_line,
     image_rel_path, parse_csv, row_line, strict_rows,
 };
 
@@ -110,9 +110,10 @@ impl DatasetWriter {
         let mut bytes = Vec::new();
         csv.read_to_end(&mut bytes).map_err(DatasetError::io("reading", &csv_path))?;
         let parsed = parse_csv(&bytes);
-        let expected = COLUMNS.join(",");
+        let layout = parsed.layout;
+        let complete_len = parsed.complete_len as usize;
         match parsed.header.as_deref() {
-            Some(h) if h == expected => {
+            Some(_) if layout.is_some() => {
                 if parsed.torn_bytes > 0 {
                     tracing::warn!(bytes = parsed.torn_bytes, "truncating a torn last line of {}", csv_path.display());
                     csv.set_len(parsed.complete_len).map_err(DatasetError::io("truncating", &csv_path))?;
@@ -128,12 +129,16 @@ impl DatasetWriter {
                 return Err(DatasetError::BadHeader {
                     path: csv_path,
                     found: found.unwrap_or_default().to_string(),
-                    expected,
+                    expected: COLUMNS.join(","),
                 });
             }
         }
 
         let done: BTreeSet<u32> = strict_rows(parsed.lines, &csv_path)?.iter().map(|r| r.pose_id).collect();
+        if layout == Some(CsvLayout::Legacy) {
+            // Only after every row parsed: a damaged file is reported, never rewritten.
+            csv = upgrade_legacy_csv(dir, &bytes[..complete_len], csv)?;
+        }
 
         remove_temp_files(dir)?;
         let images = dir.join(IMAGES_DIR);
@@ -261,6 +266,41 @@ impl DatasetWriter {
         self.manifest.store(&self.dir)?;
         Ok(self.manifest)
     }
+}
+
+/// Rewrites a `poses.csv` from before the `modbus` column with the current header and an
+/// empty `modbus` field on every row, so that appended rows match the header. `legacy` is the
+/// file's complete lines (a torn tail already cut). Crash-safe like every other write (temp
+/// file, fsync, rename, fsync the directory): a kill leaves the old file or the new one, and
+/// either resumes. Each row keeps its bytes; only `,` is added before its line end. Returns the
+/// new file, opened for appending and locked (the old handle, and its lock, are dropped).
+fn upgrade_legacy_csv(dir: &Path, legacy: &[u8], old: File) -> Result<File, DatasetError> {
+    let csv_path = dir.join(POSES_FILE);
+    let mut upgraded = header_line().into_bytes();
+    for line in legacy.split_inclusive(|&b| b == b'\n').skip(1) {
+        let body = line.strip_suffix(b"\n").unwrap_or(line);
+        let (body, cr) = match body.strip_suffix(b"\r") {
+            Some(b) => (b, &b"\r"[..]),
+            None => (body, &b""[..]),
+        };
+        if body.is_empty() {
+            continue;
+        }
+        upgraded.extend_from_slice(body);
+        upgraded.push(b',');
+        upgraded.extend_from_slice(cr);
+        upgraded.push(b'\n');
+    }
+    tracing::info!("adding the modbus column to {}", csv_path.display());
+    write_atomic(dir, POSES_FILE, &upgraded)?;
+    let csv = OpenOptions::new()
+        .read(true)
+        .append(true)
+        .open(&csv_path)
+        .map_err(DatasetError::io("opening", &csv_path))?;
+    lock_exclusive(&csv, &csv_path)?;
+    drop(old);
+    Ok(csv)
 }
 
 fn encode_png(image: &RgbImage, pose_id: u32) -> Result<Vec<u8>, DatasetError> {
@@ -481,6 +521,48 @@ mod tests {
         let text = std::fs::read_to_string(dir.join(POSES_FILE)).unwrap();
         assert!(text.contains(",synthetic,"));
         assert!(matches!(Source::Real.to_string().as_str(), "real"));
+    }
+
+    #[test]
+    fn a_dataset_from_before_the_modbus_column_reads_verifies_and_resumes() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+        w.append(row(1), &img(1)).unwrap();
+        w.append(row(2), &img(2)).unwrap();
+        drop(w);
+        // Rewrite it as an old rig wrote it: 17 columns, no modbus field; a torn tail too.
+        let current = std::fs::read_to_string(dir.join(POSES_FILE)).unwrap();
+        let mut legacy = format!("{}\n", crate::dataset::LEGACY_COLUMNS.join(","));
+        for line in current.lines().skip(1) {
+            legacy.push_str(line.strip_suffix(',').unwrap());
+            legacy.push('\n');
+        }
+        let legacy_complete = legacy.clone();
+        legacy.push_str("3,1,0,0");
+        std::fs::write(dir.join(POSES_FILE), &legacy).unwrap();
+
+        // Readers take it as it is.
+        let report = crate::dataset::verify(&dir).unwrap();
+        assert_eq!((report.rows, report.issues.len()), (2, 1), "only the torn tail: {report:?}");
+        let rows = crate::dataset::read_rows(&dir).unwrap();
+        assert_eq!(rows, vec![row(1), row(2)]);
+        assert_eq!(std::fs::read_to_string(dir.join(POSES_FILE)).unwrap(), legacy, "readers never write");
+
+        // A writer upgrades it: same rows, an empty modbus field each, then appends.
+        let mut w = DatasetWriter::resume(&dir, manifest()).unwrap();
+        assert_eq!(w.done_ids().iter().copied().collect::<Vec<_>>(), vec![1, 2]);
+        w.append(row(3).with_modbus("force.force_N=1.5".into()), &img(3)).unwrap();
+        drop(w);
+        let text = std::fs::read_to_string(dir.join(POSES_FILE)).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some(COLUMNS.join(",").as_str()));
+        for (old, new) in legacy_complete.lines().skip(1).zip(lines.by_ref()) {
+            assert_eq!(format!("{old},"), new);
+        }
+        assert!(lines.next().unwrap().ends_with(",force.force_N=1.5"), "{text}");
+        assert!(crate::dataset::verify(&dir).unwrap().is_clean());
+        assert_eq!(crate::dataset::read_rows(&dir).unwrap()[2].modbus.as_deref(), Some("force.force_N=1.5"));
     }
 
     #[test]

@@ -73,11 +73,13 @@ pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, o
 }
 
 /// The affine map from object-frame x/y (mm) to pixels for a pose and calibration (the pose's
-/// x/y pass through [`Calibration::effective_offset_mm`] first).
+/// x/y pass through [`Calibration::effective_offset_mm`] first). The scales are those at the
+/// pose's press depth `z_mm` ([`Calibration::scale_at_depth`]): a calibration with a depth
+/// term shows a deeper press larger about the sensor centre.
 pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
     let (s, c) = calib.rotation_deg.to_radians().sin_cos();
-    let rot_scale = DMat2::from_cols(DVec2::new(c, s), DVec2::new(-s, c))
-        * DMat2::from_diagonal(DVec2::new(calib.scale_px_per_mm[0], calib.scale_px_per_mm[1]));
+    let [sx, sy] = calib.scale_at_depth(object_pose.z_mm);
+    let rot_scale = DMat2::from_cols(DVec2::new(c, s), DVec2::new(-s, c)) * DMat2::from_diagonal(DVec2::new(sx, sy));
     DAffine2::from_translation(DVec2::from_array(calib.centre_px))
         * DAffine2::from_mat2(rot_scale)
         * DAffine2::from_angle(-object_pose.yaw_deg.to_radians())
@@ -205,6 +207,28 @@ mod tests {
         // 4096^2 at 8x8 would be 1 G samples; it renders at a lower factor instead.
         let big = render_depth(&mesh, &Pose::new(0.0, 0.0, 1.0, 0.0), &Calibration::default_for(4096, 4096), 4096, 4096, 8);
         assert!((big.max_indentation_mm() - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_depth_term_renders_a_deeper_press_larger_by_its_factor() {
+        // 4 x 2 mm top face at 10 px/mm and +5 % per mm: 1.1 x larger at 2 mm than at 0 mm
+        // (44 x 22 px), 1.2 x at 4 mm (48 x 24 px); without the term both are 40 x 20 px.
+        let mesh = box_mesh(Vec3::new(-2.0, -1.0, 0.0), Vec3::new(2.0, 1.0, 5.0));
+        let flat = Calibration { scale_px_per_mm: [10.0, 10.0], ..Calibration::default_for(100, 100) };
+        let deep = Calibration { depth_scale_per_mm: 0.05, ..flat.clone() };
+        let covered = |calib: &Calibration, z_mm: f64| {
+            let d = render_depth(&mesh, &Pose::new(0.0, 0.0, z_mm, 0.0), calib, 100, 100, 1);
+            d.height_mm.iter().filter(|&&v| v > DepthMap::BACKGROUND_MM).count()
+        };
+        assert_eq!(covered(&flat, 2.0), 40 * 20);
+        assert_eq!(covered(&flat, 4.0), 40 * 20);
+        assert_eq!(covered(&deep, 2.0), 44 * 22);
+        assert_eq!(covered(&deep, 4.0), 48 * 24);
+        // An offset object moves away from the centre by the same factor: 1 mm -> 11 px.
+        let shifted = render_depth(&mesh, &Pose::new(-1.0, 0.0, 2.0, 0.0), &deep, 100, 100, 1);
+        let cols: Vec<u32> = (0..100u32).filter(|&x| shifted.get(x, 50).is_some_and(|v| v > DepthMap::BACKGROUND_MM)).collect();
+        let mid = (cols[0] + cols[cols.len() - 1] + 1) as f64 / 2.0;
+        assert!((mid - (50.0 + 11.0)).abs() < 0.51, "{mid}");
     }
 
     #[test]

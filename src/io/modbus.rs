@@ -2,17 +2,31 @@
 //! around each capture, over Modbus TCP or RTU (tokio-modbus).
 //!
 //! A peripheral is configured in the rig config as `[modbus.<name>]` ([`RawModbusPeripheral`],
-//! resolved once into [`ModbusPeripheralConfig`]). Around every capture the job calls
-//! [`ModbusBench::before_capture`] (register writes such as "light on at 80%"), captures, then
-//! [`ModbusBench::after_capture`] (register writes, then reads such as "force in mN"). The reads
-//! come back as named, scaled values ([`ModbusReading`]) with [`format_readings`] giving the
-//! `name=value;...` text logged beside the pose.
+//! resolved once into [`ModbusPeripheralConfig`]). The collection job sees them only through
+//! the [`Peripherals`] trait: [`ModbusBench`] for configured devices, [`NoPeripherals`] when
+//! there are none. Around every capture the job calls [`Peripherals::before_capture`] once the
+//! arm has arrived (register writes such as "light on at 80%"; frames are exposed only after
+//! they are done), captures, then [`Peripherals::after_capture`] while the sensor is still
+//! pressed: the reads first (force, temperature, the light level), then the `after_capture`
+//! writes ("light off"). The reads come back as named, scaled values ([`ModbusReading`]);
+//! [`format_readings`] gives the `name=value;...` text of the dataset's `modbus` column, in
+//! peripheral-name order then configured read order.
+//!
+//! Failure policy, per peripheral (`required`, default `true`): a required peripheral's
+//! timeout, lost connection or exception is a recoverable fault like a camera timeout: the
+//! pose is retried (up to `retries_per_pose`), then the run stops with exit code 3. An
+//! optional one (`required = false`) never stops the run: a warning is logged and its values
+//! are left empty in that row (`force.force_N=`). Either way the connection is dropped after a
+//! timeout or transport error and opened again on the next use, so a device that comes back
+//! is picked up.
 //!
 //! Register values: one 16-bit register per reading unless `words = 2` (big-endian word
 //! order, as most devices use), signed or unsigned, times `scale` plus `offset`.
 //!
 //! RTU runs over [`AsyncSerial`](crate::io::serial::AsyncSerial), so any tty works (USB-RS485
-//! adapters, pseudo-terminals in tests).
+//! adapters, pseudo-terminals in tests). `transport = "sim"` names a simulated device that
+//! [`crate::rigs`] starts on loopback ([`crate::sim::modbus`]); the client then talks real
+//! Modbus TCP to it.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -47,6 +61,20 @@ pub enum ModbusError {
     Timeout { peripheral: String, operation: String, after: Duration },
     #[error("modbus {peripheral}: {field} {problem}")]
     Invalid { peripheral: String, field: &'static str, problem: String },
+}
+
+impl ModbusError {
+    /// True for faults that may pass (a timeout, a lost connection, a refused request); false
+    /// for a configuration the device can never satisfy.
+    pub fn is_recoverable(&self) -> bool {
+        !matches!(self, ModbusError::Invalid { .. })
+    }
+
+    /// True when the connection may be out of step (a reply may still arrive late, or the
+    /// socket is gone): drop it and connect again.
+    fn spoils_connection(&self) -> bool {
+        matches!(self, ModbusError::Timeout { .. } | ModbusError::Transport { .. })
+    }
 }
 
 /// Which register table a reading comes from.
@@ -101,8 +129,19 @@ fn unit_scale() -> f64 {
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawModbusPeripheral {
-    /// `tcp` or `rtu`.
+    /// `tcp`, `rtu`, or `sim` (a simulated device on loopback; simulated rig only for `force`).
     pub transport: Option<String>,
+    /// `false`: a failure leaves this peripheral's values empty in the row and the run goes
+    /// on. Default `true`: a failure is a fault, retried, then the end of the run.
+    pub required: Option<bool>,
+    /// Transport `sim`: which device, `force` (a force sensor following the simulated arm's
+    /// indentation) or `light` (an illumination controller).
+    pub sim: Option<String>,
+    /// Transport `sim`, device `force`: N per mm of indentation (default 2.0).
+    pub sim_stiffness_n_per_mm: Option<f64>,
+    /// Transport `sim`: the device answers this many requests, then goes silent (fault
+    /// injection; every later request times out).
+    pub sim_stop_answering_after: Option<u64>,
     /// TCP: `host:port` (port 502 if left out).
     pub address: Option<String>,
     /// RTU: serial device path.
@@ -125,6 +164,18 @@ pub struct RawModbusPeripheral {
 pub enum ModbusTransport {
     Tcp { address: String },
     Rtu { device: PathBuf, baud: u32 },
+    /// A simulated device; [`crate::rigs::Rig::open`] starts it on loopback and replaces this
+    /// with the [`Tcp`](Self::Tcp) address it listens on.
+    Sim { device: SimPeripheralKind, stop_answering_after: Option<u64> },
+}
+
+/// Which simulated Modbus device to start (see [`crate::sim::modbus`] for the register map).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SimPeripheralKind {
+    /// Force = stiffness x indentation of the simulated arm, in input registers 0..1.
+    ForceSensor { stiffness_n_per_mm: f64 },
+    /// A dimmable light whose level (holding register 0, per mille) reads back.
+    Illumination,
 }
 
 /// A validated peripheral.
@@ -132,6 +183,8 @@ pub enum ModbusTransport {
 pub struct ModbusPeripheralConfig {
     pub name: String,
     pub transport: ModbusTransport,
+    /// See the module docs' failure policy.
+    pub required: bool,
     pub unit: u8,
     pub timeout: Duration,
     pub before_capture: Vec<RegisterWrite>,
@@ -153,8 +206,30 @@ impl ModbusPeripheralConfig {
                 device: raw.device.ok_or_else(|| invalid("device", "is required for transport rtu (e.g. /dev/ttyUSB1)".into()))?,
                 baud: raw.baud.unwrap_or(19_200),
             },
-            other => return Err(invalid("transport", format!("must be tcp or rtu, got {other:?}"))),
+            Some("sim") => {
+                let device = match raw.sim.as_deref() {
+                    Some("force") => {
+                        let stiffness_n_per_mm = raw.sim_stiffness_n_per_mm.unwrap_or(2.0);
+                        if !(stiffness_n_per_mm.is_finite() && stiffness_n_per_mm >= 0.0) {
+                            return Err(invalid("sim_stiffness_n_per_mm", format!("must be finite and >= 0, got {stiffness_n_per_mm}")));
+                        }
+                        SimPeripheralKind::ForceSensor { stiffness_n_per_mm }
+                    }
+                    Some("light") => SimPeripheralKind::Illumination,
+                    other => return Err(invalid("sim", format!("must be force or light for transport sim, got {other:?}"))),
+                };
+                ModbusTransport::Sim { device, stop_answering_after: raw.sim_stop_answering_after }
+            }
+            other => return Err(invalid("transport", format!("must be tcp, rtu or sim, got {other:?}"))),
         };
+        if !matches!(transport, ModbusTransport::Sim { .. })
+            && (raw.sim.is_some() || raw.sim_stiffness_n_per_mm.is_some() || raw.sim_stop_answering_after.is_some())
+        {
+            return Err(invalid("sim", "options are only for transport = \"sim\"".into()));
+        }
+        if raw.timeout_ms == Some(0) {
+            return Err(invalid("timeout_ms", "must be > 0".into()));
+        }
         for r in &raw.read {
             if !(r.words == 1 || r.words == 2) {
                 return Err(invalid("read.words", format!("{}: must be 1 or 2, got {}", r.name, r.words)));
@@ -169,12 +244,27 @@ impl ModbusPeripheralConfig {
         Ok(Self {
             name: name.to_string(),
             transport,
+            required: raw.required.unwrap_or(true),
             unit: raw.unit.unwrap_or(1),
             timeout: Duration::from_millis(raw.timeout_ms.unwrap_or(500)),
             before_capture: raw.before_capture,
             after_capture: raw.after_capture,
             read: raw.read,
         })
+    }
+}
+
+impl ModbusPeripheralConfig {
+    /// `force (sim force sensor, required)`: one line for the start-up banner.
+    pub fn describe(&self) -> String {
+        let transport = match &self.transport {
+            ModbusTransport::Tcp { address } => format!("tcp {address}"),
+            ModbusTransport::Rtu { device, baud } => format!("rtu {} {baud} Bd", device.display()),
+            ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { .. }, .. } => "sim force sensor".into(),
+            ModbusTransport::Sim { device: SimPeripheralKind::Illumination, .. } => "sim light".into(),
+        };
+        let policy = if self.required { "required" } else { "optional" };
+        format!("{} ({transport} unit {}, {policy})", self.name, self.unit)
     }
 }
 
@@ -195,12 +285,37 @@ pub fn decode_reading(read: &RegisterRead, words: &[u16]) -> Option<f64> {
 pub struct ModbusReading {
     /// `<peripheral>.<name>`.
     pub name: String,
-    pub value: f64,
+    /// The scaled value; `None` when an optional peripheral did not answer.
+    pub value: Option<f64>,
 }
 
-/// `name=value;name=value`, in the order given: the text logged beside a pose.
+/// `name=value;name=value`, in the order given: the text of the dataset's `modbus` column.
+/// A missing value is written as nothing after the `=`; values use the shortest text that
+/// reads back to the same `f64`.
 pub fn format_readings(readings: &[ModbusReading]) -> String {
-    readings.iter().map(|r| format!("{}={}", r.name, r.value)).collect::<Vec<_>>().join(";")
+    readings
+        .iter()
+        .map(|r| match r.value {
+            Some(v) => format!("{}={v}", r.name),
+            None => format!("{}=", r.name),
+        })
+        .collect::<Vec<_>>()
+        .join(";")
+}
+
+/// Parses a `modbus` column back into readings (`None` for an empty value). Returns `None`
+/// for text [`format_readings`] cannot have written.
+pub fn parse_readings(text: &str) -> Option<Vec<ModbusReading>> {
+    if text.is_empty() {
+        return Some(Vec::new());
+    }
+    text.split(';')
+        .map(|item| {
+            let (name, value) = item.split_once('=')?;
+            let value = if value.is_empty() { None } else { Some(value.parse::<f64>().ok()?) };
+            (!name.is_empty()).then(|| ModbusReading { name: name.to_string(), value })
+        })
+        .collect()
 }
 
 /// One Modbus register operation (for messages and [`ModbusPeripheral`]'s dispatch).
@@ -219,46 +334,50 @@ impl std::fmt::Display for RegisterOp {
     }
 }
 
-/// A connected peripheral.
+/// A peripheral and its connection, opened on first use and again after a timeout or a lost
+/// connection.
 pub struct ModbusPeripheral {
     config: ModbusPeripheralConfig,
-    ctx: Context,
+    ctx: Option<Context>,
 }
 
 impl ModbusPeripheral {
-    /// Connects over the configured transport.
+    /// A peripheral that connects on its first operation.
+    pub fn new(config: ModbusPeripheralConfig) -> Self {
+        Self { config, ctx: None }
+    }
+
+    /// Connects over the configured transport now.
     pub async fn connect(config: ModbusPeripheralConfig) -> Result<Self, ModbusError> {
-        let slave = Slave(config.unit);
-        let connect_err = |target: String, source| ModbusError::Connect { peripheral: config.name.clone(), target, source };
-        let ctx = match &config.transport {
-            ModbusTransport::Tcp { address } => {
-                let addr: SocketAddr = tokio::net::lookup_host(address.as_str())
-                    .await
-                    .map_err(|e| connect_err(address.clone(), e))?
-                    .next()
-                    .ok_or_else(|| connect_err(address.clone(), std::io::Error::other("no address")))?;
-                let stream = tokio::time::timeout(config.timeout, tokio::net::TcpStream::connect(addr))
-                    .await
-                    .map_err(|_| connect_err(address.clone(), std::io::Error::from(std::io::ErrorKind::TimedOut)))?
-                    .map_err(|e| connect_err(address.clone(), e))?;
-                tokio_modbus::client::tcp::attach_slave(stream, slave)
-            }
-            ModbusTransport::Rtu { device, baud } => {
-                let port = crate::io::serial::AsyncSerial::open(device, *baud)
-                    .map_err(|e| connect_err(device.display().to_string(), e))?;
-                tokio_modbus::client::rtu::attach_slave(port, slave)
-            }
-        };
-        Ok(Self { config, ctx })
+        let mut p = Self::new(config);
+        p.ensure_connected().await?;
+        Ok(p)
     }
 
     /// A peripheral over an already connected client context (tests, custom transports).
+    /// After a timeout it reconnects over `config.transport`.
     pub fn attach(config: ModbusPeripheralConfig, ctx: Context) -> Self {
-        Self { config, ctx }
+        Self { config, ctx: Some(ctx) }
     }
 
     pub fn config(&self) -> &ModbusPeripheralConfig {
         &self.config
+    }
+
+    /// True while a connection is open.
+    pub fn is_connected(&self) -> bool {
+        self.ctx.is_some()
+    }
+
+    async fn ensure_connected(&mut self) -> Result<&mut Context, ModbusError> {
+        if self.ctx.is_none() {
+            self.ctx = Some(open_context(&self.config).await?);
+        }
+        self.ctx.as_mut().ok_or_else(|| ModbusError::Invalid {
+            peripheral: self.config.name.clone(),
+            field: "transport",
+            problem: "has no connection".into(),
+        })
     }
 
     /// One register operation with the peripheral's timeout; reads return their words.
@@ -266,20 +385,28 @@ impl ModbusPeripheral {
         let peripheral = self.config.name.clone();
         let timeout = self.config.timeout;
         let operation = op.to_string();
+        let ctx = self.ensure_connected().await?;
         let result = tokio::time::timeout(timeout, async {
             match op {
-                RegisterOp::Write { register, value } => self.ctx.write_single_register(register, value).await.map(|r| r.map(|()| Vec::new())),
-                RegisterOp::Read { kind: RegisterKind::Holding, register, count } => self.ctx.read_holding_registers(register, count).await,
-                RegisterOp::Read { kind: RegisterKind::Input, register, count } => self.ctx.read_input_registers(register, count).await,
+                RegisterOp::Write { register, value } => ctx.write_single_register(register, value).await.map(|r| r.map(|()| Vec::new())),
+                RegisterOp::Read { kind: RegisterKind::Holding, register, count } => ctx.read_holding_registers(register, count).await,
+                RegisterOp::Read { kind: RegisterKind::Input, register, count } => ctx.read_input_registers(register, count).await,
             }
         })
         .await;
-        match result {
+        let result = match result {
             Err(_) => Err(ModbusError::Timeout { peripheral, operation, after: timeout }),
             Ok(Err(source)) => Err(ModbusError::Transport { peripheral, operation, source }),
             Ok(Ok(Err(exception))) => Err(ModbusError::Exception { peripheral, operation, exception }),
             Ok(Ok(Ok(words))) => Ok(words),
+        };
+        if let Err(e) = &result
+            && e.spoils_connection()
+        {
+            // A late reply would answer the next request: start over on a fresh connection.
+            self.ctx = None;
         }
+        result
     }
 
     async fn write_all(&mut self, writes: &[RegisterWrite]) -> Result<(), ModbusError> {
@@ -295,11 +422,13 @@ impl ModbusPeripheral {
         self.write_all(&writes).await
     }
 
-    /// The `after_capture` writes, then the reads.
+    /// The reads (taken while the sensor is still pressed, the light still on), then the
+    /// `after_capture` writes.
     pub async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
+        let readings = self.read_all().await?;
         let writes = self.config.after_capture.clone();
         self.write_all(&writes).await?;
-        self.read_all().await
+        Ok(readings)
     }
 
     /// Reads every configured value.
@@ -313,39 +442,163 @@ impl ModbusPeripheral {
                 field: "read",
                 problem: format!("{}: device returned {} registers, expected {}", read.name, words.len(), read.words),
             })?;
-            out.push(ModbusReading { name: format!("{}.{}", self.config.name, read.name), value });
+            out.push(ModbusReading { name: format!("{}.{}", self.config.name, read.name), value: Some(value) });
         }
         Ok(out)
     }
+
+    /// Every configured reading with no value (what an optional peripheral that failed logs).
+    pub fn empty_readings(&self) -> Vec<ModbusReading> {
+        self.config.read.iter().map(|r| ModbusReading { name: format!("{}.{}", self.config.name, r.name), value: None }).collect()
+    }
 }
 
-/// All configured peripherals, in name order.
+/// Opens a client context over `config.transport`, within `config.timeout`.
+async fn open_context(config: &ModbusPeripheralConfig) -> Result<Context, ModbusError> {
+    let slave = Slave(config.unit);
+    let connect_err = |target: String, source| ModbusError::Connect { peripheral: config.name.clone(), target, source };
+    match &config.transport {
+        ModbusTransport::Tcp { address } => {
+            let addr: SocketAddr = tokio::net::lookup_host(address.as_str())
+                .await
+                .map_err(|e| connect_err(address.clone(), e))?
+                .next()
+                .ok_or_else(|| connect_err(address.clone(), std::io::Error::other("no address")))?;
+            let stream = tokio::time::timeout(config.timeout, tokio::net::TcpStream::connect(addr))
+                .await
+                .map_err(|_| connect_err(address.clone(), std::io::Error::from(std::io::ErrorKind::TimedOut)))?
+                .map_err(|e| connect_err(address.clone(), e))?;
+            Ok(tokio_modbus::client::tcp::attach_slave(stream, slave))
+        }
+        ModbusTransport::Rtu { device, baud } => {
+            let port = crate::io::serial::AsyncSerial::open(device, *baud).map_err(|e| connect_err(device.display().to_string(), e))?;
+            Ok(tokio_modbus::client::rtu::attach_slave(port, slave))
+        }
+        ModbusTransport::Sim { .. } => Err(ModbusError::Invalid {
+            peripheral: config.name.clone(),
+            field: "transport",
+            problem: "sim: the simulated device was not started (only `rig collect` on the simulated rig starts it)".into(),
+        }),
+    }
+}
+
+/// What the collection job needs from the peripherals around a capture: the one seam between
+/// the job and Modbus (or any other bench device), so the job never names a backend.
+pub trait Peripherals: Send {
+    /// True when there is nothing to do around a capture (the job then leaves its timing
+    /// exactly as without peripherals).
+    fn is_empty(&self) -> bool;
+    /// Once the arm has arrived, before frames are exposed.
+    fn before_capture(&mut self) -> impl Future<Output = Result<(), ModbusError>> + Send;
+    /// After the frames, still in contact: the readings for the row, then the
+    /// `after_capture` writes. An error is a fault of a required peripheral.
+    fn after_capture(&mut self) -> impl Future<Output = Result<Vec<ModbusReading>, ModbusError>> + Send;
+}
+
+/// A borrowed set of peripherals: a long-lived owner (the daemon's open rig) lends them to
+/// one job after another.
+impl<P: Peripherals> Peripherals for &mut P {
+    fn is_empty(&self) -> bool {
+        (**self).is_empty()
+    }
+    fn before_capture(&mut self) -> impl Future<Output = Result<(), ModbusError>> + Send {
+        (**self).before_capture()
+    }
+    fn after_capture(&mut self) -> impl Future<Output = Result<Vec<ModbusReading>, ModbusError>> + Send {
+        (**self).after_capture()
+    }
+}
+
+/// No peripherals configured: nothing happens around a capture and the `modbus` column stays
+/// empty.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct NoPeripherals;
+
+impl Peripherals for NoPeripherals {
+    fn is_empty(&self) -> bool {
+        true
+    }
+    async fn before_capture(&mut self) -> Result<(), ModbusError> {
+        Ok(())
+    }
+    async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
+        Ok(Vec::new())
+    }
+}
+
+/// All configured peripherals, in name order, with the failure policy of the module docs.
 #[derive(Default)]
 pub struct ModbusBench {
     pub peripherals: Vec<ModbusPeripheral>,
+    /// Per peripheral: its `before_capture` failed for this capture (optional ones only), so
+    /// its reads are skipped rather than waiting out another timeout.
+    failed_before: Vec<bool>,
 }
 
 impl ModbusBench {
-    /// Connects every peripheral.
-    pub async fn connect(configs: &BTreeMap<String, ModbusPeripheralConfig>) -> Result<Self, ModbusError> {
-        let mut peripherals = Vec::new();
-        for config in configs.values() {
-            peripherals.push(ModbusPeripheral::connect(config.clone()).await?);
-        }
-        Ok(Self { peripherals })
+    /// The peripherals, not yet connected (each connects on first use).
+    pub fn new(configs: &BTreeMap<String, ModbusPeripheralConfig>) -> Self {
+        Self::from_peripherals(configs.values().cloned().map(ModbusPeripheral::new).collect())
     }
 
-    pub async fn before_capture(&mut self) -> Result<(), ModbusError> {
-        for p in &mut self.peripherals {
-            p.before_capture().await?;
+    /// A bench of already built peripherals, kept in the given order.
+    pub fn from_peripherals(peripherals: Vec<ModbusPeripheral>) -> Self {
+        let failed_before = vec![false; peripherals.len()];
+        Self { peripherals, failed_before }
+    }
+
+    /// Connects every peripheral now: a required one that cannot be reached is an error (a
+    /// miswired bench is better found before the arm moves); an optional one is warned about
+    /// and tried again at each capture.
+    pub async fn connect(configs: &BTreeMap<String, ModbusPeripheralConfig>) -> Result<Self, ModbusError> {
+        let mut bench = Self::new(configs);
+        for p in &mut bench.peripherals {
+            let required = p.config.required;
+            match p.ensure_connected().await.map(|_| ()) {
+                Ok(()) => {}
+                Err(e) if !required => tracing::warn!(error = %e, "optional Modbus peripheral not reachable; its values stay empty until it answers"),
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(bench)
+    }
+}
+
+impl Peripherals for ModbusBench {
+    fn is_empty(&self) -> bool {
+        self.peripherals.is_empty()
+    }
+
+    async fn before_capture(&mut self) -> Result<(), ModbusError> {
+        self.failed_before = vec![false; self.peripherals.len()];
+        for (p, failed) in self.peripherals.iter_mut().zip(&mut self.failed_before) {
+            match p.before_capture().await {
+                Ok(()) => {}
+                Err(e) if !p.config.required => {
+                    tracing::warn!(error = %e, "optional Modbus peripheral failed before the capture; its values stay empty");
+                    *failed = true;
+                }
+                Err(e) => return Err(e),
+            }
         }
         Ok(())
     }
 
-    pub async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
+    async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
         let mut out = Vec::new();
-        for p in &mut self.peripherals {
-            out.extend(p.after_capture().await?);
+        for (k, p) in self.peripherals.iter_mut().enumerate() {
+            if self.failed_before.get(k).copied().unwrap_or(false) {
+                out.extend(p.empty_readings());
+                continue;
+            }
+            match p.after_capture().await {
+                Ok(readings) => out.extend(readings),
+                Err(e) if !p.config.required => {
+                    tracing::warn!(error = %e, "optional Modbus peripheral failed after the capture; its values stay empty");
+                    out.extend(p.empty_readings());
+                }
+                Err(e) => return Err(e),
+            }
         }
         Ok(out)
     }
@@ -402,6 +655,7 @@ mod tests {
         ModbusPeripheralConfig {
             name: name.into(),
             transport,
+            required: true,
             unit: 1,
             timeout: Duration::from_secs(2),
             before_capture: vec![RegisterWrite { register: 10, value: 800 }],
@@ -418,8 +672,8 @@ mod tests {
         assert_eq!(bank.holding.lock().unwrap().get(&10), Some(&800));
         let readings = p.after_capture().await.unwrap();
         let name = &p.config().name;
-        assert_eq!(readings[0], ModbusReading { name: format!("{name}.light_permille"), value: 800.0 });
-        assert!((readings[1].value - -123.4).abs() < 1e-9, "{readings:?}");
+        assert_eq!(readings[0], ModbusReading { name: format!("{name}.light_permille"), value: Some(800.0) });
+        assert!(readings[1].value.is_some_and(|v| (v - -123.4).abs() < 1e-9), "{readings:?}");
         assert_eq!(format_readings(&readings[..1]), format!("{name}.light_permille=800"));
         // A register the device does not have: an exception value, not a transport error.
         p.config.read.push(RegisterRead { name: "missing".into(), kind: RegisterKind::Holding, register: 99, words: 1, signed: false, scale: 1.0, offset: 0.0 });
@@ -476,6 +730,22 @@ mod tests {
         assert!(matches!(ModbusPeripheralConfig::resolve("x", raw), Err(ModbusError::Invalid { field: "device", .. })));
         let raw: RawModbusPeripheral = toml::from_str("transport = \"udp\"\n").unwrap();
         assert!(ModbusPeripheralConfig::resolve("x", raw).is_err());
+        // Simulated devices, the policy flag, and sim options where they do not belong.
+        let raw: RawModbusPeripheral = toml::from_str("transport = \"sim\"\nsim = \"force\"\nrequired = false\n").unwrap();
+        let c = ModbusPeripheralConfig::resolve("force", raw).unwrap();
+        assert!(!c.required);
+        assert_eq!(c.transport, ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { stiffness_n_per_mm: 2.0 }, stop_answering_after: None });
+        assert_eq!(c.describe(), "force (sim force sensor unit 1, optional)");
+        for bad in [
+            "transport = \"sim\"\nsim = \"laser\"\n",
+            "transport = \"sim\"\nsim = \"force\"\nsim_stiffness_n_per_mm = -1.0\n",
+            "transport = \"tcp\"\naddress = \"h\"\nsim_stop_answering_after = 3\n",
+            "transport = \"tcp\"\naddress = \"h\"\ntimeout_ms = 0\n",
+        ] {
+            let raw: RawModbusPeripheral = toml::from_str(bad).unwrap();
+            let e = ModbusPeripheralConfig::resolve("x", raw).unwrap_err();
+            assert!(matches!(e, ModbusError::Invalid { .. }) && !e.is_recoverable(), "{bad}: {e}");
+        }
         let r = RegisterRead { name: "v".into(), kind: RegisterKind::Input, register: 0, words: 1, signed: true, scale: 2.0, offset: 1.0 };
         assert_eq!(decode_reading(&r, &[0xFFFF]), Some(-1.0));
         assert_eq!(decode_reading(&r, &[]), None);

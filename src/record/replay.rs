@@ -531,6 +531,9 @@ async fn run_job(
         clock,
         cancel,
         progress: indicatif::ProgressBar::hidden(),
+        // Recordings hold the arm's bytes and the frames, not Modbus traffic: a replay runs
+        // without peripherals and leaves the `modbus` column empty.
+        peripherals: crate::io::modbus::NoPeripherals,
     };
     let summary = job.run(&h.plan).await?;
     Ok((summary, datasets))

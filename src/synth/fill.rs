@@ -9,6 +9,7 @@
 //! `pose_id % n == i - 1` and writes them to its own dataset directory, which
 //! `rig dataset merge` joins later.
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -127,6 +128,25 @@ pub struct FillWork {
     pub present: usize,
 }
 
+/// The default model package: `models/default` when present, else the tiny test package.
+pub fn default_model() -> PathBuf {
+    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
+    for rel in ["models/default", "tests/data/tiny-package"] {
+        for root in &roots {
+            let p = root.join(rel);
+            if p.join("model.toml").is_file() {
+                return p;
+            }
+        }
+    }
+    PathBuf::from("models/default")
+}
+
+/// Dataset directories under `root` (itself, or up to two levels below).
+pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
+    crate::dataset::find_datasets(root)
+}
+
 /// Lists the grid poses of `dataset` (and of `out`, when a shard writes elsewhere) that have
 /// no row yet and belong to `shard`.
 pub fn missing_poses(dataset: &Path, out: Option<&Path>, shard: Shard) -> Result<FillWork, FillError> {
@@ -152,6 +172,30 @@ pub fn fill_missing(
     pipeline: &mut Pipeline,
     options: &FillOptions,
     progress: &indicatif::ProgressBar,
+) -> Result<FillSummary, FillError> {
+    fill_missing_observed(dataset, out, pipeline, options, progress, &mut |_| ControlFlow::Continue(()))
+}
+
+/// One synthesised pose, shown to the observer of [`fill_missing_observed`].
+#[derive(Debug)]
+pub struct FilledPose<'a> {
+    pub pose_id: u32,
+    /// The control image (depth map) the model was conditioned on.
+    pub control: &'a RgbImage,
+    /// The synthetic image as written to the dataset.
+    pub image: &'a RgbImage,
+}
+
+/// [`fill_missing`], telling `observe` about every pose once it is written. `observe` returning
+/// `Break` stops the fill after that batch: what was written stays (durable and resumable), the
+/// dataset is not finished, and the summary counts the poses not done as `left`.
+pub fn fill_missing_observed(
+    dataset: &Path,
+    out: Option<&Path>,
+    pipeline: &mut Pipeline,
+    options: &FillOptions,
+    progress: &indicatif::ProgressBar,
+    observe: &mut dyn FnMut(&FilledPose<'_>) -> ControlFlow<()>,
 ) -> Result<FillSummary, FillError> {
     let work = missing_poses(dataset, out, options.shard)?;
     let manifest = work.manifest.clone();
@@ -181,6 +225,7 @@ pub fn fill_missing(
     }
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
+    let mut synthesised = 0usize;
     for chunk in todo.chunks(options.batch.max(1)) {
         let controls: Vec<RgbImage> = chunk.iter().map(|p| renderer.control_image(&p.pose)).collect();
         let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
@@ -199,6 +244,121 @@ pub fn fill_missing(
             })
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
+        let mut stop = false;
+        for (((p, request), output), control) in chunk.iter().zip(&requests).zip(outputs).zip(&controls) {
+            let image = match output_size {
+                Some((w, h)) if (w, h) != output.image.dimensions() => {
+                    image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
+                }
+                _ => output.image,
+            };
+            let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
+            writer.append(row, &image)?;
+            synthesised += 1;
+            stop |= observe(&FilledPose { pose_id: p.pose_id, control, image: &image }).is_break();
+        }
+        progress.inc(chunk.len() as u64);
+        if stop {
+            // Stopped early: the rows written are durable; an unfinished dataset resumes.
+            return Ok(FillSummary { grid: work.grid, present: work.present, synthesised, left: total_missing - synthesised });
+        }
+    }
+    writer.finish()?;
+    Ok(FillSummary {
+        grid: work.grid,
+        present: work.present,
+        synthesised: todo.len(),
+        left: total_missing - todo.len(),
+    })
+}
+
+/// What `rig synth --poses-of` did for one dataset.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PosesOfSummary {
+    /// Rows of the source with `source=real`: the poses to twin.
+    pub real: usize,
+    /// Of those, poses the output already had (a resumed run).
+    pub present: usize,
+    /// Poses synthesised now.
+    pub synthesised: usize,
+    /// Poses left to other shards or beyond the limit.
+    pub left: usize,
+}
+
+/// Synthesises exactly the poses of `source`'s real rows into the dataset `out` (created with
+/// `source`'s manifest: object, sensor, calibration, plan, work frame; its `reference.png` is
+/// copied), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
+/// `rig eval`. Seeds are [`pose_seed`]`(plan seed, pose_id)` as in [`fill_missing`], so a pose
+/// gets the same image either way. Resumable: poses `out` already has are not redone.
+/// `options.shard` and `options.limit` apply as in a fill.
+pub fn synthesise_poses_of(
+    source: &Path,
+    out: &Path,
+    pipeline: &mut Pipeline,
+    options: &FillOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<PosesOfSummary, FillError> {
+    let source_manifest = Manifest::load(source)?;
+    let dir = source.to_path_buf();
+    let real: Vec<PlannedPose> = read_rows(source)?
+        .iter()
+        .filter(|r| r.source == crate::dataset::Source::Real)
+        .map(|r| PlannedPose { pose_id: r.pose_id, pose: r.commanded() })
+        .collect();
+    let manifest = Manifest {
+        started_utc: crate::dataset::manifest::utc_now(),
+        resumed_utc: Vec::new(),
+        ended_utc: None,
+        rig_version: crate::version().to_string(),
+        ..source_manifest.clone()
+    };
+    let mut writer = DatasetWriter::resume(out, manifest)?;
+    let present: std::collections::BTreeSet<u32> = writer.done_ids().clone();
+    let mut todo: Vec<PlannedPose> =
+        real.iter().filter(|p| !present.contains(&p.pose_id) && options.shard.owns(p.pose_id)).copied().collect();
+    let waiting = real.iter().filter(|p| !present.contains(&p.pose_id)).count();
+    if let Some(limit) = options.limit {
+        todo.truncate(limit);
+    }
+    if !out.join(crate::dataset::REFERENCE_FILE).is_file()
+        && let Ok(reference) = image::open(source.join(crate::dataset::REFERENCE_FILE))
+    {
+        writer.write_reference(&reference.to_rgb8())?;
+    }
+    let kind = SensorKind::from_str(&source_manifest.sensor)
+        .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
+    let mesh = object_mesh(&dir, &source_manifest)?;
+    let (width, height) = pipeline.resolution();
+    let calibration = calibration_of(&dir, &source_manifest, width, height)?;
+    let contact_depth_mm = source_manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+    let output_size = reference_size(source);
+    let spec_seed = source_manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
+    let model = pipeline.package_hash().to_string();
+    progress.set_length(todo.len() as u64);
+    for chunk in todo.chunks(options.batch.max(1)) {
+        let controls: Vec<RgbImage> = chunk
+            .iter()
+            .map(|p| {
+                let object_pose = Pose { z_mm: p.pose.z_mm + contact_depth_mm, ..p.pose };
+                let depth = crate::geometry::raster::render_depth(&mesh, &object_pose, &calibration, width, height, options.supersample);
+                crate::geometry::control::control_image(&depth)
+            })
+            .collect();
+        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
+        let requests: Vec<GenerateRequest> = chunk
+            .iter()
+            .zip(controls.iter().zip(&prompts))
+            .map(|(p, (control, prompt))| GenerateRequest {
+                steps: options.steps,
+                guidance: options.guidance,
+                eta: options.eta,
+                scheduler: options.scheduler,
+                conditioning_scale: options.conditioning_scale,
+                seed: pose_seed(spec_seed, p.pose_id),
+                ..GenerateRequest::new(control, prompt)
+            })
+            .collect();
+        let outputs = pipeline.generate_batch(&requests)?;
         for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
             let image = match output_size {
                 Some((w, h)) if (w, h) != output.image.dimensions() => {
@@ -212,11 +372,11 @@ pub fn fill_missing(
         progress.inc(chunk.len() as u64);
     }
     writer.finish()?;
-    Ok(FillSummary {
-        grid: work.grid,
-        present: work.present,
+    Ok(PosesOfSummary {
+        real: real.len(),
+        present: real.len() - waiting,
         synthesised: todo.len(),
-        left: total_missing - todo.len(),
+        left: waiting - todo.len(),
     })
 }
 

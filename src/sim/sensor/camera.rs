@@ -106,6 +106,12 @@ impl SimCamera {
         self
     }
 
+    /// Replaces the object under the sensor (a long-running rig presses several objects in
+    /// turn without reopening its cameras).
+    pub fn set_depth_source(&mut self, depth_source: DepthSource) {
+        self.depth_source = depth_source;
+    }
+
     /// The simulator (for its stage counts and reference frame).
     pub fn sim(&self) -> &SensorSim {
         &self.sim

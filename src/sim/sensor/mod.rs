@@ -272,6 +272,14 @@ impl SensorSim {
         Ok(self)
     }
 
+    /// The same simulator as another physical unit: its static look (rim specks, dust) is
+    /// rebuilt from `unit_seed` while the per-frame noise keeps the run's seed. Collections
+    /// with different plan seeds but the same unit seed see the same sensor, as a lab does.
+    pub fn with_unit_seed(mut self, unit_seed: u64) -> Self {
+        self.fixed = StaticLook::build(&self.look, self.width, self.height, unit_seed);
+        self
+    }
+
     pub fn kind(&self) -> SensorKind {
         self.kind
     }

@@ -1,0 +1,1115 @@
+//! `rig eval`: how close synthetic tactile images are to real ones, beside two baselines.
+//!
+//! Data flow: [`evaluate`] finds the datasets under the real, synthetic and collected roots
+//! (a dataset, or a folder of `<object>/<sensor>` datasets), pairs real and synthetic datasets
+//! by object and sensor, then their rows by commanded pose (x, y, z, yaw equal within
+//! [`POSE_TOLERANCE`]). Real side: rows `source=real`; synthetic side: rows `source=synthetic`.
+//! A pose the collected (training) set also has for that object and sensor is dropped and
+//! counted, so what is left is unseen. Every image is resized to `size_px` square (bilinear)
+//! before anything is measured.
+//!
+//! For each pair four images are judged against the true (real) one:
+//!
+//! - **model**: the synthetic image;
+//! - **pose-blind**: the mean of the sensor's collected images (any object, any pose);
+//! - **nearest-neighbour**: the collected image of the closest pose ([`pose_distance`]: mm of
+//!   x, y, z plus |yaw difference| / 15 deg; the same object when the collected set has it,
+//!   else any object of that sensor), its change from its own no-contact reference moved
+//!   rigidly by the pose difference ([`warp_to_pose`]) and added back onto that reference;
+//! - **true image**: the real image itself, only for pose recoverability (the estimator's own
+//!   error, the floor).
+//!
+//! Metrics ([`crate::metrics`]): SSIM, PSNR and MSE over the whole frame, and over the contact
+//! region ([`contact_mask`]: pixels where the true image differs from its dataset's
+//! `reference.png`). Pose recoverability ([`estimate_contact`]): the contact's centroid and
+//! principal axis, estimated from an image's change against the reference, compared with the
+//! contact the commanded pose gives the object's mesh through the calibration
+//! ([`geometric_contact`]), in mm and degrees, and with the estimate from the true image of the
+//! same pose. [`EvalReport::to_markdown`] prints the table; the report is also `Serialize`.
+//!
+//! Nothing here panics on odd images: a blank image has no contact estimate (counted), an
+//! empty mask skips the contact metrics for that pose (counted), and the table says `n/a`
+//! where a figure has no data.
+
+// `!(a > b)` is deliberate here: a NaN must fail every check, which `a <= b` would not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec2;
+use image::RgbImage;
+use serde::Serialize;
+
+use crate::calibration::Calibration;
+use crate::dataset::{DatasetError, Manifest, PoseRow, REFERENCE_FILE, Source, read_rows};
+use crate::geometry::DepthMap;
+use crate::geometry::stl::Mesh;
+use crate::metrics;
+use crate::pose::Pose;
+
+/// Two poses are the same pose when x, y, z (mm) and yaw (deg) each differ by at most this.
+pub const POSE_TOLERANCE: f64 = 1e-6;
+/// Yaw difference that counts as much as 1 mm in [`pose_distance`], degrees.
+pub const NN_YAW_DEG_PER_MM: f64 = 15.0;
+/// Smallest `size_px`: the SSIM window.
+pub const MIN_SIZE_PX: u32 = 11;
+/// A contact region whose second moments have a smaller-to-larger eigenvalue ratio above this
+/// is near-isotropic (a disc, a ring, a square): its orientation says nothing about yaw.
+pub const ISOTROPY_RATIO: f64 = 0.5;
+
+/// Errors of `rig eval`: all are bad input (missing or inconsistent datasets).
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("--size {size_px}: images must be at least {min} px (the SSIM window)")]
+    BadSize { size_px: u32, min: u32 },
+    #[error("--object {object}: no real dataset of that object under {dir}")]
+    UnknownObject { object: String, dir: PathBuf },
+    #[error("no dataset under {dir} (--{side}: a dataset has a manifest.toml)")]
+    NoDatasets { side: &'static str, dir: PathBuf },
+    #[error("{side}: two datasets for object {object:?} and sensor {sensor:?}: {first} and {second}")]
+    DuplicateDataset { side: &'static str, object: String, sensor: String, first: PathBuf, second: PathBuf },
+    #[error("dataset {dir}: {source}")]
+    Dataset {
+        dir: PathBuf,
+        #[source]
+        source: DatasetError,
+    },
+    #[error("cannot read image {path}: {source}")]
+    Image {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("dataset {dir} has no {REFERENCE_FILE} (the no-contact frame the contact region is measured against)")]
+    NoReference { dir: PathBuf },
+    #[error(
+        "no pose pairs: {real_datasets} real and {synthetic_datasets} synthetic datasets, {matched_datasets} matched by object and sensor, {unpaired_real} real and {unpaired_synthetic} synthetic poses without a twin, {dropped_seen} dropped as seen in the collected set"
+    )]
+    NoPairs {
+        real_datasets: usize,
+        synthetic_datasets: usize,
+        matched_datasets: usize,
+        unpaired_real: usize,
+        unpaired_synthetic: usize,
+        dropped_seen: usize,
+    },
+    #[error(
+        "pose_id {pose_id} of {object}/{sensor}: the real image is {real_width}x{real_height} px, the synthetic one {synthetic_width}x{synthetic_height} px (a synthetic twin has the real image's size; `rig synth --poses-of` writes it so)"
+    )]
+    SizeMismatch {
+        object: String,
+        sensor: String,
+        pose_id: u32,
+        real_width: u32,
+        real_height: u32,
+        synthetic_width: u32,
+        synthetic_height: u32,
+    },
+}
+
+/// Settings of an evaluation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalOptions {
+    /// Every image is resized to `size_px` x `size_px` before it is measured.
+    pub size_px: u32,
+    /// What the test set is (e.g. "unseen poses"); the table's heading.
+    pub label: String,
+    /// A pixel belongs to the contact region when the true image's change from the reference
+    /// (largest channel difference, 3 x 3 box mean) exceeds this, grey levels.
+    pub mask_threshold: f64,
+    /// The region is then dilated by this many pixels (square).
+    pub mask_dilate_px: u32,
+    /// Only these objects of the real and synthetic sides (empty: all). The collected set is
+    /// not filtered: baselines may use any object of the sensor.
+    pub objects: Vec<String>,
+}
+
+impl EvalOptions {
+    /// Defaults at a size: threshold 10 levels, dilation `size / 64` px (2 px at 128).
+    pub fn at_size(size_px: u32, label: &str) -> Self {
+        Self {
+            size_px,
+            label: label.to_string(),
+            mask_threshold: 10.0,
+            mask_dilate_px: (size_px / 64).max(1),
+            objects: Vec::new(),
+        }
+    }
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self::at_size(128, "test set")
+    }
+}
+
+/// Whose image is judged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    Model,
+    PoseBlind,
+    NearestNeighbour,
+    TrueImage,
+}
+
+impl Method {
+    pub const ALL: [Method; 4] = [Method::Model, Method::PoseBlind, Method::NearestNeighbour, Method::TrueImage];
+
+    /// The name in the table.
+    pub fn label(&self) -> &'static str {
+        match self {
+            Method::Model => "model",
+            Method::PoseBlind => "pose-blind",
+            Method::NearestNeighbour => "nearest-neighbour",
+            Method::TrueImage => "true image",
+        }
+    }
+}
+
+/// One row of the table: a method on one sensor's pairs. `None`: no data (shown `n/a`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MethodRow {
+    pub sensor: String,
+    pub method: Method,
+    /// Pairs judged.
+    pub n: usize,
+    pub ssim: Option<f64>,
+    /// Mean of the per-image PSNR, dB; infinite when some image is identical to its truth
+    /// (written `null` in JSON, `inf` in the table).
+    pub psnr_db: Option<f64>,
+    pub mse: Option<f64>,
+    /// Pairs whose true image has contact pixels (the contact columns average over these).
+    pub n_contact: usize,
+    pub contact_ssim: Option<f64>,
+    pub contact_psnr_db: Option<f64>,
+    pub contact_mse: Option<f64>,
+    /// Mean distance between the contact centroid estimated from this method's image and the
+    /// centroid of the contact the commanded pose gives the mesh, mm.
+    pub position_err_mm: Option<f64>,
+    /// Poses with a geometric contact, and of those, poses where this image gave an estimate.
+    pub position_attempts: usize,
+    pub position_found: usize,
+    /// Mean angle between the estimated principal axis and the mesh contact's, degrees
+    /// (mod 180, so at most 90), over poses whose mesh contact is not near-isotropic.
+    pub yaw_err_deg: Option<f64>,
+    pub yaw_attempts: usize,
+    pub yaw_found: usize,
+    /// The same two errors against the estimate from the true image of the same pose.
+    pub position_vs_true_mm: Option<f64>,
+    pub yaw_vs_true_deg: Option<f64>,
+}
+
+/// What was counted rather than measured.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct EvalCounts {
+    pub real_datasets: usize,
+    pub synthetic_datasets: usize,
+    pub collected_images: usize,
+    /// Pairs judged.
+    pub pairs: usize,
+    /// Test poses the collected set also has (same object and sensor): dropped.
+    pub dropped_seen: usize,
+    /// Real poses without a synthetic twin, and synthetic poses without a real one.
+    pub unpaired_real: usize,
+    pub unpaired_synthetic: usize,
+    /// A few of the unpaired poses, for the message (`object/sensor pose_id (x, y, z, yaw)`).
+    pub unpaired_examples: Vec<String>,
+    /// Datasets on one side with no dataset of the same object and sensor on the other.
+    pub unmatched_datasets: Vec<String>,
+    /// True images without contact pixels (skipped for the contact metrics).
+    pub no_contact_pixels: usize,
+    /// Poses whose mesh contact is near-isotropic (skipped for yaw).
+    pub yaw_unobservable: usize,
+    /// Poses without a mesh contact (no mesh, or the object does not touch): skipped for
+    /// pose recoverability against the pose.
+    pub no_geometric_contact: usize,
+    /// Sensors with no collected image: their baseline rows are `n/a`.
+    pub sensors_without_baseline: Vec<String>,
+    /// Real datasets whose manifest names a calibration file that cannot be loaded here: the
+    /// default calibration for the image size stands in (pose errors in mm are then approximate).
+    pub default_calibration_for: Vec<String>,
+}
+
+/// The result of [`evaluate`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvalReport {
+    pub label: String,
+    pub size_px: u32,
+    pub mask_threshold: f64,
+    pub mask_dilate_px: u32,
+    pub counts: EvalCounts,
+    pub rows: Vec<MethodRow>,
+}
+
+/// One dataset read from disk.
+#[derive(Clone)]
+struct DatasetInfo {
+    dir: PathBuf,
+    manifest: Manifest,
+    rows: Vec<PoseRow>,
+}
+
+impl DatasetInfo {
+    fn load(dir: &Path) -> Result<Self, EvalError> {
+        let wrap = |source| EvalError::Dataset { dir: dir.to_path_buf(), source };
+        let manifest = Manifest::load(dir).map_err(wrap)?;
+        let rows = read_rows(dir).map_err(wrap)?;
+        Ok(Self { dir: dir.to_path_buf(), manifest, rows })
+    }
+
+    fn key(&self) -> (String, String) {
+        (self.manifest.object.name.clone(), self.manifest.sensor.to_ascii_lowercase())
+    }
+
+    fn rows_of(&self, source: Source) -> impl Iterator<Item = &PoseRow> {
+        self.rows.iter().filter(move |r| r.source == source)
+    }
+}
+
+/// Datasets under `root` keyed by (object, sensor); a key twice is an error.
+fn load_side(root: &Path, side: &'static str) -> Result<BTreeMap<(String, String), DatasetInfo>, EvalError> {
+    let dirs = crate::dataset::find_datasets(root);
+    if dirs.is_empty() {
+        return Err(EvalError::NoDatasets { side, dir: root.to_path_buf() });
+    }
+    let mut out = BTreeMap::new();
+    for d in dirs {
+        let info = DatasetInfo::load(&d)?;
+        let key = info.key();
+        if let Some(first) = out.get(&key) {
+            let first: &DatasetInfo = first;
+            return Err(EvalError::DuplicateDataset {
+                side,
+                object: key.0,
+                sensor: key.1,
+                first: first.dir.clone(),
+                second: d,
+            });
+        }
+        out.insert(key, info);
+    }
+    Ok(out)
+}
+
+/// Whether two poses are the same within [`POSE_TOLERANCE`].
+pub fn same_pose(a: &Pose, b: &Pose) -> bool {
+    (a.x_mm - b.x_mm).abs() <= POSE_TOLERANCE
+        && (a.y_mm - b.y_mm).abs() <= POSE_TOLERANCE
+        && (a.z_mm - b.z_mm).abs() <= POSE_TOLERANCE
+        && (a.yaw_deg - b.yaw_deg).abs() <= POSE_TOLERANCE
+}
+
+/// The nearest-neighbour distance: Euclidean mm over x, y, z plus the smallest yaw difference
+/// over [`NN_YAW_DEG_PER_MM`] (15 degrees weigh as 1 mm).
+pub fn pose_distance(a: &Pose, b: &Pose) -> f64 {
+    a.distance_mm(b) + a.yaw_error_deg(b) / NN_YAW_DEG_PER_MM
+}
+
+/// Reads a PNG and resizes it to `size` x `size` (bilinear) when it is not already.
+fn load_at(path: &Path, size: u32) -> Result<RgbImage, EvalError> {
+    let img = image::open(path).map_err(|source| EvalError::Image { path: path.to_path_buf(), source })?.to_rgb8();
+    Ok(resize_square(img, size))
+}
+
+fn resize_square(img: RgbImage, size: u32) -> RgbImage {
+    if img.dimensions() == (size, size) {
+        img
+    } else {
+        image::imageops::resize(&img, size, size, image::imageops::FilterType::Triangle)
+    }
+}
+
+/// The dataset's calibration at `size` x `size`: the file its manifest names, else (none or
+/// `default`) the default for its image size, which is what `rig collect` renders with then.
+fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) -> Option<Calibration> {
+    let calib = match info.manifest.calibration.as_deref() {
+        None | Some("default") | Some("none") => Calibration::default_for(native.0, native.1),
+        Some(path) => Calibration::load(Path::new(path)).ok()?,
+    };
+    Some(calib.scaled_to(size, size))
+}
+
+/// The object's mesh: its STL when the file is there, else the library object of that name.
+fn mesh_of(manifest: &Manifest) -> Option<Mesh> {
+    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file())
+        && let Ok(mesh) = Mesh::load(&path)
+    {
+        return Some(mesh);
+    }
+    crate::geometry::objects::load_object(&manifest.object.name).ok()
+}
+
+/// Per-pixel change of `image` from `reference`: the largest of the three channel differences.
+fn change_map(image: &RgbImage, reference: &RgbImage) -> Vec<f32> {
+    image
+        .as_raw()
+        .chunks_exact(3)
+        .zip(reference.as_raw().chunks_exact(3))
+        .map(|(a, b)| (0..3).map(|k| (a[k] as i32 - b[k] as i32).unsigned_abs()).max().unwrap_or(0) as f32)
+        .collect()
+}
+
+/// The contact region of a true image: pixels whose change from the reference (3 x 3 box
+/// mean) exceeds `threshold` levels, dilated by `dilate_px` (square). Row-major, one entry per
+/// pixel; sizes must match (else all false).
+pub fn contact_mask(truth: &RgbImage, reference: &RgbImage, threshold: f64, dilate_px: u32) -> Vec<bool> {
+    let (w, h) = (truth.width() as usize, truth.height() as usize);
+    if truth.dimensions() != reference.dimensions() || w == 0 || h == 0 {
+        return vec![false; w * h];
+    }
+    let mut change = change_map(truth, reference);
+    crate::calibration::detect::box_blur(&mut change, w, h, 1);
+    let core: Vec<bool> = change.iter().map(|&c| c as f64 > threshold).collect();
+    if dilate_px == 0 {
+        return core;
+    }
+    let r = dilate_px as usize;
+    // Separable square dilation: rows, then columns.
+    let mut rows = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
+            rows[y * w + x] = (lo..=hi).any(|i| core[y * w + i]);
+        }
+    }
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+            out[y * w + x] = (lo..=hi).any(|j| rows[j * w + x]);
+        }
+    }
+    out
+}
+
+/// A contact region's weighted centroid and second central moments, in pixels (pixel (i, j)
+/// is the point (i + 0.5, j + 0.5)).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactEstimate {
+    pub centroid_px: [f64; 2],
+    /// Second central moments: [uu, uv, vv], px^2.
+    pub moments_px2: [f64; 3],
+}
+
+impl ContactEstimate {
+    fn from_weights(weights: impl Iterator<Item = (usize, f64)>, width: usize) -> Option<Self> {
+        let (mut sw, mut su, mut sv, mut suu, mut suv, mut svv) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for (i, wt) in weights {
+            if !(wt > 0.0) || !wt.is_finite() {
+                continue;
+            }
+            let (u, v) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);
+            sw += wt;
+            su += wt * u;
+            sv += wt * v;
+            suu += wt * u * u;
+            suv += wt * u * v;
+            svv += wt * v * v;
+        }
+        if !(sw > 0.0) {
+            return None;
+        }
+        let (mu, mv) = (su / sw, sv / sw);
+        let m = [suu / sw - mu * mu, suv / sw - mu * mv, svv / sw - mv * mv];
+        let est = Self { centroid_px: [mu, mv], moments_px2: m };
+        (mu.is_finite() && mv.is_finite() && m.iter().all(|v| v.is_finite())).then_some(est)
+    }
+
+    /// The centroid in sensor-frame mm through `calib`.
+    pub fn centroid_mm(&self, calib: &Calibration) -> [f64; 2] {
+        let (x, y) = calib.px_to_mm(self.centroid_px[0], self.centroid_px[1]);
+        [x, y]
+    }
+
+    /// The second moments in sensor-frame mm^2 (the calibration's linear part applied), as
+    /// [xx, xy, yy].
+    fn moments_mm2(&self, calib: &Calibration) -> [f64; 3] {
+        // px_to_mm is linear: J = diag(1/sx, 1/sy) R(-rotation).
+        let (s, c) = calib.rotation_deg.to_radians().sin_cos();
+        let j = [[c / calib.scale_px_per_mm[0], s / calib.scale_px_per_mm[0]], [-s / calib.scale_px_per_mm[1], c / calib.scale_px_per_mm[1]]];
+        let m = [[self.moments_px2[0], self.moments_px2[1]], [self.moments_px2[1], self.moments_px2[2]]];
+        let mut jm = [[0.0; 2]; 2];
+        for r in 0..2 {
+            for k in 0..2 {
+                jm[r][k] = j[r][0] * m[0][k] + j[r][1] * m[1][k];
+            }
+        }
+        let mut out = [[0.0; 2]; 2];
+        for r in 0..2 {
+            for k in 0..2 {
+                out[r][k] = jm[r][0] * j[k][0] + jm[r][1] * j[k][1];
+            }
+        }
+        [out[0][0], out[0][1], out[1][1]]
+    }
+
+    /// Orientation of the principal axis in the sensor frame, degrees in (-90, 90].
+    pub fn axis_deg(&self, calib: &Calibration) -> f64 {
+        let [xx, xy, yy] = self.moments_mm2(calib);
+        0.5 * (2.0 * xy).atan2(xx - yy).to_degrees()
+    }
+
+    /// Smaller over larger eigenvalue of the moments in mm^2: 1 for a disc, 0 for a line.
+    pub fn isotropy(&self, calib: &Calibration) -> f64 {
+        let [xx, xy, yy] = self.moments_mm2(calib);
+        let mean = (xx + yy) / 2.0;
+        let d = (((xx - yy) / 2.0).powi(2) + xy * xy).sqrt();
+        let (lo, hi) = (mean - d, mean + d);
+        if hi > 0.0 { (lo / hi).clamp(0.0, 1.0) } else { 1.0 }
+    }
+}
+
+/// Angle between two axes (mod 180), degrees in [0, 90].
+pub fn axis_difference_deg(a_deg: f64, b_deg: f64) -> f64 {
+    let d = (a_deg - b_deg).rem_euclid(180.0);
+    d.min(180.0 - d)
+}
+
+/// Estimates the contact in `image` against the no-contact `reference` (same size): the
+/// change (largest channel difference) smoothed by a box blur of radius `size / 64` (at
+/// least one pixel) applied three times, a noise floor (median + 4 MADs), and the connected region around
+/// the strongest change above `floor + 0.3 (peak - floor)`, weighted by how far it rises
+/// above that. `None` when the peak is within 3 levels of the floor (no contact), or on a size
+/// mismatch or an empty image.
+pub fn estimate_contact(image: &RgbImage, reference: &RgbImage) -> Option<ContactEstimate> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if image.dimensions() != reference.dimensions() || w == 0 || h == 0 {
+        return None;
+    }
+    let mut change = change_map(image, reference);
+    let r = (w / 64).max(1);
+    for _ in 0..3 {
+        crate::calibration::detect::box_blur(&mut change, w, h, r);
+    }
+    let mut sorted = change.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2] as f64;
+    let mut dev: Vec<f64> = change.iter().map(|&v| (v as f64 - median).abs()).collect();
+    dev.sort_by(f64::total_cmp);
+    let floor = median + 4.0 * dev[dev.len() / 2];
+    let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+    let peak = peak as f64;
+    if !(peak - floor >= 3.0) {
+        return None;
+    }
+    let threshold = floor + 0.3 * (peak - floor);
+    let mut seen = vec![false; w * h];
+    let mut region = Vec::new();
+    let mut stack = vec![peak_i];
+    seen[peak_i] = true;
+    while let Some(i) = stack.pop() {
+        region.push(i);
+        let (x, y) = (i % w, i / w);
+        let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
+        for j in neighbours.into_iter().flatten() {
+            if !seen[j] && change[j] as f64 > threshold {
+                seen[j] = true;
+                stack.push(j);
+            }
+        }
+    }
+    let est = ContactEstimate::from_weights(region.iter().map(|&i| (i, change[i] as f64 - threshold)), w);
+    // A flat top exactly at the threshold: the peak pixel alone.
+    est.or_else(|| ContactEstimate::from_weights(std::iter::once((peak_i, 1.0)), w))
+}
+
+/// The contact the commanded pose gives the mesh: the pixels where the object rises above the
+/// undeformed skin (depth map through the calibration), weighted by the indentation.
+pub fn geometric_contact(depth: &DepthMap) -> Option<ContactEstimate> {
+    let w = depth.width as usize;
+    if w == 0 {
+        return None;
+    }
+    ContactEstimate::from_weights(depth.height_mm.iter().enumerate().map(|(i, &h)| (i, h as f64)), w)
+}
+
+/// Moves the contact of `image` (taken at pose `from`) to where pose `to` would put it: the
+/// change of `image` from its no-contact `reference` is resampled (bilinear) through the
+/// rigid motion that takes the object from `from` to `to` under `calib` (translation by the
+/// x/y difference in mm, rotation by the yaw difference, as [`object_to_pixel`] maps them),
+/// and added back onto `reference`; where the motion reaches outside the image the change is
+/// zero, so the reference shows. The sensor's static background is not moved, and the z
+/// difference is ignored.
+///
+/// [`object_to_pixel`]: crate::geometry::raster::object_to_pixel
+pub fn warp_to_pose(image: &RgbImage, reference: &RgbImage, from: &Pose, to: &Pose, calib: &Calibration) -> RgbImage {
+    if image.dimensions() != reference.dimensions() {
+        return reference.clone();
+    }
+    let (w, h) = image.dimensions();
+    let a_from = crate::geometry::raster::object_to_pixel(from, calib);
+    let a_to = crate::geometry::raster::object_to_pixel(to, calib);
+    let to_source = a_from * a_to.inverse();
+    let diff: Vec<f32> =
+        image.as_raw().iter().zip(reference.as_raw()).map(|(&a, &b)| a as f32 - b as f32).collect();
+    let at = |x: i64, y: i64, k: usize| -> f32 {
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+            0.0
+        } else {
+            diff[(y as usize * w as usize + x as usize) * 3 + k]
+        }
+    };
+    let mut out = reference.clone();
+    for (x, y, px) in out.enumerate_pixels_mut() {
+        let q = to_source.transform_point2(DVec2::new(x as f64 + 0.5, y as f64 + 0.5)) - DVec2::splat(0.5);
+        if !q.is_finite() {
+            continue;
+        }
+        let (x0, y0) = (q.x.floor(), q.y.floor());
+        let (fx, fy) = ((q.x - x0) as f32, (q.y - y0) as f32);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        for k in 0..3 {
+            let d = at(x0, y0, k) * (1.0 - fx) * (1.0 - fy)
+                + at(x0 + 1, y0, k) * fx * (1.0 - fy)
+                + at(x0, y0 + 1, k) * (1.0 - fx) * fy
+                + at(x0 + 1, y0 + 1, k) * fx * fy;
+            px.0[k] = (px.0[k] as f32 + d).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    out
+}
+
+/// A collected (training) image's pose and where to find it.
+struct CollectedPose {
+    object: String,
+    pose: Pose,
+    path: PathBuf,
+    /// Index into the collected datasets (for their reference frames).
+    dataset: usize,
+}
+
+/// The collected set of one sensor: poses, the mean image, and loaded images on demand.
+struct CollectedSensor {
+    poses: Vec<CollectedPose>,
+    mean: Option<RgbImage>,
+}
+
+/// The collected (training) set at the measuring size.
+struct Collected {
+    /// Per sensor: poses and the pose-blind mean image.
+    by_sensor: BTreeMap<String, CollectedSensor>,
+    /// Each collected dataset's `reference.png`, when it has one.
+    references: Vec<Option<RgbImage>>,
+    /// Collected images (real rows).
+    images: usize,
+}
+
+impl Collected {
+    /// Lists the real rows of `sets` per sensor and averages their images (each read once).
+    fn load(sets: &[DatasetInfo], size: u32) -> Result<Self, EvalError> {
+        let mut by_sensor: BTreeMap<String, CollectedSensor> = BTreeMap::new();
+        let mut references = Vec::new();
+        for (index, d) in sets.iter().enumerate() {
+            references.push(load_at(&d.dir.join(REFERENCE_FILE), size).ok());
+            let (object, sensor) = d.key();
+            let entry = by_sensor.entry(sensor).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
+            for r in d.rows_of(Source::Real) {
+                entry.poses.push(CollectedPose { object: object.clone(), pose: r.commanded(), path: d.dir.join(&r.image), dataset: index });
+            }
+        }
+        let mut images = 0;
+        for sensor in by_sensor.values_mut() {
+            let mut sum = vec![0.0f64; (size * size * 3) as usize];
+            for p in &sensor.poses {
+                let img = load_at(&p.path, size)?;
+                for (s, &v) in sum.iter_mut().zip(img.as_raw()) {
+                    *s += v as f64;
+                }
+            }
+            images += sensor.poses.len();
+            if !sensor.poses.is_empty() {
+                let n = sensor.poses.len() as f64;
+                let raw: Vec<u8> = sum.iter().map(|s| (s / n).round().clamp(0.0, 255.0) as u8).collect();
+                sensor.mean = RgbImage::from_raw(size, size, raw);
+            }
+        }
+        Ok(Self { by_sensor, references, images })
+    }
+}
+
+/// Sums of one table row.
+#[derive(Default)]
+struct RowSums {
+    n: usize,
+    ssim: f64,
+    psnr: f64,
+    mse: f64,
+    n_contact: usize,
+    contact_ssim: f64,
+    contact_psnr: f64,
+    contact_mse: f64,
+    position: Vec<f64>,
+    position_attempts: usize,
+    yaw: Vec<f64>,
+    yaw_attempts: usize,
+    position_true: Vec<f64>,
+    yaw_true: Vec<f64>,
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+fn mean_of(sum: f64, n: usize) -> Option<f64> {
+    (n > 0 && !sum.is_nan()).then(|| sum / n as f64)
+}
+
+/// What one pair gives the recoverability sums.
+struct PoseTruth {
+    geometric: Option<ContactEstimate>,
+    yaw_observable: bool,
+    truth_estimate: Option<ContactEstimate>,
+    calib: Calibration,
+}
+
+impl RowSums {
+    fn add_image(&mut self, truth: &RgbImage, image: &RgbImage, mask: Option<&[bool]>) {
+        let (Ok(s), Ok(m)) = (metrics::ssim(truth, image), metrics::mse(truth, image)) else { return };
+        self.n += 1;
+        self.ssim += s;
+        self.mse += m;
+        self.psnr += metrics::psnr(truth, image).unwrap_or(f64::INFINITY);
+        if let Some(mask) = mask
+            && let (Ok(s), Ok(m)) = (metrics::ssim_masked(truth, image, mask), metrics::mse_masked(truth, image, mask))
+        {
+            self.n_contact += 1;
+            self.contact_ssim += s;
+            self.contact_mse += m;
+            self.contact_psnr += metrics::psnr_masked(truth, image, mask).unwrap_or(f64::INFINITY);
+        }
+    }
+
+    fn add_pose(&mut self, estimate: Option<ContactEstimate>, truth: &PoseTruth, vs_true: bool) {
+        let calib = &truth.calib;
+        if let Some(g) = &truth.geometric {
+            self.position_attempts += 1;
+            if let Some(e) = &estimate {
+                let (a, b) = (e.centroid_mm(calib), g.centroid_mm(calib));
+                self.position.push((a[0] - b[0]).hypot(a[1] - b[1]));
+            }
+            if truth.yaw_observable {
+                self.yaw_attempts += 1;
+                if let Some(e) = &estimate {
+                    self.yaw.push(axis_difference_deg(e.axis_deg(calib), g.axis_deg(calib)));
+                }
+            }
+        }
+        if vs_true && let (Some(e), Some(t)) = (&estimate, &truth.truth_estimate) {
+            let (a, b) = (e.centroid_mm(calib), t.centroid_mm(calib));
+            self.position_true.push((a[0] - b[0]).hypot(a[1] - b[1]));
+            if truth.yaw_observable {
+                self.yaw_true.push(axis_difference_deg(e.axis_deg(calib), t.axis_deg(calib)));
+            }
+        }
+    }
+
+    fn row(&self, sensor: &str, method: Method) -> MethodRow {
+        MethodRow {
+            sensor: sensor.to_string(),
+            method,
+            n: self.n,
+            ssim: mean_of(self.ssim, self.n),
+            psnr_db: mean_of(self.psnr, self.n),
+            mse: mean_of(self.mse, self.n),
+            n_contact: self.n_contact,
+            contact_ssim: mean_of(self.contact_ssim, self.n_contact),
+            contact_psnr_db: mean_of(self.contact_psnr, self.n_contact),
+            contact_mse: mean_of(self.contact_mse, self.n_contact),
+            position_err_mm: mean(&self.position),
+            position_attempts: self.position_attempts,
+            position_found: self.position.len(),
+            yaw_err_deg: mean(&self.yaw),
+            yaw_attempts: self.yaw_attempts,
+            yaw_found: self.yaw.len(),
+            position_vs_true_mm: mean(&self.position_true),
+            yaw_vs_true_deg: mean(&self.yaw_true),
+        }
+    }
+}
+
+/// Runs the evaluation (see the module docs). `collected` empty: the real rows of the
+/// synthetic datasets are the collected set.
+pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], options: &EvalOptions) -> Result<EvalReport, EvalError> {
+    let size = options.size_px;
+    if size < MIN_SIZE_PX {
+        return Err(EvalError::BadSize { size_px: size, min: MIN_SIZE_PX });
+    }
+    let mut real = load_side(real_root, "real")?;
+    let mut synthetic = load_side(synthetic_root, "synthetic")?;
+    // Before the object filter: baselines may use any object of the sensor.
+    let collected_sets: Vec<DatasetInfo> = if collected.is_empty() {
+        synthetic.values().cloned().collect()
+    } else {
+        let mut v = Vec::new();
+        for root in collected {
+            let dirs = crate::dataset::find_datasets(root);
+            if dirs.is_empty() {
+                return Err(EvalError::NoDatasets { side: "collected", dir: root.clone() });
+            }
+            for d in dirs {
+                v.push(DatasetInfo::load(&d)?);
+            }
+        }
+        v
+    };
+    if !options.objects.is_empty() {
+        if let Some(object) = options.objects.iter().find(|o| !real.keys().any(|(name, _)| name == *o)) {
+            return Err(EvalError::UnknownObject { object: object.clone(), dir: real_root.to_path_buf() });
+        }
+        real.retain(|(name, _), _| options.objects.contains(name));
+        synthetic.retain(|(name, _), _| options.objects.contains(name));
+    }
+    let Collected { by_sensor, references: collected_refs, images } = Collected::load(&collected_sets, size)?;
+    let mut counts = EvalCounts {
+        real_datasets: real.len(),
+        synthetic_datasets: synthetic.len(),
+        collected_images: images,
+        ..EvalCounts::default()
+    };
+
+    let mut sums: BTreeMap<(String, Method), RowSums> = BTreeMap::new();
+    let mut matched = 0usize;
+    for (key, s) in &synthetic {
+        if !real.contains_key(key) {
+            counts.unmatched_datasets.push(format!("synthetic {} ({}/{})", s.dir.display(), key.0, key.1));
+            counts.unpaired_synthetic += s.rows_of(Source::Synthetic).count();
+        }
+    }
+    for (key, r) in &real {
+        let (object, sensor) = key;
+        let Some(s) = synthetic.get(key) else {
+            counts.unmatched_datasets.push(format!("real {} ({object}/{sensor})", r.dir.display()));
+            counts.unpaired_real += r.rows_of(Source::Real).count();
+            continue;
+        };
+        matched += 1;
+        let reference_path = r.dir.join(REFERENCE_FILE);
+        if !reference_path.is_file() {
+            return Err(EvalError::NoReference { dir: r.dir.clone() });
+        }
+        let native = image::image_dimensions(&reference_path)
+            .map_err(|source| EvalError::Image { path: reference_path.clone(), source })?;
+        let reference = load_at(&reference_path, size)?;
+        let calib = calibration_at(r, native, size).unwrap_or_else(|| {
+            counts.default_calibration_for.push(format!("{object}/{sensor}"));
+            Calibration::default_for(size, size)
+        });
+        let mesh = mesh_of(&r.manifest);
+        let contact_depth_mm = r.manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+        let collected_here = by_sensor.get(sensor);
+        let synthetic_rows: Vec<&PoseRow> = s.rows_of(Source::Synthetic).collect();
+        let mut used = vec![false; synthetic_rows.len()];
+        for row in r.rows_of(Source::Real) {
+            let pose = row.commanded();
+            let twin = synthetic_rows.iter().enumerate().find(|(i, t)| !used[*i] && same_pose(&t.commanded(), &pose));
+            let Some((ti, twin)) = twin else {
+                counts.unpaired_real += 1;
+                if counts.unpaired_examples.len() < 5 {
+                    counts.unpaired_examples.push(describe(object, sensor, "real", row));
+                }
+                continue;
+            };
+            used[ti] = true;
+            if collected_here.is_some_and(|c| c.poses.iter().any(|p| &p.object == object && same_pose(&p.pose, &pose))) {
+                counts.dropped_seen += 1;
+                continue;
+            }
+            let real_path = r.dir.join(&row.image);
+            let synth_path = s.dir.join(&twin.image);
+            let rd = image::image_dimensions(&real_path).map_err(|source| EvalError::Image { path: real_path.clone(), source })?;
+            let sd = image::image_dimensions(&synth_path).map_err(|source| EvalError::Image { path: synth_path.clone(), source })?;
+            if rd != sd {
+                return Err(EvalError::SizeMismatch {
+                    object: object.clone(),
+                    sensor: sensor.clone(),
+                    pose_id: row.pose_id,
+                    real_width: rd.0,
+                    real_height: rd.1,
+                    synthetic_width: sd.0,
+                    synthetic_height: sd.1,
+                });
+            }
+            let truth = load_at(&real_path, size)?;
+            let model = load_at(&synth_path, size)?;
+            counts.pairs += 1;
+
+            let mask = contact_mask(&truth, &reference, options.mask_threshold, options.mask_dilate_px);
+            let mask = if mask.iter().any(|&m| m) { Some(mask) } else { None };
+            if mask.is_none() {
+                counts.no_contact_pixels += 1;
+            }
+            let geometric = mesh.as_ref().and_then(|m| {
+                let object_pose = Pose { z_mm: pose.z_mm + contact_depth_mm, ..pose };
+                geometric_contact(&crate::geometry::raster::render_depth(m, &object_pose, &calib, size, size, 2))
+            });
+            if geometric.is_none() {
+                counts.no_geometric_contact += 1;
+            }
+            let truth_estimate = estimate_contact(&truth, &reference);
+            let observable_from = geometric.or(truth_estimate);
+            let yaw_observable = observable_from.is_some_and(|g| g.isotropy(&calib) < ISOTROPY_RATIO);
+            if observable_from.is_some() && !yaw_observable {
+                counts.yaw_unobservable += 1;
+            }
+            let pose_truth = PoseTruth { geometric, yaw_observable, truth_estimate, calib: calib.clone() };
+
+            let mut judge = |method: Method, image: &RgbImage| {
+                let row = sums.entry((sensor.clone(), method)).or_default();
+                row.add_image(&truth, image, mask.as_deref());
+                row.add_pose(estimate_contact(image, &reference), &pose_truth, true);
+            };
+            judge(Method::Model, &model);
+            if let Some(c) = collected_here
+                && let Some(mean_image) = &c.mean
+            {
+                judge(Method::PoseBlind, mean_image);
+                if let Some(nn) = nearest(c, object, &pose) {
+                    let img = load_at(&nn.path, size)?;
+                    let nn_reference = collected_refs.get(nn.dataset).cloned().flatten().unwrap_or_else(|| mean_image.clone());
+                    judge(Method::NearestNeighbour, &warp_to_pose(&img, &nn_reference, &nn.pose, &pose, &calib));
+                }
+            }
+            sums.entry((sensor.clone(), Method::TrueImage)).or_default().add_pose(truth_estimate, &pose_truth, false);
+        }
+        for (i, t) in synthetic_rows.iter().enumerate() {
+            if !used[i] {
+                counts.unpaired_synthetic += 1;
+                if counts.unpaired_examples.len() < 5 {
+                    counts.unpaired_examples.push(describe(object, sensor, "synthetic", t));
+                }
+            }
+        }
+    }
+    if counts.pairs == 0 {
+        return Err(EvalError::NoPairs {
+            real_datasets: real.len(),
+            synthetic_datasets: synthetic.len(),
+            matched_datasets: matched,
+            unpaired_real: counts.unpaired_real,
+            unpaired_synthetic: counts.unpaired_synthetic,
+            dropped_seen: counts.dropped_seen,
+        });
+    }
+    let sensors: Vec<String> = {
+        let mut v: Vec<String> = sums.keys().map(|(s, _)| s.clone()).collect();
+        v.dedup();
+        v
+    };
+    let mut rows = Vec::new();
+    for sensor in &sensors {
+        if by_sensor.get(sensor).is_none_or(|c| c.mean.is_none()) {
+            counts.sensors_without_baseline.push(sensor.clone());
+        }
+        for method in Method::ALL {
+            let row = match sums.get(&(sensor.clone(), method)) {
+                Some(s) => s.row(sensor, method),
+                None => RowSums::default().row(sensor, method),
+            };
+            rows.push(row);
+        }
+    }
+    Ok(EvalReport {
+        label: options.label.clone(),
+        size_px: size,
+        mask_threshold: options.mask_threshold,
+        mask_dilate_px: options.mask_dilate_px,
+        counts,
+        rows,
+    })
+}
+
+fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {
+    format!(
+        "{side} {object}/{sensor} pose_id {} ({}, {}, {}, {})",
+        row.pose_id, row.x_mm, row.y_mm, row.z_mm, row.yaw_deg
+    )
+}
+
+/// The collected pose nearest to `pose` by [`pose_distance`]: among `object`'s when there are
+/// any, else among all of the sensor's.
+fn nearest<'a>(c: &'a CollectedSensor, object: &str, pose: &Pose) -> Option<&'a CollectedPose> {
+    let same: Vec<&CollectedPose> = c.poses.iter().filter(|p| p.object == object).collect();
+    let pool: Vec<&CollectedPose> = if same.is_empty() { c.poses.iter().collect() } else { same };
+    pool.into_iter().min_by(|a, b| pose_distance(&a.pose, pose).total_cmp(&pose_distance(&b.pose, pose)))
+}
+
+fn cell(v: Option<f64>, decimals: usize) -> String {
+    match v {
+        Some(x) if x.is_infinite() => "inf".to_string(),
+        Some(x) if x.is_finite() => format!("{x:.decimals$}"),
+        _ => "n/a".to_string(),
+    }
+}
+
+/// A recoverability cell: the mean, with `(found/attempts)` when some images gave no estimate.
+fn found_cell(v: Option<f64>, found: usize, attempts: usize) -> String {
+    let base = cell(v, 2);
+    if attempts > 0 && found < attempts { format!("{base} ({found}/{attempts})") } else { base }
+}
+
+impl EvalReport {
+    /// The Markdown table with its heading and counts.
+    pub fn to_markdown(&self) -> String {
+        let c = &self.counts;
+        let mut s = format!("### rig eval: {} ({} px)\n\n", self.label, self.size_px);
+        s += &format!(
+            "{} pairs from {} real and {} synthetic datasets; {} collected images for the baselines. \
+             Dropped as seen in the collected set: {}. Without a twin: {} real, {} synthetic poses. \
+             No contact pixels (left out of the contact columns): {}. Yaw not observable (near-isotropic contact, left out of the yaw columns): {}. \
+             No mesh contact (left out of the pose-error columns): {}.\n",
+            c.pairs,
+            c.real_datasets,
+            c.synthetic_datasets,
+            c.collected_images,
+            c.dropped_seen,
+            c.unpaired_real,
+            c.unpaired_synthetic,
+            c.no_contact_pixels,
+            c.yaw_unobservable,
+            c.no_geometric_contact
+        );
+        if !c.unpaired_examples.is_empty() {
+            s += &format!("Unpaired, e.g.: {}.\n", c.unpaired_examples.join("; "));
+        }
+        if !c.unmatched_datasets.is_empty() {
+            s += &format!("Datasets without a counterpart: {}.\n", c.unmatched_datasets.join("; "));
+        }
+        if !c.default_calibration_for.is_empty() {
+            s += &format!(
+                "Calibration file not found, default calibration used (pose errors approximate) for: {}.\n",
+                c.default_calibration_for.join(", ")
+            );
+        }
+        if !c.sensors_without_baseline.is_empty() {
+            s += &format!("No collected images (baselines n/a) for: {}.\n", c.sensors_without_baseline.join(", "));
+        }
+        s += "\n| sensor | method | n | SSIM | PSNR dB | MSE | contact SSIM | contact PSNR dB | contact MSE | pos err mm | yaw err deg | pos vs true mm | yaw vs true deg |\n";
+        s += "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        for r in &self.rows {
+            let image_cols = if r.method == Method::TrueImage {
+                ["n/a".to_string(), "n/a".to_string(), "n/a".to_string(), "n/a".to_string(), "n/a".to_string(), "n/a".to_string()]
+            } else {
+                [
+                    cell(r.ssim, 3),
+                    cell(r.psnr_db, 2),
+                    cell(r.mse, 1),
+                    cell(r.contact_ssim, 3),
+                    cell(r.contact_psnr_db, 2),
+                    cell(r.contact_mse, 1),
+                ]
+            };
+            let n = if r.method == Method::TrueImage { r.position_attempts } else { r.n };
+            s += &format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                r.sensor,
+                r.method.label(),
+                n,
+                image_cols.join(" | "),
+                found_cell(r.position_err_mm, r.position_found, r.position_attempts),
+                found_cell(r.yaw_err_deg, r.yaw_found, r.yaw_attempts),
+                cell(r.position_vs_true_mm, 2),
+                cell(r.yaw_vs_true_deg, 2),
+            );
+        }
+        s
+    }
+
+    /// The report as pretty JSON (non-finite numbers become `null`).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::Rgb;
+
+    fn disc(size: u32, cx: f64, cy: f64, rx: f64, ry: f64) -> RgbImage {
+        RgbImage::from_fn(size, size, |x, y| {
+            let (u, v) = ((x as f64 + 0.5 - cx) / rx, (y as f64 + 0.5 - cy) / ry);
+            let v = if u * u + v * v < 1.0 { 200 } else { 20 };
+            Rgb([v, v, v])
+        })
+    }
+
+    #[test]
+    fn estimate_finds_a_disc_and_an_ellipse_axis() {
+        let reference = RgbImage::from_pixel(96, 96, Rgb([20, 20, 20]));
+        let calib = Calibration::default_for(96, 96);
+        let e = estimate_contact(&disc(96, 40.0, 55.0, 8.0, 8.0), &reference).unwrap();
+        assert!((e.centroid_px[0] - 40.0).abs() < 0.3 && (e.centroid_px[1] - 55.0).abs() < 0.3, "{e:?}");
+        assert!(e.isotropy(&calib) > 0.9);
+        let wide = estimate_contact(&disc(96, 48.0, 48.0, 20.0, 5.0), &reference).unwrap();
+        assert!(axis_difference_deg(wide.axis_deg(&calib), 0.0) < 1.0, "{}", wide.axis_deg(&calib));
+        assert!(wide.isotropy(&calib) < ISOTROPY_RATIO);
+        // Blank and mismatched images give no estimate, never a panic or a NaN.
+        assert!(estimate_contact(&reference, &reference).is_none());
+        assert!(estimate_contact(&RgbImage::new(10, 96), &reference).is_none());
+        assert!(estimate_contact(&RgbImage::new(0, 0), &RgbImage::new(0, 0)).is_none());
+    }
+
+    #[test]
+    fn axis_difference_wraps_mod_180() {
+        assert!((axis_difference_deg(89.0, -89.0) - 2.0).abs() < 1e-12);
+        assert!((axis_difference_deg(10.0, 40.0) - 30.0).abs() < 1e-12);
+        assert!((axis_difference_deg(0.0, 180.0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn warp_moves_the_contact_by_the_pose_difference() {
+        let size = 96;
+        let calib = Calibration::default_for(size, size);
+        let reference = RgbImage::from_pixel(size, size, Rgb([20, 20, 20]));
+        // An object point at the reference point appears at -t (sensor at t, yaw 0).
+        let from = Pose::new(0.0, 0.0, 0.0, 0.0);
+        let to = Pose::new(-4.0, 2.0, 0.0, 0.0);
+        let (u, v) = calib.mm_to_px(0.0, 0.0);
+        let src = disc(size, u, v, 5.0, 5.0);
+        let warped = warp_to_pose(&src, &reference, &from, &to, &calib);
+        let (u2, v2) = calib.mm_to_px(4.0, -2.0);
+        let e = estimate_contact(&warped, &reference).unwrap();
+        assert!((e.centroid_px[0] - u2).abs() < 0.5 && (e.centroid_px[1] - v2).abs() < 0.5, "{e:?} vs ({u2}, {v2})");
+        // No pose difference: the image itself.
+        assert_eq!(warp_to_pose(&src, &reference, &from, &from, &calib), src);
+        // A yaw difference turns an elongated contact about the sensor centre.
+        let bar = disc(size, size as f64 / 2.0, size as f64 / 2.0, 20.0, 4.0);
+        let turned = warp_to_pose(&bar, &reference, &from, &Pose::new(0.0, 0.0, 0.0, 30.0), &calib);
+        let e = estimate_contact(&turned, &reference).unwrap();
+        assert!(axis_difference_deg(e.axis_deg(&calib), -30.0) < 2.0, "{}", e.axis_deg(&calib));
+    }
+
+    #[test]
+    fn mask_dilates_and_ignores_mismatched_sizes() {
+        let reference = RgbImage::from_pixel(32, 32, Rgb([20, 20, 20]));
+        let mut truth = reference.clone();
+        for y in 14..18 {
+            for x in 14..18 {
+                truth.put_pixel(x, y, Rgb([120, 120, 120]));
+            }
+        }
+        let core = contact_mask(&truth, &reference, 10.0, 0).iter().filter(|&&m| m).count();
+        let dilated = contact_mask(&truth, &reference, 10.0, 2).iter().filter(|&&m| m).count();
+        assert!(core >= 16 && dilated > core, "{core} {dilated}");
+        assert!(contact_mask(&reference, &reference, 10.0, 2).iter().all(|&m| !m));
+        assert!(contact_mask(&RgbImage::new(8, 8), &reference, 10.0, 2).iter().all(|&m| !m));
+    }
+
+    #[test]
+    fn table_says_na_not_nan() {
+        let row = RowSums::default().row("vitac", Method::Model);
+        let report = EvalReport {
+            label: "t".into(),
+            size_px: 64,
+            mask_threshold: 10.0,
+            mask_dilate_px: 1,
+            counts: EvalCounts::default(),
+            rows: vec![row],
+        };
+        let md = report.to_markdown();
+        assert!(md.contains("n/a") && !md.contains("NaN"), "{md}");
+        assert!(report.to_json().contains("\"ssim\": null"));
+    }
+}

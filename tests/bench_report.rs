@@ -1,0 +1,91 @@
+//! `rig bench` report generation on a very small configuration (one or two poses, the tiny
+//! model package, 64 px maps and frames): the report and one SVG per knob are written, and
+//! every table has the rows the configuration asks for, with finite numbers. No timing is
+//! asserted. Needs ONNX Runtime (`.rig/onnxruntime/`, as the synthesis tests do).
+
+use std::path::Path;
+
+use rig::bench::{BenchConfig, Knob, run, sensor::render_stages, write_report};
+use rig::sim::sensor::SensorKind;
+use rig::synth::SchedulerKind;
+
+fn tiny_config() -> BenchConfig {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    BenchConfig {
+        label: "test".into(),
+        knobs: Knob::ALL.to_vec(),
+        synth_model: root.join("tests/data/tiny-package"),
+        synth_poses: 1,
+        synth_steps: vec![2, 4],
+        synth_schedulers: vec![SchedulerKind::Ddim, SchedulerKind::DpmSolverPp2m],
+        synth_guidance: 9.0,
+        image_px: 64,
+        control_supersample: vec![1, 2],
+        control_reference_supersample: 4,
+        control_objects: vec!["pacman".into()],
+        control_poses: 1,
+        collect_poses: 1,
+        collect_settle_s: vec![0.0, 0.2],
+        collect_frames: vec![1, 2],
+        sim_time_scale: 20.0,
+        // The contact detector is tuned for 512 px frames; the calibration keeps that size.
+        calib_image_px: 512,
+        calib_grids: vec![(2, 2), (3, 2)],
+        plan_poses: 40,
+        plan_seeds: vec![0],
+        sensor_frames: 1,
+    }
+}
+
+#[test]
+fn tiny_bench_writes_the_report_with_every_table_and_plot() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("report");
+    let config = tiny_config();
+    let runtime = tokio::runtime::Runtime::new().expect("runtime");
+    let report = runtime.block_on(run(&config, &dir.path().join("work"), |_| {}));
+    let failed: Vec<String> = report.failed.iter().map(|(k, e)| format!("{k}: {e}")).collect();
+    assert!(failed.is_empty(), "{failed:?}");
+    assert!(!dir.path().join("work").exists(), "the scratch folder is removed");
+
+    let sensor_rows: usize = SensorKind::ALL.iter().map(|k| 2 * render_stages(*k).len() + 1).sum();
+    let expected = [
+        (Knob::Synthesis, 2 * 2),
+        (Knob::Control, 2 + 1),
+        (Knob::Collection, 2 + 2),
+        (Knob::Calibration, 2),
+        (Knob::PlanOrder, 2),
+        (Knob::Sensor, sensor_rows),
+    ];
+    assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
+    for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {
+        assert_eq!(knob.knob, want_knob);
+        assert_eq!(knob.rows.len(), rows, "{want_knob}: {:?}", knob.rows);
+        for row in &knob.rows {
+            assert_eq!(row.values.len(), knob.columns.len(), "{want_knob} {}", row.label);
+            assert!(row.values.iter().all(|v| v.is_finite()), "{want_knob} {}: {:?}", row.label, row.values);
+        }
+        assert!(knob.plot.series.iter().map(|s| s.points.len()).sum::<usize>() > 0, "{want_knob}: empty plot");
+    }
+
+    let written = write_report(&report, &out).expect("report");
+    assert_eq!(written.len(), 1 + Knob::ALL.len());
+    let md = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(md.contains("- machine: ") && md.contains("- date: ") && md.contains("total run time"), "{md}");
+    for knob in &report.knobs {
+        let svg = std::fs::read_to_string(out.join(format!("{}.svg", knob.knob.name()))).expect("svg");
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{}", knob.knob);
+        assert!(md.contains(&format!("![{}]({}.svg)", knob.title, knob.knob.name())));
+        // Every row is in the Markdown table, with as many cells as columns.
+        for row in &knob.rows {
+            let line = md.lines().find(|l| l.starts_with(&format!("| {} |", row.label))).expect("row in the report");
+            assert_eq!(line.matches('|').count(), knob.columns.len() + 2, "{line}");
+            assert!(!line.contains("n/a"), "{line}");
+        }
+    }
+    // Sanity of the numbers, not their speed: the reference rows match themselves exactly.
+    let control = &report.knobs[1];
+    assert_eq!(control.rows.last().map(|r| r.values[1]), Some(0.0));
+    let synth = &report.knobs[0];
+    assert!(synth.rows.iter().filter(|r| r.values[0] == 4.0).all(|r| r.values[1] == 1.0));
+}

@@ -1,0 +1,329 @@
+//! `rig daemon`'s HTTP API against the built-in simulated rig, in-process on 127.0.0.1:0:
+//! a collection's progress and frames, cancel, a failing job that does not stop the queue,
+//! the token rule, a synth job's control/synthetic pair, and a clean shutdown.
+
+use std::path::Path;
+use std::time::Duration;
+
+use rig::config::RigConfig;
+use rig::daemon::client::DaemonClient;
+use rig::daemon::{Daemon, DaemonError, DaemonOptions, JobState, JobView, StatusView};
+use serde_json::json;
+
+async fn start(token: Option<&str>) -> (Daemon, DaemonClient) {
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    // Frames come from the jobs only: the tests see what the jobs publish.
+    options.idle_refresh = None;
+    options.token = token.map(str::to_string);
+    let daemon = Daemon::start(options).await.expect("daemon starts");
+    let client = DaemonClient::new(&format!("http://{}", daemon.addr()), token.map(str::to_string)).expect("client");
+    (daemon, client)
+}
+
+async fn submit(client: &DaemonClient, spec: serde_json::Value) -> JobView {
+    let r = client.request("POST", "/api/jobs", Some(spec.to_string().as_bytes())).await.expect("POST /api/jobs");
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    serde_json::from_slice(&r.body).expect("job json")
+}
+
+async fn job(client: &DaemonClient, id: u64) -> JobView {
+    client.get_json(&format!("/api/jobs/{id}")).await.expect("GET job")
+}
+
+/// Polls the job until `done` holds, returning every view seen. Gives up after a generous
+/// number of polls (a hung job fails the test instead of hanging it).
+async fn poll_until(client: &DaemonClient, id: u64, done: impl Fn(&JobView) -> bool) -> Vec<JobView> {
+    let mut seen = Vec::new();
+    for _ in 0..6000 {
+        let j = job(client, id).await;
+        let stop = done(&j);
+        seen.push(j);
+        if stop {
+            return seen;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    panic!("job {id} never reached the awaited state; last: {:?}", seen.last());
+}
+
+fn final_state(j: &JobView) -> bool {
+    j.state.is_final()
+}
+
+fn rows(dir: &Path) -> usize {
+    rig::dataset::read_rows(dir).expect("rows").len()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_collection_reports_progress_pose_and_frames() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(None).await;
+    let j = submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip,vitac", "poses": 6, "seed": 4, "out": tmp.path()})).await;
+    assert_eq!(j.state, JobState::Queued);
+
+    let mut pose_ids = Vec::new();
+    let mut seen = Vec::new();
+    for _ in 0..6000 {
+        let status: StatusView = client.get_json("/api/status").await.expect("status");
+        pose_ids.extend(status.arm.pose_id);
+        let view = job(&client, j.id).await;
+        let end = view.state.is_final();
+        seen.push(view);
+        if end {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let last = seen.last().expect("polled").clone();
+    assert_eq!(last.state, JobState::Done, "{last:?}");
+    assert_eq!(last.exit_code, Some(0));
+    assert_eq!((last.progress.done, last.progress.total), (6, 6));
+    assert!(last.message.as_deref().is_some_and(|m| m.contains("collected 6 poses")), "{last:?}");
+    // Progress only goes up, and was seen between the ends.
+    let dones: Vec<u64> = seen.iter().filter(|v| v.state == JobState::Running).map(|v| v.progress.done).collect();
+    assert!(dones.windows(2).all(|w| w[0] <= w[1]), "{dones:?}");
+    assert!(dones.iter().any(|&d| d > 0 && d < 6), "no intermediate progress among {dones:?}");
+    assert!(!pose_ids.is_empty(), "the status never named a plan pose");
+    assert!(
+        seen.iter().any(|v| v.state == JobState::Running && v.progress.done > 0 && v.progress.eta_s.is_some()),
+        "no ETA while running with progress"
+    );
+
+    // The sensors of the job have frames (valid JPEGs); the one not used has none yet.
+    for sensor in ["tactip", "vitac"] {
+        let r = client.request("GET", &format!("/api/frames/{sensor}"), None).await.expect("frame");
+        assert_eq!(r.status, 200);
+        assert_eq!(r.header("content-type"), Some("image/jpeg"));
+        let img = image::load_from_memory(&r.body).expect("a decodable frame");
+        assert_eq!((img.width(), img.height()), (512, 512));
+    }
+    assert_eq!(client.request("GET", "/api/frames/vitactip", None).await.expect("frame").status, 404);
+    assert_eq!(client.request("GET", "/api/frames/nosuch", None).await.expect("frame").status, 404);
+    let status: StatusView = client.get_json("/api/status").await.expect("status");
+    assert!(status.arm.pose.is_some());
+    assert_eq!(status.sensors.len(), 2);
+
+    assert_eq!(rows(&tmp.path().join("edge/tactip")), 6);
+    assert_eq!(rows(&tmp.path().join("edge/vitac")), 6);
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failing_job_is_recorded_a_cancel_works_and_the_queue_goes_on() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(None).await;
+    let bad = submit(&client, json!({"kind": "collect", "object": "no_such_object", "poses": 2, "out": tmp.path().join("a")})).await;
+    let long = submit(&client, json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 60, "out": tmp.path().join("b")})).await;
+    let after = submit(&client, json!({"kind": "collect", "object": "cone", "sensor": "vitac", "poses": 2, "out": tmp.path().join("c")})).await;
+
+    let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
+    assert_eq!(failed.state, JobState::Failed);
+    assert_eq!(failed.exit_code, Some(2), "an unknown object is bad input");
+    assert!(failed.error.as_deref().is_some_and(|e| e.contains("no_such_object")), "{failed:?}");
+    let status: StatusView = client.get_json("/api/status").await.expect("status");
+    assert!(status.errors.iter().any(|e| e.job_id == Some(bad.id) && e.message.contains("no_such_object")));
+
+    poll_until(&client, long.id, |j| j.state == JobState::Running && j.progress.done >= 1).await;
+    let r = client.request("POST", &format!("/api/jobs/{}/cancel", long.id), None).await.expect("cancel");
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    let cancelled = poll_until(&client, long.id, final_state).await.pop().expect("view");
+    assert_eq!(cancelled.state, JobState::Cancelled, "{cancelled:?}");
+    assert_eq!(cancelled.exit_code, Some(4));
+    assert!(cancelled.progress.done < 60, "{cancelled:?}");
+    // What was captured before the cancel is durable.
+    assert_eq!(rows(&tmp.path().join("b/sphere/tactip")) as u64, cancelled.progress.done);
+
+    let next = poll_until(&client, after.id, final_state).await.pop().expect("view");
+    assert_eq!(next.state, JobState::Done, "{next:?}");
+    assert_eq!(rows(&tmp.path().join("c/cone/vitac")), 2);
+
+    // Cancelling again: the job has ended; an unknown job: not found; a bad id: bad request.
+    assert_eq!(client.request("DELETE", &format!("/api/jobs/{}", long.id), None).await.expect("cancel").status, 409);
+    assert_eq!(client.request("POST", "/api/jobs/999/cancel", None).await.expect("cancel").status, 404);
+    assert_eq!(client.request("GET", "/api/jobs/abc", None).await.expect("job").status, 400);
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert_eq!(jobs.iter().map(|j| j.id).collect::<Vec<_>>(), vec![bad.id, long.id, after.id]);
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_requests_get_400_with_a_message() {
+    let (daemon, client) = start(None).await;
+    for (body, expect) in [
+        ("{\"kind\": \"dance\"}", "unknown variant"),
+        ("{\"kind\": \"collect\", \"objekt\": \"edge\"}", "unknown field `objekt`"),
+        ("{\"kind\": \"collect\", \"poses\": \"many\"}", "invalid type"),
+        ("not json", "bad job"),
+    ] {
+        let r = client.request("POST", "/api/jobs", Some(body.as_bytes())).await.expect("post");
+        assert_eq!(r.status, 400, "{body}");
+        let v: serde_json::Value = serde_json::from_slice(&r.body).expect("json error");
+        let message = v["error"].as_str().expect("error message");
+        assert!(message.contains(expect), "{body}: {message}");
+    }
+    assert_eq!(client.request("GET", "/api/synth/latest/depth", None).await.expect("get").status, 400);
+    assert_eq!(client.request("GET", "/api/synth/latest/image", None).await.expect("get").status, 404);
+    assert_eq!(client.request("GET", "/api/nothing", None).await.expect("get").status, 404);
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert!(jobs.is_empty(), "a rejected request queued a job: {jobs:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_token_is_enforced_and_required_off_loopback() {
+    let (daemon, client) = start(Some("s3cret")).await;
+    let anonymous = DaemonClient::new(&format!("http://{}", daemon.addr()), None).expect("client");
+    let wrong = DaemonClient::new(&format!("http://{}", daemon.addr()), Some("guess".into())).expect("client");
+    for path in ["/api/status", "/api/jobs", "/api/jobs/1", "/api/frames/tactip", "/api/synth/latest/image"] {
+        assert_eq!(anonymous.request("GET", path, None).await.expect("get").status, 401, "{path}");
+        assert_eq!(wrong.request("GET", path, None).await.expect("get").status, 401, "{path}");
+    }
+    let r = anonymous.request("POST", "/api/jobs", Some(b"{\"kind\":\"collect\"}")).await.expect("post");
+    assert_eq!(r.status, 401);
+    assert_eq!(client.request("GET", "/api/status", None).await.expect("get").status, 200);
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert!(jobs.is_empty(), "an unauthorised POST queued a job");
+    // The page itself carries no data; it is served without the token and sends it itself.
+    let page = anonymous.request("GET", "/", None).await.expect("page");
+    assert_eq!(page.status, 200);
+    assert!(String::from_utf8_lossy(&page.body).contains("Authorization"));
+    daemon.shutdown().await.expect("clean shutdown");
+
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.listen = "0.0.0.0:0".parse().expect("addr");
+    match Daemon::start(options).await {
+        Err(DaemonError::TokenRequired { .. }) => {}
+        Err(e) => panic!("expected TokenRequired, got {e}"),
+        Ok(_) => panic!("a daemon listening on every interface started without a token"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_stops_the_running_job_and_leaves_the_arm_disabled() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(None).await;
+    let long = submit(&client, json!({"kind": "collect", "sensor": "tactip", "poses": 60, "out": tmp.path()})).await;
+    let queued = submit(&client, json!({"kind": "collect", "sensor": "tactip", "poses": 2, "out": tmp.path().join("q")})).await;
+    poll_until(&client, long.id, |j| j.state == JobState::Running && j.progress.done >= 1).await;
+    let state = std::sync::Arc::clone(daemon.state());
+    daemon.shutdown().await.expect("clean shutdown");
+    let long = state.job(long.id).expect("job");
+    assert_eq!(long.state, JobState::Cancelled, "{long:?}");
+    assert!(long.progress.done < 60);
+    let queued = state.job(queued.id).expect("job");
+    assert_eq!(queued.state, JobState::Cancelled, "{queued:?}");
+    assert_eq!(queued.started_unix_s, None);
+    let status = state.status();
+    assert_eq!(status.daemon, "stopping");
+    assert_eq!(status.arm.mode, "disabled", "{:?}", status.arm);
+    // The collection retracted above the plan origin before disabling: not in contact.
+    let pose = status.arm.pose.expect("a pose");
+    let above = rig::pose::WorkFrame::default().approach_pose(&rig::pose::Pose::default());
+    assert!((pose.z_mm - above.z_mm).abs() < 0.5, "arm left at {pose:?}, expected above the origin at {above:?}");
+    assert!(state.submit(rig::daemon::JobSpec::Collect(Default::default())).is_none(), "a stopping daemon took a job");
+    assert!(!tmp.path().join("q").exists(), "the queued job ran");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_synth_job_publishes_the_control_and_synthetic_images() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let plan = tmp.path().join("plan.toml");
+    // A 2 x 2 x 1 x 3 = 12-pose grid; collect 3, then synthesise 2 of the 9 missing.
+    std::fs::write(
+        &plan,
+        "sampling = \"random\"\nn_poses = 3\nseed = 3\norder = \"optimised\"\n\
+         [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n\
+         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -45.0\nmax = 45.0\nstep = 45.0\n",
+    )
+    .expect("plan");
+    let (daemon, client) = start(None).await;
+    let collect = submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "vitac", "plan": plan, "out": tmp.path()})).await;
+    let dataset = tmp.path().join("edge/vitac");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
+    let synth = submit(&client, json!({"kind": "synth", "dataset": dataset, "model": model, "steps": 2, "batch": 2, "limit": 2})).await;
+    let c = poll_until(&client, collect.id, final_state).await.pop().expect("view");
+    assert_eq!(c.state, JobState::Done, "{c:?}");
+    let s = poll_until(&client, synth.id, final_state).await.pop().expect("view");
+    assert_eq!(s.state, JobState::Done, "{s:?}");
+    assert_eq!((s.progress.done, s.progress.total), (2, 2));
+    assert_eq!(rows(&dataset), 5);
+
+    let status: StatusView = client.get_json("/api/status").await.expect("status");
+    let pair = status.synth.expect("a synth pair in the status");
+    assert_eq!(pair.job_id, synth.id);
+    let mut sizes = Vec::new();
+    for which in ["control", "image"] {
+        let r = client.request("GET", &format!("/api/synth/latest/{which}"), None).await.expect("get");
+        assert_eq!(r.status, 200, "{which}");
+        assert_eq!(r.header("content-type"), Some("image/png"));
+        let img = image::load_from_memory_with_format(&r.body, image::ImageFormat::Png).expect("a PNG");
+        sizes.push((img.width(), img.height()));
+    }
+    assert!(sizes.iter().all(|&(w, h)| w > 0 && h > 0), "{sizes:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// `rig collect --daemon URL` (the binary) against an in-process daemon.
+async fn rig_cli(args: Vec<String>) -> (i32, String) {
+    let out = tokio::process::Command::new(env!("CARGO_BIN_EXE_rig"))
+        .args(&args)
+        .env_remove("RIG_CONFIG")
+        .env_remove("RIG_DAEMON_TOKEN")
+        .output()
+        .await
+        .expect("running rig");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    (out.status.code().unwrap_or(-1), text)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(Some("cli-token")).await;
+    let url = format!("http://{}", daemon.addr());
+    let out = tmp.path().display().to_string();
+    let args = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = ["collect", "--daemon", &url, "--daemon-token", "cli-token", "--out", &out].iter().map(|s| s.to_string()).collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let (code, text) = rig_cli(args(&["--object", "edge", "--sensor", "vitac", "--poses", "3"])).await;
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("submitted collect job 1") && text.contains("collected 3 poses"), "{text}");
+    assert_eq!(rows(&tmp.path().join("edge/vitac")), 3);
+
+    let (code, text) = rig_cli(args(&["--object", "no_such_object"])).await;
+    assert_eq!(code, 2, "a bad object is bad input, as standalone: {text}");
+    assert!(text.contains("no_such_object"), "{text}");
+
+    let (code, text) = rig_cli(args(&["--object", "cone", "--sensor", "tactip", "--poses", "2", "--detach"])).await;
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("submitted collect job 3"), "{text}");
+    let done = poll_until(&client, 3, final_state).await.pop().expect("view");
+    assert_eq!(done.state, JobState::Done, "{done:?}");
+
+    // Without the token the daemon refuses, and the command says why.
+    let (code, text) = rig_cli(vec!["collect".into(), "--daemon".into(), url.clone(), "--poses".into(), "2".into()]).await;
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("401"), "{text}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calibrate_job_presses_fits_and_saves() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("tactip.toml");
+    let (daemon, client) = start(None).await;
+    let j = submit(&client, json!({"kind": "calibrate", "sensor": "tactip", "grid": 3, "out": out})).await;
+    let done = poll_until(&client, j.id, final_state).await.pop().expect("view");
+    assert_eq!(done.state, JobState::Done, "{done:?}");
+    assert_eq!(done.progress.done, done.progress.total);
+    assert!(done.progress.total >= 9, "{done:?}");
+    assert!(done.message.as_deref().is_some_and(|m| m.contains("residual")), "{done:?}");
+    let saved = rig::calibration::Calibration::load(&out).expect("a saved calibration");
+    assert!(saved.scale_px_per_mm[0] > 0.0);
+    let bad = submit(&client, json!({"kind": "calibrate", "sensor": "thermometer"})).await;
+    let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
+    assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}

@@ -1,0 +1,149 @@
+//! End to end: the daemon's page in headless Chromium while a collection runs. The page is
+//! loaded twice (`--dump-dom` after a virtual-time budget, so its polling has run); both
+//! loads must show every sensor's frame (an image fetched through the token-checked API) and
+//! the job's progress, and the second must show newer frames and more progress.
+//!
+//! Needs Debian's `chromium` (`scripts/setup.sh` installs it). Without it the test fails,
+//! unless `RIG_SKIP_BROWSER=1` says to skip it.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use rig::config::RigConfig;
+use rig::daemon::client::DaemonClient;
+use rig::daemon::{Daemon, DaemonOptions, JobState, JobView};
+use serde_json::json;
+
+const TOKEN: &str = "browser-test-token";
+
+fn chromium() -> Option<PathBuf> {
+    let candidates = [std::env::var_os("RIG_CHROMIUM").map(PathBuf::from), Some("/usr/bin/chromium".into()), Some("/usr/bin/chromium-browser".into())];
+    candidates.into_iter().flatten().find(|p| p.is_file())
+}
+
+/// What one load of the page showed.
+#[derive(Debug)]
+struct PageView {
+    /// Sensor -> frame sequence number of the image shown.
+    frames: Vec<(String, u64)>,
+    /// Progress of the current job shown (`done`, `total`).
+    progress: Option<(u64, u64)>,
+    /// Whether the jobs table lists job 1 as running.
+    job_running: bool,
+}
+
+/// The number in `attr="N"` right after `marker` in `dom`.
+fn attr_after(dom: &str, marker: &str, attr: &str) -> Option<u64> {
+    // The page's own script holds the markers too, as templates; take the rendered element.
+    dom.match_indices(marker).find_map(|(at, _)| {
+        let rest = &dom[at..];
+        let tag = &rest[..rest.find('>')?];
+        let value_at = tag.find(&format!("{attr}=\""))? + attr.len() + 2;
+        let value = &tag[value_at..];
+        value[..value.find('"')?].parse().ok()
+    })
+}
+
+fn read_page(dom: &str) -> PageView {
+    let frames = ["tactip", "vitac", "vitactip"]
+        .iter()
+        .filter_map(|s| {
+            let marker = format!("<img id=\"frame-{s}\"");
+            let shown_blob = dom.match_indices(&marker).any(|(at, _)| dom[at..].split('>').next().is_some_and(|t| t.contains("src=\"blob:")));
+            let seq = attr_after(dom, &marker, "data-seq")?;
+            shown_blob.then(|| (s.to_string(), seq))
+        })
+        .collect();
+    let done = attr_after(dom, "id=\"current-progress\"", "data-done");
+    let total = attr_after(dom, "id=\"current-progress\"", "data-total");
+    PageView {
+        frames,
+        progress: done.zip(total),
+        job_running: dom.contains("<tr id=\"job-1\" data-state=\"running\""),
+    }
+}
+
+async fn load_page(chromium: &PathBuf, url: &str) -> String {
+    let profile = tempfile::tempdir().expect("profile dir");
+    let mut cmd = tokio::process::Command::new(chromium);
+    cmd.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--virtual-time-budget=3000",
+        "--dump-dom",
+    ])
+    .arg(format!("--user-data-dir={}", profile.path().display()))
+    .arg(url)
+    .kill_on_drop(true);
+    // A hang guard, not a speed assertion.
+    let out = tokio::time::timeout(Duration::from_secs(120), cmd.output())
+        .await
+        .expect("chromium did not finish loading the page within 120 s")
+        .expect("running chromium");
+    assert!(out.status.success(), "chromium failed: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+async fn job(client: &DaemonClient, id: u64) -> JobView {
+    client.get_json(&format!("/api/jobs/{id}")).await.expect("GET job")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_shows_frames_and_progress_that_update() {
+    let Some(chromium) = chromium() else {
+        if std::env::var("RIG_SKIP_BROWSER").is_ok_and(|v| v == "1") {
+            eprintln!("RIG_SKIP_BROWSER=1: skipping the browser test (no chromium)");
+            return;
+        }
+        panic!(
+            "chromium not found (/usr/bin/chromium; or set RIG_CHROMIUM): run scripts/setup.sh, which installs Debian's \
+             chromium package, or set RIG_SKIP_BROWSER=1 to skip this test explicitly"
+        );
+    };
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.token = Some(TOKEN.into());
+    let daemon = Daemon::start(options).await.expect("daemon starts");
+    let client = DaemonClient::new(&format!("http://{}", daemon.addr()), Some(TOKEN.into())).expect("client");
+    let body = json!({"kind": "collect", "object": "edge", "poses": 400, "out": tmp.path()}).to_string();
+    let r = client.request("POST", "/api/jobs", Some(body.as_bytes())).await.expect("submit");
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    let url = format!("http://{}/#token={TOKEN}", daemon.addr());
+
+    let mut views = Vec::new();
+    for load in 0..2 {
+        // Wait for the job to move on from what the previous load showed.
+        let shown = views.last().and_then(|v: &PageView| v.progress).map_or(0, |(done, _)| done);
+        for _ in 0..6000 {
+            let j = job(&client, 1).await;
+            assert!(!j.state.is_final(), "the job ended before the page was loaded twice: {j:?}");
+            if j.state == JobState::Running && j.progress.done > shown {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let dom = load_page(&chromium, &url).await;
+        let view = read_page(&dom);
+        eprintln!("load {load}: {view:?}");
+        assert_eq!(view.frames.len(), 3, "load {load}: not every sensor's frame is shown: {view:?}\n{dom}");
+        assert!(view.progress.is_some_and(|(done, total)| done >= 1 && total == 400), "load {load}: {view:?}");
+        assert!(view.job_running, "load {load}: the jobs table does not list job 1 as running");
+        views.push(view);
+    }
+    let (first, second) = (&views[0], &views[1]);
+    let (Some((done1, _)), Some((done2, _))) = (first.progress, second.progress) else { unreachable!("checked above") };
+    assert!(done2 > done1, "the progress did not move between loads: {done1} then {done2}");
+    for ((sensor, seq1), (_, seq2)) in first.frames.iter().zip(&second.frames) {
+        assert!(seq2 > seq1, "{sensor}: the frame did not change between loads ({seq1} then {seq2})");
+    }
+
+    let r = client.request("POST", "/api/jobs/1/cancel", None).await.expect("cancel");
+    assert_eq!(r.status, 200);
+    daemon.shutdown().await.expect("clean shutdown");
+}

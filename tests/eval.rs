@@ -1,0 +1,341 @@
+//! `rig eval` on small simulated datasets written with the library: an identical twin scores
+//! perfectly, the nearest-neighbour baseline beats the pose-blind one when a close pose was
+//! collected, unpaired and seen poses are counted, and bad input exits 2. Also `rig synth
+//! --poses-of` with the tiny model package.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use image::RgbImage;
+use rig::calibration::Calibration;
+use rig::dataset::{DatasetWriter, Manifest, ObjectInfo, PoseRow, Source};
+use rig::eval::{EvalOptions, EvalReport, Method, MethodRow, evaluate};
+use rig::geometry::objects::load_object;
+use rig::geometry::raster::render_depth;
+use rig::pose::Pose;
+use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim};
+
+/// Image size of the simulated datasets, px (rendered larger than they are measured, as the
+/// rig's 512 px frames are, so the resize averages the sensor noise down a little).
+const SIZE: u32 = 256;
+/// Size the evaluation measures at, px.
+const EVAL: u32 = 128;
+
+/// A simulated sensor at [`SIZE`] with the default calibration.
+fn sensor(kind: SensorKind, seed: u64) -> SensorSim {
+    let calib = Calibration::default_for(SIZE, SIZE);
+    SensorSim::new(kind, Scene::preset("full").expect("scene"), SIZE, SIZE, calib.scale_px_per_mm[0] as f32, seed)
+}
+
+/// What `sim` shows with `object` at `pose` (contact depth 1.5 mm, as an uncalibrated collection).
+fn render(sim: &SensorSim, object: &str, pose: Pose, key: u64) -> RgbImage {
+    let mesh = load_object(object).expect("object");
+    let calib = Calibration::default_for(SIZE, SIZE);
+    let object_pose = Pose { z_mm: pose.z_mm + 1.5, ..pose };
+    sim.render(&render_depth(&mesh, &object_pose, &calib, SIZE, SIZE, 1), &MotionState::STILL, key)
+}
+
+/// Writes a dataset of `images` (pose id, pose, image) with rows of `source`.
+fn write(dir: &Path, object: &str, kind: SensorKind, reference: &RgbImage, images: &[(u32, Pose, RgbImage)], source: Source) {
+    let mut manifest = Manifest::new(&kind.to_string(), ObjectInfo::named(object), None);
+    manifest.calibration = Some("default".into());
+    let mut w = DatasetWriter::create(dir, manifest).expect("create dataset");
+    w.write_reference(reference).expect("reference");
+    for (id, pose, img) in images {
+        let row = match source {
+            Source::Real => PoseRow::commanded_only(*id, *pose, Source::Real),
+            Source::Synthetic => PoseRow::synthetic(*id, *pose, "test", 0, 1, 1.0),
+        };
+        w.append(row, img).expect("append");
+    }
+    w.finish().expect("finish");
+}
+
+/// Test poses: in contact, spread over x, y and yaw.
+fn test_poses() -> Vec<(u32, Pose)> {
+    vec![
+        (1, Pose::new(0.0, 0.0, 0.0, 0.0)),
+        (2, Pose::new(2.0, -1.0, 0.5, 30.0)),
+        (3, Pose::new(-2.0, 1.5, -0.5, -45.0)),
+        (4, Pose::new(1.0, 2.0, 0.0, 60.0)),
+    ]
+}
+
+/// Training poses well away from the test poses.
+fn train_poses() -> Vec<(u32, Pose)> {
+    vec![
+        (10, Pose::new(4.0, 4.0, 0.0, 90.0)),
+        (11, Pose::new(-4.0, -4.0, 1.0, -90.0)),
+        (12, Pose::new(4.0, -4.0, -1.0, 75.0)),
+    ]
+}
+
+/// Picks the synthetic side's poses from the test poses.
+type PoseSelection = dyn Fn(&[(u32, Pose)]) -> Vec<(u32, Pose)>;
+
+struct Sets {
+    _tmp: tempfile::TempDir,
+    real: PathBuf,
+    synthetic: PathBuf,
+    collected: PathBuf,
+}
+
+/// Real test sets for `objects` on ViTac, synthetic twins made by `twin` from the real image,
+/// and a collected set at `train` poses (plus `extra` poses per object).
+fn make_sets(
+    objects: &[&str],
+    twin: &dyn Fn(u32, &RgbImage) -> RgbImage,
+    synthetic_poses: &PoseSelection,
+    extra_train: &[(u32, Pose)],
+) -> Sets {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (real, synthetic, collected) = (tmp.path().join("real"), tmp.path().join("synth"), tmp.path().join("train"));
+    let kind = SensorKind::ViTac;
+    for object in objects {
+        let test_sim = sensor(kind, 22);
+        // The same sensor unit (same static look) as the test set; its own noise.
+        let train_sim = sensor(kind, 22);
+        let reference = test_sim.reference();
+        let real_images: Vec<(u32, Pose, RgbImage)> =
+            test_poses().into_iter().map(|(id, p)| (id, p, render(&test_sim, object, p, id as u64))).collect();
+        write(&real.join(object).join("vitac"), object, kind, &reference, &real_images, Source::Real);
+        let synth_images: Vec<(u32, Pose, RgbImage)> = synthetic_poses(&test_poses())
+            .into_iter()
+            .map(|(id, p)| {
+                let truth = real_images.iter().find(|(i, _, _)| *i == id).map(|(_, _, img)| img.clone());
+                let img = match truth {
+                    Some(t) => twin(id, &t),
+                    None => render(&test_sim, object, p, 1000 + id as u64),
+                };
+                (id, p, img)
+            })
+            .collect();
+        write(&synthetic.join(object).join("vitac"), object, kind, &reference, &synth_images, Source::Synthetic);
+        let mut train: Vec<(u32, Pose)> = train_poses();
+        train.extend_from_slice(extra_train);
+        let train_images: Vec<(u32, Pose, RgbImage)> =
+            train.into_iter().map(|(id, p)| (id, p, render(&train_sim, object, p, 5000 + id as u64))).collect();
+        write(&collected.join(object).join("vitac"), object, kind, &train_sim.reference(), &train_images, Source::Real);
+    }
+    Sets { _tmp: tmp, real, synthetic, collected }
+}
+
+fn row(report: &EvalReport, method: Method) -> &MethodRow {
+    report.rows.iter().find(|r| r.sensor == "vitac" && r.method == method).expect("row")
+}
+
+fn same(_: u32, img: &RgbImage) -> RgbImage {
+    img.clone()
+}
+
+fn all(p: &[(u32, Pose)]) -> Vec<(u32, Pose)> {
+    p.to_vec()
+}
+
+#[test]
+fn an_identical_twin_scores_ssim_one_mse_zero_and_the_true_image_pose_errors() {
+    let sets = make_sets(&["edge", "sphere"], &same, &all, &[]);
+    let options = EvalOptions::at_size(EVAL, "identical");
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &options).expect("evaluate");
+    assert_eq!(report.counts.pairs, 8);
+    assert_eq!(report.counts.dropped_seen, 0);
+    let model = row(&report, Method::Model);
+    let truth = row(&report, Method::TrueImage);
+    assert_eq!(model.n, 8);
+    assert!((model.ssim.expect("ssim") - 1.0).abs() < 1e-12, "{model:?}");
+    assert_eq!(model.mse, Some(0.0));
+    assert_eq!(model.psnr_db, Some(f64::INFINITY));
+    assert!(model.n_contact > 0 && (model.contact_ssim.expect("contact ssim") - 1.0).abs() < 1e-12);
+    assert_eq!(model.position_vs_true_mm, Some(0.0), "{model:?}");
+    assert_eq!(model.yaw_vs_true_deg, Some(0.0), "edge poses have an observable yaw: {model:?}");
+    assert_eq!(model.position_err_mm, truth.position_err_mm);
+    assert_eq!(model.yaw_err_deg, truth.yaw_err_deg);
+    // The estimator finds the contact on the true images, and close to where the mesh says.
+    assert_eq!(truth.position_found, truth.position_attempts);
+    assert!(truth.position_err_mm.expect("pos err") < 1.5, "{truth:?}");
+    // Sphere poses have a disc contact: yaw is not observable there.
+    assert!(report.counts.yaw_unobservable >= 4, "{:?}", report.counts);
+    // Baselines are worse than a perfect twin.
+    for m in [Method::PoseBlind, Method::NearestNeighbour] {
+        let b = row(&report, m);
+        assert_eq!(b.n, 8, "{m:?}");
+        assert!(b.ssim.expect("ssim") < 1.0 && b.mse.expect("mse") > 0.0, "{b:?}");
+    }
+    let md = report.to_markdown();
+    assert!(md.contains("| vitac | model | 8 | 1.000 | inf | 0.0 |"), "{md}");
+    // Only the edge.
+    let edge_only = EvalOptions { objects: vec!["edge".into()], ..options.clone() };
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &edge_only).expect("evaluate");
+    assert_eq!((report.counts.pairs, report.counts.real_datasets, report.counts.yaw_unobservable), (4, 1, 0));
+    assert!(!md.contains("NaN"), "{md}");
+}
+
+#[test]
+fn nearest_neighbour_at_a_close_pose_beats_pose_blind_in_the_contact_region() {
+    // The collected set has every test pose moved by 0.5 mm (and 15 degrees for one).
+    let close: Vec<(u32, Pose)> = test_poses()
+        .into_iter()
+        .map(|(id, p)| (100 + id, Pose::new(p.x_mm + 0.5, p.y_mm - 0.5, p.z_mm, p.yaw_deg + if id == 2 { 15.0 } else { 0.0 })))
+        .collect();
+    // The model's images are blank (the reference): it knows nothing.
+    let reference = sensor(SensorKind::ViTac, 22).reference();
+    let blank = move |_: u32, _: &RgbImage| reference.clone();
+    let sets = make_sets(&["sphere", "edge"], &blank, &all, &close);
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "nn"))
+        .expect("evaluate");
+    let nn = row(&report, Method::NearestNeighbour);
+    let blind = row(&report, Method::PoseBlind);
+    let model = row(&report, Method::Model);
+    assert!(nn.contact_ssim > blind.contact_ssim, "nn {nn:?}\nblind {blind:?}");
+    assert!(nn.contact_mse < blind.contact_mse, "nn {nn:?}\nblind {blind:?}");
+    assert!(nn.position_err_mm < blind.position_err_mm.or(Some(f64::INFINITY)), "nn {nn:?}\nblind {blind:?}");
+    // A blank image has no contact: its pose errors are counted as not found, never NaN.
+    assert_eq!(model.position_found, 0, "{model:?}");
+    assert_eq!(model.position_err_mm, None);
+    assert!(report.to_markdown().contains(&format!("n/a (0/{})", model.position_attempts)));
+}
+
+#[test]
+fn unpaired_poses_are_reported_not_paired() {
+    // The synthetic side lacks pose 4 and has a pose 9 the real side lacks.
+    let shifted = |p: &[(u32, Pose)]| {
+        let mut v: Vec<(u32, Pose)> = p.iter().filter(|(id, _)| *id != 4).copied().collect();
+        v.push((9, Pose::new(3.0, 3.0, 0.0, 15.0)));
+        v
+    };
+    let sets = make_sets(&["sphere"], &same, &shifted, &[]);
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "u"))
+        .expect("evaluate");
+    assert_eq!(report.counts.pairs, 3);
+    assert_eq!((report.counts.unpaired_real, report.counts.unpaired_synthetic), (1, 1));
+    let examples = report.counts.unpaired_examples.join("; ");
+    assert!(examples.contains("real sphere/vitac pose_id 4") && examples.contains("synthetic sphere/vitac pose_id 9"), "{examples}");
+    assert!(report.to_markdown().contains("Without a twin: 1 real, 1 synthetic poses"));
+}
+
+#[test]
+fn a_pose_in_the_collected_set_is_dropped_as_seen() {
+    let seen = vec![(50, Pose::new(2.0, -1.0, 0.5, 30.0))]; // test pose 2
+    let sets = make_sets(&["sphere"], &same, &all, &seen);
+    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "s"))
+        .expect("evaluate");
+    assert_eq!(report.counts.dropped_seen, 1);
+    assert_eq!(report.counts.pairs, 3);
+    assert_eq!(row(&report, Method::Model).n, 3);
+    // Without --collected the synthetic datasets' real rows are the collected set: none here,
+    // so nothing is dropped and the baselines are n/a.
+    let report = evaluate(&sets.real, &sets.synthetic, &[], &EvalOptions::at_size(EVAL, "s")).expect("evaluate");
+    assert_eq!((report.counts.dropped_seen, report.counts.pairs), (0, 4));
+    assert_eq!(report.counts.sensors_without_baseline, vec!["vitac".to_string()]);
+    assert_eq!(row(&report, Method::PoseBlind).ssim, None);
+}
+
+fn rig() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c.env_remove("RIG_CONFIG");
+    c
+}
+
+fn run(mut c: Command) -> (i32, String) {
+    let o = c.output().expect("running rig");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr);
+    (o.status.code().unwrap_or(-1), text)
+}
+
+fn eval_cmd(real: &Path, synthetic: &Path, extra: &[&str]) -> Command {
+    let mut c = rig();
+    c.arg("eval").arg("--real").arg(real).arg("--synthetic").arg(synthetic).args(extra);
+    c
+}
+
+#[test]
+fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
+    let sets = make_sets(&["sphere"], &same, &all, &[]);
+    let md = sets._tmp.path().join("eval.md");
+    let json = sets._tmp.path().join("eval.json");
+    let mut c = eval_cmd(&sets.real, &sets.synthetic, &["--label", "unseen poses"]);
+    c.arg("--collected").arg(&sets.collected).arg("--markdown").arg(&md).arg("--json").arg(&json);
+    let (code, out) = run(c);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("### rig eval: unseen poses (128 px)") && out.contains("| vitac | nearest-neighbour | 4 |"), "{out}");
+    let written = std::fs::read_to_string(&md).expect("markdown");
+    assert!(written.contains("| vitac | pose-blind | 4 |"), "{written}");
+    let parsed: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid json");
+    assert_eq!(parsed["counts"]["pairs"], 4);
+
+    // A missing directory.
+    let (code, out) = run(eval_cmd(&sets.real, &sets._tmp.path().join("nope"), &[]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("--synthetic") && out.contains("no such directory"), "{out}");
+    // A directory without datasets.
+    let empty = sets._tmp.path().join("empty");
+    std::fs::create_dir_all(&empty).expect("mkdir");
+    let (code, out) = run(eval_cmd(&empty, &sets.synthetic, &[]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("no dataset under"), "{out}");
+    // No pairs: the synthetic side is another object.
+    let other = sets._tmp.path().join("other");
+    let sim = sensor(SensorKind::ViTac, 22);
+    let img = render(&sim, "edge", Pose::new(0.0, 0.0, 0.0, 0.0), 1);
+    write(&other.join("edge").join("vitac"), "edge", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)], Source::Synthetic);
+    let (code, out) = run(eval_cmd(&sets.real, &other, &[]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("no pose pairs"), "{out}");
+    // A synthetic twin of another size.
+    let small = sets._tmp.path().join("small");
+    let tiny = image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), 64, 64, image::imageops::FilterType::Triangle);
+    write(&small.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), tiny)], Source::Synthetic);
+    let (code, out) = run(eval_cmd(&sets.real, &small, &[]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("the real image is 256x256 px, the synthetic one 64x64 px"), "{out}");
+    // A size below the SSIM window.
+    let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--size", "8"]));
+    assert_eq!(code, 2, "{out}");
+    // An object filter naming an object the real side lacks.
+    let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--object", "wedge"]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("--object wedge"), "{out}");
+}
+
+#[test]
+fn synth_poses_of_twins_exactly_the_real_poses_and_resumes() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let sim = sensor(SensorKind::ViTac, 22);
+    let images: Vec<(u32, Pose, RgbImage)> =
+        test_poses().into_iter().take(3).map(|(id, p)| (id, p, render(&sim, "sphere", p, id as u64))).collect();
+    let real = tmp.path().join("real");
+    write(&real.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &images, Source::Real);
+    let out = tmp.path().join("synth");
+    let synth = |extra: &[&str]| {
+        let mut c = rig();
+        c.args(["synth", "--steps", "2", "--batch", "2", "--poses-of"]).arg(&real).arg("--out").arg(&out).args(extra);
+        run(c)
+    };
+    let (code, text) = synth(&[]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("synthesised 3 poses"), "{text}");
+    let twin = out.join("sphere").join("vitac");
+    let rows = rig::dataset::read_rows(&twin).expect("rows");
+    assert_eq!(rows.len(), 3);
+    for (r, (id, p, _)) in rows.iter().zip(&images) {
+        assert_eq!((r.pose_id, r.commanded(), r.source), (*id, *p, Source::Synthetic));
+        let (w, h) = image::image_dimensions(twin.join(&r.image)).expect("image");
+        assert_eq!((w, h), (SIZE, SIZE), "resized to the real frames' size");
+    }
+    let m = Manifest::load(&twin).expect("manifest");
+    assert_eq!((m.object.name.as_str(), m.sensor.as_str()), ("sphere", "vitac"));
+    assert!(twin.join("reference.png").is_file());
+    let (code, text) = synth(&[]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("synthesised 0 poses"), "{text}");
+    // The pair evaluates.
+    let (code, text) = run(eval_cmd(&real, &out, &[]));
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("3 pairs"), "{text}");
+    // --poses-of without --out is bad input.
+    let mut c = rig();
+    c.args(["synth", "--poses-of"]).arg(&real);
+    let (code, text) = run(c);
+    assert_eq!(code, 2, "{text}");
+}
