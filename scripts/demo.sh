@@ -4,7 +4,7 @@
 # collected. Installs what it needs first. Re-running continues where it stopped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-./scripts/setup.sh
+RIG_SETUP_BROWSER=0 ./scripts/setup.sh
 cargo build --release --locked --quiet
 RIG=./target/release/rig
 OUT="${RIG_DEMO_OUT:-datasets}"

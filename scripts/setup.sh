@@ -40,9 +40,14 @@ fi
 echo "setup: ONNX Runtime at $ORT_LIB"
 
 # Headless Chromium for the daemon's page test (tests/daemon_browser.rs); Debian's package.
-if [ ! -x /usr/bin/chromium ]; then
+# The demo does not need it: scripts/demo.sh sets RIG_SETUP_BROWSER=0.
+if [ "${RIG_SETUP_BROWSER:-1}" = "0" ]; then
+  :
+elif [ ! -x /usr/bin/chromium ]; then
   echo "setup: installing chromium (the daemon page's browser test)"
   as_root apt-get update -qq
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
 fi
-echo "setup: chromium at /usr/bin/chromium"
+if [ -x /usr/bin/chromium ]; then
+  echo "setup: chromium at /usr/bin/chromium"
+fi
