@@ -18,7 +18,7 @@ fn tiny_config() -> BenchConfig {
         synth_poses: 1,
         synth_steps: vec![2, 4],
         synth_schedulers: vec![SchedulerKind::Ddim, SchedulerKind::DpmSolverPp2m],
-        synth_guidance: 9.0,
+        synth_guidance: 1.0,
         image_px: 64,
         control_supersample: vec![1, 2],
         control_reference_supersample: 4,

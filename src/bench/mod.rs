@@ -99,7 +99,8 @@ pub struct BenchConfig {
     /// Step counts; the largest is the reference the others are compared with.
     pub synth_steps: Vec<usize>,
     pub synth_schedulers: Vec<SchedulerKind>,
-    /// Classifier-free guidance of the synthesis runs.
+    /// Classifier-free guidance of the synthesis runs (1: unguided, as `rig synth --fill-missing`
+    /// samples and as models/default was trained).
     pub synth_guidance: f32,
     /// Side of the square control maps and sensor frames, px.
     pub image_px: u32,
@@ -139,7 +140,7 @@ impl BenchConfig {
             synth_poses: 1,
             synth_steps: vec![5, 10, 20, 50],
             synth_schedulers: vec![SchedulerKind::Ddim, SchedulerKind::DpmSolverPp2m],
-            synth_guidance: 9.0,
+            synth_guidance: 1.0,
             image_px: 512,
             control_supersample: vec![1, 2, 3, 4],
             control_reference_supersample: 8,
