@@ -173,20 +173,8 @@ impl BenchConfig {
     }
 }
 
-/// The model package the synthesis knob uses by default: `models/default` when it exists,
-/// else the tiny test package (both under the current directory, then the crate's folder).
-pub fn default_synth_model() -> PathBuf {
-    let roots = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
-    for rel in ["models/default", "tests/data/tiny-package"] {
-        for root in &roots {
-            let p = root.join(rel);
-            if p.join("model.toml").is_file() {
-                return p;
-            }
-        }
-    }
-    PathBuf::from("models/default")
-}
+/// The model package the synthesis knob uses by default: the one `rig synth` uses.
+pub use crate::synth::fill::default_model as default_synth_model;
 
 /// How a table column is printed.
 #[derive(Debug, Clone, PartialEq)]

@@ -67,25 +67,7 @@ pub const COLUMNS: [&str; 18] = [
 
 /// The columns of datasets written before the `modbus` column existed. Readers accept both
 /// headers; a writer that appends to such a dataset first upgrades it (see [`DatasetWriter`]).
-pub const LEGACY_COLUMNS: [&str; 17] = [
-    "pose_id",
-    "x_mm",
-    "y_mm",
-    "z_mm",
-    "yaw_deg",
-    "meas_x_mm",
-    "meas_y_mm",
-    "meas_z_mm",
-    "meas_yaw_deg",
-    "image",
-    "source",
-    "t_capture_s",
-    "model",
-    "seed",
-    "steps",
-    "guidance",
-    "n_frames",
-];
+pub const LEGACY_COLUMNS: &[&str] = COLUMNS.split_at(COLUMNS.len() - 1).0;
 
 /// Which header a `poses.csv` has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -112,7 +94,7 @@ impl CsvLayout {
     pub fn columns(self) -> &'static [&'static str] {
         match self {
             Self::Current => &COLUMNS,
-            Self::Legacy => &LEGACY_COLUMNS,
+            Self::Legacy => LEGACY_COLUMNS,
         }
     }
 }

@@ -327,23 +327,14 @@ pub fn synthesise_poses_of(
     }
     let kind = SensorKind::from_str(&source_manifest.sensor)
         .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
-    let mesh = object_mesh(&dir, &source_manifest)?;
     let (width, height) = pipeline.resolution();
-    let calibration = calibration_of(&dir, &source_manifest, width, height)?;
-    let contact_depth_mm = source_manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
+    let renderer = ControlRenderer::for_dataset(&dir, &source_manifest, width, height, options.supersample)?;
     let output_size = reference_size(source);
     let spec_seed = source_manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
     for chunk in todo.chunks(options.batch.max(1)) {
-        let controls: Vec<RgbImage> = chunk
-            .iter()
-            .map(|p| {
-                let object_pose = Pose { z_mm: p.pose.z_mm + contact_depth_mm, ..p.pose };
-                let depth = crate::geometry::raster::render_depth(&mesh, &object_pose, &calibration, width, height, options.supersample);
-                crate::geometry::control::control_image(&depth)
-            })
-            .collect();
+        let controls: Vec<RgbImage> = chunk.iter().map(|p| renderer.control_image(&p.pose)).collect();
         let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
         let requests: Vec<GenerateRequest> = chunk
             .iter()
