@@ -331,43 +331,9 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
         return Err(DetectError::NoContact { peak, floor, contrast: options.min_contrast });
     }
     let threshold = floor + options.fraction.clamp(0.0, 1.0) * (peak - floor);
-    // Flood fill (4-connected) from the peak over pixels above the threshold.
-    let mut seen = vec![false; w * h];
-    let mut stack = vec![peak_i];
-    seen[peak_i] = true;
-    let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
-    while let Some(i) = stack.pop() {
-        let (x, y) = (i % w, i / w);
-        let weight = change[i] as f64 - threshold;
-        su += weight * (x as f64 + 0.5);
-        sv += weight * (y as f64 + 0.5);
-        sw += weight;
-        area += 1;
-        let mut push = |j: usize| {
-            if !seen[j] && change[j] as f64 > threshold {
-                seen[j] = true;
-                stack.push(j);
-            }
-        };
-        if x > 0 {
-            push(i - 1);
-        }
-        if x + 1 < w {
-            push(i + 1);
-        }
-        if y > 0 {
-            push(i - w);
-        }
-        if y + 1 < h {
-            push(i + w);
-        }
-    }
-    let centroid_px = if sw > 0.0 {
-        [su / sw, sv / sw]
-    } else {
-        // Only the peak itself (a flat top at the threshold): its centre.
-        [(peak_i % w) as f64 + 0.5, (peak_i / w) as f64 + 0.5]
-    };
+    // Flood fill (4-connected) from the peak over pixels above the threshold; a flat top at
+    // the threshold gives the peak's centre.
+    let (centroid_px, area) = region_centroid(&change, w, h, peak_i, threshold);
     Ok(Contact { centroid_px, area_px: area, peak, floor, moved_markers: None, outline_radius_px: None })
 }
 
