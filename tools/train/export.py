@@ -105,10 +105,10 @@ def main():
     write_scheduler_config(out, SCHEDULER_CONFIG)
     with open(os.path.join(out, "TRAINING.txt"), "w") as f:
         targs = json.load(open(os.path.join(args.train_dir, "args.json")))
-        polish = "polish" in os.path.basename(ckpt)
-        done = f"{targs['steps']} steps + {step} polish steps" if polish else f"{step} of {targs['steps']} steps"
-        f.write(f"Trained by tools/train/train.py ({done}, EMA weights of {os.path.basename(ckpt)}).\n"
-                f"See docs/training.md (README: \"Training the default synthesis model\") to retrain.\n")
+        f.write(f"Trained by tools/train/train.py: EMA weights of {os.path.basename(ckpt)} (step {step} of this run"
+                + (f", started from the EMA weights of {targs['init']}" if targs.get("init") else "") + ").\n"
+                "This run's arguments:\n" + json.dumps(targs, indent=2) + "\n"
+                "README \"Training the default synthesis model\" (tools/train/train_default.sh) retrains it.\n")
     check_onnx(out, text_encoder, controlnet, unet, vae, tok)
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
     print(f"exported step {step} of {ckpt} to {out} ({total / 1e6:.1f} MB)")

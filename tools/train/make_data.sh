@@ -14,12 +14,21 @@ RIG=${1:-target/release/rig}
 PY=${PYTHON:-.venv/bin/python}
 OBJECTS=${OBJECTS:-"edge cuboid sphere pacman cross"}
 SIZE=${SIZE:-128}
+# One collection per object, all at once: each starts its own simulated rig on free loopback
+# ports, and most of a collection's time is the simulated arm's motion, not CPU.
+pids=()
 for o in $OBJECTS; do
-  "$RIG" collect --plan plans/train.toml --object "$o" --sensor all --out out/train-data --resume
+  "$RIG" collect --plan plans/train.toml --object "$o" --sensor all --out out/train-data --resume &
+  pids+=($!)
 done
+for p in "${pids[@]}"; do wait "$p"; done
+pids=()
 for o in $OBJECTS; do
   for s in tactip vitac vitactip; do
-    "$RIG" render --controls-of "out/train-data/$o/$s" --size "${SIZE}x${SIZE}" --out "out/train-controls/$o/$s"
+    "$RIG" render --controls-of "out/train-data/$o/$s" --size "${SIZE}x${SIZE}" --out "out/train-controls/$o/$s" &
+    pids+=($!)
   done
+  for p in "${pids[@]}"; do wait "$p"; done
+  pids=()
 done
 "$PY" tools/train/prepare.py --data out/train-data --controls out/train-controls --size "$SIZE" --out out/train/data.npz

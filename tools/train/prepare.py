@@ -14,6 +14,8 @@ also written by rig). The reference (no-contact) frame of each dataset is stored
 import argparse
 import csv
 import os
+from functools import partial
+from multiprocessing import Pool
 
 import numpy as np
 from PIL import Image
@@ -43,6 +45,7 @@ def main():
     ap.add_argument("--controls", default=None, help="default: out/train-controls")
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--out", default="out/train/data.npz")
+    ap.add_argument("--workers", type=int, default=os.cpu_count(), help="processes decoding images")
     args = ap.parse_args()
     controls = args.controls or "out/train-controls"
 
@@ -64,14 +67,18 @@ def main():
                     if row["source"] != "real":
                         continue
                     pid = int(row["pose_id"])
-                    images.append(load_rgb(os.path.join(ds, row["image"]), args.size))
-                    hints.append(load_rgb(os.path.join(cdir, f"{pid}.png"), args.size))
+                    images.append(os.path.join(ds, row["image"]))
+                    hints.append(os.path.join(cdir, f"{pid}.png"))
                     prompts.append(prompt_table[pid][label])
                     sensors.append(sensor)
                     objects.append(obj)
                     pose_ids.append(pid)
                     poses.append([float(row[k]) for k in ("x_mm", "y_mm", "z_mm", "yaw_deg")])
             print(f"{obj}/{sensor}: {sum(1 for o, s in zip(objects, sensors) if o == obj and s == sensor)} rows")
+    with Pool(max(1, args.workers)) as pool:
+        load = partial(load_rgb, size=args.size)
+        images = pool.map(load, images, chunksize=16)
+        hints = pool.map(load, hints, chunksize=16)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     np.savez(
         args.out,

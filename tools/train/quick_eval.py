@@ -116,22 +116,23 @@ def warp(img, ref, src_pose, dst_pose):
 
 
 @torch.no_grad()
-def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0):
+def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8):
     """DDIM (eta 0, rig's timesteps) with the PyTorch models of a checkpoint; images in [0, 1]."""
     from export import load_trained
     from train import alphas_cumprod, encode_prompts
     tok, te, unet, cn, vae, _ = load_trained(train_dir, ckpt)
+    te, unet, cn, vae = te.to(device), unet.to(device), cn.to(device), vae.to(device)
     eos = tok.token_to_id("<|endoftext|>")
     ac = alphas_cumprod().double()
     ts = list(range(1, 1000, 1000 // steps))[::-1]
     g = torch.Generator().manual_seed(seed)
     out = []
-    for i in range(0, len(hints), 8):
-        h = torch.from_numpy(np.stack(hints[i:i + 8])).permute(0, 3, 1, 2).float()
-        ehs = te(encode_prompts(tok, prompts[i:i + 8], eos))[0]
-        x = torch.randn(len(h), vae.config.latent_channels, SIZE // 4, SIZE // 4, generator=g)
+    for i in range(0, len(hints), batch):
+        h = torch.from_numpy(np.stack(hints[i:i + batch])).permute(0, 3, 1, 2).float().to(device)
+        ehs = te(encode_prompts(tok, prompts[i:i + batch], eos).to(device))[0]
+        x = torch.randn(len(h), vae.config.latent_channels, SIZE // 4, SIZE // 4, generator=g).to(device)
         for t in ts:
-            tt = torch.tensor([t])
+            tt = torch.tensor([t], device=device)
             down, mid = cn(x, tt, encoder_hidden_states=ehs, controlnet_cond=h, return_dict=False)
             x0 = unet(x, tt, encoder_hidden_states=ehs, down_block_additional_residuals=down,
                       mid_block_additional_residual=mid).sample
@@ -140,7 +141,7 @@ def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0):
             eps = (x - a.sqrt() * x0) / (1 - a).sqrt()
             x = a_prev.sqrt() * x0 + (1 - a_prev).sqrt() * eps
         img = vae.decode(x / vae.config.scaling_factor)[0]
-        out.extend(((img.clamp(-1, 1) + 1) / 2).permute(0, 2, 3, 1).numpy())
+        out.extend(((img.clamp(-1, 1) + 1) / 2).permute(0, 2, 3, 1).cpu().numpy())
     return out
 
 
@@ -156,6 +157,7 @@ def main():
     ap.add_argument("--objects", default="edge cuboid sphere pacman cross")
     ap.add_argument("--per", type=int, default=4, help="test poses per object and sensor")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="where the PyTorch sampler runs (cpu or cuda)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -188,7 +190,8 @@ def main():
 
     methods = {}
     if args.ckpt:
-        methods["model"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases])
+        methods["model"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
+                                        device=args.device, batch=64 if args.device != "cpu" else 8)
     if args.synth:
         methods["model"] = [load_rgb(os.path.join(args.synth, c[0], c[1], "images", f"{c[2]}.png")) for c in cases]
     means = {s: t_img[t_sensors == s].mean(0) for s in SENSORS}

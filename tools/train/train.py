@@ -63,30 +63,42 @@ def parse_args(argv=None):
                     help="after the run: this many more steps at --polish-lr, the text encoder at 4x (diffusion-polish.pt)")
     ap.add_argument("--polish-lr", type=float, default=3e-4)
     ap.add_argument("--bench", type=int, default=0, help="time this many steps of each stage and exit")
+    ap.add_argument("--minutes", type=float, default=0,
+                    help="train for about this long instead of --steps: the step count (and so the learning-rate "
+                         "schedule) is set from the speed of the first steps")
+    ap.add_argument("--amp", action="store_true", help="bfloat16 autocast of the forward passes (CUDA)")
+    ap.add_argument("--pure-noise-from", type=int, default=INFERENCE_TIMESTEPS[-1],
+                    help="timesteps from this one up are trained on pure noise, as the sampler's first step sees it")
+    ap.add_argument("--init", default=None,
+                    help="start from the EMA weights of this checkpoint (same --width; put its tokenizer.json and "
+                         "vae.pt in --out first)")
     return ap.parse_args(argv)
 
 
 # --- data ---------------------------------------------------------------------------------
 
 class Data:
-    def __init__(self, path):
+    """The packed training set as uint8 tensors (N,3,H,W), on `device` (a GPU holds all of it)."""
+
+    def __init__(self, path, device="cpu"):
         d = np.load(path)
-        self.images = d["images"]            # N,H,W,3 uint8
-        self.hints = d["hints"]              # N,H,W,3 uint8
+        nchw = lambda a: torch.from_numpy(a).permute(0, 3, 1, 2).to(device)  # noqa: E731
+        self.images = nchw(d["images"])
+        self.hints = nchw(d["hints"])
         self.prompts = [str(p) for p in d["prompts"]]
         self.sensors = [str(s) for s in d["sensors"]]
-        refs = {str(s): r for s, r in zip(d["ref_sensors"], d["references"])}
-        self.refs = np.stack([refs[s] for s in self.sensors])  # N,H,W,3 (per row, small enough)
-        self.n = len(self.images)
-
-    @staticmethod
-    def to_tensor(a):
-        return torch.from_numpy(a).permute(0, 3, 1, 2).float() / 255.0
+        ref_sensors = [str(s) for s in d["ref_sensors"]]
+        self.references = nchw(d["references"])
+        self.sensor_index = torch.tensor([ref_sensors.index(s) for s in self.sensors], device=device)
+        self.n = len(self.prompts)
+        self.shape = tuple(d["images"].shape[1:3])
 
     def batch(self, idx):
-        img = self.to_tensor(self.images[idx]) * 2 - 1
-        hint = self.to_tensor(self.hints[idx])
-        ref = self.to_tensor(self.refs[idx]) * 2 - 1
+        """(image in [-1, 1], hint in [0, 1], reference in [-1, 1]) of the rows idx, as float."""
+        idx = torch.as_tensor(idx, device=self.images.device)
+        img = self.images[idx].float() / 127.5 - 1
+        hint = self.hints[idx].float() / 255.0
+        ref = self.references[self.sensor_index[idx]].float() / 127.5 - 1
         return img, hint, ref
 
 
@@ -145,7 +157,7 @@ def ae_stage(args, data, device):
     path = os.path.join(args.out, "vae.pt")
     ck = load(path)
     if ck is None:
-        x = torch.cat([data.batch(np.arange(i, min(i + 256, data.n)))[0] for i in range(0, data.n, 256)])
+        x = torch.cat([data.batch(np.arange(i, min(i + 256, data.n)))[0].cpu() for i in range(0, data.n, 256)])
         z = torch.nn.functional.pixel_unshuffle(x, 4)
         mean = z.mean((0, 2, 3))
         scale = float(1.0 / (z - mean.view(1, -1, 1, 1)).std())
@@ -162,13 +174,13 @@ def encode_all(vae, data, device, out):
     path = os.path.join(out, "latents.pt")
     ck = load(path)
     if ck is not None and ck["n"] == data.n:
-        return ck["latents"]
+        return ck["latents"].to(device)
     lat = []
     for i in range(0, data.n, 64):
         img = data.batch(np.arange(i, min(i + 64, data.n)))[0].to(device)
-        lat.append(vae.encode(img).cpu() * vae.config.scaling_factor)
+        lat.append(vae.encode(img) * vae.config.scaling_factor)
     lat = torch.cat(lat)
-    save(path, latents=lat, n=data.n)
+    save(path, latents=lat.cpu(), n=data.n)
     return lat
 
 
@@ -191,15 +203,22 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
     other = [p for k, m in modules.items() if k != "text_encoder" for p in m.parameters()]
     opt = torch.optim.AdamW([{"params": other, "k": 1.0}, {"params": text_params, "k": 4.0 if polish else 1.0}],
                             lr=args.lr, weight_decay=0.01)
-    step = 0
+    step, n_steps_saved = 0, None
     ck = load(path)
     if polish and ck is None:
         # Start from the finished main run's weights (its EMA goes on as the EMA).
         base = load(os.path.join(args.out, "diffusion.pt"))
         modules.load_state_dict(base["model"]), ema.load_state_dict(base["ema"])
+    if ck is None and not polish and args.init:
+        init = load(args.init)
+        if init is None:
+            sys.exit(f"--init {args.init}: no such checkpoint")
+        modules.load_state_dict(init["ema"]), ema.load_state_dict(init["ema"])
+        log(args.out, f"initialised from the EMA weights of {args.init} (step {init.get('step')})")
     if ck is not None:
         modules.load_state_dict(ck["model"]), ema.load_state_dict(ck["ema"])
         step = ck["step"]
+        n_steps_saved = ck.get("n_steps")
         if ck.get("done"):
             return ema
         opt.load_state_dict(ck["opt"])
@@ -209,10 +228,20 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
     ac = alphas_cumprod().to(device)
     rng = np.random.default_rng(args.seed + 3 + step)
     torch.manual_seed(args.seed + 3 + step)
-    n_steps = args.bench or (args.polish_steps if polish else args.steps)
+    n_steps = n_steps_saved or args.bench or (args.polish_steps if polish else args.steps)
+    timed = bool(args.minutes) and not polish and not args.bench and n_steps_saved is None
     t0, seen, run_loss = time.time(), 0, 0.0
+    ema_params, model_params = list(ema.parameters()), list(modules.parameters())
+    t_start = t0
+    amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.amp)
     modules.train()
     while step < n_steps:
+        if timed and seen == 10:
+            t_start = time.time()  # after the warm-up steps
+        if timed and seen == 60:
+            per_step = (time.time() - t_start) / 50
+            n_steps = max(step + 1, int(args.minutes * 60 / per_step))
+            log(args.out, f"--minutes {args.minutes}: {per_step * 1000:.1f} ms/step, training {n_steps} steps")
         if polish:
             lr = args.polish_lr
         else:
@@ -221,7 +250,7 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
             g["lr"] = lr * g["k"]
         idx = rng.integers(0, data.n, args.batch)
         img, hint, ref = data.batch(idx)
-        x0 = latents[idx].to(device)
+        x0 = latents[torch.as_tensor(idx, device=latents.device)].to(device)
         hint, ids = hint.to(device), ids_all[idx].to(device)
         # Half the batch at the sampler's own timesteps, half anywhere.
         t_inf = torch.tensor(INFERENCE_TIMESTEPS)[torch.from_numpy(rng.integers(0, len(INFERENCE_TIMESTEPS), args.batch))]
@@ -229,11 +258,17 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
         t = torch.where(torch.from_numpy(rng.random(args.batch) < 0.5), t_inf, t_any).to(device)
         noise = torch.randn_like(x0)
         a = ac[t].view(-1, 1, 1, 1)
+        # The sampler starts from pure noise at its first timestep (951), where this schedule
+        # (terminal SNR > 0) would still leave 8 % of the image in x_t. Trained on that leak, the
+        # model reads the sensor from x_t rather than from the prompt, and then draws any sensor
+        # from pure noise. From --pure-noise-from up it sees what the sampler gives it.
+        a = torch.where((t >= args.pure_noise_from).view(-1, 1, 1, 1), torch.zeros_like(a), a)
         xt = a.sqrt() * x0 + (1 - a).sqrt() * noise
-        ehs = text_encoder(ids)[0]
-        down, mid = controlnet(xt, t, encoder_hidden_states=ehs, controlnet_cond=hint, return_dict=False)
-        pred = unet(xt, t, encoder_hidden_states=ehs, down_block_additional_residuals=down,
-                    mid_block_additional_residual=mid).sample
+        with amp:
+            ehs = text_encoder(ids)[0]
+            down, mid = controlnet(xt, t, encoder_hidden_states=ehs, controlnet_cond=hint, return_dict=False)
+            pred = unet(xt, t, encoder_hidden_states=ehs, down_block_additional_residuals=down,
+                        mid_block_additional_residual=mid).sample.float()
         # Contact pixels weigh more: the static background is easy, the contact is the point.
         w = 1 + args.contact_weight * F.max_pool2d(contact_mask(img, ref), 4).to(device)
         loss = (w * (pred - x0) ** 2).mean()
@@ -245,11 +280,10 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
         seen += 1
         with torch.no_grad():
             d = min(args.ema, (1 + step) / (10 + step))
-            for pe, pm in zip(ema.parameters(), modules.parameters()):
-                pe.lerp_(pm, 1 - d)
-        run_loss += loss.item()
+            torch._foreach_lerp_(ema_params, model_params, 1 - d)
+        run_loss += loss.detach()
         if step % args.log_every == 0 or step == n_steps:
-            log(args.out, f"diffusion step {step}/{n_steps} loss {run_loss / args.log_every:.4f} lr {lr:.2e} "
+            log(args.out, f"diffusion step {step}/{n_steps} loss {float(run_loss) / args.log_every:.4f} lr {lr:.2e} "
                           f"{(time.time() - t0) / seen:.2f} s/step")
             run_loss = 0.0
         if args.bench and step >= args.bench:
@@ -257,7 +291,7 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
             return None
         if step % args.ckpt_every == 0 or step == n_steps:
             save(path, model=modules.state_dict(), ema=ema.state_dict(), opt=opt.state_dict(), step=step,
-                 done=step == n_steps)
+                 n_steps=n_steps, done=step == n_steps)
             save(os.path.join(args.out, f"ema-{'polish-' if polish else ''}{step:06d}.pt"), ema=ema.state_dict(), step=step)
             for old in sorted(f for f in os.listdir(args.out) if f.startswith("ema-0"))[:-3]:
                 os.remove(os.path.join(args.out, old))
@@ -270,10 +304,12 @@ def main(argv=None):
     torch.manual_seed(args.seed)
     os.makedirs(args.out, exist_ok=True)
     device = torch.device(args.device)
+    torch.backends.cuda.matmul.allow_tf32 = True
+    torch.backends.cudnn.allow_tf32 = True
     with open(os.path.join(args.out, "args.json"), "w") as f:
         json.dump(vars(args), f, indent=2)
-    data = Data(args.data)
-    log(args.out, f"data: {data.n} rows, {data.images.shape[1]}x{data.images.shape[2]}")
+    data = Data(args.data, device)
+    log(args.out, f"data: {data.n} rows, {data.shape[0]}x{data.shape[1]}, on {device}")
     tok = tokenizer_stage(args, data)
     vae = ae_stage(args, data, device)
     latents = encode_all(vae, data, device, args.out)
