@@ -23,6 +23,7 @@ pub mod plan;
 pub mod metrics;
 pub mod pose;
 pub mod record;
+pub mod report;
 pub mod rigs;
 pub mod sim;
 pub mod synth;

@@ -159,3 +159,32 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     }
     assert!(failures.is_empty(), "bad inputs:\n{}\n\n{table}", failures.join("\n"));
 }
+
+/// `rig plan show | head -1`: the reader goes away after one line; rig ends without a panic
+/// (killed by SIGPIPE, as Unix tools are), not with "failed printing to stdout".
+#[test]
+fn output_into_a_closed_pipe_ends_quietly() {
+    use std::io::{BufRead, BufReader, Read};
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let plan = Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/train.toml");
+    // The full 5265-pose grid: ~270 kB of output, far more than a pipe buffers.
+    let mut child = rig(dir.path())
+        .args(["plan", "show", "--plan"])
+        .arg(&plan)
+        .args(["--sampling", "full", "--order", "as-sampled"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("running rig");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut first).unwrap();
+    assert!(!first.is_empty(), "rig printed nothing");
+    // The reader is dropped here: the pipe is closed with most of the output unwritten.
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = child.wait().unwrap();
+    assert!(!stderr.contains("panicked"), "rig panicked on a closed stdout: {stderr}");
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(status.signal(), Some(libc::SIGPIPE), "expected the end by SIGPIPE, got {status:?}; stderr: {stderr}");
+}

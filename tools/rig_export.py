@@ -175,7 +175,8 @@ def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, o
 
 
 def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
-                     prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None):
+                     prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None,
+                     sampling_steps=None, guidance=None):
     mods = ", ".join(f'"{m}"' for m in modalities)
     text = (
         f'name = "{name}"\n'
@@ -187,6 +188,10 @@ def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("Ta
     )
     if vae_scale_factor is not None:
         text += f"vae_scale_factor = {vae_scale_factor}  # image pixels per latent pixel\n"
+    if sampling_steps is not None:
+        text += f"sampling_steps = {sampling_steps}  # what it was trained to be sampled with\n"
+    if guidance is not None:
+        text += f"guidance = {float(guidance)}  # classifier-free guidance scale (1: unguided)\n"
     with open(os.path.join(out_dir, "model.toml"), "w") as f:
         f.write(text)
 

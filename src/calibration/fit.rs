@@ -354,44 +354,12 @@ fn fit_depth_term(points: &[FitPoint], idx: &[usize], start: Params, options: &F
             })
             .sum()
     };
-    let mut p = start;
-    let mut current = cost(&p);
-    let mut lambda = 1e-6;
-    for _ in 0..100 {
-        let (h, g) = normal(&p, true);
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut hd = h;
-            for (a, row) in hd.iter_mut().enumerate() {
-                row[a] += lambda * (h[a][a] + 1e-12);
-            }
-            let Some(step) = solve::<6>(hd, g) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let trial = Params {
-                cu: p.cu - step[0],
-                cv: p.cv - step[1],
-                theta: p.theta - step[2],
-                sx: p.sx - step[3],
-                sy: p.sy - step[4],
-                k: p.k - step[5],
-            };
-            let c2 = cost(&trial);
-            if c2.is_finite() && c2 <= current {
-                let small = step.iter().all(|d| d.abs() < 1e-13);
-                p = trial;
-                current = c2;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = !small;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
+    let p = levenberg_marquardt::<6>(
+        start,
+        |p| normal(p, true),
+        cost,
+        |p, d| Params { cu: p.cu - d[0], cv: p.cv - d[1], theta: p.theta - d[2], sx: p.sx - d[3], sy: p.sy - d[4], k: p.k - d[5] },
+    );
     if !(p.k.abs() <= super::MAX_DEPTH_SCALE_PER_MM) {
         let per_mm = if p.k.is_finite() { p.k } else { f64::MAX };
         return (start, DepthTerm::NotFitted(DepthRefusal::OutOfRange { per_mm, max: super::MAX_DEPTH_SCALE_PER_MM }));
@@ -497,11 +465,10 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
     let shear_raw = c * col1[0] + s * col1[1];
     let shear = shear_raw / col1[0].hypot(col1[1]).max(f64::MIN_POSITIVE);
     // Normalised model: u' = t + R diag(sx, sy) x'; start from the affine translation.
-    let mut p = Params { cu: su[2], cv: sv[2], theta, sx, sy, k: 0.0 };
+    let start = Params { cu: su[2], cv: sv[2], theta, sx, sy, k: 0.0 };
 
     // Stage 3: damped Gauss-Newton with Huber weights.
     let huber = options.huber_px / np.scale;
-    let mut lambda = 1e-6;
     let cost = |p: &Params| -> f64 {
         xs.iter()
             .zip(&us)
@@ -512,8 +479,7 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
             })
             .sum()
     };
-    let mut current = cost(&p);
-    for _ in 0..100 {
+    let normal = |p: &Params| {
         let (s, c) = p.theta.sin_cos();
         let mut h = [[0.0; 5]; 5];
         let mut g = [0.0; 5];
@@ -531,39 +497,16 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
                 }
             }
         }
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut hd = h;
-            for (a, row) in hd.iter_mut().enumerate() {
-                row[a] += lambda * (h[a][a] + 1e-12);
-            }
-            let Some(step) = solve::<5>(hd, g) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let trial = Params {
-                cu: p.cu - step[0],
-                cv: p.cv - step[1],
-                theta: p.theta - step[2],
-                sx: p.sx - step[3],
-                sy: p.sy - step[4],
-                k: 0.0,
-            };
-            let c2 = cost(&trial);
-            if c2.is_finite() && c2 <= current {
-                let small = step.iter().all(|d| d.abs() < 1e-13);
-                p = trial;
-                current = c2;
-                lambda = (lambda / 10.0).max(1e-12);
-                improved = !small;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
+        (h, g)
+    };
+    let p = levenberg_marquardt::<5>(start, normal, cost, |p, d| Params {
+        cu: p.cu - d[0],
+        cv: p.cv - d[1],
+        theta: p.theta - d[2],
+        sx: p.sx - d[3],
+        sy: p.sy - d[4],
+        k: 0.0,
+    });
     // Back to pixels: u = np.mean + np.scale * (t + R diag(sx, sy) (x - nm.mean) / nm.scale).
     let k = np.scale / nm.scale;
     let (sx, sy) = (p.sx * k, p.sy * k);
@@ -579,6 +522,51 @@ fn fit_subset(points: &[FitPoint], idx: &[usize], options: &FitOptions) -> Resul
     let cu = np.mean[0] + np.scale * p.cu - (c * a - s * b);
     let cv = np.mean[1] + np.scale * p.cv - (s * a + c * b);
     Ok((Params { cu, cv, theta, sx, sy, k: 0.0 }, condition, shear))
+}
+
+/// Levenberg-Marquardt on N of the parameters: `normal(p)` is the (Huber-weighted) normal
+/// matrix and gradient at `p`, `cost(p)` the robust cost, `step(p, d)` the parameters moved by
+/// `-d`. A step is taken only when the cost does not rise; the damping falls 10x after an
+/// accepted step and rises 10x after a refused or singular one. Ends when no step helps, a step
+/// is negligible, or after 100 iterations.
+fn levenberg_marquardt<const N: usize>(
+    start: Params,
+    normal: impl Fn(&Params) -> ([[f64; N]; N], [f64; N]),
+    cost: impl Fn(&Params) -> f64,
+    step: impl Fn(&Params, &[f64; N]) -> Params,
+) -> Params {
+    let mut p = start;
+    let mut current = cost(&p);
+    let mut lambda = 1e-6;
+    for _ in 0..100 {
+        let (h, g) = normal(&p);
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut hd = h;
+            for (a, row) in hd.iter_mut().enumerate() {
+                row[a] += lambda * (h[a][a] + 1e-12);
+            }
+            let Some(d) = solve::<N>(hd, g) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = step(&p, &d);
+            let c2 = cost(&trial);
+            if c2.is_finite() && c2 <= current {
+                let small = d.iter().all(|x| x.abs() < 1e-13);
+                p = trial;
+                current = c2;
+                lambda = (lambda / 10.0).max(1e-12);
+                improved = !small;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    p
 }
 
 /// Solves `a x = b` by Gaussian elimination with partial pivoting; `None` when singular.

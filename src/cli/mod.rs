@@ -75,6 +75,7 @@ pub enum Command {
 /// Parses the command line, runs the command, maps errors to an exit code.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    end_quietly_when_stdout_closes();
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
@@ -104,96 +105,23 @@ pub fn main() -> ExitCode {
         Err(e) => {
             // An exit status alone has said what it had to say already.
             if e.downcast_ref::<ExitStatus>().is_none() {
-                eprintln!("error: {e:#}");
+                eprintln!("error: {}", error_report(&e));
             }
             ExitCode::from(exit_code(&e))
         }
     }
 }
 
-/// Exit codes: 1 general failure (including a full disk), 2 bad input (usage, config, plan,
-/// object, calibration, profile, model package and dataset files; a plan outside the
-/// workspace), 3 hardware or protocol fault (arm alarms and lost connections once retries are
-/// spent, camera failures), 4 interrupted. the README's "Bad input" table lists each bad input.
-pub fn exit_code(e: &anyhow::Error) -> u8 {
-    if let Some(code) = e.downcast_ref::<ExitStatus>() {
-        return code.0;
+/// `rig plan show | head`: once the reader has gone, end as Unix tools do (killed by SIGPIPE)
+/// rather than panic in `println!`. Rust ignores SIGPIPE by default; its sockets send with
+/// MSG_NOSIGNAL, so a dropped TCP peer still comes back as an error, not as this signal.
+fn end_quietly_when_stdout_closes() {
+    #[cfg(unix)]
+    // SAFETY: called once at start-up, before any other thread exists; resets one signal's
+    // disposition to the default.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    if e.downcast_ref::<UsageError>().is_some()
-        || matches!(e.downcast_ref::<crate::collect::CollectError>(), Some(crate::collect::CollectError::Unreachable { .. }))
-    {
-        return 2;
-    }
-    for cause in e.chain() {
-        if cause.downcast_ref::<crate::arm::ArmError>().is_some()
-            || cause.downcast_ref::<crate::camera::CameraError>().is_some()
-        {
-            return 3;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
-            use crate::collect::CollectError as C;
-            match e {
-                C::RetriesExhausted { .. }
-                | C::CameraRetriesExhausted { .. }
-                | C::PeripheralRetriesExhausted { .. }
-                | C::Arm(_)
-                | C::Camera(_) => return 3,
-                C::Peripheral(e) if e.is_recoverable() => return 3,
-                C::Peripheral(_) => return 2,
-                C::Unreachable { .. } | C::Mismatch { .. } => return 2,
-                C::Dataset(_) => {}
-            }
-        }
-        if cause.downcast_ref::<crate::config::ConfigError>().is_some() {
-            return 2;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::synth::SynthError>() {
-            use crate::synth::SynthError as S;
-            if matches!(e, S::MissingFiles { .. } | S::ModelToml { .. } | S::BadModelConfig { .. } | S::BadRequest { .. }) {
-                return 2;
-            }
-        }
-        if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
-            use crate::rigs::RigError as R;
-            if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
-                return 2;
-            }
-            if let R::Modbus(m) = e {
-                return if m.is_recoverable() { 3 } else { 2 };
-            }
-        }
-        if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
-            return 2;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::dataset::DatasetError>() {
-            use crate::dataset::DatasetError as D;
-            if matches!(
-                e,
-                D::NotEmpty { .. }
-                    | D::NotADataset { .. }
-                    | D::ManifestMismatch { .. }
-                    | D::MalformedMds { .. }
-                    | D::BadHeader { .. }
-                    | D::ManifestParse { .. }
-            ) {
-                return 2;
-            }
-        }
-    }
-    1
 }
 
-/// Bad input on the command line (exit code 2).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
-
-/// A [`UsageError`] with this message.
-pub fn usage(message: &str) -> UsageError {
-    UsageError(message.to_string())
-}
-
-/// An error that carries its own exit code.
-#[derive(Debug, thiserror::Error)]
-#[error("exit status {0}")]
-pub struct ExitStatus(pub u8);
+pub use crate::report::{ExitStatus, UsageError, error_report, exit_code, usage};

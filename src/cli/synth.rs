@@ -76,12 +76,13 @@ pub struct OneArgs {
     /// Text for the unconditional half of classifier-free guidance.
     #[arg(long, default_value = "")]
     pub negative_prompt: String,
-    /// Sampling steps.
-    #[arg(long, default_value_t = 50)]
-    pub steps: usize,
-    /// Classifier-free guidance scale (1: no guidance, half the work; MultiDiffSense's paper: 9).
-    #[arg(long, default_value_t = 9.0)]
-    pub guidance: f32,
+    /// Sampling steps [default: the package's `sampling_steps`, else 50].
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Classifier-free guidance scale (1: no guidance, half the work) [default: the package's
+    /// `guidance`, else 9 as in MultiDiffSense's paper].
+    #[arg(long)]
+    pub guidance: Option<f32>,
     /// DDIM eta (0: deterministic).
     #[arg(long, default_value_t = 0.0)]
     pub eta: f32,
@@ -156,12 +157,15 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let mut pipeline = load(&args.model, &args.runtime)?;
     let load_s = t0.elapsed().as_secs_f64();
+    let config = &pipeline.package().config;
+    let steps = args.steps.or(config.sampling_steps).unwrap_or(50);
+    let guidance = args.guidance.or(config.guidance).unwrap_or(9.0);
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
         negative_prompt: &args.negative_prompt,
-        steps: args.steps,
-        guidance: args.guidance,
+        steps,
+        guidance,
         eta: args.eta,
         seed: args.seed,
         scheduler: args.scheduler,
@@ -182,9 +186,9 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     println!(
         "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}",
         args.out.display(),
-        args.steps,
+        steps,
         args.scheduler,
-        args.guidance,
+        guidance,
         args.eta,
         args.seed
     );
@@ -242,7 +246,7 @@ mod tests {
         ])
         .unwrap();
         let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
-        assert_eq!((one.steps, one.scheduler, one.size), (4, SchedulerKind::DpmSolverPp2m, Some((64, 64))));
+        assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, SchedulerKind::DpmSolverPp2m, Some((64, 64))));
         let cli = crate::cli::Cli::try_parse_from([
             "rig", "synth", "one", "--model", "m", "--control", "c.png", "--sensor", "ViTac", "--pose", "-1,2,0.5,-30", "--out", "o.png",
         ])

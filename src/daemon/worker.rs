@@ -89,7 +89,7 @@ fn describe_failure(e: JobError) -> (String, u8) {
         JobError::Press(e) => e.into(),
         other => other.into(),
     };
-    (format!("{err:#}"), crate::cli::exit_code(&err))
+    (crate::report::error_report(&err), crate::report::exit_code(&err))
 }
 
 /// Between jobs: one fresh frame of every sensor and the arm's pose and mode, so the page

@@ -28,6 +28,8 @@
 //! hint_encoding = "rgb01"            # control RGB scaled to [0,1] ("rgb11": to [-1,1])
 //! vae_scale_factor = 8               # image pixels per latent pixel
 //! end_token = "<|endoftext|>"        # padding token of the tokenizer
+//! sampling_steps = 20                # what the model was trained to be sampled with: the
+//! guidance = 1.0                     #   defaults of `rig synth one` (else 50 steps, guidance 9)
 //! ```
 
 use std::io::Read;
@@ -78,6 +80,10 @@ struct RawModelToml {
     vae_scale_factor: u32,
     #[serde(default = "default_end_token")]
     end_token: String,
+    #[serde(default)]
+    sampling_steps: Option<usize>,
+    #[serde(default)]
+    guidance: Option<f32>,
 }
 
 fn default_resolution() -> [u32; 2] {
@@ -111,6 +117,10 @@ pub struct ModelConfig {
     pub hint_encoding: HintEncoding,
     pub vae_scale_factor: u32,
     pub end_token: String,
+    /// Sampling steps the model is meant to be sampled with, if the package says.
+    pub sampling_steps: Option<usize>,
+    /// Classifier-free guidance scale the model is meant to be sampled with, if the package says.
+    pub guidance: Option<f32>,
 }
 
 impl ModelConfig {
@@ -139,6 +149,12 @@ impl ModelConfig {
         if w == 0 || h == 0 || !w.is_multiple_of(f) || !h.is_multiple_of(f) {
             return Err(bad("resolution", format!("{raw_res:?}", raw_res = raw.resolution), "must be positive multiples of vae_scale_factor"));
         }
+        if raw.sampling_steps == Some(0) {
+            return Err(bad("sampling_steps", "0".to_string(), "must be at least 1"));
+        }
+        if let Some(g) = raw.guidance.filter(|g| !(g.is_finite() && *g >= 1.0)) {
+            return Err(bad("guidance", g.to_string(), "must be a number >= 1 (1: unguided)"));
+        }
         Ok(Self {
             name: raw.name,
             width_px: w,
@@ -149,6 +165,8 @@ impl ModelConfig {
             hint_encoding,
             vae_scale_factor: f,
             end_token: raw.end_token,
+            sampling_steps: raw.sampling_steps,
+            guidance: raw.guidance,
         })
     }
 }
@@ -371,6 +389,14 @@ mod tests {
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "resolution", .. })));
         let (_d, p) = write_toml("resolution = [512, 512]\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::ModelToml { .. })));
+        assert_eq!((c.sampling_steps, c.guidance), (None, None));
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nguidance = 1.0\n");
+        let c = ModelConfig::read(&p).unwrap();
+        assert_eq!((c.sampling_steps, c.guidance), (Some(20), Some(1.0)));
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 0\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampling_steps", .. })));
+        let (_d, p) = write_toml("name = \"x\"\nguidance = 0.5\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "guidance", .. })));
     }
 
     #[test]
