@@ -95,7 +95,7 @@ pub enum EvalError {
         dropped_seen: usize,
     },
     #[error(
-        "pose_id {pose_id} of {object}/{sensor}: the real image is {real_width}x{real_height} px, the synthetic one {synthetic_width}x{synthetic_height} px (a synthetic twin has the real image's size; `rig synth --poses-of` writes it so)"
+        "pose_id {pose_id} of {object}/{sensor}: the real image is {real_width}x{real_height} px, the synthetic one {synthetic_width}x{synthetic_height} px: not the same shape, so not a twin of it (`rig synth --poses-of` writes twins of the same shape)"
     )]
     SizeMismatch {
         object: String,
@@ -820,7 +820,9 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             let synth_path = s.dir.join(&twin.image);
             let rd = image::image_dimensions(&real_path).map_err(|source| EvalError::Image { path: real_path.clone(), source })?;
             let sd = image::image_dimensions(&synth_path).map_err(|source| EvalError::Image { path: synth_path.clone(), source })?;
-            if rd != sd {
+            // Both sides are resized to `size` square; only the shape must agree (twins come at
+            // the model's resolution by default).
+            if u64::from(rd.0) * u64::from(sd.1) != u64::from(sd.0) * u64::from(rd.1) {
                 return Err(EvalError::SizeMismatch {
                     object: object.clone(),
                     sensor: sensor.clone(),

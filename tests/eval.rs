@@ -282,13 +282,20 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     let (code, out) = run(eval_cmd(&sets.real, &other, &[]));
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("no pose pairs"), "{out}");
-    // A synthetic twin of another size.
-    let small = sets._tmp.path().join("small");
-    let tiny = image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), 64, 64, image::imageops::FilterType::Triangle);
-    write(&small.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), tiny)], Source::Synthetic);
-    let (code, out) = run(eval_cmd(&sets.real, &small, &[]));
+    // A synthetic twin of another size but the same shape is judged (both sides go to --size)...
+    let twin_at = |name: &str, w: u32, h: u32| {
+        let dir = sets._tmp.path().join(name);
+        let img = image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), w, h, image::imageops::FilterType::Triangle);
+        write(&dir.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)], Source::Synthetic);
+        dir
+    };
+    let (code, out) = run(eval_cmd(&sets.real, &twin_at("small", 64, 64), &[]));
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("1 pairs"), "{out}");
+    // ...one of another shape is not a twin.
+    let (code, out) = run(eval_cmd(&sets.real, &twin_at("wide", 64, 48), &[]));
     assert_eq!(code, 2, "{out}");
-    assert!(out.contains("the real image is 256x256 px, the synthetic one 64x64 px"), "{out}");
+    assert!(out.contains("the real image is 256x256 px, the synthetic one 64x48 px: not the same shape"), "{out}");
     // A size below the SSIM window.
     let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--size", "8"]));
     assert_eq!(code, 2, "{out}");
@@ -307,22 +314,38 @@ fn synth_poses_of_twins_exactly_the_real_poses_and_resumes() {
     let real = tmp.path().join("real");
     write(&real.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &images, Source::Real);
     let out = tmp.path().join("synth");
-    let synth = |extra: &[&str]| {
+    let synth_into = |out: &Path, extra: &[&str]| {
         let mut c = rig();
-        c.args(["synth", "--steps", "2", "--batch", "2", "--poses-of"]).arg(&real).arg("--out").arg(&out).args(extra);
+        c.args(["synth", "--steps", "2", "--batch", "2", "--poses-of"]).arg(&real).arg("--out").arg(out).args(extra);
         run(c)
     };
+    let synth = |extra: &[&str]| synth_into(&out, extra);
     let (code, text) = synth(&[]);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("synthesised 3 poses"), "{text}");
     let twin = out.join("sphere").join("vitac");
     let rows = rig::dataset::read_rows(&twin).expect("rows");
     assert_eq!(rows.len(), 3);
+    // The default model (models/default from this cwd) at its own resolution, not resampled.
+    let model = rig::synth::package::ModelConfig::read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default/model.toml"))
+        .expect("models/default");
+    assert_ne!((model.width_px, model.height_px), (SIZE, SIZE), "the test needs a model whose size differs from the frames'");
     for (r, (id, p, _)) in rows.iter().zip(&images) {
         assert_eq!((r.pose_id, r.commanded(), r.source), (*id, *p, Source::Synthetic));
         let (w, h) = image::image_dimensions(twin.join(&r.image)).expect("image");
-        assert_eq!((w, h), (SIZE, SIZE), "resized to the real frames' size");
+        assert_eq!((w, h), (model.width_px, model.height_px), "at the model's resolution");
     }
+    let reference = image::image_dimensions(twin.join("reference.png")).expect("reference");
+    assert_eq!(reference, (model.width_px, model.height_px), "the reference at the twins' size");
+    // --twin-size source: resized to the real frames' size, as --fill-missing writes.
+    let out_source = tmp.path().join("synth-source");
+    let (code, text) = synth_into(&out_source, &["--twin-size", "source", "--limit", "1"]);
+    assert_eq!(code, 0, "{text}");
+    let twin_source = out_source.join("sphere").join("vitac");
+    let rows_source = rig::dataset::read_rows(&twin_source).expect("rows");
+    assert_eq!(rows_source.len(), 1);
+    assert_eq!(image::image_dimensions(twin_source.join(&rows_source[0].image)).expect("image"), (SIZE, SIZE));
+    assert_eq!(image::image_dimensions(twin_source.join("reference.png")).expect("reference"), (SIZE, SIZE));
     let m = Manifest::load(&twin).expect("manifest");
     assert_eq!((m.object.name.as_str(), m.sensor.as_str()), ("sphere", "vitac"));
     assert!(twin.join("reference.png").is_file());

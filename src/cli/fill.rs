@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 
-use crate::synth::fill::{FillOptions, Shard, fill_missing, missing_poses, synthesise_poses_of};
+use crate::synth::fill::{FillOptions, Shard, TwinSize, fill_missing, missing_poses, synthesise_poses_of};
 use crate::synth::{Pipeline, RuntimeOptions, SchedulerKind};
 
 /// Fill-missing mode of `rig synth`.
@@ -58,6 +58,11 @@ pub struct FillArgs {
     /// List what would be synthesised; load no model.
     #[arg(long)]
     pub dry_run: bool,
+    /// With --poses-of: the twins' image size. `model`: the model's own resolution, untouched
+    /// (what `rig eval` should judge: no resampling of the model's output). `source`: resized
+    /// to the real frames' size, as `--fill-missing` writes into a dataset.
+    #[arg(long, value_name = "model|source", default_value = "model", requires = "poses_of")]
+    pub twin_size: TwinSize,
     /// ONNX Runtime library (libonnxruntime.so) or its folder (default: $RIG_ORT_LIB,
     /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
     #[arg(long = "fill-ort-lib", value_name = "PATH")]
@@ -216,7 +221,7 @@ fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
     for (d, o) in &pairs {
         let progress = progress_bar();
         let t0 = std::time::Instant::now();
-        let summary = synthesise_poses_of(d, o, &mut pipeline, &options, &progress)
+        let summary = synthesise_poses_of(d, o, &mut pipeline, &options, args.twin_size, &progress)
             .with_context(|| format!("synthesising the poses of {}", d.display()))?;
         progress.finish_and_clear();
         println!(

@@ -285,9 +285,30 @@ pub struct PosesOfSummary {
     pub left: usize,
 }
 
+/// The image size of a synthetic twin ([`synthesise_poses_of`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TwinSize {
+    /// The model's resolution: its output as it came (the reference is resized to match).
+    Model,
+    /// The source dataset's frame size, as `--fill-missing` writes (the output resized).
+    Source,
+}
+
+impl std::str::FromStr for TwinSize {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "model" => Ok(Self::Model),
+            "source" => Ok(Self::Source),
+            other => Err(format!("expected `model` or `source`, got {other:?}")),
+        }
+    }
+}
+
 /// Synthesises exactly the poses of `source`'s real rows into the dataset `out` (created with
 /// `source`'s manifest: object, sensor, calibration, plan, work frame; its `reference.png` is
-/// copied), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
+/// copied, at `size`), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
 /// `rig eval`. Seeds are [`pose_seed`]`(plan seed, pose_id)` as in [`fill_missing`], so a pose
 /// gets the same image either way. Resumable: poses `out` already has are not redone.
 /// `options.shard` and `options.limit` apply as in a fill.
@@ -296,9 +317,15 @@ pub fn synthesise_poses_of(
     out: &Path,
     pipeline: &mut Pipeline,
     options: &FillOptions,
+    size: TwinSize,
     progress: &indicatif::ProgressBar,
 ) -> Result<PosesOfSummary, FillError> {
     let source_manifest = Manifest::load(source)?;
+    let (width, height) = pipeline.resolution();
+    let output_size = match size {
+        TwinSize::Model => Some((width, height)),
+        TwinSize::Source => reference_size(source),
+    };
     let dir = source.to_path_buf();
     let real: Vec<PlannedPose> = read_rows(source)?
         .iter()
@@ -323,13 +350,18 @@ pub fn synthesise_poses_of(
     if !out.join(crate::dataset::REFERENCE_FILE).is_file()
         && let Ok(reference) = image::open(source.join(crate::dataset::REFERENCE_FILE))
     {
-        writer.write_reference(&reference.to_rgb8())?;
+        let reference = reference.to_rgb8();
+        let reference = match output_size {
+            Some((w, h)) if (w, h) != reference.dimensions() => {
+                image::imageops::resize(&reference, w, h, image::imageops::FilterType::Triangle)
+            }
+            _ => reference,
+        };
+        writer.write_reference(&reference)?;
     }
     let kind = SensorKind::from_str(&source_manifest.sensor)
         .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
-    let (width, height) = pipeline.resolution();
     let renderer = ControlRenderer::for_dataset(&dir, &source_manifest, width, height, options.supersample)?;
-    let output_size = reference_size(source);
     let spec_seed = source_manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);

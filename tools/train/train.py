@@ -259,7 +259,7 @@ def diffusion_stage(args, data, tok, latents, device, polish=False):
         noise = torch.randn_like(x0)
         a = ac[t].view(-1, 1, 1, 1)
         # The sampler starts from pure noise at its first timestep (951), where this schedule
-        # (terminal SNR > 0) would still leave 8 % of the image in x_t. Trained on that leak, the
+        # (terminal SNR > 0) would still leave 0.09 x the image in x_t. Trained on that leak, the
         # model reads the sensor from x_t rather than from the prompt, and then draws any sensor
         # from pure noise. From --pure-noise-from up it sees what the sampler gives it.
         a = torch.where((t >= args.pure_noise_from).view(-1, 1, 1, 1), torch.zeros_like(a), a)
