@@ -150,3 +150,52 @@ fn render_controls_of_matches_single_renders_and_prompts() {
     let o = c.output().expect("running rig");
     assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// A package's `sampler` (model.toml) is what every fill samples with unless `--sampler` says
+/// otherwise: a fill with no flag gives exactly the images of `--sampler dpm++2m` when the
+/// package names it, and not those of `--sampler ddim`.
+#[test]
+fn the_packages_sampler_is_the_fills_default() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let plan = tmp.path().join("plan.toml");
+    // A 2 x 1 x 1 x 2 = 4-pose grid; collect 2, fill 2.
+    std::fs::write(
+        &plan,
+        "sampling = \"random\"\nn_poses = 2\nseed = 5\norder = \"optimised\"\n\
+         [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n\
+         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 45.0\nstep = 45.0\n",
+    )
+    .expect("plan");
+    let collected = tmp.path().join("collected");
+    let mut c = rig();
+    c.args(["collect", "--object", "edge", "--sensor", "vitac", "--plan"]).arg(&plan).arg("--out").arg(&collected);
+    ok(c);
+    let ds = collected.join("edge").join("vitac");
+    // The tiny package, saying dpm++2m.
+    let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
+    let package = tmp.path().join("package");
+    for file in walk(&tiny) {
+        let dst = package.join(file.strip_prefix(&tiny).expect("prefix"));
+        std::fs::create_dir_all(dst.parent().expect("parent")).expect("mkdir");
+        std::fs::copy(&file, &dst).expect("copy");
+    }
+    let toml = std::fs::read_to_string(package.join("model.toml")).expect("model.toml");
+    assert!(!toml.contains("sampler"), "the tiny package already names a sampler");
+    std::fs::write(package.join("model.toml"), format!("{toml}sampler = \"dpm++2m\"\n")).expect("model.toml");
+
+    let fill = |name: &str, extra: &[&str]| {
+        let dst = tmp.path().join(name);
+        copy_dir(&ds, &dst);
+        let mut c = rig();
+        c.args(["synth", "--fill-missing", "--steps", "3", "--model"]).arg(&package).arg("--dataset").arg(&dst).args(extra);
+        let out = ok(c);
+        assert!(out.contains("synthesised 2 poses"), "{out}");
+        contents(&dst).into_iter().filter(|(_, (s, _))| s == "synthetic").collect::<BTreeMap<_, _>>()
+    };
+    let default = fill("default", &[]);
+    let dpm = fill("dpm", &["--sampler", "dpm++2m"]);
+    let ddim = fill("ddim", &["--sampler", "ddim"]);
+    assert_eq!(default.len(), 2);
+    assert!(default == dpm, "no --sampler: not the package's dpm++2m");
+    assert!(default != ddim, "dpm++2m and ddim gave the same images: the test cannot tell them apart");
+}

@@ -176,7 +176,7 @@ def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, o
 
 def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
                      prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None,
-                     sampling_steps=None, guidance=None):
+                     sampling_steps=None, guidance=None, sampler=None):
     mods = ", ".join(f'"{m}"' for m in modalities)
     text = (
         f'name = "{name}"\n'
@@ -192,6 +192,8 @@ def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("Ta
         text += f"sampling_steps = {sampling_steps}  # what it was trained to be sampled with\n"
     if guidance is not None:
         text += f"guidance = {float(guidance)}  # classifier-free guidance scale (1: unguided)\n"
+    if sampler is not None:
+        text += f'sampler = "{sampler}"  # default sampler of rig synth\n'
     with open(os.path.join(out_dir, "model.toml"), "w") as f:
         f.write(text)
 

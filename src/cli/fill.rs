@@ -43,9 +43,9 @@ pub struct FillArgs {
     /// DDIM eta (0: deterministic).
     #[arg(long, default_value_t = 0.0)]
     pub eta: f32,
-    /// Sampler: ddim or dpm++2m.
-    #[arg(long, default_value = "ddim")]
-    pub sampler: SchedulerKind,
+    /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
+    #[arg(long)]
+    pub sampler: Option<SchedulerKind>,
     /// Poses per model call.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
@@ -83,7 +83,7 @@ impl FillArgs {
             steps: self.steps,
             guidance: self.guidance,
             eta: self.eta,
-            sampler: self.sampler.to_string(),
+            sampler: self.sampler.map(|s| s.to_string()),
             batch: self.batch,
             supersample: self.supersample,
             limit: self.limit,
@@ -132,7 +132,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let mut pipeline = load_pipeline(&args)?;
-    let options = fill_options(&args, shard);
+    let options = fill_options(&args, shard, &pipeline);
     for d in &datasets {
         let progress = progress_bar();
         let t0 = std::time::Instant::now();
@@ -164,12 +164,12 @@ fn load_pipeline(args: &FillArgs) -> anyhow::Result<Pipeline> {
     Pipeline::load(&model, &runtime).with_context(|| format!("loading model package {}", model.display()))
 }
 
-fn fill_options(args: &FillArgs, shard: Shard) -> FillOptions {
+fn fill_options(args: &FillArgs, shard: Shard, pipeline: &Pipeline) -> FillOptions {
     FillOptions {
         steps: args.steps,
         guidance: args.guidance,
         eta: args.eta,
-        scheduler: args.sampler,
+        scheduler: args.sampler.or(pipeline.package().config.sampler).unwrap_or_default(),
         conditioning_scale: 1.0,
         shard,
         batch: args.batch,
@@ -217,7 +217,7 @@ fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let mut pipeline = load_pipeline(&args)?;
-    let options = fill_options(&args, shard);
+    let options = fill_options(&args, shard, &pipeline);
     for (d, o) in &pairs {
         let progress = progress_bar();
         let t0 = std::time::Instant::now();

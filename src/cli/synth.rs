@@ -89,9 +89,9 @@ pub struct OneArgs {
     /// Seed of the initial noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Sampler: ddim or dpm++2m.
-    #[arg(long, default_value = "ddim")]
-    pub scheduler: SchedulerKind,
+    /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
+    #[arg(long)]
+    pub scheduler: Option<SchedulerKind>,
     /// ControlNet conditioning scale.
     #[arg(long, default_value_t = 1.0)]
     pub conditioning_scale: f32,
@@ -160,6 +160,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let config = &pipeline.package().config;
     let steps = args.steps.or(config.sampling_steps).unwrap_or(50);
     let guidance = args.guidance.or(config.guidance).unwrap_or(9.0);
+    let scheduler = args.scheduler.or(config.sampler).unwrap_or_default();
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
@@ -168,7 +169,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         guidance,
         eta: args.eta,
         seed: args.seed,
-        scheduler: args.scheduler,
+        scheduler,
         conditioning_scale: args.conditioning_scale,
         init_latents: init.as_ref().map(|a| a.data.as_slice()),
         size: args.size,
@@ -187,7 +188,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}",
         args.out.display(),
         steps,
-        args.scheduler,
+        scheduler,
         guidance,
         args.eta,
         args.seed
@@ -246,7 +247,7 @@ mod tests {
         ])
         .unwrap();
         let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
-        assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, SchedulerKind::DpmSolverPp2m, Some((64, 64))));
+        assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
         let cli = crate::cli::Cli::try_parse_from([
             "rig", "synth", "one", "--model", "m", "--control", "c.png", "--sensor", "ViTac", "--pose", "-1,2,0.5,-30", "--out", "o.png",
         ])

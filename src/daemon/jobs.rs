@@ -96,8 +96,8 @@ pub struct SynthSpec {
     pub steps: usize,
     pub guidance: f32,
     pub eta: f32,
-    /// `ddim` or `dpm++2m`.
-    pub sampler: String,
+    /// `ddim` or `dpm++2m`; none: the package's `sampler`, else ddim.
+    pub sampler: Option<String>,
     pub batch: usize,
     pub supersample: u32,
     pub limit: Option<usize>,
@@ -116,7 +116,7 @@ impl Default for SynthSpec {
             steps: d.steps,
             guidance: d.guidance,
             eta: d.eta,
-            sampler: "ddim".into(),
+            sampler: None,
             batch: d.batch,
             supersample: d.supersample,
             limit: None,
@@ -304,8 +304,12 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     if spec.shard.is_some() && spec.out.is_none() {
         return Err(JobError::BadOption { field: "shard", reason: "needs out: each shard writes its own dataset".into() });
     }
-    let scheduler: SchedulerKind =
-        spec.sampler.parse().map_err(|_| JobError::BadOption { field: "sampler", reason: format!("{:?}: expected ddim or dpm++2m", spec.sampler) })?;
+    let scheduler: Option<SchedulerKind> = match &spec.sampler {
+        None => None,
+        Some(text) => Some(
+            text.parse().map_err(|_| JobError::BadOption { field: "sampler", reason: format!("{text:?}: expected ddim or dpm++2m") })?,
+        ),
+    };
     let datasets = crate::synth::fill::find_datasets(&spec.dataset);
     if datasets.is_empty() {
         return Err(JobError::BadOption {
@@ -318,6 +322,11 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     }
     let model = spec.model.clone().unwrap_or_else(crate::synth::fill::default_model);
     let runtime = RuntimeOptions { ort_lib: spec.ort_lib.clone(), ..RuntimeOptions::default() };
+    // The package's own sampler when the job names none (a package that does not load fails
+    // below, with its own error).
+    let scheduler = scheduler
+        .or_else(|| crate::synth::package::ModelConfig::read(&model.join("model.toml")).ok().and_then(|c| c.sampler))
+        .unwrap_or_default();
     let options = FillOptions {
         steps: spec.steps,
         guidance: spec.guidance,

@@ -30,6 +30,7 @@
 //! end_token = "<|endoftext|>"        # padding token of the tokenizer
 //! sampling_steps = 20                # what the model was trained to be sampled with: the
 //! guidance = 1.0                     #   defaults of `rig synth one` (else 50 steps, guidance 9)
+//! sampler = "dpm++2m"                # default sampler of every `rig synth` mode (else ddim)
 //! ```
 
 use std::io::Read;
@@ -40,7 +41,7 @@ use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
 use super::SynthError;
-use super::scheduler::{NoiseSchedule, SchedulerConfig};
+use super::scheduler::{NoiseSchedule, SchedulerConfig, SchedulerKind};
 
 /// Files every package must hold, relative to its directory.
 pub const PACKAGE_FILES: [&str; 7] = [
@@ -84,6 +85,8 @@ struct RawModelToml {
     sampling_steps: Option<usize>,
     #[serde(default)]
     guidance: Option<f32>,
+    #[serde(default)]
+    sampler: Option<String>,
 }
 
 fn default_resolution() -> [u32; 2] {
@@ -121,6 +124,8 @@ pub struct ModelConfig {
     pub sampling_steps: Option<usize>,
     /// Classifier-free guidance scale the model is meant to be sampled with, if the package says.
     pub guidance: Option<f32>,
+    /// The sampler the model is meant to be sampled with, if the package says.
+    pub sampler: Option<SchedulerKind>,
 }
 
 impl ModelConfig {
@@ -155,6 +160,10 @@ impl ModelConfig {
         if let Some(g) = raw.guidance.filter(|g| !(g.is_finite() && *g >= 1.0)) {
             return Err(bad("guidance", g.to_string(), "must be a number >= 1 (1: unguided)"));
         }
+        let sampler = match raw.sampler {
+            None => None,
+            Some(text) => Some(text.parse::<SchedulerKind>().map_err(|_| bad("sampler", text, "expected \"ddim\" or \"dpm++2m\""))?),
+        };
         Ok(Self {
             name: raw.name,
             width_px: w,
@@ -167,6 +176,7 @@ impl ModelConfig {
             end_token: raw.end_token,
             sampling_steps: raw.sampling_steps,
             guidance: raw.guidance,
+            sampler,
         })
     }
 }
@@ -390,9 +400,12 @@ mod tests {
         let (_d, p) = write_toml("resolution = [512, 512]\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::ModelToml { .. })));
         assert_eq!((c.sampling_steps, c.guidance), (None, None));
-        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nguidance = 1.0\n");
+        assert_eq!(c.sampler, None);
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nguidance = 1.0\nsampler = \"dpm++2m\"\n");
         let c = ModelConfig::read(&p).unwrap();
-        assert_eq!((c.sampling_steps, c.guidance), (Some(20), Some(1.0)));
+        assert_eq!((c.sampling_steps, c.guidance, c.sampler), (Some(20), Some(1.0), Some(SchedulerKind::DpmSolverPp2m)));
+        let (_d, p) = write_toml("name = \"x\"\nsampler = \"euler\"\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampler", .. })));
         let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 0\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampling_steps", .. })));
         let (_d, p) = write_toml("name = \"x\"\nguidance = 0.5\n");
