@@ -34,20 +34,13 @@ fn contents(dir: &Path) -> BTreeMap<u32, (String, Vec<u8>)> {
 #[test]
 fn fill_missing_fills_the_grid_and_shards_merge_to_the_same_images() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let plan = tmp.path().join("plan.toml");
     // A 2 x 2 x 1 x 3 = 12-pose grid; collect 5, fill 7.
-    std::fs::write(
-        &plan,
+    let ds = collect_vitac_edge(
+        tmp.path(),
         "sampling = \"random\"\nn_poses = 5\nseed = 3\norder = \"optimised\"\n\
          [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n\
          [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -45.0\nmax = 45.0\nstep = 45.0\n",
-    )
-    .expect("plan");
-    let collected = tmp.path().join("collected");
-    let mut c = rig();
-    c.args(["collect", "--object", "edge", "--sensor", "vitac", "--plan"]).arg(&plan).arg("--out").arg(&collected);
-    ok(c);
-    let ds = collected.join("edge").join("vitac");
+    );
 
     // Copies: one filled in place, one filled by two shards then merged.
     let whole = tmp.path().join("whole");
@@ -89,6 +82,18 @@ fn fill_missing_fills_the_grid_and_shards_merge_to_the_same_images() {
         v.args(["dataset", "verify"]).arg(dir);
         ok(v);
     }
+}
+
+/// Collects the edge with the simulated ViTac sensor under `dir` with the plan `plan_toml`;
+/// returns the dataset.
+fn collect_vitac_edge(dir: &Path, plan_toml: &str) -> std::path::PathBuf {
+    let plan = dir.join("plan.toml");
+    std::fs::write(&plan, plan_toml).expect("plan");
+    let collected = dir.join("collected");
+    let mut c = rig();
+    c.args(["collect", "--object", "edge", "--sensor", "vitac", "--plan"]).arg(&plan).arg("--out").arg(&collected);
+    ok(c);
+    collected.join("edge").join("vitac")
 }
 
 fn copy_dir(from: &Path, to: &Path) {
@@ -157,20 +162,13 @@ fn render_controls_of_matches_single_renders_and_prompts() {
 #[test]
 fn the_packages_sampler_is_the_fills_default() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let plan = tmp.path().join("plan.toml");
     // A 2 x 1 x 1 x 2 = 4-pose grid; collect 2, fill 2.
-    std::fs::write(
-        &plan,
+    let ds = collect_vitac_edge(
+        tmp.path(),
         "sampling = \"random\"\nn_poses = 2\nseed = 5\norder = \"optimised\"\n\
          [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n\
          [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 45.0\nstep = 45.0\n",
-    )
-    .expect("plan");
-    let collected = tmp.path().join("collected");
-    let mut c = rig();
-    c.args(["collect", "--object", "edge", "--sensor", "vitac", "--plan"]).arg(&plan).arg("--out").arg(&collected);
-    ok(c);
-    let ds = collected.join("edge").join("vitac");
+    );
     // The tiny package, saying dpm++2m.
     let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
     let package = tmp.path().join("package");
