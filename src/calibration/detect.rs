@@ -295,8 +295,8 @@ pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &M
     Ok(Contact { centroid_px: c, area_px: moved, peak, floor: 0.0, moved_markers: Some(moved), outline_radius_px: None })
 }
 
-/// Locates the contact in `frame` against the no-contact `reference`.
-pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOptions) -> Result<Contact, DetectError> {
+/// The frame's size as (width, height) when the reference has the same one and it is not empty.
+fn checked_size(frame: &RgbImage, reference: &RgbImage) -> Result<(usize, usize), DetectError> {
     let (w, h) = frame.dimensions();
     if reference.dimensions() != (w, h) {
         return Err(DetectError::SizeMismatch { frame: [w, h], reference: [reference.width(), reference.height()] });
@@ -304,7 +304,12 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
     if w == 0 || h == 0 {
         return Err(DetectError::Empty);
     }
-    let (w, h) = (w as usize, h as usize);
+    Ok((w as usize, h as usize))
+}
+
+/// Locates the contact in `frame` against the no-contact `reference`.
+pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOptions) -> Result<Contact, DetectError> {
+    let (w, h) = checked_size(frame, reference)?;
     let mut change: Vec<f32> = frame
         .as_raw()
         .chunks_exact(3)
@@ -393,14 +398,7 @@ fn scaled(px_at_512: u32, width: u32) -> u32 {
 /// blend) are filled by a closing, then the centroid of the region around the peak above
 /// `fraction * peak`, weighted by how far each pixel passes it.
 pub fn detect_imprint(frame: &RgbImage, reference: &RgbImage, options: &ImprintOptions) -> Result<Contact, DetectError> {
-    let (w, h) = frame.dimensions();
-    if reference.dimensions() != (w, h) {
-        return Err(DetectError::SizeMismatch { frame: [w, h], reference: [reference.width(), reference.height()] });
-    }
-    if w == 0 || h == 0 {
-        return Err(DetectError::Empty);
-    }
-    let (w, h) = (w as usize, h as usize);
+    let (w, h) = checked_size(frame, reference)?;
     let luma = |p: &[u8]| p[0] as f64 * 0.299 + p[1] as f64 * 0.587 + p[2] as f64 * 0.114;
     let mut blend: Vec<f32> = frame
         .as_raw()

@@ -322,16 +322,11 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     }
     let model = spec.model.clone().unwrap_or_else(crate::synth::fill::default_model);
     let runtime = RuntimeOptions { ort_lib: spec.ort_lib.clone(), ..RuntimeOptions::default() };
-    // The package's own sampler when the job names none (a package that does not load fails
-    // below, with its own error).
-    let scheduler = scheduler
-        .or_else(|| crate::synth::package::ModelConfig::read(&model.join("model.toml")).ok().and_then(|c| c.sampler))
-        .unwrap_or_default();
-    let options = FillOptions {
+    let mut options = FillOptions {
         steps: spec.steps,
         guidance: spec.guidance,
         eta: spec.eta,
-        scheduler,
+        scheduler: scheduler.unwrap_or_default(),
         conditioning_scale: 1.0,
         shard,
         batch: spec.batch,
@@ -349,6 +344,10 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
                 Err(source) => return (None, Err(JobError::Model { model, source })),
             },
         };
+        // The package's own sampler when the job names none.
+        if scheduler.is_none() {
+            options.scheduler = loaded.package().config.sampler.unwrap_or_default();
+        }
         let mut lines = Vec::new();
         let mut cancelled = false;
         for d in &datasets {

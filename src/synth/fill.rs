@@ -246,12 +246,7 @@ pub fn fill_missing_observed(
         let outputs = pipeline.generate_batch(&requests)?;
         let mut stop = false;
         for (((p, request), output), control) in chunk.iter().zip(&requests).zip(outputs).zip(&controls) {
-            let image = match output_size {
-                Some((w, h)) if (w, h) != output.image.dimensions() => {
-                    image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
-                }
-                _ => output.image,
-            };
+            let image = resized_to(output.image, output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
             synthesised += 1;
@@ -350,14 +345,7 @@ pub fn synthesise_poses_of(
     if !out.join(crate::dataset::REFERENCE_FILE).is_file()
         && let Ok(reference) = image::open(source.join(crate::dataset::REFERENCE_FILE))
     {
-        let reference = reference.to_rgb8();
-        let reference = match output_size {
-            Some((w, h)) if (w, h) != reference.dimensions() => {
-                image::imageops::resize(&reference, w, h, image::imageops::FilterType::Triangle)
-            }
-            _ => reference,
-        };
-        writer.write_reference(&reference)?;
+        writer.write_reference(&resized_to(reference.to_rgb8(), output_size))?;
     }
     let kind = SensorKind::from_str(&source_manifest.sensor)
         .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
@@ -383,12 +371,7 @@ pub fn synthesise_poses_of(
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
         for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
-            let image = match output_size {
-                Some((w, h)) if (w, h) != output.image.dimensions() => {
-                    image::imageops::resize(&output.image, w, h, image::imageops::FilterType::Triangle)
-                }
-                _ => output.image,
-            };
+            let image = resized_to(output.image, output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
         }
@@ -482,6 +465,14 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
             calibration: path.to_string(),
             reason: e.to_string(),
         }),
+    }
+}
+
+/// `image` at `size` (bilinear) when one is given and it differs; else as it is.
+fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
+    match size {
+        Some((w, h)) if (w, h) != image.dimensions() => image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle),
+        _ => image,
     }
 }
 

@@ -3,20 +3,10 @@
 import torch
 import torch.nn.functional as F
 
-# rig's default sampler: DDIM, 20 steps, "leading" spacing, steps_offset 1.
-SCHEDULER_CONFIG = {
-    "_class_name": "DDIMScheduler",
-    "num_train_timesteps": 1000,
-    "beta_start": 0.00085,
-    "beta_end": 0.012,
-    "beta_schedule": "scaled_linear",
-    "clip_sample": False,
-    "set_alpha_to_one": False,
-    "steps_offset": 1,
-    "prediction_type": "sample",
-    "timestep_spacing": "leading",
-    "trained_betas": None,
-}
+from make_tiny_package import SCHEDULER_CONFIG as _SD15_SCHEDULER  # tools/ is on sys.path
+
+# Stable Diffusion 1.5's DDIM schedule (as the tiny test package), predicting the clean latent.
+SCHEDULER_CONFIG = {**_SD15_SCHEDULER, "prediction_type": "sample"}
 FACTOR = 4  # image pixels per latent pixel
 SEQ_LEN = 77
 
