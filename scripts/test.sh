@@ -9,6 +9,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
 export RIG_SHARED="${RIG_SHARED:-$(cd .. && pwd)/shared}"
+# A fresh clone builds once: incremental caches would only double target/ on a small disk.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
+echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs about 3 GiB)"
 cargo test --all-targets --locked
 fuzz_seconds="${FUZZ_SECONDS:-5}"
 if [ "$fuzz_seconds" != 0 ]; then
