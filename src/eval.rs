@@ -232,6 +232,26 @@ pub struct EvalCounts {
     pub default_calibration_for: Vec<String>,
 }
 
+/// One method on one pair: what the table averages, per pose (`rig eval --pairs`).
+/// `None`: not measured (no contact pixels, no estimate, yaw not observable, ...).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PairRecord {
+    pub object: String,
+    pub sensor: String,
+    pub pose_id: u32,
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub z_mm: f64,
+    pub yaw_deg: f64,
+    pub method: &'static str,
+    pub ssim: Option<f64>,
+    pub contact_ssim: Option<f64>,
+    pub position_err_mm: Option<f64>,
+    pub yaw_err_deg: Option<f64>,
+    pub position_vs_true_mm: Option<f64>,
+    pub yaw_vs_true_deg: Option<f64>,
+}
+
 /// The result of [`evaluate`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EvalReport {
@@ -241,6 +261,9 @@ pub struct EvalReport {
     pub mask_dilate_px: u32,
     pub counts: EvalCounts,
     pub rows: Vec<MethodRow>,
+    /// Every method on every pair, in the order judged (not in the JSON: see [`Self::write_pairs_csv`]).
+    #[serde(skip)]
+    pub pairs: Vec<PairRecord>,
 }
 
 /// One dataset read from disk.
@@ -656,6 +679,15 @@ fn mean_of(sum: f64, n: usize) -> Option<f64> {
     (n > 0 && !sum.is_nan()).then(|| sum / n as f64)
 }
 
+/// One estimate's errors (see [`MethodRow`]); `None`: not measured.
+#[derive(Default)]
+struct PoseErrors {
+    position_mm: Option<f64>,
+    yaw_deg: Option<f64>,
+    position_vs_true_mm: Option<f64>,
+    yaw_vs_true_deg: Option<f64>,
+}
+
 /// What one pair gives the recoverability sums.
 struct PoseTruth {
     geometric: Option<ContactEstimate>,
@@ -665,44 +697,51 @@ struct PoseTruth {
 }
 
 impl RowSums {
-    fn add_image(&mut self, truth: &RgbImage, image: &RgbImage, mask: Option<&[bool]>) {
-        let (Ok(s), Ok(m)) = (metrics::ssim(truth, image), metrics::mse(truth, image)) else { return };
+    /// Adds one image; returns its (SSIM, contact SSIM).
+    fn add_image(&mut self, truth: &RgbImage, image: &RgbImage, mask: Option<&[bool]>) -> (Option<f64>, Option<f64>) {
+        let (Ok(s), Ok(m)) = (metrics::ssim(truth, image), metrics::mse(truth, image)) else { return (None, None) };
         self.n += 1;
         self.ssim += s;
         self.mse += m;
         self.psnr += metrics::psnr(truth, image).unwrap_or(f64::INFINITY);
+        let mut contact = None;
         if let Some(mask) = mask
-            && let (Ok(s), Ok(m)) = (metrics::ssim_masked(truth, image, mask), metrics::mse_masked(truth, image, mask))
+            && let (Ok(cs), Ok(cm)) = (metrics::ssim_masked(truth, image, mask), metrics::mse_masked(truth, image, mask))
         {
             self.n_contact += 1;
-            self.contact_ssim += s;
-            self.contact_mse += m;
+            self.contact_ssim += cs;
+            self.contact_mse += cm;
             self.contact_psnr += metrics::psnr_masked(truth, image, mask).unwrap_or(f64::INFINITY);
+            contact = Some(cs);
         }
+        (Some(s), contact)
     }
 
-    fn add_pose(&mut self, estimate: Option<ContactEstimate>, truth: &PoseTruth, vs_true: bool) {
+    /// Adds one pose estimate; returns what it added.
+    fn add_pose(&mut self, estimate: Option<ContactEstimate>, truth: &PoseTruth, vs_true: bool) -> PoseErrors {
         let calib = &truth.calib;
+        let distance = |e: &ContactEstimate, g: &ContactEstimate| {
+            let (a, b) = (e.centroid_mm(calib), g.centroid_mm(calib));
+            (a[0] - b[0]).hypot(a[1] - b[1])
+        };
+        let axis = |e: &ContactEstimate, g: &ContactEstimate| axis_difference_deg(e.axis_deg(calib), g.axis_deg(calib));
+        let yaw_observable = truth.yaw_observable;
+        let mut out = PoseErrors::default();
         if let Some(g) = &truth.geometric {
             self.position_attempts += 1;
-            if let Some(e) = &estimate {
-                let (a, b) = (e.centroid_mm(calib), g.centroid_mm(calib));
-                self.position.push((a[0] - b[0]).hypot(a[1] - b[1]));
-            }
-            if truth.yaw_observable {
-                self.yaw_attempts += 1;
-                if let Some(e) = &estimate {
-                    self.yaw.push(axis_difference_deg(e.axis_deg(calib), g.axis_deg(calib)));
-                }
-            }
+            self.yaw_attempts += usize::from(yaw_observable);
+            out.position_mm = estimate.as_ref().map(|e| distance(e, g));
+            out.yaw_deg = estimate.as_ref().filter(|_| yaw_observable).map(|e| axis(e, g));
         }
         if vs_true && let (Some(e), Some(t)) = (&estimate, &truth.truth_estimate) {
-            let (a, b) = (e.centroid_mm(calib), t.centroid_mm(calib));
-            self.position_true.push((a[0] - b[0]).hypot(a[1] - b[1]));
-            if truth.yaw_observable {
-                self.yaw_true.push(axis_difference_deg(e.axis_deg(calib), t.axis_deg(calib)));
-            }
+            out.position_vs_true_mm = Some(distance(e, t));
+            out.yaw_vs_true_deg = yaw_observable.then(|| axis(e, t));
         }
+        self.position.extend(out.position_mm);
+        self.yaw.extend(out.yaw_deg);
+        self.position_true.extend(out.position_vs_true_mm);
+        self.yaw_true.extend(out.yaw_vs_true_deg);
+        out
     }
 
     fn row(&self, sensor: &str, method: Method) -> MethodRow {
@@ -770,6 +809,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
     };
 
     let mut sums: BTreeMap<(String, Method), RowSums> = BTreeMap::new();
+    let mut pairs: Vec<PairRecord> = Vec::new();
     let mut matched = 0usize;
     for (key, s) in &synthetic {
         if !real.contains_key(key) {
@@ -857,10 +897,27 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             }
             let pose_truth = PoseTruth { geometric, yaw_observable, truth_estimate, calib: calib.clone() };
 
+            let record = |method: Method, (ssim, contact_ssim): (Option<f64>, Option<f64>), e: PoseErrors| PairRecord {
+                object: object.clone(),
+                sensor: sensor.clone(),
+                pose_id: row.pose_id,
+                x_mm: pose.x_mm,
+                y_mm: pose.y_mm,
+                z_mm: pose.z_mm,
+                yaw_deg: pose.yaw_deg,
+                method: method.label(),
+                ssim,
+                contact_ssim,
+                position_err_mm: e.position_mm,
+                yaw_err_deg: e.yaw_deg,
+                position_vs_true_mm: e.position_vs_true_mm,
+                yaw_vs_true_deg: e.yaw_vs_true_deg,
+            };
             let mut judge = |method: Method, image: &RgbImage| {
                 let row = sums.entry((sensor.clone(), method)).or_default();
-                row.add_image(&truth, image, mask.as_deref());
-                row.add_pose(estimate_contact(image, &reference), &pose_truth, true);
+                let similarity = row.add_image(&truth, image, mask.as_deref());
+                let errors = row.add_pose(estimate_contact(image, &reference), &pose_truth, true);
+                pairs.push(record(method, similarity, errors));
             };
             judge(Method::Model, &model);
             if let Some(c) = collected_here
@@ -873,7 +930,8 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
                     judge(Method::NearestNeighbour, &warp_to_pose(&img, &nn_reference, &nn.pose, &pose, &calib));
                 }
             }
-            sums.entry((sensor.clone(), Method::TrueImage)).or_default().add_pose(truth_estimate, &pose_truth, false);
+            let errors = sums.entry((sensor.clone(), Method::TrueImage)).or_default().add_pose(truth_estimate, &pose_truth, false);
+            pairs.push(record(Method::TrueImage, (None, None), errors));
         }
         for (i, t) in synthetic_rows.iter().enumerate() {
             if !used[i] {
@@ -919,6 +977,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         mask_dilate_px: options.mask_dilate_px,
         counts,
         rows,
+        pairs,
     })
 }
 
@@ -1021,6 +1080,17 @@ impl EvalReport {
     /// The report as pretty JSON (non-finite numbers become `null`).
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    }
+
+    /// Writes [`Self::pairs`] as CSV (a header, then one line per method and pair; an empty
+    /// field is a figure not measured for that pair).
+    pub fn write_pairs_csv(&self, out: impl std::io::Write) -> Result<(), csv::Error> {
+        let mut w = csv::Writer::from_writer(out);
+        for p in &self.pairs {
+            w.serialize(p)?;
+        }
+        w.flush()?;
+        Ok(())
     }
 }
 

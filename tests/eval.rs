@@ -9,7 +9,7 @@ use std::process::Command;
 use image::RgbImage;
 use rig::calibration::Calibration;
 use rig::dataset::{DatasetWriter, Manifest, ObjectInfo, PoseRow, Source};
-use rig::eval::{EvalOptions, EvalReport, Method, MethodRow, evaluate};
+use rig::eval::{EvalOptions, EvalReport, Method, MethodRow, PairRecord, evaluate};
 use rig::geometry::objects::load_object;
 use rig::geometry::raster::render_depth;
 use rig::pose::Pose;
@@ -161,6 +161,31 @@ fn an_identical_twin_scores_ssim_one_mse_zero_and_the_true_image_pose_errors() {
         assert_eq!(b.n, 8, "{m:?}");
         assert!(b.ssim.expect("ssim") < 1.0 && b.mse.expect("mse") > 0.0, "{b:?}");
     }
+    // The per-pair records: every method on every pair, and the table's means are theirs.
+    assert_eq!(report.pairs.len(), 8 * Method::ALL.len());
+    for method in Method::ALL {
+        for sensor in ["tactip", "vitac", "vitactip"] {
+            let mine: Vec<_> = report.pairs.iter().filter(|p| p.method == method.label() && p.sensor == sensor).collect();
+            let Some(r) = report.rows.iter().find(|r| r.method == method && r.sensor == sensor) else { continue };
+            let mean = |f: fn(&PairRecord) -> Option<f64>| {
+                let v: Vec<f64> = mine.iter().filter_map(|p| f(p)).collect();
+                (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+            };
+            let close = |a: Option<f64>, b: Option<f64>| match (a, b) {
+                (Some(a), Some(b)) => (a - b).abs() < 1e-9,
+                (a, b) => a == b,
+            };
+            assert!(close(mean(|p| p.position_err_mm), r.position_err_mm), "{method:?} {sensor}: {r:?}");
+            assert!(close(mean(|p| p.yaw_err_deg), r.yaw_err_deg), "{method:?} {sensor}: {r:?}");
+            assert!(close(mean(|p| p.contact_ssim), r.contact_ssim), "{method:?} {sensor}: {r:?}");
+            assert_eq!(mine.iter().filter(|p| p.yaw_err_deg.is_some()).count(), r.yaw_found, "{method:?} {sensor}");
+        }
+    }
+    let mut csv = Vec::new();
+    report.write_pairs_csv(&mut csv).expect("csv");
+    let csv = String::from_utf8(csv).expect("utf-8");
+    assert_eq!(csv.lines().count(), 1 + report.pairs.len());
+    assert!(csv.starts_with("object,sensor,pose_id,x_mm,y_mm,z_mm,yaw_deg,method,ssim,contact_ssim,"), "{csv}");
     let md = report.to_markdown();
     assert!(md.contains("| vitac | model | 8 | 1.000 | inf | 0.0 |"), "{md}");
     // Only the edge.
@@ -263,6 +288,18 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     assert!(written.contains("| vitac | pose-blind | 4 |"), "{written}");
     let parsed: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid json");
     assert_eq!(parsed["counts"]["pairs"], 4);
+    let pairs_csv = sets._tmp.path().join("pairs.csv");
+    let mut c = eval_cmd(&sets.real, &sets.synthetic, &[]);
+    c.arg("--collected").arg(&sets.collected).arg("--pairs").arg(&pairs_csv);
+    let (code, out) = run(c);
+    assert_eq!(code, 0, "{out}");
+    let mut reader = csv::Reader::from_path(&pairs_csv).expect("pairs csv");
+    let records: Vec<csv::StringRecord> = reader.records().collect::<Result<_, _>>().expect("records");
+    assert_eq!(records.len(), 4 * 4, "4 pairs, 4 methods");
+    let model: Vec<_> = records.iter().filter(|r| &r[7] == "model").collect();
+    assert_eq!(model.len(), 4);
+    // An identical twin: SSIM 1 on every pair.
+    assert!(model.iter().all(|r| r[8].parse::<f64>().is_ok_and(|s| (s - 1.0).abs() < 1e-12)), "{model:?}");
 
     // A missing directory.
     let (code, out) = run(eval_cmd(&sets.real, &sets._tmp.path().join("nope"), &[]));

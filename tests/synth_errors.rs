@@ -104,6 +104,7 @@ fn bad_requests_are_rejected() {
         rig::synth::GenerateRequest { size: Some((60, 64)), ..base },
         rig::synth::GenerateRequest { init_latents: Some(&short), ..base },
         rig::synth::GenerateRequest { guidance: f32::NAN, ..base },
+        rig::synth::GenerateRequest { conditioning_scale: f32::INFINITY, ..base },
     ];
     for req in cases {
         assert!(matches!(p.generate(&req), Err(SynthError::BadRequest { .. })));

@@ -196,4 +196,7 @@ fn the_packages_sampler_is_the_fills_default() {
     assert_eq!(default.len(), 2);
     assert!(default == dpm, "no --sampler: not the package's dpm++2m");
     assert!(default != ddim, "dpm++2m and ddim gave the same images: the test cannot tell them apart");
+    // --conditioning-scale reaches the ControlNet: at 0 the hint is ignored.
+    let unhinted = fill("unhinted", &["--conditioning-scale", "0"]);
+    assert!(default != unhinted, "--conditioning-scale 0 changed nothing");
 }

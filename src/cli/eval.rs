@@ -37,6 +37,10 @@ pub struct Args {
     /// Write the results as JSON to FILE.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
+    /// Write every method's figures on every pair as CSV to FILE (which poses a method gets
+    /// wrong; the table's means are over these lines).
+    #[arg(long, value_name = "FILE")]
+    pub pairs: Option<PathBuf>,
 }
 
 /// Runs `rig eval`.
@@ -65,6 +69,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.json {
         std::fs::write(path, report.to_json()).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.pairs {
+        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        report.write_pairs_csv(std::io::BufWriter::new(file)).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }

@@ -46,6 +46,10 @@ pub struct FillArgs {
     /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
     #[arg(long)]
     pub sampler: Option<SchedulerKind>,
+    /// ControlNet conditioning scale: how strongly the depth-map hint steers the image (1: as
+    /// the model was trained).
+    #[arg(long, default_value_t = 1.0)]
+    pub conditioning_scale: f32,
     /// Poses per model call.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
@@ -84,6 +88,7 @@ impl FillArgs {
             guidance: self.guidance,
             eta: self.eta,
             sampler: self.sampler.map(|s| s.to_string()),
+            conditioning_scale: self.conditioning_scale,
             batch: self.batch,
             supersample: self.supersample,
             limit: self.limit,
@@ -170,7 +175,7 @@ fn fill_options(args: &FillArgs, shard: Shard, pipeline: &Pipeline) -> FillOptio
         guidance: args.guidance,
         eta: args.eta,
         scheduler: args.sampler.or(pipeline.package().config.sampler).unwrap_or_default(),
-        conditioning_scale: 1.0,
+        conditioning_scale: args.conditioning_scale,
         shard,
         batch: args.batch,
         supersample: args.supersample,

@@ -98,6 +98,8 @@ pub struct SynthSpec {
     pub eta: f32,
     /// `ddim` or `dpm++2m`; none: the package's `sampler`, else ddim.
     pub sampler: Option<String>,
+    /// ControlNet conditioning scale (1: as trained).
+    pub conditioning_scale: f32,
     pub batch: usize,
     pub supersample: u32,
     pub limit: Option<usize>,
@@ -117,6 +119,7 @@ impl Default for SynthSpec {
             guidance: d.guidance,
             eta: d.eta,
             sampler: None,
+            conditioning_scale: d.conditioning_scale,
             batch: d.batch,
             supersample: d.supersample,
             limit: None,
@@ -327,7 +330,7 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
         guidance: spec.guidance,
         eta: spec.eta,
         scheduler: scheduler.unwrap_or_default(),
-        conditioning_scale: 1.0,
+        conditioning_scale: spec.conditioning_scale,
         shard,
         batch: spec.batch,
         supersample: spec.supersample,
