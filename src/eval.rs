@@ -27,6 +27,12 @@
 //! ([`geometric_contact`]), in mm and degrees, and with the estimate from the true image of the
 //! same pose. [`EvalReport::to_markdown`] prints the table; the report is also `Serialize`.
 //!
+//! Means over different poses can mislead: a baseline that finds no contact on the hardest
+//! poses is averaged over easier ones. [`paired_comparisons`] therefore also sets the model
+//! against each baseline pose by pose, over the poses where both have the figure, with a 95%
+//! bootstrap interval of the mean difference and a verdict only where it excludes 0.
+//! [`EvalReport::pairs`] keeps every per-pose figure (`rig eval --pairs`).
+//!
 //! Nothing here panics on odd images: a blank image has no contact estimate (counted), an
 //! empty mask skips the contact metrics for that pose (counted), and the table says `n/a`
 //! where a figure has no data.
@@ -236,6 +242,8 @@ pub struct EvalCounts {
 /// `None`: not measured (no contact pixels, no estimate, yaw not observable, ...).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PairRecord {
+    /// Which pair (0, 1, ...: the order judged); the methods of one pair share it.
+    pub pair: usize,
     pub object: String,
     pub sensor: String,
     pub pose_id: u32,
@@ -261,6 +269,8 @@ pub struct EvalReport {
     pub mask_dilate_px: u32,
     pub counts: EvalCounts,
     pub rows: Vec<MethodRow>,
+    /// The model against each baseline, pair by pair ([`paired_comparisons`]).
+    pub comparisons: Vec<PairedComparison>,
     /// Every method on every pair, in the order judged (not in the JSON: see [`Self::write_pairs_csv`]).
     #[serde(skip)]
     pub pairs: Vec<PairRecord>,
@@ -897,7 +907,9 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             }
             let pose_truth = PoseTruth { geometric, yaw_observable, truth_estimate, calib: calib.clone() };
 
+            let pair_index = counts.pairs - 1;
             let record = |method: Method, (ssim, contact_ssim): (Option<f64>, Option<f64>), e: PoseErrors| PairRecord {
+                pair: pair_index,
                 object: object.clone(),
                 sensor: sensor.clone(),
                 pose_id: row.pose_id,
@@ -977,8 +989,173 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         mask_dilate_px: options.mask_dilate_px,
         counts,
         rows,
+        comparisons: paired_comparisons(&pairs),
         pairs,
     })
+}
+
+/// A figure the model is compared on, pair by pair.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Figure {
+    ContactSsim,
+    PositionErr,
+    YawErr,
+}
+
+impl Figure {
+    pub const ALL: [Figure; 3] = [Figure::ContactSsim, Figure::PositionErr, Figure::YawErr];
+
+    /// The name in the table.
+    pub fn label(&self) -> &'static str {
+        match self {
+            Figure::ContactSsim => "contact SSIM",
+            Figure::PositionErr => "pos err mm",
+            Figure::YawErr => "yaw err deg",
+        }
+    }
+
+    fn of(&self, p: &PairRecord) -> Option<f64> {
+        match self {
+            Figure::ContactSsim => p.contact_ssim,
+            Figure::PositionErr => p.position_err_mm,
+            Figure::YawErr => p.yaw_err_deg,
+        }
+        .filter(|v| v.is_finite())
+    }
+
+    /// Whether a larger value is better (SSIM) or worse (errors).
+    fn higher_is_better(&self) -> bool {
+        matches!(self, Figure::ContactSsim)
+    }
+
+    fn decimals(&self) -> usize {
+        match self {
+            Figure::ContactSsim => 4,
+            Figure::PositionErr => 3,
+            Figure::YawErr => 2,
+        }
+    }
+}
+
+/// What a paired comparison shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// The 95% interval of the mean difference lies wholly on the model's better side.
+    ModelBetter,
+    /// ... wholly on its worse side.
+    ModelWorse,
+    /// The interval holds 0: no difference shown.
+    NoDifferenceShown,
+    /// Fewer than [`MIN_PAIRS_FOR_VERDICT`] pairs with the figure on both sides.
+    TooFewPairs,
+}
+
+impl Verdict {
+    pub fn label(&self) -> &'static str {
+        match self {
+            Verdict::ModelBetter => "model better",
+            Verdict::ModelWorse => "model worse",
+            Verdict::NoDifferenceShown => "no difference shown",
+            Verdict::TooFewPairs => "too few pairs",
+        }
+    }
+}
+
+/// Bootstrap resamples behind each interval.
+pub const BOOTSTRAP_RESAMPLES: usize = 4000;
+/// Fewer pairs than this get no verdict.
+pub const MIN_PAIRS_FOR_VERDICT: usize = 10;
+
+/// The model against one baseline on one figure of one sensor, over the pairs where both have
+/// that figure (so a method that finds no contact on a hard pose is not averaged over easier
+/// poses than the other).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PairedComparison {
+    pub sensor: String,
+    pub baseline: Method,
+    pub figure: Figure,
+    /// Pairs where both have the figure.
+    pub n: usize,
+    pub model_mean: f64,
+    pub baseline_mean: f64,
+    /// Mean of (model - baseline) over the n pairs.
+    pub difference: f64,
+    /// 95% percentile-bootstrap interval of that mean ([`BOOTSTRAP_RESAMPLES`] resamples of the
+    /// pairs, a fixed seed: the same data gives the same interval).
+    pub interval95: [f64; 2],
+    pub verdict: Verdict,
+}
+
+/// Mean of `d` and its 95% percentile-bootstrap interval (resampling the entries, fixed seed).
+pub fn bootstrap_mean_interval(d: &[f64]) -> Option<(f64, [f64; 2])> {
+    use rand::{RngExt, SeedableRng};
+    if d.is_empty() || d.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let n = d.len();
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x9a1_4ed);
+    let mut means: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
+        .map(|_| (0..n).map(|_| d[rng.random_range(0..n)]).sum::<f64>() / n as f64)
+        .collect();
+    means.sort_by(f64::total_cmp);
+    let lo = means[(BOOTSTRAP_RESAMPLES as f64 * 0.025) as usize];
+    let hi = means[((BOOTSTRAP_RESAMPLES as f64 * 0.975).ceil() as usize - 1).min(BOOTSTRAP_RESAMPLES - 1)];
+    Some((mean, [lo, hi]))
+}
+
+/// The model against pose-blind and nearest-neighbour on every [`Figure`], per sensor.
+pub fn paired_comparisons(pairs: &[PairRecord]) -> Vec<PairedComparison> {
+    // (sensor, pair) -> method -> record
+    let mut by_pair: BTreeMap<(&str, usize), BTreeMap<&str, &PairRecord>> = BTreeMap::new();
+    for p in pairs {
+        by_pair.entry((p.sensor.as_str(), p.pair)).or_default().insert(p.method, p);
+    }
+    let sensors: Vec<&str> = {
+        let mut v: Vec<&str> = by_pair.keys().map(|(s, _)| *s).collect();
+        v.dedup();
+        v
+    };
+    let mut out = Vec::new();
+    for sensor in sensors {
+        for baseline in [Method::PoseBlind, Method::NearestNeighbour] {
+            for figure in Figure::ALL {
+                let (mut m, mut b) = (Vec::new(), Vec::new());
+                for methods in by_pair.range((sensor, 0)..=(sensor, usize::MAX)).map(|(_, v)| v) {
+                    let get = |method: Method| methods.get(method.label()).and_then(|p| figure.of(p));
+                    if let (Some(x), Some(y)) = (get(Method::Model), get(baseline)) {
+                        m.push(x);
+                        b.push(y);
+                    }
+                }
+                let d: Vec<f64> = m.iter().zip(&b).map(|(x, y)| x - y).collect();
+                let Some((difference, interval95)) = bootstrap_mean_interval(&d) else { continue };
+                let n = d.len();
+                let verdict = if n < MIN_PAIRS_FOR_VERDICT {
+                    Verdict::TooFewPairs
+                } else if interval95[0] > 0.0 || interval95[1] < 0.0 {
+                    let model_higher = interval95[0] > 0.0;
+                    if model_higher == figure.higher_is_better() { Verdict::ModelBetter } else { Verdict::ModelWorse }
+                } else {
+                    Verdict::NoDifferenceShown
+                };
+                out.push(PairedComparison {
+                    sensor: sensor.to_string(),
+                    baseline,
+                    figure,
+                    n,
+                    model_mean: m.iter().sum::<f64>() / n as f64,
+                    baseline_mean: b.iter().sum::<f64>() / n as f64,
+                    difference,
+                    interval95,
+                    verdict,
+                });
+            }
+        }
+    }
+    out
 }
 
 fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {
@@ -1073,6 +1250,30 @@ impl EvalReport {
                 cell(r.position_vs_true_mm, 2),
                 cell(r.yaw_vs_true_deg, 2),
             );
+        }
+        if !self.comparisons.is_empty() {
+            s += &format!(
+                "\nThe model against each baseline, pose by pose: only poses where both have the figure; difference = model - baseline, \
+                 its mean with a 95% bootstrap interval; a verdict where the interval excludes 0 (and n >= {MIN_PAIRS_FOR_VERDICT}).\n\n"
+            );
+            s += "| sensor | baseline | figure | n | model | baseline | difference | 95% interval | verdict |\n";
+            s += "|---|---|---|---:|---:|---:|---:|---|---|\n";
+            for c in &self.comparisons {
+                let k = c.figure.decimals();
+                s += &format!(
+                    "| {} | {} | {} | {} | {:.k$} | {:.k$} | {:+.k$} | [{:+.k$}, {:+.k$}] | {} |\n",
+                    c.sensor,
+                    c.baseline.label(),
+                    c.figure.label(),
+                    c.n,
+                    c.model_mean,
+                    c.baseline_mean,
+                    c.difference,
+                    c.interval95[0],
+                    c.interval95[1],
+                    c.verdict.label(),
+                );
+            }
         }
         s
     }
@@ -1179,9 +1380,79 @@ mod tests {
             mask_dilate_px: 1,
             counts: EvalCounts::default(),
             rows: vec![row],
+            comparisons: Vec::new(),
+            pairs: Vec::new(),
         };
         let md = report.to_markdown();
         assert!(md.contains("n/a") && !md.contains("NaN"), "{md}");
         assert!(report.to_json().contains("\"ssim\": null"));
+    }
+
+    fn record(pair: usize, method: Method, contact_ssim: Option<f64>, position: Option<f64>, yaw: Option<f64>) -> PairRecord {
+        PairRecord {
+            pair,
+            object: "edge".into(),
+            sensor: "vitac".into(),
+            pose_id: pair as u32,
+            x_mm: 0.0,
+            y_mm: 0.0,
+            z_mm: 0.0,
+            yaw_deg: 0.0,
+            method: method.label(),
+            ssim: contact_ssim,
+            contact_ssim,
+            position_err_mm: position,
+            yaw_err_deg: yaw,
+            position_vs_true_mm: None,
+            yaw_vs_true_deg: None,
+        }
+    }
+
+    #[test]
+    fn bootstrap_interval_is_tight_on_constants_and_covers_the_mean() {
+        let (m, ci) = bootstrap_mean_interval(&[0.25; 30]).expect("interval");
+        assert_eq!((m, ci), (0.25, [0.25, 0.25]));
+        // -1, +1 alternating: mean 0, an interval around it, narrower than the data's range.
+        let d: Vec<f64> = (0..40).map(|i| if i % 2 == 0 { -1.0 } else { 1.0 }).collect();
+        let (m, [lo, hi]) = bootstrap_mean_interval(&d).expect("interval");
+        assert_eq!(m, 0.0);
+        assert!(lo < 0.0 && hi > 0.0 && lo > -0.6 && hi < 0.6, "[{lo}, {hi}]");
+        // The standard error of that mean is 1/sqrt(40) = 0.158: the 95% interval is about +-0.31.
+        assert!((hi - lo - 2.0 * 1.96 / 40f64.sqrt()).abs() < 0.1, "[{lo}, {hi}]");
+        assert_eq!(bootstrap_mean_interval(&d), bootstrap_mean_interval(&d), "same data, same interval");
+        assert!(bootstrap_mean_interval(&[]).is_none());
+        assert!(bootstrap_mean_interval(&[1.0, f64::NAN]).is_none());
+    }
+
+    #[test]
+    fn paired_comparisons_give_verdicts_on_common_pairs_only() {
+        let mut pairs = Vec::new();
+        for i in 0..20 {
+            let wobble = if i % 2 == 0 { 0.01 } else { -0.01 };
+            // Model: contact SSIM 0.1 higher (better); position 0.5 mm lower (better); yaw
+            // 1 deg higher (worse) except where the baseline found none.
+            pairs.push(record(i, Method::Model, Some(0.9 + wobble), Some(0.5 + wobble), Some(2.0 + wobble)));
+            pairs.push(record(i, Method::NearestNeighbour, Some(0.8), Some(1.0), (i < 15).then_some(1.0)));
+            // Pose-blind: the same as the model up to noise of both signs.
+            pairs.push(record(i, Method::PoseBlind, Some(0.9 - wobble), Some(0.5 - wobble), Some(2.0 - wobble)));
+            pairs.push(record(i, Method::TrueImage, None, Some(0.4), Some(1.0)));
+        }
+        let c = paired_comparisons(&pairs);
+        let find = |b: Method, f: Figure| c.iter().find(|x| x.baseline == b && x.figure == f).expect("comparison");
+        let nn_ssim = find(Method::NearestNeighbour, Figure::ContactSsim);
+        assert_eq!((nn_ssim.n, nn_ssim.verdict), (20, Verdict::ModelBetter), "{nn_ssim:?}");
+        assert!((nn_ssim.difference - 0.1).abs() < 1e-12);
+        assert_eq!(find(Method::NearestNeighbour, Figure::PositionErr).verdict, Verdict::ModelBetter);
+        let nn_yaw = find(Method::NearestNeighbour, Figure::YawErr);
+        assert_eq!((nn_yaw.n, nn_yaw.verdict), (15, Verdict::ModelWorse), "only the 15 pairs where both found a yaw: {nn_yaw:?}");
+        for f in Figure::ALL {
+            let pb = find(Method::PoseBlind, f);
+            assert_eq!(pb.verdict, Verdict::NoDifferenceShown, "{pb:?}");
+            assert!(pb.interval95[0] < 0.0 && pb.interval95[1] > 0.0, "{pb:?}");
+        }
+        // Too few pairs: no verdict, whatever the difference.
+        let few: Vec<PairRecord> = pairs.iter().filter(|p| p.pair < MIN_PAIRS_FOR_VERDICT - 1).cloned().collect();
+        assert!(paired_comparisons(&few).iter().all(|x| x.verdict == Verdict::TooFewPairs));
+        assert!(paired_comparisons(&[]).is_empty());
     }
 }

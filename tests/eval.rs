@@ -9,7 +9,7 @@ use std::process::Command;
 use image::RgbImage;
 use rig::calibration::Calibration;
 use rig::dataset::{DatasetWriter, Manifest, ObjectInfo, PoseRow, Source};
-use rig::eval::{EvalOptions, EvalReport, Method, MethodRow, PairRecord, evaluate};
+use rig::eval::{EvalOptions, EvalReport, Figure, Method, MethodRow, PairRecord, Verdict, evaluate};
 use rig::geometry::objects::load_object;
 use rig::geometry::raster::render_depth;
 use rig::pose::Pose;
@@ -185,9 +185,18 @@ fn an_identical_twin_scores_ssim_one_mse_zero_and_the_true_image_pose_errors() {
     report.write_pairs_csv(&mut csv).expect("csv");
     let csv = String::from_utf8(csv).expect("utf-8");
     assert_eq!(csv.lines().count(), 1 + report.pairs.len());
-    assert!(csv.starts_with("object,sensor,pose_id,x_mm,y_mm,z_mm,yaw_deg,method,ssim,contact_ssim,"), "{csv}");
+    assert!(csv.starts_with("pair,object,sensor,pose_id,x_mm,y_mm,z_mm,yaw_deg,method,ssim,contact_ssim,"), "{csv}");
+    // Paired comparisons: 8 pairs per sensor is too few for a verdict, but the means are there.
+    let nn_ssim = report
+        .comparisons
+        .iter()
+        .find(|c| c.sensor == "vitac" && c.baseline == Method::NearestNeighbour && c.figure == Figure::ContactSsim)
+        .expect("vitac comparison");
+    assert_eq!(nn_ssim.verdict, Verdict::TooFewPairs);
+    assert!((nn_ssim.model_mean - 1.0).abs() < 1e-12 && nn_ssim.difference > 0.0, "{nn_ssim:?}");
     let md = report.to_markdown();
     assert!(md.contains("| vitac | model | 8 | 1.000 | inf | 0.0 |"), "{md}");
+    assert!(md.contains("| vitac | nearest-neighbour | contact SSIM | "), "{md}");
     // Only the edge.
     let edge_only = EvalOptions { objects: vec!["edge".into()], ..options.clone() };
     let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &edge_only).expect("evaluate");
@@ -294,12 +303,15 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     let (code, out) = run(c);
     assert_eq!(code, 0, "{out}");
     let mut reader = csv::Reader::from_path(&pairs_csv).expect("pairs csv");
+    let header = reader.headers().expect("header").clone();
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap_or_else(|| panic!("no {name} column: {header:?}"));
+    let (method, ssim) = (column("method"), column("ssim"));
     let records: Vec<csv::StringRecord> = reader.records().collect::<Result<_, _>>().expect("records");
     assert_eq!(records.len(), 4 * 4, "4 pairs, 4 methods");
-    let model: Vec<_> = records.iter().filter(|r| &r[7] == "model").collect();
+    let model: Vec<_> = records.iter().filter(|r| &r[method] == "model").collect();
     assert_eq!(model.len(), 4);
     // An identical twin: SSIM 1 on every pair.
-    assert!(model.iter().all(|r| r[8].parse::<f64>().is_ok_and(|s| (s - 1.0).abs() < 1e-12)), "{model:?}");
+    assert!(model.iter().all(|r| r[ssim].parse::<f64>().is_ok_and(|s| (s - 1.0).abs() < 1e-12)), "{model:?}");
 
     // A missing directory.
     let (code, out) = run(eval_cmd(&sets.real, &sets._tmp.path().join("nope"), &[]));
