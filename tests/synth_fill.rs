@@ -160,7 +160,7 @@ fn render_controls_of_matches_single_renders_and_prompts() {
 /// otherwise: a fill with no flag gives exactly the images of `--sampler dpm++2m` when the
 /// package names it, and not those of `--sampler ddim`.
 #[test]
-fn the_packages_sampler_is_the_fills_default() {
+fn the_packages_sampling_settings_are_the_fills_default() {
     let tmp = tempfile::tempdir().expect("tempdir");
     // A 2 x 1 x 1 x 2 = 4-pose grid; collect 2, fill 2.
     let ds = collect_vitac_edge(
@@ -169,7 +169,7 @@ fn the_packages_sampler_is_the_fills_default() {
          [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n\
          [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 45.0\nstep = 45.0\n",
     );
-    // The tiny package, saying dpm++2m.
+    // The tiny package, saying dpm++2m and 3 steps.
     let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
     let package = tmp.path().join("package");
     for file in walk(&tiny) {
@@ -178,24 +178,26 @@ fn the_packages_sampler_is_the_fills_default() {
         std::fs::copy(&file, &dst).expect("copy");
     }
     let toml = std::fs::read_to_string(package.join("model.toml")).expect("model.toml");
-    assert!(!toml.contains("sampler"), "the tiny package already names a sampler");
-    std::fs::write(package.join("model.toml"), format!("{toml}sampler = \"dpm++2m\"\n")).expect("model.toml");
+    assert!(!toml.contains("sampler") && !toml.contains("sampling_steps"), "the tiny package already names a sampler");
+    std::fs::write(package.join("model.toml"), format!("{toml}sampler = \"dpm++2m\"\nsampling_steps = 3\n")).expect("model.toml");
 
     let fill = |name: &str, extra: &[&str]| {
         let dst = tmp.path().join(name);
         copy_dir(&ds, &dst);
         let mut c = rig();
-        c.args(["synth", "--fill-missing", "--steps", "3", "--model"]).arg(&package).arg("--dataset").arg(&dst).args(extra);
+        c.args(["synth", "--fill-missing", "--model"]).arg(&package).arg("--dataset").arg(&dst).args(extra);
         let out = ok(c);
         assert!(out.contains("synthesised 2 poses"), "{out}");
         contents(&dst).into_iter().filter(|(_, (s, _))| s == "synthetic").collect::<BTreeMap<_, _>>()
     };
     let default = fill("default", &[]);
-    let dpm = fill("dpm", &["--sampler", "dpm++2m"]);
-    let ddim = fill("ddim", &["--sampler", "ddim"]);
+    let dpm = fill("dpm", &["--sampler", "dpm++2m", "--steps", "3"]);
+    let ddim = fill("ddim", &["--sampler", "ddim", "--steps", "3"]);
+    let two_steps = fill("two-steps", &["--steps", "2"]);
     assert_eq!(default.len(), 2);
-    assert!(default == dpm, "no --sampler: not the package's dpm++2m");
+    assert!(default == dpm, "no --sampler, no --steps: not the package's dpm++2m at 3 steps");
     assert!(default != ddim, "dpm++2m and ddim gave the same images: the test cannot tell them apart");
+    assert!(default != two_steps, "2 and 3 steps gave the same images: the test cannot tell them apart");
     // --conditioning-scale reaches the ControlNet: at 0 the hint is ignored.
     let unhinted = fill("unhinted", &["--conditioning-scale", "0"]);
     assert!(default != unhinted, "--conditioning-scale 0 changed nothing");

@@ -34,12 +34,13 @@ pub struct FillArgs {
     /// Where the synthetic rows go (required with --shard; default: into the dataset itself).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
-    /// Sampling steps.
-    #[arg(long, default_value_t = 20)]
-    pub steps: usize,
-    /// Classifier-free guidance scale (1: unguided, half the work, as MultiDiffSense's scripts save).
-    #[arg(long, default_value_t = 1.0)]
-    pub guidance: f32,
+    /// Sampling steps [default: the package's `sampling_steps`, else 20].
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Classifier-free guidance scale (1: unguided, half the work, as MultiDiffSense's scripts
+    /// save) [default: the package's `guidance`, else 1].
+    #[arg(long)]
+    pub guidance: Option<f32>,
     /// DDIM eta (0: deterministic).
     #[arg(long, default_value_t = 0.0)]
     pub eta: f32,
@@ -170,11 +171,13 @@ fn load_pipeline(args: &FillArgs) -> anyhow::Result<Pipeline> {
 }
 
 fn fill_options(args: &FillArgs, shard: Shard, pipeline: &Pipeline) -> FillOptions {
+    let config = &pipeline.package().config;
+    let defaults = FillOptions::default();
     FillOptions {
-        steps: args.steps,
-        guidance: args.guidance,
+        steps: args.steps.or(config.sampling_steps).unwrap_or(defaults.steps),
+        guidance: args.guidance.or(config.guidance).unwrap_or(defaults.guidance),
         eta: args.eta,
-        scheduler: args.sampler.or(pipeline.package().config.sampler).unwrap_or_default(),
+        scheduler: args.sampler.or(config.sampler).unwrap_or_default(),
         conditioning_scale: args.conditioning_scale,
         shard,
         batch: args.batch,

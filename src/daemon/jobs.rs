@@ -93,8 +93,10 @@ pub struct SynthSpec {
     /// `i/n`.
     pub shard: Option<String>,
     pub out: Option<PathBuf>,
-    pub steps: usize,
-    pub guidance: f32,
+    /// None: the package's `sampling_steps`, else [`FillOptions`]' default.
+    pub steps: Option<usize>,
+    /// None: the package's `guidance`, else [`FillOptions`]' default.
+    pub guidance: Option<f32>,
     pub eta: f32,
     /// `ddim` or `dpm++2m`; none: the package's `sampler`, else ddim.
     pub sampler: Option<String>,
@@ -115,8 +117,8 @@ impl Default for SynthSpec {
             model: None,
             shard: None,
             out: None,
-            steps: d.steps,
-            guidance: d.guidance,
+            steps: None,
+            guidance: None,
             eta: d.eta,
             sampler: None,
             conditioning_scale: d.conditioning_scale,
@@ -325,9 +327,10 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     }
     let model = spec.model.clone().unwrap_or_else(crate::synth::fill::default_model);
     let runtime = RuntimeOptions { ort_lib: spec.ort_lib.clone(), ..RuntimeOptions::default() };
+    let defaults = FillOptions::default();
     let mut options = FillOptions {
-        steps: spec.steps,
-        guidance: spec.guidance,
+        steps: spec.steps.unwrap_or(defaults.steps),
+        guidance: spec.guidance.unwrap_or(defaults.guidance),
         eta: spec.eta,
         scheduler: scheduler.unwrap_or_default(),
         conditioning_scale: spec.conditioning_scale,
@@ -339,6 +342,7 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     // The model runs on a blocking thread; the loaded package comes back for the next job.
     let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
     let out = spec.out.clone();
+    let (spec_steps, spec_guidance) = (spec.steps, spec.guidance);
     let task = tokio::task::spawn_blocking(move || {
         let mut loaded = match cached {
             Some((_, _, p)) => p,
@@ -347,10 +351,13 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
                 Err(source) => return (None, Err(JobError::Model { model, source })),
             },
         };
-        // The package's own sampler when the job names none.
+        // The package's own sampling settings where the job names none.
+        let config = &loaded.package().config;
         if scheduler.is_none() {
-            options.scheduler = loaded.package().config.sampler.unwrap_or_default();
+            options.scheduler = config.sampler.unwrap_or_default();
         }
+        options.steps = spec_steps.or(config.sampling_steps).unwrap_or(options.steps);
+        options.guidance = spec_guidance.or(config.guidance).unwrap_or(options.guidance);
         let mut lines = Vec::new();
         let mut cancelled = false;
         for d in &datasets {
