@@ -124,6 +124,12 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("import a CSV that is not MDS", &["dataset", "import", "bad.csv"], 2, "missing column"),
         case("import an MDS row with a bad number", &["dataset", "import", "bad-row.csv"], 2, "malformed MDS row"),
         case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "missing"),
+        case(
+            "synthetic twins on the daemon",
+            &["synth", "--poses-of", "ds", "--out", "twins", "--daemon", "http://127.0.0.1:9"],
+            2,
+            "--daemon runs only --fill-missing",
+        ),
     ];
 
     let mut table = vec!["| bad input | command | rig says | exit |".to_string(), "|---|---|---|---|".to_string()];

@@ -103,6 +103,9 @@ pub use crate::synth::fill::{default_model, find_datasets};
 /// Runs `rig synth --fill-missing`.
 pub fn run(args: FillArgs) -> anyhow::Result<()> {
     if let Some(source) = args.poses_of.clone() {
+        if args.daemon.daemon.is_some() {
+            bail!(crate::cli::usage("--daemon runs only --fill-missing jobs: run --poses-of without --daemon"));
+        }
         return run_poses_of(&source, args);
     }
     if !args.fill_missing {
