@@ -67,10 +67,7 @@ fn main() {
             let t_none = ms_per_frame(&sim(Scene::preset("none").expect("preset")), &depth, &motion, budget);
             let t_fast = ms_per_frame(&sim(Scene::preset("fast").expect("preset")), &depth, &motion, budget);
             println!();
-            println!(
-                "{} {w}x{h}: none {t_none:.2}  fast {t_fast:.2}  full {t_full:.2}  full, arm still {t_full_still:.2}",
-                kind.label()
-            );
+            println!("{} {w}x{h}: none {t_none:.2}  fast {t_fast:.2}  full {t_full:.2}  full, arm still {t_full_still:.2}", kind.label());
             println!("  {:<20} {:>9} {:>9} {:>13} {:>8} {:>13}", "stage", "alone", "full", "full - stage", "cost", "timed in full");
             for stage in Stage::ALL {
                 if !kind.supports(stage) {

@@ -105,7 +105,12 @@ fn main() {
     let guidances: Vec<f32> = env_or("RIG_BENCH_GUIDANCE", "7.5,1").split(',').filter_map(|g| g.trim().parse().ok()).collect();
     let python = env_or("RIG_PYTHON", &root.join(".venv/bin/python").display().to_string());
 
-    println!("package {} ({}), DDIM {steps} steps, {images} timed images after 1 warm-up, CPU, threads per session: {}", model.display(), pipeline.package().config.name, threads.map_or("default".to_string(), |t| t.to_string()));
+    println!(
+        "package {} ({}), DDIM {steps} steps, {images} timed images after 1 warm-up, CPU, threads per session: {}",
+        model.display(),
+        pipeline.package().config.name,
+        threads.map_or("default".to_string(), |t| t.to_string())
+    );
     println!("| size | guidance | rig s/image, mean (min) | python onnxruntime s/image, mean (min) | rig / python (of the mins) |");
     println!("|---|---|---|---|---|");
     for &size in &sizes {

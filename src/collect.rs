@@ -116,17 +116,11 @@ pub struct CollectSummary {
 
 /// Checks every pose of the plan (contact and approach) against the workspace before anything
 /// moves. `check` is the firmware profile's reachability test.
-pub fn check_plan(
-    plan: &[PlannedPose],
-    work_frame: &WorkFrame,
-    check: impl Fn(&Pose) -> Result<(), ArmError>,
-) -> Result<(), CollectError> {
+pub fn check_plan(plan: &[PlannedPose], work_frame: &WorkFrame, check: impl Fn(&Pose) -> Result<(), ArmError>) -> Result<(), CollectError> {
     let reference = Pose::default();
     let poses = std::iter::once((None, &reference)).chain(plan.iter().map(|p| (Some(p.pose_id), &p.pose)));
     for (pose_id, plan_pose) in poses {
-        for (which, base_pose) in
-            [("approach", work_frame.approach_pose(plan_pose)), ("contact", work_frame.contact_pose(plan_pose))]
-        {
+        for (which, base_pose) in [("approach", work_frame.approach_pose(plan_pose)), ("contact", work_frame.contact_pose(plan_pose))] {
             let limit = match check(&base_pose) {
                 Ok(()) => continue,
                 Err(ArmError::Unreachable { limit, .. }) => limit,
@@ -171,10 +165,8 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
     /// Runs the plan. Poses already present in every sensor's dataset are skipped.
     pub async fn run(mut self, plan: &[PlannedPose]) -> Result<CollectSummary, CollectError> {
         let mut summary = CollectSummary { captured: 0, skipped: 0, remaining: 0, recovered_faults: 0, interrupted: false };
-        let todo: Vec<&PlannedPose> = plan
-            .iter()
-            .filter(|p| self.sensors.iter().any(|s| !s.writer.done_ids().contains(&p.pose_id)))
-            .collect();
+        let todo: Vec<&PlannedPose> =
+            plan.iter().filter(|p| self.sensors.iter().any(|s| !s.writer.done_ids().contains(&p.pose_id))).collect();
         summary.skipped = plan.len() - todo.len();
         self.progress.set_length(plan.len() as u64);
         self.progress.set_position(summary.skipped as u64);
@@ -225,12 +217,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
 
     /// Runs one step, clearing and retrying it after a recoverable arm fault (alarm, timeout,
     /// dropped socket) or a camera timeout, up to `retries_per_pose` times.
-    async fn with_retries(
-        &mut self,
-        step: Step<'_>,
-        above_origin: Pose,
-        summary: &mut CollectSummary,
-    ) -> Result<(), CollectError> {
+    async fn with_retries(&mut self, step: Step<'_>, above_origin: Pose, summary: &mut CollectSummary) -> Result<(), CollectError> {
         let pose_id = step.pose_id();
         let label = describe_pose(pose_id);
         let mut attempt = 0u32;
@@ -254,9 +241,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
                 }
                 // A frame that did not come is retried like an arm fault: a camera that
                 // stalls once (USB hiccup) must not end a long collection.
-                Err(CollectError::Camera(e @ CameraError::Timeout { .. }))
-                    if attempt <= self.options.retries_per_pose =>
-                {
+                Err(CollectError::Camera(e @ CameraError::Timeout { .. })) if attempt <= self.options.retries_per_pose => {
                     warn!(?pose_id, attempt, error = %e, "camera timeout; retrying");
                     self.progress.println(format!("{label}: {e}; retrying"));
                     summary.recovered_faults += 1;
@@ -369,11 +354,7 @@ fn has_reference(writer: &DatasetWriter) -> bool {
 
 /// Captures `frames_per_pose` frames exposed after `not_before_s`; returns the last frame (or the
 /// pixel mean when averaging) and the mean capture time.
-pub async fn capture<C: Camera>(
-    camera: &mut C,
-    not_before_s: f64,
-    options: &CollectConfig,
-) -> Result<(RgbImage, f64), CameraError> {
+pub async fn capture<C: Camera>(camera: &mut C, not_before_s: f64, options: &CollectConfig) -> Result<(RgbImage, f64), CameraError> {
     let n = options.frames_per_pose.max(1);
     let mut frames: Vec<Frame> = Vec::with_capacity(n as usize);
     let mut after = not_before_s;
@@ -430,11 +411,7 @@ mod tests {
         ];
         // A stand-in workspace: nothing below z = -21.9 mm.
         let check = |p: &Pose| {
-            if p.z_mm < -21.9 {
-                Err(ArmError::Unreachable { pose: *p, limit: "z below -21.9 mm".into() })
-            } else {
-                Ok(())
-            }
+            if p.z_mm < -21.9 { Err(ArmError::Unreachable { pose: *p, limit: "z below -21.9 mm".into() }) } else { Ok(()) }
         };
         let e = check_plan(&plan, &wf, check).unwrap_err();
         assert!(matches!(e, CollectError::Unreachable { pose_id: Some(7), which: "contact", .. }), "{e}");

@@ -312,11 +312,7 @@ impl RigConfig {
     pub fn builtin_sim() -> Self {
         Self {
             source: None,
-            arm: ArmConfig {
-                backend: ArmBackend::Simulated { time_scale: DEFAULT_SIM_TIME_SCALE },
-                profile: None,
-                speed_factor: 100,
-            },
+            arm: ArmConfig { backend: ArmBackend::Simulated { time_scale: DEFAULT_SIM_TIME_SCALE }, profile: None, speed_factor: 100 },
             work_frame: WorkFrame::default(),
             collect: CollectConfig::default(),
             sensors: Vec::new(),
@@ -344,25 +340,19 @@ impl RigConfig {
 
     /// Reads and validates one file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
     /// Parses and validates TOML text; `path` is only used in messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let raw: RawConfig =
-            toml::from_str(text).map_err(|source| ConfigError::Parse { path: path.to_path_buf(), source })?;
+        let raw: RawConfig = toml::from_str(text).map_err(|source| ConfigError::Parse { path: path.to_path_buf(), source })?;
         Self::resolve(raw, path)
     }
 
     /// Validates a raw configuration and fills in defaults.
     pub fn resolve(raw: RawConfig, path: &Path) -> Result<Self, ConfigError> {
-        let invalid = |field: &'static str, problem: String| ConfigError::Invalid {
-            path: path.to_path_buf(),
-            field,
-            problem,
-        };
+        let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.to_path_buf(), field, problem };
         let backend = match raw.arm.backend.as_deref().unwrap_or("sim") {
             "sim" | "simulated" => {
                 let time_scale = raw.arm.sim_time_scale.unwrap_or(DEFAULT_SIM_TIME_SCALE);
@@ -372,11 +362,8 @@ impl RigConfig {
                 ArmBackend::Simulated { time_scale }
             }
             "mg400" => {
-                let host = raw
-                    .arm
-                    .host
-                    .clone()
-                    .ok_or_else(|| invalid("arm.host", "is required for backend mg400 (e.g. 192.168.1.6)".into()))?;
+                let host =
+                    raw.arm.host.clone().ok_or_else(|| invalid("arm.host", "is required for backend mg400 (e.g. 192.168.1.6)".into()))?;
                 ArmBackend::Mg400 {
                     host,
                     dashboard_port: raw.arm.dashboard_port.unwrap_or(29999),
@@ -385,9 +372,11 @@ impl RigConfig {
                 }
             }
             "magician" => ArmBackend::Magician {
-                serial_port: raw.arm.serial_port.clone().ok_or_else(|| {
-                    invalid("arm.serial_port", "is required for backend magician (e.g. /dev/ttyUSB0)".into())
-                })?,
+                serial_port: raw
+                    .arm
+                    .serial_port
+                    .clone()
+                    .ok_or_else(|| invalid("arm.serial_port", "is required for backend magician (e.g. /dev/ttyUSB0)".into()))?,
             },
             other => return Err(invalid("arm.backend", format!("must be sim, mg400 or magician, got {other:?}"))),
         };
@@ -480,8 +469,8 @@ impl RigConfig {
         }
         let mut modbus = std::collections::BTreeMap::new();
         for (name, raw_peripheral) in raw.modbus {
-            let resolved = crate::io::modbus::ModbusPeripheralConfig::resolve(&name, raw_peripheral)
-                .map_err(|e| invalid("modbus", e.to_string()))?;
+            let resolved =
+                crate::io::modbus::ModbusPeripheralConfig::resolve(&name, raw_peripheral).map_err(|e| invalid("modbus", e.to_string()))?;
             modbus.insert(name, resolved);
         }
         Ok(Self {
@@ -622,11 +611,8 @@ mod tests {
         assert!(RigConfig::parse("", Path::new("x")).unwrap().faults.is_empty());
         let e = RigConfig::parse("[sim.faults]\ncollision_at_moves = [0]\n", Path::new("x")).unwrap_err();
         assert!(e.to_string().contains("collision_at_moves"), "{e}");
-        let e = RigConfig::parse(
-            "[arm]\nbackend = \"mg400\"\nhost = \"h\"\n[sim.faults]\nsplit_replies = true\n",
-            Path::new("x"),
-        )
-        .unwrap_err();
+        let e =
+            RigConfig::parse("[arm]\nbackend = \"mg400\"\nhost = \"h\"\n[sim.faults]\nsplit_replies = true\n", Path::new("x")).unwrap_err();
         assert!(e.to_string().contains("simulated arm"), "{e}");
     }
 

@@ -134,13 +134,7 @@ pub struct EvalOptions {
 impl EvalOptions {
     /// Defaults at a size: threshold 10 levels, dilation `size / 64` px (2 px at 128).
     pub fn at_size(size_px: u32, label: &str) -> Self {
-        Self {
-            size_px,
-            label: label.to_string(),
-            mask_threshold: 10.0,
-            mask_dilate_px: (size_px / 64).max(1),
-            objects: Vec::new(),
-        }
+        Self { size_px, label: label.to_string(), mask_threshold: 10.0, mask_dilate_px: (size_px / 64).max(1), objects: Vec::new() }
     }
 }
 
@@ -313,13 +307,7 @@ fn load_side(root: &Path, side: &'static str) -> Result<BTreeMap<(String, String
         let key = info.key();
         if let Some(first) = out.get(&key) {
             let first: &DatasetInfo = first;
-            return Err(EvalError::DuplicateDataset {
-                side,
-                object: key.0,
-                sensor: key.1,
-                first: first.dir.clone(),
-                second: d,
-            });
+            return Err(EvalError::DuplicateDataset { side, object: key.0, sensor: key.1, first: first.dir.clone(), second: d });
         }
         out.insert(key, info);
     }
@@ -347,11 +335,7 @@ fn load_at(path: &Path, size: u32) -> Result<RgbImage, EvalError> {
 }
 
 fn resize_square(img: RgbImage, size: u32) -> RgbImage {
-    if img.dimensions() == (size, size) {
-        img
-    } else {
-        image::imageops::resize(&img, size, size, image::imageops::FilterType::Triangle)
-    }
+    if img.dimensions() == (size, size) { img } else { image::imageops::resize(&img, size, size, image::imageops::FilterType::Triangle) }
 }
 
 /// The dataset's calibration at `size` x `size`: the file its manifest names, else (none or
@@ -461,7 +445,8 @@ impl ContactEstimate {
     fn moments_mm2(&self, calib: &Calibration) -> [f64; 3] {
         // px_to_mm is linear: J = diag(1/sx, 1/sy) R(-rotation).
         let (s, c) = calib.rotation_deg.to_radians().sin_cos();
-        let j = [[c / calib.scale_px_per_mm[0], s / calib.scale_px_per_mm[0]], [-s / calib.scale_px_per_mm[1], c / calib.scale_px_per_mm[1]]];
+        let j =
+            [[c / calib.scale_px_per_mm[0], s / calib.scale_px_per_mm[0]], [-s / calib.scale_px_per_mm[1], c / calib.scale_px_per_mm[1]]];
         let m = [[self.moments_px2[0], self.moments_px2[1]], [self.moments_px2[1], self.moments_px2[2]]];
         let mut jm = [[0.0; 2]; 2];
         for r in 0..2 {
@@ -575,14 +560,9 @@ pub fn warp_to_pose(image: &RgbImage, reference: &RgbImage, from: &Pose, to: &Po
     let a_from = crate::geometry::raster::object_to_pixel(from, calib);
     let a_to = crate::geometry::raster::object_to_pixel(to, calib);
     let to_source = a_from * a_to.inverse();
-    let diff: Vec<f32> =
-        image.as_raw().iter().zip(reference.as_raw()).map(|(&a, &b)| a as f32 - b as f32).collect();
+    let diff: Vec<f32> = image.as_raw().iter().zip(reference.as_raw()).map(|(&a, &b)| a as f32 - b as f32).collect();
     let at = |x: i64, y: i64, k: usize| -> f32 {
-        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-            0.0
-        } else {
-            diff[(y as usize * w as usize + x as usize) * 3 + k]
-        }
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 { 0.0 } else { diff[(y as usize * w as usize + x as usize) * 3 + k] }
     };
     let mut out = reference.clone();
     for (x, y, px) in out.enumerate_pixels_mut() {
@@ -811,12 +791,8 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         synthetic.retain(|(name, _), _| options.objects.contains(name));
     }
     let Collected { by_sensor, references: collected_refs, images } = Collected::load(&collected_sets, size)?;
-    let mut counts = EvalCounts {
-        real_datasets: real.len(),
-        synthetic_datasets: synthetic.len(),
-        collected_images: images,
-        ..EvalCounts::default()
-    };
+    let mut counts =
+        EvalCounts { real_datasets: real.len(), synthetic_datasets: synthetic.len(), collected_images: images, ..EvalCounts::default() };
 
     let mut sums: BTreeMap<(String, Method), RowSums> = BTreeMap::new();
     let mut pairs: Vec<PairRecord> = Vec::new();
@@ -839,8 +815,8 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         if !reference_path.is_file() {
             return Err(EvalError::NoReference { dir: r.dir.clone() });
         }
-        let native = image::image_dimensions(&reference_path)
-            .map_err(|source| EvalError::Image { path: reference_path.clone(), source })?;
+        let native =
+            image::image_dimensions(&reference_path).map_err(|source| EvalError::Image { path: reference_path.clone(), source })?;
         let reference = load_at(&reference_path, size)?;
         let calib = calibration_at(r, native, size).unwrap_or_else(|| {
             counts.default_calibration_for.push(format!("{object}/{sensor}"));
@@ -1097,9 +1073,7 @@ pub fn bootstrap_mean_interval(d: &[f64]) -> Option<(f64, [f64; 2])> {
     let n = d.len();
     let mean = d.iter().sum::<f64>() / n as f64;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x9a1_4ed);
-    let mut means: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
-        .map(|_| (0..n).map(|_| d[rng.random_range(0..n)]).sum::<f64>() / n as f64)
-        .collect();
+    let mut means: Vec<f64> = (0..BOOTSTRAP_RESAMPLES).map(|_| (0..n).map(|_| d[rng.random_range(0..n)]).sum::<f64>() / n as f64).collect();
     means.sort_by(f64::total_cmp);
     let lo = means[(BOOTSTRAP_RESAMPLES as f64 * 0.025) as usize];
     let hi = means[((BOOTSTRAP_RESAMPLES as f64 * 0.975).ceil() as usize - 1).min(BOOTSTRAP_RESAMPLES - 1)];
@@ -1159,10 +1133,7 @@ pub fn paired_comparisons(pairs: &[PairRecord]) -> Vec<PairedComparison> {
 }
 
 fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {
-    format!(
-        "{side} {object}/{sensor} pose_id {} ({}, {}, {}, {})",
-        row.pose_id, row.x_mm, row.y_mm, row.z_mm, row.yaw_deg
-    )
+    format!("{side} {object}/{sensor} pose_id {} ({}, {}, {}, {})", row.pose_id, row.x_mm, row.y_mm, row.z_mm, row.yaw_deg)
 }
 
 /// The collected pose nearest to `pose` by [`pose_distance`]: among `object`'s when there are

@@ -148,13 +148,7 @@ fn filter_valid(src: &[f64], w: usize, h: usize, k: &[f64; WIN]) -> Vec<f64> {
     out
 }
 
-fn ssim_planes(
-    a: &[Vec<f32>],
-    b: &[Vec<f32>],
-    a_dim: (u32, u32),
-    b_dim: (u32, u32),
-    mask: Option<&[bool]>,
-) -> Result<f64, MetricsError> {
+fn ssim_planes(a: &[Vec<f32>], b: &[Vec<f32>], a_dim: (u32, u32), b_dim: (u32, u32), mask: Option<&[bool]>) -> Result<f64, MetricsError> {
     check_sizes(a_dim, b_dim, mask)?;
     let (w, h) = (a_dim.0 as usize, a_dim.1 as usize);
     if w < WIN || h < WIN {

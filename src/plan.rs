@@ -247,10 +247,8 @@ pub struct Plan {
 impl PlanSpec {
     /// Reads and validates a TOML plan file.
     pub fn load(path: &Path) -> Result<Self, PlanError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
-        let spec = Self::from_toml_str(&text)
-            .map_err(|source| PlanError::Parse { path: path.to_path_buf(), source: Box::new(source) })?;
+        let text = std::fs::read_to_string(path).map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
+        let spec = Self::from_toml_str(&text).map_err(|source| PlanError::Parse { path: path.to_path_buf(), source: Box::new(source) })?;
         spec.validate()?;
         Ok(spec)
     }
@@ -364,9 +362,7 @@ impl PlanSpec {
 
     /// Every grid point in `pose_id` order (assumes a validated spec).
     pub fn grid(&self) -> Vec<PlannedPose> {
-        (0..self.grid_len() as u32)
-            .filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose }))
-            .collect()
+        (0..self.grid_len() as u32).filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose })).collect()
     }
 
     /// Validates, samples and orders. `cost(a, b)` is the motion time in seconds from pose `a`
@@ -374,10 +370,8 @@ impl PlanSpec {
     pub fn build(&self, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Result<Plan, PlanError> {
         self.validate()?;
         let ids = self.sample_ids();
-        let sampled: Vec<PlannedPose> = ids
-            .into_iter()
-            .filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose }))
-            .collect();
+        let sampled: Vec<PlannedPose> =
+            ids.into_iter().filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose })).collect();
         let motion_time_before_s = path_cost(&sampled, cost);
         let poses = match self.order {
             Order::AsSampled => sampled,
@@ -472,9 +466,7 @@ impl PlanSpec {
     /// the nearest in the whole grid when that box is full. Only collisions call it.
     fn nearest_free(&self, idx: [u64; 4], used: &[bool]) -> u32 {
         let counts = self.axis_counts();
-        let dist = |other: [u64; 4]| -> f64 {
-            (0..4).map(|a| ((other[a] as f64 - idx[a] as f64) / counts[a] as f64).powi(2)).sum()
-        };
+        let dist = |other: [u64; 4]| -> f64 { (0..4).map(|a| ((other[a] as f64 - idx[a] as f64) / counts[a] as f64).powi(2)).sum() };
         let mut best = (f64::INFINITY, u32::MAX);
         let consider = |other: [u64; 4], best: &mut (f64, u32)| {
             let id = self.id_of(other);
@@ -533,15 +525,11 @@ fn optimise_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> 
         return poses.to_vec();
     }
     let virt = n;
-    let d = |a: usize, b: usize| -> f64 {
-        if a == virt || b == virt { 0.0 } else { cost(&poses[a].pose, &poses[b].pose) }
-    };
+    let d = |a: usize, b: usize| -> f64 { if a == virt || b == virt { 0.0 } else { cost(&poses[a].pose, &poses[b].pose) } };
 
     // Nearest neighbour from the pose closest to the work-frame origin.
     let origin = Pose::default();
-    let start = (0..n)
-        .min_by(|&a, &b| cost(&origin, &poses[a].pose).total_cmp(&cost(&origin, &poses[b].pose)))
-        .unwrap_or(0);
+    let start = (0..n).min_by(|&a, &b| cost(&origin, &poses[a].pose).total_cmp(&cost(&origin, &poses[b].pose))).unwrap_or(0);
     let mut visited = vec![false; n];
     let mut tour = Vec::with_capacity(n + 1);
     tour.push(virt);
@@ -549,10 +537,7 @@ fn optimise_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> 
     visited[cur] = true;
     tour.push(cur);
     for _ in 1..n {
-        let next = (0..n)
-            .filter(|&j| !visited[j])
-            .min_by(|&a, &b| d(cur, a).total_cmp(&d(cur, b)))
-            .unwrap_or(cur);
+        let next = (0..n).filter(|&j| !visited[j]).min_by(|&a, &b| d(cur, a).total_cmp(&d(cur, b))).unwrap_or(cur);
         visited[next] = true;
         tour.push(next);
         cur = next;

@@ -26,10 +26,7 @@ impl Pose {
 
     /// Euclidean distance between the positions, mm.
     pub fn distance_mm(&self, other: &Pose) -> f64 {
-        ((self.x_mm - other.x_mm).powi(2)
-            + (self.y_mm - other.y_mm).powi(2)
-            + (self.z_mm - other.z_mm).powi(2))
-        .sqrt()
+        ((self.x_mm - other.x_mm).powi(2) + (self.y_mm - other.y_mm).powi(2) + (self.z_mm - other.z_mm).powi(2)).sqrt()
     }
 
     /// Smallest absolute yaw difference, degrees in [0, 180].
@@ -57,11 +54,7 @@ pub fn wrap_deg(a_deg: f64) -> f64 {
 
 impl fmt::Display for Pose {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "(x {:.3} mm, y {:.3} mm, z {:.3} mm, yaw {:.3} deg)",
-            self.x_mm, self.y_mm, self.z_mm, self.yaw_deg
-        )
+        write!(f, "(x {:.3} mm, y {:.3} mm, z {:.3} mm, yaw {:.3} deg)", self.x_mm, self.y_mm, self.z_mm, self.yaw_deg)
     }
 }
 

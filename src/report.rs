@@ -15,9 +15,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         return 2;
     }
     for cause in e.chain() {
-        if cause.downcast_ref::<crate::arm::ArmError>().is_some()
-            || cause.downcast_ref::<crate::camera::CameraError>().is_some()
-        {
+        if cause.downcast_ref::<crate::arm::ArmError>().is_some() || cause.downcast_ref::<crate::camera::CameraError>().is_some() {
             return 3;
         }
         if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {

@@ -24,19 +24,19 @@ use std::time::Duration;
 
 use crate::arm::dobot::client::{Mg400Client, Mg400Config};
 use crate::arm::magician::{MagicianArm, MagicianProfile};
+use crate::arm::profile::FirmwareProfile;
 use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
+use crate::calibration::Calibration;
 use crate::camera::nokhwa_backend::NokhwaCamera;
 use crate::camera::usb::DeviceSelector;
 use crate::camera::v4l2::V4l2Camera;
-use crate::arm::profile::FirmwareProfile;
-use crate::calibration::Calibration;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
-use crate::pose::{Pose, WorkFrame};
 use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
+use crate::pose::{Pose, WorkFrame};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use crate::sim::modbus::{ArmContact, SimModbusServer};
 use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
@@ -105,10 +105,7 @@ impl ObjectChoice {
     /// A library object by name, or an STL file (whose stem becomes the name).
     pub fn resolve(name: &str, stl: Option<&Path>) -> Result<Self, RigError> {
         let (name, path) = match stl {
-            Some(p) => (
-                p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()),
-                Some(p.to_path_buf()),
-            ),
+            Some(p) => (p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()), Some(p.to_path_buf())),
             None => {
                 let found = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))]
                     .into_iter()
@@ -208,17 +205,15 @@ impl RigCamera {
     /// Directory name of its dataset (`tactip`, `vitac`, `vitactip`).
     pub fn sensor_dir(&self) -> String {
         match self {
-            RigCamera::Simulated { kind, .. } | RigCamera::V4l2 { kind, .. } | RigCamera::Nokhwa { kind, .. } => {
-                kind.to_string()
-            }
+            RigCamera::Simulated { kind, .. } | RigCamera::V4l2 { kind, .. } | RigCamera::Nokhwa { kind, .. } => kind.to_string(),
         }
     }
     /// The calibration it renders or was fitted with, for the manifest.
     pub fn calibration_name(&self) -> String {
         match self {
-            RigCamera::Simulated { calibration, .. }
-            | RigCamera::V4l2 { calibration, .. }
-            | RigCamera::Nokhwa { calibration, .. } => calibration.clone(),
+            RigCamera::Simulated { calibration, .. } | RigCamera::V4l2 { calibration, .. } | RigCamera::Nokhwa { calibration, .. } => {
+                calibration.clone()
+            }
         }
     }
 }
@@ -236,10 +231,7 @@ impl Camera for RigCamera {
             RigCamera::Simulated { camera, timeouts, .. } => {
                 if timeouts.next_fails() {
                     tokio::time::sleep(timeouts.wait).await;
-                    return Err(CameraError::Timeout {
-                        camera: camera.name().to_string(),
-                        timeout_ms: timeouts.wait.as_millis() as u64,
-                    });
+                    return Err(CameraError::Timeout { camera: camera.name().to_string(), timeout_ms: timeouts.wait.as_millis() as u64 });
                 }
                 camera.frame_after(not_before_s).await
             }
@@ -357,11 +349,7 @@ impl Rig {
         };
         let (arm_cfg, sim) = match &config.arm.backend {
             ArmBackend::Simulated { .. } => {
-                let sim_cfg = SimMg400Config {
-                    profile: profile.clone(),
-                    faults: sim_faults(&config.faults),
-                    ..SimMg400Config::default()
-                };
+                let sim_cfg = SimMg400Config { profile: profile.clone(), faults: sim_faults(&config.faults), ..SimMg400Config::default() };
                 let sim = SimMg400::start(sim_cfg, Arc::clone(&clock)).await.map_err(RigError::Sim)?;
                 let cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), profile.clone()).with_ports(
                     sim.dashboard_addr().port(),
@@ -454,13 +442,14 @@ impl Rig {
                 SensorBackend::V4l2 { ref device } | SensorBackend::Nokhwa { ref device } => {
                     let is_v4l2 = matches!(backend, SensorBackend::V4l2 { .. });
                     let Some(sensor_cfg) = sensor_cfg else {
-                        return Err(RigError::BackendUnavailable { name: kind.to_string(), backend: "hardware camera without a [sensors] entry".into() });
+                        return Err(RigError::BackendUnavailable {
+                            name: kind.to_string(),
+                            backend: "hardware camera without a [sensors] entry".into(),
+                        });
                     };
                     let camera_err = |e: CameraError| RigError::Camera { name: kind.to_string(), source: e };
-                    let selector = DeviceSelector::parse(device).map_err(|e| RigError::BackendUnavailable {
-                        name: kind.to_string(),
-                        backend: e.to_string(),
-                    })?;
+                    let selector = DeviceSelector::parse(device)
+                        .map_err(|e| RigError::BackendUnavailable { name: kind.to_string(), backend: e.to_string() })?;
                     let calibration = sensor_cfg.calibration.as_ref().map_or_else(|| "none".to_string(), |p| p.display().to_string());
                     let name = kind.to_string();
                     if is_v4l2 {

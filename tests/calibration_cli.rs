@@ -11,12 +11,7 @@ const TRUTH: &str =
     "centre_px = [262.3, 249.1]\nscale_px_per_mm = [9.4, 8.6]\nrotation_deg = 6.0\nimage_size = [512, 512]\ndepth_scale_per_mm = 0.04\n";
 
 fn rig(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(args)
-        .current_dir(dir)
-        .env_remove("RIG_CONFIG")
-        .output()
-        .expect("running rig")
+    Command::new(env!("CARGO_BIN_EXE_rig")).args(args).current_dir(dir).env_remove("RIG_CONFIG").output().expect("running rig")
 }
 
 fn text(o: &Output) -> String {

@@ -10,12 +10,7 @@ fn calibration(cu: f64, cv: f64, sx: f64, sy: f64, rot: f64) -> Calibration {
 }
 
 fn finite_f64() -> impl Strategy<Value = f64> {
-    prop_oneof![
-        -1e3..1e3f64,
-        prop::num::f64::NORMAL | prop::num::f64::SUBNORMAL | prop::num::f64::ZERO,
-        Just(f64::MAX),
-        Just(-f64::MAX),
-    ]
+    prop_oneof![-1e3..1e3f64, prop::num::f64::NORMAL | prop::num::f64::SUBNORMAL | prop::num::f64::ZERO, Just(f64::MAX), Just(-f64::MAX),]
 }
 
 proptest! {

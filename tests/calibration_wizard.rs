@@ -10,7 +10,8 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-const TRUTH: &str = "centre_px = [258.0, 252.0]\nscale_px_per_mm = [9.0, 8.2]\nrotation_deg = -4.0\nimage_size = [512, 512]\ndepth_scale_per_mm = 0.03\n";
+const TRUTH: &str =
+    "centre_px = [258.0, 252.0]\nscale_px_per_mm = [9.0, 8.2]\nrotation_deg = -4.0\nimage_size = [512, 512]\ndepth_scale_per_mm = 0.03\n";
 
 /// The pty's output so far, with line ends normalised.
 fn transcript(buf: &Arc<Mutex<Vec<u8>>>) -> String {
@@ -40,8 +41,18 @@ fn wizard_through_a_pseudo_terminal() {
     let mut child = {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_rig"));
         cmd.args([
-            "calibrate", "--sensor", "tactip", "--interactive", "--sim-truth", "truth.toml", "--out", "wizard.toml",
-            "--grid", "3", "--depths-mm", "0.5",
+            "calibrate",
+            "--sensor",
+            "tactip",
+            "--interactive",
+            "--sim-truth",
+            "truth.toml",
+            "--out",
+            "wizard.toml",
+            "--grid",
+            "3",
+            "--depths-mm",
+            "0.5",
         ])
         .current_dir(dir.path())
         .env_remove("RIG_CONFIG")

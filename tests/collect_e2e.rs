@@ -77,11 +77,13 @@ fn seeded_collection_is_reproducible_and_matches_the_golden_file() {
         assert!(da.join("reference.png").is_file(), "{sensor}: reference frame");
         let (ca, cb) = (csv_without_time(&da.join("poses.csv")), csv_without_time(&db.join("poses.csv")));
         assert_eq!(ca, cb, "{sensor}: two seeded runs differ");
-        let golden: PathBuf = [env!("CARGO_MANIFEST_DIR"), "tests", "golden", &format!("collect-sphere-50-seed1-{sensor}.csv")].iter().collect();
+        let golden: PathBuf =
+            [env!("CARGO_MANIFEST_DIR"), "tests", "golden", &format!("collect-sphere-50-seed1-{sensor}.csv")].iter().collect();
         if std::env::var_os("RIG_BLESS").is_some() {
             std::fs::write(&golden, &ca).expect("writing golden file");
         }
-        let expected = std::fs::read_to_string(&golden).unwrap_or_else(|e| panic!("golden {}: {e} (RIG_BLESS=1 writes it)", golden.display()));
+        let expected =
+            std::fs::read_to_string(&golden).unwrap_or_else(|e| panic!("golden {}: {e} (RIG_BLESS=1 writes it)", golden.display()));
         assert_eq!(ca, expected, "{sensor}: CSV differs from {}", golden.display());
         for id in rows(&da).iter().take(5) {
             let ia = image::open(da.join("images").join(format!("{id}.png"))).expect("image a").to_rgb8();
@@ -104,13 +106,8 @@ fn sigkill_at_random_moments_then_resume_loses_and_duplicates_nothing() {
         // Kill it at a random moment, possibly several times, then let a resume finish.
         let kills = 1 + run % 2;
         for _ in 0..kills {
-            let mut child = rig()
-                .args(&args)
-                .arg("--resume")
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("spawning rig collect");
+            let mut child =
+                rig().args(&args).arg("--resume").stdout(Stdio::null()).stderr(Stdio::null()).spawn().expect("spawning rig collect");
             let delay = Duration::from_millis(rng.random_range(150..2500));
             let start = Instant::now();
             while start.elapsed() < delay {
@@ -160,12 +157,7 @@ fn plan_outside_the_workspace_is_refused_before_anything_moves() {
     // The object placed 437 mm out: the reference pose above it is within the MG400's 440 mm
     // reach, but plan poses up to 5 mm further out are not.
     std::fs::write(&cfg, "[work_frame]\norigin = { x_mm = 437.0, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n").expect("write config");
-    let o = rig()
-        .args(collect_args(&tmp.path().join("out"), 5, 1, "tactip"))
-        .arg("--config")
-        .arg(&cfg)
-        .output()
-        .expect("rig collect");
+    let o = rig().args(collect_args(&tmp.path().join("out"), 5, 1, "tactip")).arg("--config").arg(&cfg).output().expect("rig collect");
     assert_eq!(o.status.code(), Some(2), "a refused plan is bad input");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("outside the arm's workspace") && err.contains("plan pose"), "{err}");

@@ -58,7 +58,9 @@ fn rows(dir: &Path) -> usize {
 async fn a_collection_reports_progress_pose_and_frames() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let (daemon, client) = start(None).await;
-    let j = submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip,vitac", "poses": 6, "seed": 4, "out": tmp.path()})).await;
+    let j =
+        submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip,vitac", "poses": 6, "seed": 4, "out": tmp.path()}))
+            .await;
     assert_eq!(j.state, JobState::Queued);
 
     let mut pose_ids = Vec::new();
@@ -113,8 +115,10 @@ async fn a_failing_job_is_recorded_a_cancel_works_and_the_queue_goes_on() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let (daemon, client) = start(None).await;
     let bad = submit(&client, json!({"kind": "collect", "object": "no_such_object", "poses": 2, "out": tmp.path().join("a")})).await;
-    let long = submit(&client, json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 60, "out": tmp.path().join("b")})).await;
-    let after = submit(&client, json!({"kind": "collect", "object": "cone", "sensor": "vitac", "poses": 2, "out": tmp.path().join("c")})).await;
+    let long =
+        submit(&client, json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 60, "out": tmp.path().join("b")})).await;
+    let after =
+        submit(&client, json!({"kind": "collect", "object": "cone", "sensor": "vitac", "poses": 2, "out": tmp.path().join("c")})).await;
 
     let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
     assert_eq!(failed.state, JobState::Failed);
@@ -283,7 +287,8 @@ async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
     let url = format!("http://{}", daemon.addr());
     let out = tmp.path().display().to_string();
     let args = |extra: &[&str]| -> Vec<String> {
-        let mut v: Vec<String> = ["collect", "--daemon", &url, "--daemon-token", "cli-token", "--out", &out].iter().map(|s| s.to_string()).collect();
+        let mut v: Vec<String> =
+            ["collect", "--daemon", &url, "--daemon-token", "cli-token", "--out", &out].iter().map(|s| s.to_string()).collect();
         v.extend(extra.iter().map(|s| s.to_string()));
         v
     };

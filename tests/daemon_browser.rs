@@ -17,7 +17,8 @@ use serde_json::json;
 const TOKEN: &str = "browser-test-token";
 
 fn chromium() -> Option<PathBuf> {
-    let candidates = [std::env::var_os("RIG_CHROMIUM").map(PathBuf::from), Some("/usr/bin/chromium".into()), Some("/usr/bin/chromium-browser".into())];
+    let candidates =
+        [std::env::var_os("RIG_CHROMIUM").map(PathBuf::from), Some("/usr/bin/chromium".into()), Some("/usr/bin/chromium-browser".into())];
     candidates.into_iter().flatten().find(|p| p.is_file())
 }
 
@@ -49,18 +50,15 @@ fn read_page(dom: &str) -> PageView {
         .iter()
         .filter_map(|s| {
             let marker = format!("<img id=\"frame-{s}\"");
-            let shown_blob = dom.match_indices(&marker).any(|(at, _)| dom[at..].split('>').next().is_some_and(|t| t.contains("src=\"blob:")));
+            let shown_blob =
+                dom.match_indices(&marker).any(|(at, _)| dom[at..].split('>').next().is_some_and(|t| t.contains("src=\"blob:")));
             let seq = attr_after(dom, &marker, "data-seq")?;
             shown_blob.then(|| (s.to_string(), seq))
         })
         .collect();
     let done = attr_after(dom, "id=\"current-progress\"", "data-done");
     let total = attr_after(dom, "id=\"current-progress\"", "data-total");
-    PageView {
-        frames,
-        progress: done.zip(total),
-        job_running: dom.contains("<tr id=\"job-1\" data-state=\"running\""),
-    }
+    PageView { frames, progress: done.zip(total), job_running: dom.contains("<tr id=\"job-1\" data-state=\"running\"") }
 }
 
 async fn load_page(chromium: &PathBuf, url: &str) -> String {

@@ -6,9 +6,7 @@ use std::process::Command;
 
 use image::RgbImage;
 use proptest::prelude::*;
-use rig::dataset::{
-    DatasetError, DatasetWriter, Manifest, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify,
-};
+use rig::dataset::{DatasetError, DatasetWriter, Manifest, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify};
 use rig::plan::PlanSpec;
 use rig::pose::Pose;
 

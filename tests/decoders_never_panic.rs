@@ -29,8 +29,7 @@ frame_0_0.png,d,1,1,-3.06,0.5,1.5,0,0,-89.7,0,0,0,0,0,0\n"
 }
 
 fn profile_seed() -> Vec<u8> {
-    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles/mg400-v1.6.toml"))
-        .expect("the shipped firmware profile")
+    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles/mg400-v1.6.toml")).expect("the shipped firmware profile")
 }
 
 fn stl_seed() -> Vec<u8> {

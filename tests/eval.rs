@@ -63,11 +63,7 @@ fn test_poses() -> Vec<(u32, Pose)> {
 
 /// Training poses well away from the test poses.
 fn train_poses() -> Vec<(u32, Pose)> {
-    vec![
-        (10, Pose::new(4.0, 4.0, 0.0, 90.0)),
-        (11, Pose::new(-4.0, -4.0, 1.0, -90.0)),
-        (12, Pose::new(4.0, -4.0, -1.0, 75.0)),
-    ]
+    vec![(10, Pose::new(4.0, 4.0, 0.0, 90.0)), (11, Pose::new(-4.0, -4.0, 1.0, -90.0)), (12, Pose::new(4.0, -4.0, -1.0, 75.0))]
 }
 
 /// Picks the synthetic side's poses from the test poses.
@@ -215,8 +211,8 @@ fn nearest_neighbour_at_a_close_pose_beats_pose_blind_in_the_contact_region() {
     let reference = sensor(SensorKind::ViTac, 22).reference();
     let blank = move |_: u32, _: &RgbImage| reference.clone();
     let sets = make_sets(&["sphere", "edge"], &blank, &all, &close);
-    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "nn"))
-        .expect("evaluate");
+    let report =
+        evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "nn")).expect("evaluate");
     let nn = row(&report, Method::NearestNeighbour);
     let blind = row(&report, Method::PoseBlind);
     let model = row(&report, Method::Model);
@@ -238,8 +234,8 @@ fn unpaired_poses_are_reported_not_paired() {
         v
     };
     let sets = make_sets(&["sphere"], &same, &shifted, &[]);
-    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "u"))
-        .expect("evaluate");
+    let report =
+        evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "u")).expect("evaluate");
     assert_eq!(report.counts.pairs, 3);
     assert_eq!((report.counts.unpaired_real, report.counts.unpaired_synthetic), (1, 1));
     let examples = report.counts.unpaired_examples.join("; ");
@@ -251,8 +247,8 @@ fn unpaired_poses_are_reported_not_paired() {
 fn a_pose_in_the_collected_set_is_dropped_as_seen() {
     let seen = vec![(50, Pose::new(2.0, -1.0, 0.5, 30.0))]; // test pose 2
     let sets = make_sets(&["sphere"], &same, &all, &seen);
-    let report = evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "s"))
-        .expect("evaluate");
+    let report =
+        evaluate(&sets.real, &sets.synthetic, std::slice::from_ref(&sets.collected), &EvalOptions::at_size(EVAL, "s")).expect("evaluate");
     assert_eq!(report.counts.dropped_seen, 1);
     assert_eq!(report.counts.pairs, 3);
     assert_eq!(row(&report, Method::Model).n, 3);
@@ -327,15 +323,30 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     let other = sets._tmp.path().join("other");
     let sim = sensor(SensorKind::ViTac, 22);
     let img = render(&sim, "edge", Pose::new(0.0, 0.0, 0.0, 0.0), 1);
-    write(&other.join("edge").join("vitac"), "edge", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)], Source::Synthetic);
+    write(
+        &other.join("edge").join("vitac"),
+        "edge",
+        SensorKind::ViTac,
+        &sim.reference(),
+        &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)],
+        Source::Synthetic,
+    );
     let (code, out) = run(eval_cmd(&sets.real, &other, &[]));
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("no pose pairs"), "{out}");
     // A synthetic twin of another size but the same shape is judged (both sides go to --size)...
     let twin_at = |name: &str, w: u32, h: u32| {
         let dir = sets._tmp.path().join(name);
-        let img = image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), w, h, image::imageops::FilterType::Triangle);
-        write(&dir.join("sphere").join("vitac"), "sphere", SensorKind::ViTac, &sim.reference(), &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)], Source::Synthetic);
+        let img =
+            image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), w, h, image::imageops::FilterType::Triangle);
+        write(
+            &dir.join("sphere").join("vitac"),
+            "sphere",
+            SensorKind::ViTac,
+            &sim.reference(),
+            &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)],
+            Source::Synthetic,
+        );
         dir
     };
     let (code, out) = run(eval_cmd(&sets.real, &twin_at("small", 64, 64), &[]));

@@ -38,10 +38,7 @@ fn rig() -> Command {
 
 fn collect(out: &Path, config: Option<&Path>, resume: bool) -> Command {
     let mut c = rig();
-    c.args(["collect", "--object", "sphere", "--sensor", "all", "--seed", "7", "--poses"])
-        .arg(POSES.to_string())
-        .arg("--out")
-        .arg(out);
+    c.args(["collect", "--object", "sphere", "--sensor", "all", "--seed", "7", "--poses"]).arg(POSES.to_string()).arg("--out").arg(out);
     if let Some(cfg) = config {
         c.arg("--config").arg(cfg);
     }
@@ -154,9 +151,10 @@ fn cell(text: &str) -> String {
 
 #[test]
 fn every_fault_completes_or_stops_clearly_and_the_dataset_verifies() {
-    let seed: u64 = std::env::var("RIG_FAULT_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or_else(|| {
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(1)
-    });
+    let seed: u64 = std::env::var("RIG_FAULT_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(1));
     println!("fault matrix seed {seed} (set RIG_FAULT_SEED={seed} to repeat it)");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
 
@@ -182,11 +180,7 @@ fn every_fault_completes_or_stops_clearly_and_the_dataset_verifies() {
         case("feedback stream starts mid-frame", "feedback_start_mid_frame = true", Some(0)),
         case("dashboard socket dropped after 5 commands", "drop_dashboard_after = 5", Some(0)),
         case("all sockets dropped every 1.5 s (rig clock)", "drop_sockets_every_s = 1.5", Some(0)),
-        case(
-            &format!("collision alarms at random moves {alarm_moves:?}"),
-            &format!("collision_at_moves = {alarm_moves:?}"),
-            Some(0),
-        ),
+        case(&format!("collision alarms at random moves {alarm_moves:?}"), &format!("collision_at_moves = {alarm_moves:?}"), Some(0)),
         case("collision alarm on every retry of a pose", "collision_at_moves = [5, 6, 7, 8, 9, 10]", Some(3)),
         case(
             &format!("camera timeout at frame {stall_frame}"),
@@ -208,10 +202,7 @@ fn every_fault_completes_or_stops_clearly_and_the_dataset_verifies() {
     ];
 
     let tmp = tempfile::tempdir().expect("temp dir");
-    let mut table = vec![
-        "| fault | outcome | message | after resume | verify |".to_string(),
-        "|---|---|---|---|---|".to_string(),
-    ];
+    let mut table = vec!["| fault | outcome | message | after resume | verify |".to_string(), "|---|---|---|---|---|".to_string()];
     let mut failures = Vec::new();
     let mut baseline: Option<Vec<u32>> = None;
     for (i, c) in cases.iter().enumerate() {

@@ -28,7 +28,9 @@ fn render_every_object_as_depth_and_control() {
     for name in object_names() {
         for view in ["depth", "control"] {
             let out = dir.path().join(format!("{name}_{view}.png"));
-            let (ok, text) = run(rig().args(["render", "--object", name, "--pose", "0.5,-1,1.5,-30", "--sensor", view, "--size", "128x96", "--out"]).arg(&out));
+            let (ok, text) = run(rig()
+                .args(["render", "--object", name, "--pose", "0.5,-1,1.5,-30", "--sensor", view, "--size", "128x96", "--out"])
+                .arg(&out));
             assert!(ok, "{name} {view}: {text}");
             let img = image::open(&out).unwrap();
             assert_eq!((img.width(), img.height()), (128, 96));
@@ -112,14 +114,14 @@ fn objects_generate_and_contact_sheet() {
 #[test]
 fn compare_real_prints_baseline_per_sensor() {
     let dir = tempfile::tempdir().unwrap();
-    let (ok, text) = run(rig()
-        .args(["compare-real", "--sample"])
-        .arg(shared().join("real-sample/multidiffsense-example"))
-        .arg("--out")
-        .arg(dir.path()));
+    let (ok, text) =
+        run(rig().args(["compare-real", "--sample"]).arg(shared().join("real-sample/multidiffsense-example")).arg("--out").arg(dir.path()));
     assert!(ok, "{text}");
     for sensor in ["TacTip", "ViTac", "ViTacTip"] {
-        let line = text.lines().find(|l| l.starts_with(sensor) && l.contains("mean")).unwrap_or_else(|| panic!("no mean line for {sensor}: {text}"));
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(sensor) && l.contains("mean"))
+            .unwrap_or_else(|| panic!("no mean line for {sensor}: {text}"));
         let nums: Vec<f64> = line.split_whitespace().filter_map(|w| w.parse().ok()).collect();
         // contact%, fp-IoU, base whole, base contact (simulator columns may be n/a).
         assert!(nums.len() >= 4, "{line}");

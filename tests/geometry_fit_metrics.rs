@@ -22,12 +22,8 @@ fn synthetic_frame(mesh: &rig::geometry::stl::Mesh, pose: &Pose, truth: &Calibra
 #[test]
 fn fit_recovers_a_known_calibration() {
     let mesh = box_mesh(Vec3::new(-1.0, -8.0, 0.0), Vec3::new(1.0, 8.0, 10.0));
-    let truth = Calibration {
-        centre_px: [135.0, 121.0],
-        scale_px_per_mm: [9.0, -9.0],
-        rotation_deg: 20.0,
-        ..Calibration::default_for(256, 256)
-    };
+    let truth =
+        Calibration { centre_px: [135.0, 121.0], scale_px_per_mm: [9.0, -9.0], rotation_deg: 20.0, ..Calibration::default_for(256, 256) };
     let poses = [(-3.0, -2.0, -90.0), (3.5, 1.8, -89.0), (1.8, -4.5, -87.0), (-3.6, 4.4, -86.0), (0.0, 0.0, -60.0)];
     let frames: Vec<FitFrame> = poses
         .iter()

@@ -13,13 +13,11 @@ fn shared() -> PathBuf {
 }
 
 fn two_triangles() -> Mesh {
-    Mesh::new(vec![
-        [Vec3::ZERO, Vec3::X, Vec3::Y],
-        [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)],
-    ])
+    Mesh::new(vec![[Vec3::ZERO, Vec3::X, Vec3::Y], [Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 1.0, 1.0)]])
 }
 
-const ASCII_OK: &str = "solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 1 0\n  endloop\n endfacet\nendsolid t\n";
+const ASCII_OK: &str =
+    "solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 1 0\n  endloop\n endfacet\nendsolid t\n";
 
 #[test]
 fn binary_and_ascii_load() {

@@ -19,8 +19,8 @@ fn port() -> PathBuf {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs a Dobot Magician at RIG_MAGICIAN_PORT"]
 async fn real_magician_enables_and_holds_its_pose() {
-    let mut arm = MagicianArm::open(&port(), MagicianProfile::default_magician(), Arc::new(MonotonicClock::new()))
-        .expect("opens the serial port");
+    let mut arm =
+        MagicianArm::open(&port(), MagicianProfile::default_magician(), Arc::new(MonotonicClock::new())).expect("opens the serial port");
     let here = arm.pose().await.expect("GetPose answers");
     println!("Magician at {here}");
     arm.enable().await.unwrap();

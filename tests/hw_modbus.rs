@@ -62,7 +62,15 @@ async fn real_peripheral_around_a_capture() {
         let value: u16 = value.parse().expect("value");
         // Read the register first so the test leaves the device as it found it.
         let mut probe = config.clone();
-        probe.read = vec![RegisterRead { name: "before".into(), kind: RegisterKind::Holding, register, words: 1, signed: false, scale: 1.0, offset: 0.0 }];
+        probe.read = vec![RegisterRead {
+            name: "before".into(),
+            kind: RegisterKind::Holding,
+            register,
+            words: 1,
+            signed: false,
+            scale: 1.0,
+            offset: 0.0,
+        }];
         let mut p = ModbusPeripheral::connect(probe).await.expect("connects");
         let old = p.read_all().await.expect("reads the register to restore")[0].value.expect("a value") as u16;
         config.before_capture = vec![RegisterWrite { register, value }];

@@ -296,10 +296,7 @@ async fn raw_protocol_as_netcat_sees_it() {
     assert_eq!(ask(&mut m, "MovJ(300,10,0,0)").await, "0,{},MovJ(300,10,0,0);");
     assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
     // Dobot's Python SDK formats numbers with %f.
-    assert_eq!(
-        ask(&mut m, "MovL(300.000000,10.000000,0.000000,0.000000)").await,
-        "0,{},MovL(300.000000,10.000000,0.000000,0.000000);"
-    );
+    assert_eq!(ask(&mut m, "MovL(300.000000,10.000000,0.000000,0.000000)").await, "0,{},MovL(300.000000,10.000000,0.000000,0.000000);");
     assert_eq!(ask(&mut m, "Sync()").await, "0,{},Sync();");
     // Sync answered only after the move: the arm is at the target now.
     assert_eq!(sim.pose(), Pose::new(300.0, 10.0, 0.0, 0.0));

@@ -13,8 +13,8 @@ fn cost() -> impl Fn(&Pose, &Pose) -> f64 {
 
 #[test]
 fn default_plan_file_is_the_default_spec() {
-    let spec = PlanSpec::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/default.toml").as_path())
-        .expect("plans/default.toml loads");
+    let spec =
+        PlanSpec::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/default.toml").as_path()).expect("plans/default.toml loads");
     assert_eq!(spec, PlanSpec::default());
 }
 
@@ -36,11 +36,9 @@ fn unknown_keys_and_bad_values_are_refused() {
 fn pose_ids_do_not_depend_on_sampling_seed_or_order() {
     let c = cost();
     let grid = PlanSpec::default().grid();
-    for (sampling, order, seed) in [
-        (Sampling::Random, Order::Optimised, 1),
-        (Sampling::Lhs, Order::Random, 2),
-        (Sampling::Lhs, Order::AsSampled, 3),
-    ] {
+    for (sampling, order, seed) in
+        [(Sampling::Random, Order::Optimised, 1), (Sampling::Lhs, Order::Random, 2), (Sampling::Lhs, Order::AsSampled, 3)]
+    {
         let spec = PlanSpec { sampling, order, seed, n_poses: Some(300), ..PlanSpec::default() };
         let plan = spec.build(&c).expect("build");
         assert_eq!(plan.poses.len(), 300);
@@ -86,10 +84,7 @@ fn optimised_500_pose_plan_meets_the_ratio_goal() {
 #[test]
 fn plan_show_cli_prints_the_poses_and_refuses_bad_plans() {
     let rig = env!("CARGO_BIN_EXE_rig");
-    let out = std::process::Command::new(rig)
-        .args(["plan", "show", "--n", "5", "--seed", "3", "--x", "-2:2:1"])
-        .output()
-        .expect("run rig");
+    let out = std::process::Command::new(rig).args(["plan", "show", "--n", "5", "--seed", "3", "--x", "-2:2:1"]).output().expect("run rig");
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("grid: 5 x 11 x 5 x 13 = 3575 poses"), "{text}");
@@ -109,9 +104,8 @@ mod prop {
     use rig::plan::AxisRange;
 
     fn axis() -> impl Strategy<Value = AxisRange> {
-        (-10i32..10, 0i32..6, 1i32..4).prop_map(|(min, span, step)| {
-            AxisRange::new(min as f64 * 0.5, (min + span) as f64 * 0.5, step as f64 * 0.5)
-        })
+        (-10i32..10, 0i32..6, 1i32..4)
+            .prop_map(|(min, span, step)| AxisRange::new(min as f64 * 0.5, (min + span) as f64 * 0.5, step as f64 * 0.5))
     }
 
     proptest! {

@@ -68,13 +68,12 @@ fn assert_same_pixels(a: &Path, b: &Path) {
 fn assert_same_dataset(a: &Path, b: &Path) {
     for sensor in SENSORS {
         let (da, db) = (a.join("sphere").join(sensor), b.join("sphere").join(sensor));
-        let (ca, cb) = (std::fs::read(da.join("poses.csv")).expect("recorded csv"), std::fs::read(db.join("poses.csv")).expect("replayed csv"));
+        let (ca, cb) =
+            (std::fs::read(da.join("poses.csv")).expect("recorded csv"), std::fs::read(db.join("poses.csv")).expect("replayed csv"));
         assert_eq!(String::from_utf8_lossy(&ca), String::from_utf8_lossy(&cb), "{sensor}: poses.csv differs");
         assert_eq!(ca.iter().filter(|&&c| c == b'\n').count(), 4, "{sensor}: header and 3 rows");
-        let mut names: Vec<PathBuf> = std::fs::read_dir(da.join("images"))
-            .expect("images dir")
-            .map(|e| e.expect("dir entry").path())
-            .collect();
+        let mut names: Vec<PathBuf> =
+            std::fs::read_dir(da.join("images")).expect("images dir").map(|e| e.expect("dir entry").path()).collect();
         names.sort();
         assert_eq!(names.len(), 3, "{sensor}: 3 images");
         names.push(da.join("reference.png"));

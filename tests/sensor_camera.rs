@@ -64,8 +64,7 @@ fn depth_of(object: &Pose) -> DepthMap {
 
 fn camera(scene: Scene, seed: u64, truth: watch::Receiver<ArmTruth>, clock: Arc<dyn Clock>) -> SimCamera {
     let sim = SensorSim::new(SensorKind::ViTacTip, scene, W, H, K, seed);
-    SimCamera::new("vitactip".into(), sim, Box::new(depth_of), WorkFrame::default(), truth, clock, 1.0 / 30.0)
-        .with_exposure_s(1.0 / 60.0)
+    SimCamera::new("vitactip".into(), sim, Box::new(depth_of), WorkFrame::default(), truth, clock, 1.0 / 30.0).with_exposure_s(1.0 / 60.0)
 }
 
 fn truth_at(plan: Pose, t_s: f64) -> ArmTruth {
@@ -167,8 +166,8 @@ async fn a_clock_that_never_reaches_the_exposure_times_out() {
     let (_tx, rx) = watch::channel(ArmTruth::default());
     let sim = SensorSim::new(SensorKind::TacTip, Scene::preset("none").unwrap(), 32, 32, 1.0, 0);
     let source = Box::new(|_: &Pose| DepthMap::empty(32, 32));
-    let mut cam = SimCamera::new("t".into(), sim, source, WorkFrame::default(), rx, Arc::new(Frozen), 0.1)
-        .with_timeout(Duration::from_millis(100));
+    let mut cam =
+        SimCamera::new("t".into(), sim, source, WorkFrame::default(), rx, Arc::new(Frozen), 0.1).with_timeout(Duration::from_millis(100));
     let err = cam.frame_after(5.0).await.unwrap_err();
     assert!(matches!(err, CameraError::Timeout { timeout_ms: 100, .. }), "{err}");
 }

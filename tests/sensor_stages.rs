@@ -98,7 +98,14 @@ fn mad(a: &image::RgbImage, b: &image::RgbImage) -> f32 {
 fn marker_displacement_pushes_pins_away_from_the_indenter() {
     let k = 8.5;
     let depth = shapes::sphere(512, 512, k, 0.0, 0.0, 8.0, 1.5);
-    let with = SensorSim::new(SensorKind::TacTip, Scene::with_stages("t", &[Stage::ContactDeformation, Stage::MarkerDisplacement]), 512, 512, k, 3);
+    let with = SensorSim::new(
+        SensorKind::TacTip,
+        Scene::with_stages("t", &[Stage::ContactDeformation, Stage::MarkerDisplacement]),
+        512,
+        512,
+        k,
+        3,
+    );
     let without = SensorSim::new(SensorKind::TacTip, Scene::with_stages("t", &[Stage::ContactDeformation]), 512, 512, k, 3);
     let find = |img: &image::RgbImage| central(spots(img, false, 40.0, 20.0, 400.0), 512, 512, 200.0);
     let rest = find(&without.render(&depth, &MotionState::STILL, 0));
@@ -122,7 +129,14 @@ fn contact_deformation_spreads_the_dent_beyond_the_footprint() {
     let k = 8.5;
     // A small sphere: without the elastic spread only pins right on it would move.
     let depth = shapes::sphere(512, 512, k, 0.0, 0.0, 2.0, 1.0);
-    let spread = SensorSim::new(SensorKind::TacTip, Scene::with_stages("t", &[Stage::ContactDeformation, Stage::MarkerDisplacement]), 512, 512, k, 3);
+    let spread = SensorSim::new(
+        SensorKind::TacTip,
+        Scene::with_stages("t", &[Stage::ContactDeformation, Stage::MarkerDisplacement]),
+        512,
+        512,
+        k,
+        3,
+    );
     let local = SensorSim::new(SensorKind::TacTip, Scene::with_stages("t", &[Stage::MarkerDisplacement]), 512, 512, k, 3);
     let still = MotionState::STILL;
     let reference = spread.reference();

@@ -72,7 +72,10 @@ fn vae_decoder_with_wrong_inputs_names_file_and_tensor() {
     // The UNet where the decoder goes: it takes `sample`, not `latent_sample`.
     std::fs::copy(tiny().join("unet/model.onnx"), dir.path().join("vae_decoder/model.onnx")).unwrap();
     let e = Pipeline::load(dir.path(), &RuntimeOptions::default()).unwrap_err();
-    assert!(matches!(&e, SynthError::MissingTensor { tensor, file, .. } if tensor == "latent_sample" && file.ends_with("vae_decoder/model.onnx")), "{e}");
+    assert!(
+        matches!(&e, SynthError::MissingTensor { tensor, file, .. } if tensor == "latent_sample" && file.ends_with("vae_decoder/model.onnx")),
+        "{e}"
+    );
 }
 
 #[test]
@@ -157,5 +160,8 @@ fn float_ids_name_tensor_and_type() {
 #[test]
 fn unknown_extra_input_is_named() {
     let e = with_broken("vae_decoder", "vae_decoder_extra_input.onnx");
-    assert!(matches!(&e, SynthError::UnexpectedInput { tensor, file } if tensor == "return_dict" && file.ends_with("vae_decoder/model.onnx")), "{e}");
+    assert!(
+        matches!(&e, SynthError::UnexpectedInput { tensor, file } if tensor == "return_dict" && file.ends_with("vae_decoder/model.onnx")),
+        "{e}"
+    );
 }

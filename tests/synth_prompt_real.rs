@@ -18,8 +18,8 @@ fn shared() -> PathBuf {
 #[test]
 fn prompts_for_the_real_csv_match_python() {
     let csv_path = shared().join("real-sample/multidiffsense-example/csv/1.csv");
-    let mut reader = csv::Reader::from_path(&csv_path)
-        .unwrap_or_else(|e| panic!("{}: {e} (set RIG_SHARED to the shared/ folder)", csv_path.display()));
+    let mut reader =
+        csv::Reader::from_path(&csv_path).unwrap_or_else(|e| panic!("{}: {e} (set RIG_SHARED to the shared/ folder)", csv_path.display()));
     let headers = reader.headers().unwrap().clone();
     let col = |name: &str| headers.iter().position(|h| h == name).unwrap();
     let (c1, c2, c3, c6) = (col("pose_1"), col("pose_2"), col("pose_3"), col("pose_6"));

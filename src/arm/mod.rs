@@ -83,11 +83,7 @@ fn describe_alarms(alarms: &[Alarm]) -> String {
     if alarms.is_empty() {
         return "no alarm id reported".into();
     }
-    alarms
-        .iter()
-        .map(|a| format!("{} ({})", a.id, a.description))
-        .collect::<Vec<_>>()
-        .join(", ")
+    alarms.iter().map(|a| format!("{} ({})", a.id, a.description)).collect::<Vec<_>>().join(", ")
 }
 
 /// A robot arm as the collection job sees it. Poses are in the base frame.

@@ -128,15 +128,13 @@ impl FirmwareProfile {
     pub fn default_mg400() -> FirmwareProfile {
         // The embedded text is part of the binary and covered by a test; failing here is a
         // build defect, not bad input.
-        Self::parse(MG400_V1_6, Path::new("<embedded mg400-v1.6>"))
-            .expect("the embedded mg400-v1.6 profile is valid")
+        Self::parse(MG400_V1_6, Path::new("<embedded mg400-v1.6>")).expect("the embedded mg400-v1.6 profile is valid")
     }
 
     /// Loads and validates a profile file.
     pub fn load(path: impl AsRef<Path>) -> Result<FirmwareProfile, ProfileError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| ProfileError::Read { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
@@ -152,8 +150,7 @@ impl FirmwareProfile {
 
     /// Parses and validates profile text; `path` is only used in errors.
     pub fn parse(text: &str, path: &Path) -> Result<FirmwareProfile, ProfileError> {
-        let profile: FirmwareProfile =
-            toml::from_str(text).map_err(|source| ProfileError::Parse { path: path.to_path_buf(), source })?;
+        let profile: FirmwareProfile = toml::from_str(text).map_err(|source| ProfileError::Parse { path: path.to_path_buf(), source })?;
         profile.validate()?;
         Ok(profile)
     }
@@ -177,11 +174,12 @@ impl FirmwareProfile {
         range("workspace.radius_mm", self.workspace.radius_mm)?;
         range("workspace.z_mm", self.workspace.z_mm)?;
         let s = &self.speed;
-        let positives = s
-            .joint_speed_deg_s
-            .iter()
-            .chain(&s.joint_acc_deg_s2)
-            .chain([&s.linear_speed_mm_s, &s.linear_acc_mm_s2, &s.yaw_speed_deg_s, &s.yaw_acc_deg_s2]);
+        let positives = s.joint_speed_deg_s.iter().chain(&s.joint_acc_deg_s2).chain([
+            &s.linear_speed_mm_s,
+            &s.linear_acc_mm_s2,
+            &s.yaw_speed_deg_s,
+            &s.yaw_acc_deg_s2,
+        ]);
         for v in positives {
             if !(v.is_finite() && *v > 0.0) {
                 return Err(invalid("speed", format!("{v} is not a positive speed or acceleration")));
@@ -226,12 +224,9 @@ impl FirmwareProfile {
     /// Checks joint angles against the joint limits and the parallelogram rules.
     pub fn check_joints(&self, j: &Joints) -> Result<(), ReachError> {
         let l = &self.joint_limits;
-        for (joint, value, [min, max]) in [
-            (1u8, j.j1_deg, l.j1_deg),
-            (2, j.j2_deg, l.j2_deg),
-            (3, j.j3_deg, l.j3_deg),
-            (4, j.j4_deg, l.j4_deg),
-        ] {
+        for (joint, value, [min, max]) in
+            [(1u8, j.j1_deg, l.j1_deg), (2, j.j2_deg, l.j2_deg), (3, j.j3_deg, l.j3_deg), (4, j.j4_deg, l.j4_deg)]
+        {
             if !(value >= min && value <= max) {
                 return Err(ReachError::Joint { joint, value_deg: value, min_deg: min, max_deg: max });
             }
@@ -257,9 +252,7 @@ impl FirmwareProfile {
         match (self.kinematics.inverse(from), self.kinematics.inverse(to)) {
             (Ok(a), Ok(b)) => {
                 let (a, b) = (a.to_array(), b.to_array());
-                (0..4)
-                    .map(|i| trapezoid_time_s((b[i] - a[i]).abs(), s.joint_speed_deg_s[i], s.joint_acc_deg_s2[i]))
-                    .fold(0.0, f64::max)
+                (0..4).map(|i| trapezoid_time_s((b[i] - a[i]).abs(), s.joint_speed_deg_s[i], s.joint_acc_deg_s2[i])).fold(0.0, f64::max)
             }
             _ => {
                 let linear = trapezoid_time_s(from.distance_mm(to), s.linear_speed_mm_s, s.linear_acc_mm_s2);
@@ -278,11 +271,7 @@ pub fn trapezoid_time_s(distance: f64, v_max: f64, a_max: f64) -> f64 {
     if distance.is_nan() || distance <= 0.0 {
         return 0.0;
     }
-    if distance <= v_max * v_max / a_max {
-        2.0 * (distance / a_max).sqrt()
-    } else {
-        distance / v_max + v_max / a_max
-    }
+    if distance <= v_max * v_max / a_max { 2.0 * (distance / a_max).sqrt() } else { distance / v_max + v_max / a_max }
 }
 
 /// Position fraction in [0, 1] at time fraction `tau` in [0, 1] of a rest-to-rest trapezoidal
@@ -330,10 +319,7 @@ mod tests {
     #[test]
     fn bad_profiles_are_refused() {
         let text = MG400_V1_6.replace("j2_deg = [-25.0, 85.0]", "j2_deg = [85.0, -25.0]");
-        assert!(matches!(
-            FirmwareProfile::parse(&text, Path::new("x")),
-            Err(ProfileError::Invalid { field: "joint_limits.j2_deg", .. })
-        ));
+        assert!(matches!(FirmwareProfile::parse(&text, Path::new("x")), Err(ProfileError::Invalid { field: "joint_limits.j2_deg", .. })));
         let text = format!("{MG400_V1_6}\nsurprise = 1\n");
         assert!(matches!(FirmwareProfile::parse(&text, Path::new("x")), Err(ProfileError::Parse { .. })));
         assert!(matches!(FirmwareProfile::load("/nonexistent/p.toml"), Err(ProfileError::Read { .. })));

@@ -139,20 +139,14 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
 
     let load = |id: u32| -> Result<RgbImage, BenchError> {
         let path = dir.join(image_rel_path(id));
-        image::open(&path)
-            .map(|i| i.to_rgb8())
-            .map_err(|e| BenchError::Io { path: path.clone(), source: std::io::Error::other(e) })
+        image::open(&path).map(|i| i.to_rgb8()).map_err(|e| BenchError::Io { path: path.clone(), source: std::io::Error::other(e) })
     };
     let mut noise = Vec::new();
     for k in 0..distinct.len() as u32 {
         noise.push(pair_noise_levels(&load(2 * k)?, &load(2 * k + 1)?)?);
     }
     let captures = plan.len() as f64;
-    Ok(CollectRun {
-        noise_levels: mean(&noise),
-        modelled_s_per_pose: modelled,
-        wall_s_per_pose: wall_s / captures,
-    })
+    Ok(CollectRun { noise_levels: mean(&noise), modelled_s_per_pose: modelled, wall_s_per_pose: wall_s / captures })
 }
 
 /// Sweeps the settle time (at the first frame count) and the frames averaged (at the default

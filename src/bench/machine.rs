@@ -90,9 +90,7 @@ pub fn describe_os(os_release: &str, kernel: &str) -> String {
 
 /// The commit checked out in `dir`, if git is there to ask.
 fn git_commit(dir: &Path) -> Option<String> {
-    let run = |args: &[&str]| {
-        std::process::Command::new("git").args(args).current_dir(dir).output().ok().filter(|o| o.status.success())
-    };
+    let run = |args: &[&str]| std::process::Command::new("git").args(args).current_dir(dir).output().ok().filter(|o| o.status.success());
     let head = run(&["rev-parse", "--short=12", "HEAD"])?;
     let hash = String::from_utf8_lossy(&head.stdout).trim().to_string();
     if hash.is_empty() {

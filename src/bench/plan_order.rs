@@ -19,7 +19,8 @@ pub fn measure(config: &BenchConfig) -> Result<KnobReport, BenchError> {
     let work_frame = WorkFrame::default();
     let cost = |a: &Pose, b: &Pose| crate::rigs::pose_cost_s(&profile, &work_frame, a, b);
     let mut rows = Vec::new();
-    let (mut random_pts, mut rig_pts) = (Series { name: "random order".into(), ..Default::default() }, Series { name: "rig's order".into(), ..Default::default() });
+    let (mut random_pts, mut rig_pts) =
+        (Series { name: "random order".into(), ..Default::default() }, Series { name: "rig's order".into(), ..Default::default() });
     for &seed in &config.plan_seeds {
         let base = PlanSpec { sampling: Sampling::Lhs, n_poses: Some(config.plan_poses), seed, ..PlanSpec::default() };
         let t = Instant::now();

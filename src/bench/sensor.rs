@@ -49,7 +49,11 @@ pub fn measure(config: &BenchConfig) -> Result<KnobReport, BenchError> {
         let mut cumulative = Series { name: format!("{}: stages added", kind.label()), ..Default::default() };
         for k in 0..=stages.len() {
             let on = &stages[..k];
-            let (ms, img) = if k == stages.len() { (t_full, full.clone()) } else { time_render(&sim_of("partial", on), &depth, &motion, config.sensor_frames) };
+            let (ms, img) = if k == stages.len() {
+                (t_full, full.clone())
+            } else {
+                time_render(&sim_of("partial", on), &depth, &motion, config.sensor_frames)
+            };
             let s = ssim(&img, &full)?;
             let label = match k {
                 0 => "none".to_string(),

@@ -34,7 +34,11 @@ pub const OBJECT: &str = "pacman";
 
 /// Plan poses (work frame) the synthesis knob uses.
 pub fn poses(n: usize) -> Vec<Pose> {
-    [Pose::new(0.5, -1.0, 0.0, 15.0), Pose::new(-2.0, 1.5, 0.5, -45.0), Pose::new(2.0, 2.0, -0.5, 60.0)].into_iter().cycle().take(n).collect()
+    [Pose::new(0.5, -1.0, 0.0, 15.0), Pose::new(-2.0, 1.5, 0.5, -45.0), Pose::new(2.0, 2.0, -0.5, 60.0)]
+        .into_iter()
+        .cycle()
+        .take(n)
+        .collect()
 }
 
 /// Runs every (sampler, steps) pair on every pose; one row per pair.
@@ -53,7 +57,14 @@ pub fn measure(config: &BenchConfig) -> Result<KnobReport, BenchError> {
     let contact_depth_mm = WorkFrame::default().contact_depth_mm;
     let px = config.image_px;
     let sensor_calib = Calibration::default_for(px, px);
-    let sensor = SensorSim::new(kind, Scene::preset("full").unwrap_or_else(|_| Scene::with_stages("full", &[])), px, px, sensor_calib.scale_px_per_mm[0] as f32, 1);
+    let sensor = SensorSim::new(
+        kind,
+        Scene::preset("full").unwrap_or_else(|_| Scene::with_stages("full", &[])),
+        px,
+        px,
+        sensor_calib.scale_px_per_mm[0] as f32,
+        1,
+    );
     let model_calib = Calibration::default_for(w, h);
     struct Case {
         control: RgbImage,

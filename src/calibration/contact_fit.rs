@@ -175,12 +175,7 @@ struct Features {
 }
 
 /// Fits a calibration for `frames` of `mesh` (all the same size; the result is for that size).
-pub fn fit_contact(
-    mesh: &Mesh,
-    frames: &[FitFrame],
-    target: &FitTarget,
-    opts: &ContactFitOptions,
-) -> Result<ContactFit, ContactFitError> {
+pub fn fit_contact(mesh: &Mesh, frames: &[FitFrame], target: &FitTarget, opts: &ContactFitOptions) -> Result<ContactFit, ContactFitError> {
     let first = frames.first().ok_or(ContactFitError::NoFrames)?;
     let (fw, fh) = first.image.dimensions();
     for f in frames {
@@ -236,11 +231,8 @@ pub fn fit_contact(
     }
     starts.sort_by(|a, b| b.0.total_cmp(&a.0));
     // Refine the best starts coarse, then the best of those at the working size.
-    let mut refined: Vec<(f64, Params)> = starts
-        .iter()
-        .take(opts.refine_best.max(1) * 2)
-        .map(|&(sc, p)| pattern_search(mesh, frames, &coarse, p, sc, opts))
-        .collect();
+    let mut refined: Vec<(f64, Params)> =
+        starts.iter().take(opts.refine_best.max(1) * 2).map(|&(sc, p)| pattern_search(mesh, frames, &coarse, p, sc, opts)).collect();
     refined.sort_by(|a, b| b.0.total_cmp(&a.0));
     let mut best: Option<(f64, Params)> = None;
     for &(_, p) in refined.iter().take(opts.refine_best.max(1)) {
@@ -288,7 +280,14 @@ pub fn fit_contact(
     Ok(ContactFit { calibration: calib, score: best_score, residuals_px })
 }
 
-fn pattern_search(mesh: &Mesh, frames: &[FitFrame], f: &Features, start: Params, start_score: f64, opts: &ContactFitOptions) -> (f64, Params) {
+fn pattern_search(
+    mesh: &Mesh,
+    frames: &[FitFrame],
+    f: &Features,
+    start: Params,
+    start_score: f64,
+    opts: &ContactFitOptions,
+) -> (f64, Params) {
     let mut p = start;
     let mut best = start_score;
     let mut step = [4.0, 4.0, 0.08 * start.v[2], 4.0, 0.05, 5.0];
@@ -331,9 +330,7 @@ fn build_features(frames: &[FitFrame], target: &FitTarget, size: u32) -> Feature
     };
     let n = size as usize;
     let (maps, outline): (Vec<Vec<f32>>, bool) = match target {
-        FitTarget::Edges => {
-            (frames.iter().map(|f| box_blur(&sobel(&box_blur(&grey_small(&f.image), n, 1), n), n, 2)).collect(), true)
-        }
+        FitTarget::Edges => (frames.iter().map(|f| box_blur(&sobel(&box_blur(&grey_small(&f.image), n, 1), n), n, 2)).collect(), true),
         FitTarget::Difference { reference } => {
             let small_ref = imageops::resize(reference, size, size, imageops::FilterType::Triangle);
             let maps = frames
@@ -422,9 +419,8 @@ fn outline_of(mask: &[bool], n: usize) -> Vec<bool> {
             if !mask[y * n + x] {
                 continue;
             }
-            let outside = |xx: isize, yy: isize| {
-                xx >= 0 && yy >= 0 && (xx as usize) < n && (yy as usize) < n && !mask[yy as usize * n + xx as usize]
-            };
+            let outside =
+                |xx: isize, yy: isize| xx >= 0 && yy >= 0 && (xx as usize) < n && (yy as usize) < n && !mask[yy as usize * n + xx as usize];
             let (xi, yi) = (x as isize, y as isize);
             if outside(xi - 1, yi) || outside(xi + 1, yi) || outside(xi, yi - 1) || outside(xi, yi + 1) {
                 for dy in -1isize..=1 {

@@ -209,12 +209,7 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> 
             sv += wt * (y as f64 + 0.5);
             sw += wt;
             area += 1;
-            let neighbours = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then(|| i + 1),
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then(|| i + w),
-            ];
+            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
             for j in neighbours.into_iter().flatten() {
                 if !seen[j] && g[j] > threshold {
                     seen[j] = true;
@@ -248,11 +243,7 @@ pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &M
     }
     let dist2 = |a: &[f64; 2], b: &[f64; 2]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
     let nearest = |p: &[f64; 2], set: &[[f64; 2]], skip_self: bool| -> Option<(usize, f64)> {
-        set.iter()
-            .enumerate()
-            .map(|(j, q)| (j, dist2(p, q)))
-            .filter(|(_, d)| !skip_self || *d > 0.0)
-            .min_by(|a, b| a.1.total_cmp(&b.1))
+        set.iter().enumerate().map(|(j, q)| (j, dist2(p, q))).filter(|(_, d)| !skip_self || *d > 0.0).min_by(|a, b| a.1.total_cmp(&b.1))
     };
     let mut spacings: Vec<f64> = before.iter().filter_map(|p| nearest(p, &before, true)).map(|(_, d)| d.sqrt()).collect();
     spacings.sort_by(f64::total_cmp);
@@ -327,10 +318,7 @@ pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOp
     dev.sort_by(f32::total_cmp);
     let mad = dev[dev.len() / 2] as f64;
     let floor = median + options.floor_mads * mad;
-    let (peak_i, peak) = change
-        .iter()
-        .enumerate()
-        .fold((0, f32::MIN), |best, (i, &v)| if v > best.1 { (i, v) } else { best });
+    let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |best, (i, &v)| if v > best.1 { (i, v) } else { best });
     let peak = peak as f64;
     if !(peak - floor >= options.min_contrast) {
         return Err(DetectError::NoContact { peak, floor, contrast: options.min_contrast });
@@ -716,13 +704,15 @@ mod tests {
     fn imprint_outline_is_found_despite_the_gain_and_the_markers() {
         for markers in [false, true] {
             let reference = see_through(None, markers);
-            let options = if markers { ImprintOptions { close_px: 2, ..ImprintOptions::with_markers(256) } } else { ImprintOptions::for_width(256) };
+            let options =
+                if markers { ImprintOptions { close_px: 2, ..ImprintOptions::with_markers(256) } } else { ImprintOptions::for_width(256) };
             for c in [[128.0, 128.0], [90.3, 150.6], [170.7, 101.2]] {
                 let got = detect_imprint(&see_through(Some(c), markers), &reference, &options).unwrap();
                 let err = (got.centroid_px[0] - c[0]).hypot(got.centroid_px[1] - c[1]);
                 assert!(err < 0.3, "markers {markers}: {got} vs {c:?}: {err:.3} px");
                 // The region centroid alone is pulled towards the brighter centre.
-                let plain = detect_imprint(&see_through(Some(c), markers), &reference, &ImprintOptions { edge_rays: 0, ..options.clone() }).unwrap();
+                let plain = detect_imprint(&see_through(Some(c), markers), &reference, &ImprintOptions { edge_rays: 0, ..options.clone() })
+                    .unwrap();
                 let plain_err = (plain.centroid_px[0] - c[0]).hypot(plain.centroid_px[1] - c[1]);
                 if c != [128.0, 128.0] {
                     assert!(plain_err > 0.8, "markers {markers} {c:?}: region centroid {plain_err:.3} px");

@@ -51,7 +51,9 @@ pub enum FitError {
     NotFinite { index: usize, mm: [f64; 2], px: [f64; 2] },
     #[error("all points lie at one spot (spread {spread_mm:.3e} mm): move the indenter between presses")]
     AllAtOneSpot { spread_mm: f64 },
-    #[error("the points lie on a line (spread {minor_mm:.3e} mm across it, {major_mm:.3e} mm along it, condition {condition:.3e}): press off that line too")]
+    #[error(
+        "the points lie on a line (spread {minor_mm:.3e} mm across it, {major_mm:.3e} mm along it, condition {condition:.3e}): press off that line too"
+    )]
     Collinear { major_mm: f64, minor_mm: f64, condition: f64 },
     #[error("all detections lie at one pixel spot (spread {spread_px:.3e} px): the contact was not seen moving")]
     PixelsAtOneSpot { spread_px: f64 },
@@ -130,7 +132,9 @@ pub enum DepthRefusal {
     IllConditioned { error_per_px: f64, max_per_px: f64 },
     #[error("the fitted term {per_mm:.4} /mm is beyond ±{max:.2} /mm")]
     OutOfRange { per_mm: f64, max: f64 },
-    #[error("the fitted term {per_mm:+.4} /mm has a standard error of {std_error_per_mm:.4} /mm (at most {max:.4}): the residuals are too large to trust it")]
+    #[error(
+        "the fitted term {per_mm:+.4} /mm has a standard error of {std_error_per_mm:.4} /mm (at most {max:.4}): the residuals are too large to trust it"
+    )]
     Uncertain { per_mm: f64, std_error_per_mm: f64, max: f64 },
 }
 
@@ -242,8 +246,7 @@ pub fn fit_points(points: &[FitPoint], options: &FitOptions, method: &str) -> Re
         }),
         pose_xy_correction: None,
     };
-    let numbers =
-        [rms_px, rms_mm, max_px, condition, shear, params.cu, params.cv, params.sx, params.sy, params.theta, params.k];
+    let numbers = [rms_px, rms_mm, max_px, condition, shear, params.cu, params.cv, params.sx, params.sy, params.theta, params.k];
     if !numbers.iter().chain(residuals.iter()).all(|v| v.is_finite()) || params.sx.abs() < 1e-9 || params.sy.abs() < 1e-9 {
         return Err(FitError::NonFiniteResult);
     }
@@ -338,10 +341,7 @@ fn fit_depth_term(points: &[FitPoint], idx: &[usize], start: Params, options: &F
     let error_per_px = if variance > 0.0 { variance.sqrt() } else { f64::INFINITY };
     if !(error_per_px <= options.max_depth_error_per_px) {
         let error_per_px = if error_per_px.is_finite() { error_per_px } else { f64::MAX };
-        return (
-            start,
-            DepthTerm::NotFitted(DepthRefusal::IllConditioned { error_per_px, max_per_px: options.max_depth_error_per_px }),
-        );
+        return (start, DepthTerm::NotFitted(DepthRefusal::IllConditioned { error_per_px, max_per_px: options.max_depth_error_per_px }));
     }
     let cost = |p: &Params| -> f64 {
         idx.iter()
@@ -607,12 +607,7 @@ mod tests {
     use super::*;
 
     fn truth() -> Calibration {
-        Calibration {
-            centre_px: [262.3, 249.1],
-            scale_px_per_mm: [11.7, -10.8],
-            rotation_deg: 7.5,
-            ..Calibration::default_for(512, 512)
-        }
+        Calibration { centre_px: [262.3, 249.1], scale_px_per_mm: [11.7, -10.8], rotation_deg: 7.5, ..Calibration::default_for(512, 512) }
     }
 
     fn grid(c: &Calibration) -> Vec<FitPoint> {

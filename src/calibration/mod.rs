@@ -169,8 +169,7 @@ impl Calibration {
 
     /// Parses and validates calibration TOML; `name` is used in errors.
     pub fn from_toml(text: &str, name: &str) -> Result<Self, CalibrationError> {
-        let calib: Calibration =
-            toml::from_str(text).map_err(|source| CalibrationError::Parse { path: name.to_string(), source })?;
+        let calib: Calibration = toml::from_str(text).map_err(|source| CalibrationError::Parse { path: name.to_string(), source })?;
         calib.validate(name)?;
         Ok(calib)
     }
@@ -189,9 +188,7 @@ impl Calibration {
 
     /// Checks that every number is usable.
     pub fn validate(&self, name: &str) -> Result<(), CalibrationError> {
-        let bad = |field, value: String, why| {
-            Err(CalibrationError::Invalid { path: name.to_string(), field, value, why })
-        };
+        let bad = |field, value: String, why| Err(CalibrationError::Invalid { path: name.to_string(), field, value, why });
         if !self.centre_px.iter().all(|c| c.is_finite()) {
             return bad("centre_px", format!("{:?}", self.centre_px), "must be finite");
         }

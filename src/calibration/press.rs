@@ -20,9 +20,9 @@ use std::time::Duration;
 
 use image::RgbImage;
 
+use super::FitPoint;
 use super::detect::{Contact, ContactDetector, DetectError};
 use super::fit::{FitError, FitOptions, PointFit, fit_points};
-use super::FitPoint;
 use crate::arm::{Arm, ArmError, MoveKind};
 use crate::camera::{Camera, CameraError};
 use crate::config::CollectConfig;
@@ -89,7 +89,8 @@ impl PressPattern {
         let half = self.half_span_mm();
         let mut offsets: Vec<Pose> = self.offsets.iter().copied().filter(|o| o.z_mm == 0.0).collect();
         for &dz in extra_depths_mm.iter().filter(|d| d.is_finite() && **d != 0.0) {
-            for (x, y) in [(0.0, 0.0), (-1.0, -1.0), (0.0, -1.0), (1.0, -1.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (-1.0, 1.0), (-1.0, 0.0)] {
+            for (x, y) in [(0.0, 0.0), (-1.0, -1.0), (0.0, -1.0), (1.0, -1.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (-1.0, 1.0), (-1.0, 0.0)]
+            {
                 offsets.push(Pose::new(x * half, y * half, dz, 0.0));
             }
         }

@@ -8,9 +8,9 @@
 //! [`PressStation`], so tests drive it with scripted answers and a fake station, and the binary
 //! drives it with the terminal and the real (or simulated) rig.
 
+use super::FitPoint;
 use super::fit::{FitOptions, PointFit, fit_points};
 use super::press::{Press, PressError, PressPattern, PressStation};
-use super::FitPoint;
 
 /// The wizard's terminal.
 pub trait WizardIo {
@@ -112,10 +112,7 @@ pub async fn run_wizard<S: PressStation, I: WizardIo>(
     let current = pattern.extra_depths_mm();
     if !current.is_empty() {
         io.say("The scale can change with how deep the skin is pressed; presses at other depths measure that.")?;
-        let question = format!(
-            "Extra press depths beyond the contact, mm (comma-separated, 0 = none) [{}]: ",
-            format_depths(&current)
-        );
+        let question = format!("Extra press depths beyond the contact, mm (comma-separated, 0 = none) [{}]: ", format_depths(&current));
         loop {
             let Some(text) = io.ask(&question)? else {
                 return Ok(WizardOutcome::Quit);
@@ -292,9 +289,7 @@ mod tests {
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
         let pattern = PressPattern::grid(2, 3.0, &[]);
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
-        let outcome = rt
-            .block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml"))
-            .unwrap();
+        let outcome = rt.block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml")).unwrap();
         (outcome, String::from_utf8_lossy(&io.output).into_owned(), station)
     }
 
@@ -321,9 +316,7 @@ mod tests {
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
         let pattern = PressPattern::grid(2, 3.0, &[-0.5, 0.5]);
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
-        let outcome = rt
-            .block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml"))
-            .unwrap();
+        let outcome = rt.block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml")).unwrap();
         let text = String::from_utf8_lossy(&io.output).into_owned();
         assert!(text.contains("[-0.5,+0.5]: "), "{text}");
         assert!(text.contains("beyond ±1 mm; again"), "{text}");

@@ -67,12 +67,7 @@ pub fn to_rgb(format: PixelFormat, bytes: &[u8], width: u32, height: u32) -> Res
         PixelFormat::Mjpeg => {
             let image = mjpeg_to_rgb(bytes)?;
             if image.dimensions() != (width, height) {
-                return Err(ConvertError::SizeMismatch {
-                    width,
-                    height,
-                    got_width: image.width(),
-                    got_height: image.height(),
-                });
+                return Err(ConvertError::SizeMismatch { width, height, got_width: image.width(), got_height: image.height() });
             }
             Ok(image)
         }
@@ -149,8 +144,8 @@ pub fn mjpeg_to_rgb(bytes: &[u8]) -> Result<RgbImage, ConvertError> {
         with_tables = insert_default_huffman_tables(bytes);
         &with_tables[..]
     };
-    let decoded = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
-        .map_err(|e| ConvertError::Jpeg { reason: e.to_string() })?;
+    let decoded =
+        image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg).map_err(|e| ConvertError::Jpeg { reason: e.to_string() })?;
     Ok(decoded.to_rgb8())
 }
 
@@ -234,9 +229,7 @@ mod tests {
 
     /// A synthetic frame: horizontal colour gradient, vertical brightness ramp.
     fn test_pattern(width: u32, height: u32) -> RgbImage {
-        RgbImage::from_fn(width, height, |x, y| {
-            Rgb([(x * 255 / width.max(1)) as u8, (y * 255 / height.max(1)) as u8, 128])
-        })
+        RgbImage::from_fn(width, height, |x, y| Rgb([(x * 255 / width.max(1)) as u8, (y * 255 / height.max(1)) as u8, 128]))
     }
 
     fn encode_jpeg(image: &RgbImage, quality: u8) -> Vec<u8> {
@@ -307,10 +300,7 @@ mod tests {
 
     #[test]
     fn yuyv_rejects_bad_buffers() {
-        assert_eq!(
-            yuyv_to_rgb(&[0; 7], 2, 2),
-            Err(ConvertError::ShortYuyv { width: 2, height: 2, expected: 8, got: 7 })
-        );
+        assert_eq!(yuyv_to_rgb(&[0; 7], 2, 2), Err(ConvertError::ShortYuyv { width: 2, height: 2, expected: 8, got: 7 }));
         assert_eq!(yuyv_to_rgb(&[0; 12], 3, 2), Err(ConvertError::OddWidth { width: 3 }));
         assert_eq!(yuyv_to_rgb(&[], 0, 2), Err(ConvertError::BadSize { width: 0, height: 2 }));
         // A longer buffer (bytesused rounded up) is fine.

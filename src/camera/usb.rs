@@ -198,8 +198,7 @@ pub fn list_video_nodes_in(sys_v4l: &Path, dev: &Path) -> Vec<VideoNode> {
 /// The capture node selected by `selector` among `nodes`: exactly one device must match
 /// (a camera's metadata nodes, index > 0, are not candidates).
 pub fn select_video_node<'a>(nodes: &'a [VideoNode], selector: &DeviceSelector) -> Result<&'a VideoNode, UsbError> {
-    let matching: Vec<&VideoNode> =
-        nodes.iter().filter(|n| n.index == 0 && selector.matches(&n.path, n.usb.as_ref())).collect();
+    let matching: Vec<&VideoNode> = nodes.iter().filter(|n| n.index == 0 && selector.matches(&n.path, n.usb.as_ref())).collect();
     match matching.as_slice() {
         [one] => Ok(one),
         [] => Err(UsbError::NotFound { selector: selector.to_string() }),
@@ -233,12 +232,7 @@ pub fn list_usb_devices() -> Vec<UsbIdentity> {
             let joined: Vec<String> = ports.iter().map(u8::to_string).collect();
             format!("{}-{}", device.bus_number(), joined.join("."))
         };
-        let mut identity = UsbIdentity {
-            port_path,
-            vendor_id: desc.vendor_id(),
-            product_id: desc.product_id(),
-            ..UsbIdentity::default()
-        };
+        let mut identity = UsbIdentity { port_path, vendor_id: desc.vendor_id(), product_id: desc.product_id(), ..UsbIdentity::default() };
         if let Ok(handle) = device.open()
             && let Ok(languages) = handle.read_languages(timeout)
             && let Some(lang) = languages.first()
@@ -262,10 +256,7 @@ mod tests {
         assert_eq!(DeviceSelector::parse("port:1-2.3").unwrap(), DeviceSelector::Port("1-2.3".into()));
         assert_eq!(DeviceSelector::parse("3-1").unwrap(), DeviceSelector::Port("3-1".into()));
         assert_eq!(DeviceSelector::parse("serial:TT-0042").unwrap(), DeviceSelector::Serial("TT-0042".into()));
-        assert_eq!(
-            DeviceSelector::parse("id:046d:0825").unwrap(),
-            DeviceSelector::VidPid { vendor_id: 0x046d, product_id: 0x0825 }
-        );
+        assert_eq!(DeviceSelector::parse("id:046d:0825").unwrap(), DeviceSelector::VidPid { vendor_id: 0x046d, product_id: 0x0825 });
         assert_eq!(DeviceSelector::parse("index:1").unwrap(), DeviceSelector::Index(1));
         for bad in ["", "video0", "port:1-", "port:x-2", "serial:", "id:zz:01", "id:046d", "1.2-3"] {
             assert!(DeviceSelector::parse(bad).is_err(), "{bad:?} parsed");
@@ -280,7 +271,8 @@ mod tests {
     /// swapped from what their ports suggest.
     fn fake_sysfs(root: &Path) -> (PathBuf, PathBuf) {
         let usb = root.join("sys/devices/pci0000:00/usb1");
-        let cameras = [("1-2.3", "0c45", "6366", Some("TT-0042"), &[(0u32, 2u32), (1, 3)][..]), ("1-2.1", "0c45", "6366", None, &[(0, 0)][..])];
+        let cameras =
+            [("1-2.3", "0c45", "6366", Some("TT-0042"), &[(0u32, 2u32), (1, 3)][..]), ("1-2.1", "0c45", "6366", None, &[(0, 0)][..])];
         let v4l = root.join("sys/class/video4linux");
         std::fs::create_dir_all(&v4l).unwrap();
         for (port, vid, pid, serial, nodes) in cameras {

@@ -84,9 +84,7 @@ pub struct FormatChoice {
 /// Picks the format for `settings` among `offers`: exact size, rate reached; a forced format
 /// if configured, else YUYV (no compression artefacts) when it is fast enough, else MJPEG.
 pub fn choose_format(offers: &[FormatOffer], settings: &CameraSettings) -> Result<FormatChoice, String> {
-    let fits = |o: &&FormatOffer| {
-        o.width == settings.width && o.height == settings.height && o.max_fps + 1e-6 >= f64::from(settings.fps)
-    };
+    let fits = |o: &&FormatOffer| o.width == settings.width && o.height == settings.height && o.max_fps + 1e-6 >= f64::from(settings.fps);
     let order: Vec<PixelFormat> = match settings.pixel_format {
         Some(f) => vec![f],
         None => vec![PixelFormat::Yuyv, PixelFormat::Mjpeg],
@@ -96,10 +94,8 @@ pub fn choose_format(offers: &[FormatOffer], settings: &CameraSettings) -> Resul
             return Ok(FormatChoice { format, width: settings.width, height: settings.height, fps: settings.fps });
         }
     }
-    let offered: Vec<String> = offers
-        .iter()
-        .map(|o| format!("{}x{} {:?} up to {:.1} fps", o.width, o.height, o.format, o.max_fps))
-        .collect();
+    let offered: Vec<String> =
+        offers.iter().map(|o| format!("{}x{} {:?} up to {:.1} fps", o.width, o.height, o.format, o.max_fps)).collect();
     Err(format!(
         "no YUYV or MJPEG mode gives {}x{} at {} fps; offered: {}",
         settings.width,
@@ -183,12 +179,7 @@ pub struct V4l2Camera {
 
 impl V4l2Camera {
     /// Opens the camera selected by `selector`, configures it and starts streaming.
-    pub fn open(
-        name: &str,
-        selector: &DeviceSelector,
-        settings: &CameraSettings,
-        clock: Arc<dyn Clock>,
-    ) -> Result<Self, CameraError> {
+    pub fn open(name: &str, selector: &DeviceSelector, settings: &CameraSettings, clock: Arc<dyn Clock>) -> Result<Self, CameraError> {
         use v4l::video::Capture;
         let device_err = |reason: String| CameraError::Device { camera: name.to_string(), reason };
         let io_err = |source: std::io::Error| CameraError::Io { camera: name.to_string(), source };

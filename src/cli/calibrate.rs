@@ -121,12 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{}", config.describe());
     let pattern = PressPattern::grid(args.grid, args.span_mm, &args.depths_mm);
     let profile = crate::rigs::profile_for(&config)?;
-    let plan: Vec<_> = pattern
-        .offsets
-        .iter()
-        .enumerate()
-        .map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p })
-        .collect();
+    let plan: Vec<_> = pattern.offsets.iter().enumerate().map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p }).collect();
     crate::collect::check_plan(&plan, &config.work_frame, |p| profile.check_reachable(p))?;
     println!(
         "pattern: {} presses, {}x{} grid over ±{} mm, extra depths {:?} mm",
@@ -162,11 +157,7 @@ fn set_sim_truth(config: &mut RigConfig, kind: SensorKind, truth: &Path) -> anyh
             scene: "full".into(),
             width: calib.image_size[0],
             height: calib.image_size[1],
-            camera: crate::camera::v4l2::CameraSettings {
-                width: calib.image_size[0],
-                height: calib.image_size[1],
-                ..Default::default()
-            },
+            camera: crate::camera::v4l2::CameraSettings { width: calib.image_size[0], height: calib.image_size[1], ..Default::default() },
         }),
     }
     Ok(())
@@ -196,8 +187,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     let fit = if args.interactive {
         let stdin = std::io::stdin();
         let mut io = LineIo { input: stdin.lock(), output: std::io::stdout() };
-        let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string())
-            .await?;
+        let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string()).await?;
         match outcome {
             WizardOutcome::Save(fit) => Some(*fit),
             _ => None,
@@ -212,7 +202,9 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
                 press.offset.y_mm,
                 press.offset.z_mm
             ),
-            Err(e) => println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm),
+            Err(e) => {
+                println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
+            }
         })
         .await?;
         Some(run.fit)
@@ -265,11 +257,8 @@ fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>, mapping: bo
 
 /// `--from-dataset`: detect every frame against the reference, fit the known poses.
 fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
-    let (frames, reference) = if dir.join("csv/1.csv").is_file() {
-        multidiffsense_frames(dir, args.sensor)?
-    } else {
-        rig_dataset_frames(dir)?
-    };
+    let (frames, reference) =
+        if dir.join("csv/1.csv").is_file() { multidiffsense_frames(dir, args.sensor)? } else { rig_dataset_frames(dir)? };
     println!("{}: {} frames of {} with known poses", dir.display(), frames.len(), args.sensor);
     let detector = ContactDetector::for_sensor(args.sensor, reference.width());
     let mut points = Vec::new();

@@ -79,7 +79,9 @@ pub fn absolute(path: &std::path::Path) -> PathBuf {
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
     if args.daemon.daemon.is_some() {
         if args.dry_run || args.record.is_some() || args.config.is_some() {
-            bail!(crate::cli::usage("--daemon runs the job on the daemon's rig: --dry-run, --record and --config apply to a standalone run only"));
+            bail!(crate::cli::usage(
+                "--daemon runs the job on the daemon's rig: --dry-run, --record and --config apply to a standalone run only"
+            ));
         }
         return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Collect(args.job_spec()));
     }
@@ -105,9 +107,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let object = crate::rigs::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
 
     let profile = crate::rigs::profile_for(&config)?;
-    let plan = spec
-        .build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b))
-        .context("building the plan")?;
+    let plan = spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b)).context("building the plan")?;
     println!(
         "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
         plan.poses.len(),
@@ -126,10 +126,9 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         Some(_) if args.resume => {
             bail!(crate::cli::usage("--record starts a new dataset; it cannot be combined with --resume"))
         }
-        Some(path) => Some(
-            crate::record::Recorder::create(path, clock.clone())
-                .with_context(|| format!("creating recording {}", path.display()))?,
-        ),
+        Some(path) => {
+            Some(crate::record::Recorder::create(path, clock.clone()).with_context(|| format!("creating recording {}", path.display()))?)
+        }
         None => None,
     };
     let mut rig = Rig::open_with(&config, &object, &sensors, spec.seed, clock.clone(), recorder.clone()).await?;
@@ -148,13 +147,9 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         manifest.calibration = Some(camera.calibration_name());
         manifest.firmware_profile = Some(profile.name.clone());
         manifest.work_frame = Some(config.work_frame);
-        let writer = if args.resume {
-            DatasetWriter::resume(&dir, manifest)
-        } else {
-            DatasetWriter::create(&dir, manifest)
-        }
-        .with_context(|| format!("opening dataset {}", dir.display()))?
-        .with_byte_budget(config.faults.disk_budget_bytes);
+        let writer = if args.resume { DatasetWriter::resume(&dir, manifest) } else { DatasetWriter::create(&dir, manifest) }
+            .with_context(|| format!("opening dataset {}", dir.display()))?
+            .with_byte_budget(config.faults.disk_budget_bytes);
         let index = u8::try_from(index).context("more than 256 sensors")?;
         streams.push(SensorStream { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), writer });
     }
@@ -190,10 +185,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let summary = summary?;
     rig.shutdown().await;
     if summary.interrupted {
-        println!(
-            "interrupted: {} poses captured, {} left; continue with --resume",
-            summary.captured, summary.remaining
-        );
+        println!("interrupted: {} poses captured, {} left; continue with --resume", summary.captured, summary.remaining);
         bail!(crate::cli::ExitStatus(4));
     }
     println!(

@@ -34,13 +34,13 @@ use clap::Args as ClapArgs;
 use image::{Rgb, RgbImage, imageops};
 
 use super::sensor_bridge::{TactileSensor, render_tactile_with, simulator_available};
-use crate::sim::sensor::{Scene, Stage};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::metrics::{ssim, ssim_masked};
 use crate::pose::Pose;
+use crate::sim::sensor::{Scene, Stage};
 
 /// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm); the indentation
 /// of a frame is this minus its logged z.
@@ -132,7 +132,14 @@ pub fn load_real_sample(dir: &Path) -> anyhow::Result<RealSample> {
             if let Some((_, first)) = list.first()
                 && first.dimensions() != img.dimensions()
             {
-                bail!("{}: {}x{} differs from the sensor's other frames ({}x{})", p.display(), img.width(), img.height(), first.width(), first.height());
+                bail!(
+                    "{}: {}x{} differs from the sensor's other frames ({}x{})",
+                    p.display(),
+                    img.width(),
+                    img.height(),
+                    first.width(),
+                    first.height()
+                );
             }
             if img.width() < 16 || img.height() < 16 {
                 bail!("{}: {}x{} is too small to compare", p.display(), img.width(), img.height());
@@ -247,7 +254,9 @@ pub fn fit_sensor(
     }
     let frames: Vec<FitFrame> = list
         .iter()
-        .map(|(i, img)| Ok(FitFrame { name: format!("1_{}_{i}.png", sensor.dataset_name()), pose: pose_of(sample, *i)?, image: img.clone() }))
+        .map(|(i, img)| {
+            Ok(FitFrame { name: format!("1_{}_{i}.png", sensor.dataset_name()), pose: pose_of(sample, *i)?, image: img.clone() })
+        })
         .collect::<anyhow::Result<_>>()?;
     let refs: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
     let target = fit_target(sensor, &refs);
@@ -399,7 +408,8 @@ fn panel(real: &RgbImage, baseline: &RgbImage, footprint: &[bool], mask: &[bool]
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = args.sample.clone().unwrap_or_else(default_sample_dir);
-    let sample = load_real_sample(&dir).with_context(|| format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display()))?;
+    let sample =
+        load_real_sample(&dir).with_context(|| format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display()))?;
     if args.fit {
         std::fs::create_dir_all(&args.calibration_dir).with_context(|| format!("creating {}", args.calibration_dir.display()))?;
         // Same rig and pose log for all three: each fit also starts from the ones before it.
@@ -452,7 +462,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         let n = scores.len() as f64;
         let mean = |f: &dyn Fn(&FrameScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
-        let mean_opt = |f: &dyn Fn(&FrameScores) -> Option<f64>| scores.iter().map(f).collect::<Option<Vec<f64>>>().map(|v| v.iter().sum::<f64>() / n);
+        let mean_opt =
+            |f: &dyn Fn(&FrameScores) -> Option<f64>| scores.iter().map(f).collect::<Option<Vec<f64>>>().map(|v| v.iter().sum::<f64>() / n);
         println!(
             "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
             sensor.dataset_name(),

@@ -75,8 +75,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// Waits for SIGTERM or SIGINT.
 async fn wait_for_stop_signal() -> anyhow::Result<()> {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("installing the SIGTERM handler")?;
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).context("installing the SIGTERM handler")?;
     tokio::select! {
         _ = term.recv() => {}
         r = tokio::signal::ctrl_c() => r.context("waiting for Ctrl-C")?,
@@ -115,12 +114,7 @@ pub fn submit_and_follow(target: &DaemonTarget, spec: crate::daemon::JobSpec) ->
     runtime.block_on(follow(client, url, spec, target.detach))
 }
 
-async fn follow(
-    client: crate::daemon::client::DaemonClient,
-    url: &str,
-    spec: crate::daemon::JobSpec,
-    detach: bool,
-) -> anyhow::Result<()> {
+async fn follow(client: crate::daemon::client::DaemonClient, url: &str, spec: crate::daemon::JobSpec, detach: bool) -> anyhow::Result<()> {
     use crate::daemon::{JobState, JobView};
     let body = serde_json::to_value(&spec).context("encoding the job")?;
     let job: JobView = client.post_json("/api/jobs", &body).await.with_context(|| format!("submitting the job to {url}"))?;
@@ -131,8 +125,7 @@ async fn follow(
     }
     let progress = indicatif::ProgressBar::new(0);
     progress.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len}  {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len}  {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let path = format!("/api/jobs/{}", job.id);
     let mut interrupt = std::pin::pin!(tokio::signal::ctrl_c());

@@ -5,9 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
-use crate::dataset::export::{
-    export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds,
-};
+use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
 use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, merge, read_rows, verify};
 
 /// `rig dataset ...`
@@ -163,8 +161,7 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
     };
     let Some(images) = target.images.as_deref() else { bail!("--out needs --images: a dataset row needs its image") };
     let sensor = &target.sensor;
-    let obj_name =
-        target.object.clone().or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
+    let obj_name = target.object.clone().or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
     let object = match &target.stl {
         Some(stl) => ObjectInfo::with_stl(&obj_name, stl)?,
         None => ObjectInfo::named(&obj_name),

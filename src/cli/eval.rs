@@ -60,11 +60,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let table = report.to_markdown();
     println!("{table}");
     if let Some(path) = &args.markdown {
-        let mut f = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(path)
-            .with_context(|| format!("opening {}", path.display()))?;
+        let mut f =
+            std::fs::OpenOptions::new().create(true).append(true).open(path).with_context(|| format!("opening {}", path.display()))?;
         writeln!(f, "{table}").with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.json {

@@ -136,7 +136,15 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
     if args.dry_run {
         for d in &datasets {
             let work = missing_poses(d, args.out.as_deref(), shard)?;
-            println!("{}: {} of {} grid poses present, {} to synthesise in shard {}/{}", d.display(), work.present, work.grid, work.todo.len(), shard.index, shard.count);
+            println!(
+                "{}: {} of {} grid poses present, {} to synthesise in shard {}/{}",
+                d.display(),
+                work.present,
+                work.grid,
+                work.todo.len(),
+                shard.index,
+                shard.count
+            );
         }
         return Ok(());
     }
@@ -145,8 +153,8 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
     for d in &datasets {
         let progress = progress_bar();
         let t0 = std::time::Instant::now();
-        let summary = fill_missing(d, args.out.as_deref(), &mut pipeline, &options, &progress)
-            .with_context(|| format!("filling {}", d.display()))?;
+        let summary =
+            fill_missing(d, args.out.as_deref(), &mut pipeline, &options, &progress).with_context(|| format!("filling {}", d.display()))?;
         progress.finish_and_clear();
         println!(
             "{}: synthesised {} poses in {:.1} s ({} of {} grid poses were present{})",

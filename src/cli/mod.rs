@@ -8,20 +8,20 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod calibrate;
 pub mod collect;
+pub mod compare;
 pub mod daemon;
-pub mod fill;
-pub mod sim;
 pub mod dataset;
 pub mod devices;
 pub mod eval;
+pub mod fill;
+pub mod objects;
 pub mod plan;
+pub mod render;
 pub mod replay;
 pub mod sensor;
-pub mod synth;
-pub mod compare;
-pub mod objects;
-pub mod render;
 pub mod sensor_bridge;
+pub mod sim;
+pub mod synth;
 
 /// rig: drive a tactile-sensing rig (Dobot MG400 + vision-based tactile sensors), collect
 /// datasets and synthesise the poses not collected.
@@ -76,8 +76,7 @@ pub enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     end_quietly_when_stdout_closes();
-    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
         Command::Info => {

@@ -125,17 +125,11 @@ fn show(flags: &PlanFlags, summary: bool) -> anyhow::Result<()> {
     );
     println!("sampling: {}, {} poses, seed {}, order {}", spec.sampling, plan.poses.len(), spec.seed, spec.order);
     let ratio = if plan.motion_time_before_s > 0.0 { plan.motion_time_after_s / plan.motion_time_before_s } else { 1.0 };
-    println!(
-        "motion time: {:.1} s as sampled, {:.1} s in this order ({ratio:.2}x)",
-        plan.motion_time_before_s, plan.motion_time_after_s
-    );
+    println!("motion time: {:.1} s as sampled, {:.1} s in this order ({ratio:.2}x)", plan.motion_time_before_s, plan.motion_time_after_s);
     if !summary {
         println!("{:>5} {:>8} {:>8} {:>8} {:>8} {:>8}", "#", "pose_id", "x_mm", "y_mm", "z_mm", "yaw_deg");
         for (i, p) in plan.poses.iter().enumerate() {
-            println!(
-                "{:>5} {:>8} {:>8.3} {:>8.3} {:>8.3} {:>8.3}",
-                i, p.pose_id, p.pose.x_mm, p.pose.y_mm, p.pose.z_mm, p.pose.yaw_deg
-            );
+            println!("{:>5} {:>8} {:>8.3} {:>8.3} {:>8.3} {:>8.3}", i, p.pose_id, p.pose.x_mm, p.pose.y_mm, p.pose.z_mm, p.pose.yaw_deg);
         }
     }
     Ok(())

@@ -154,14 +154,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         View::Tactile(sensor) => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
     }
     .with_context(|| format!("writing {}", out.display()))?;
-    println!(
-        "wrote {} ({}x{}, {:?}, max indentation {:.3} mm)",
-        out.display(),
-        width,
-        height,
-        sensor,
-        depth.max_indentation_mm()
-    );
+    println!("wrote {} ({}x{}, {:?}, max indentation {:.3} mm)", out.display(), width, height, sensor, depth.max_indentation_mm());
     Ok(())
 }
 

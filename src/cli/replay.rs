@@ -36,22 +36,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Err(e) => bail!(crate::cli::UsageError(e.to_string())),
     };
     let h = &recording.header;
-    println!(
-        "replaying {} ({} events, rig {}): {}",
-        args.file.display(),
-        recording.events.len(),
-        h.rig_version,
-        h.command_line.join(" ")
-    );
+    println!("replaying {} ({} events, rig {}): {}", args.file.display(), recording.events.len(), h.rig_version, h.command_line.join(" "));
     if !(args.stall_s.is_finite() && args.stall_s > 0.0) {
         bail!(crate::cli::usage("--stall-s must be a positive number of seconds"));
     }
     // One thread: the client's feedback reader and the job interleave only where the
     // recording says (see `record::replay`).
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the async runtime")?;
     let outcome = runtime.block_on(replay_collection(&recording, &args.out, Duration::from_secs_f64(args.stall_s)));
     match outcome {
         Ok(o) => {

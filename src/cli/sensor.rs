@@ -109,9 +109,7 @@ fn render(a: RenderArgs) -> anyhow::Result<()> {
     let out = match &a.side_by_side {
         None => img,
         Some(real_path) => {
-            let real = image::open(real_path)
-                .with_context(|| format!("reading real image {}", real_path.display()))?
-                .to_rgb8();
+            let real = image::open(real_path).with_context(|| format!("reading real image {}", real_path.display()))?.to_rgb8();
             let real = image::imageops::resize(&real, real.width() * h / real.height().max(1), h, image::imageops::FilterType::Triangle);
             let mut both = image::RgbImage::new(real.width() + img.width(), h);
             image::imageops::replace(&mut both, &real, 0, 0);

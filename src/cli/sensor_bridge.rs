@@ -89,12 +89,7 @@ impl From<TactileSensor> for SensorKind {
 
 /// Renders what `sensor` would show for `depth` (calibration `calib`, noise seed `seed`) with
 /// the simulator's `full` scene, the arm at rest.
-pub fn render_tactile(
-    sensor: TactileSensor,
-    depth: &DepthMap,
-    calib: &Calibration,
-    seed: u64,
-) -> Result<RgbImage, SensorUnavailable> {
+pub fn render_tactile(sensor: TactileSensor, depth: &DepthMap, calib: &Calibration, seed: u64) -> Result<RgbImage, SensorUnavailable> {
     let scene = Scene::preset("full").map_err(|e| SensorUnavailable { sensor, reason: e.to_string() })?;
     render_tactile_with(sensor, depth, calib, seed, &scene, None)
 }

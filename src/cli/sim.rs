@@ -77,10 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let ports = (cfg.dashboard_port, cfg.motion_port, cfg.feedback_port);
         let profile_name = cfg.profile.name.clone();
         let sim = SimMg400::start(cfg, clock).await.with_context(|| {
-            format!(
-                "starting the simulated MG400 on {} ports {}/{}/{} (dashboard/motion/feedback)",
-                args.bind, ports.0, ports.1, ports.2
-            )
+            format!("starting the simulated MG400 on {} ports {}/{}/{} (dashboard/motion/feedback)", args.bind, ports.0, ports.1, ports.2)
         })?;
         println!("simulated MG400 (profile {}, time x{}), disabled until EnableRobot()", profile_name, args.time_scale);
         println!("  dashboard {}", sim.dashboard_addr());
@@ -160,10 +157,8 @@ mod tests {
 
     #[test]
     fn faults_and_start_pose() {
-        let args = parse(&[
-            "rig", "sim", "--collision-at-move", "3", "--split-replies", "--reply-delay-ms", "5",
-            "--start-pose", "310,-20,-5,10",
-        ]);
+        let args =
+            parse(&["rig", "sim", "--collision-at-move", "3", "--split-replies", "--reply-delay-ms", "5", "--start-pose", "310,-20,-5,10"]);
         let cfg = sim_config(&args).unwrap();
         assert_eq!(cfg.faults.collision_at_move, Some(3));
         assert!(cfg.faults.split_replies);

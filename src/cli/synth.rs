@@ -147,9 +147,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         (None, Some(sensor), Some(pose)) => crate::synth::prompt::mds_prompt(sensor, pose),
         _ => bail!("give --prompt, or --sensor with --pose"),
     };
-    let control = image::open(&args.control)
-        .with_context(|| format!("reading control image {}", args.control.display()))?
-        .to_rgb8();
+    let control = image::open(&args.control).with_context(|| format!("reading control image {}", args.control.display()))?.to_rgb8();
     let init = match &args.init_latents {
         Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
         None => None,
@@ -242,14 +240,41 @@ mod tests {
     #[test]
     fn one_parses_with_prompt_or_pose() {
         let cli = crate::cli::Cli::try_parse_from([
-            "rig", "synth", "one", "--model", "m", "--control", "c.png", "--prompt", "p", "--out", "o.png", "--steps", "4",
-            "--scheduler", "dpm++2m", "--size", "64x64",
+            "rig",
+            "synth",
+            "one",
+            "--model",
+            "m",
+            "--control",
+            "c.png",
+            "--prompt",
+            "p",
+            "--out",
+            "o.png",
+            "--steps",
+            "4",
+            "--scheduler",
+            "dpm++2m",
+            "--size",
+            "64x64",
         ])
         .unwrap();
         let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
         assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
         let cli = crate::cli::Cli::try_parse_from([
-            "rig", "synth", "one", "--model", "m", "--control", "c.png", "--sensor", "ViTac", "--pose", "-1,2,0.5,-30", "--out", "o.png",
+            "rig",
+            "synth",
+            "one",
+            "--model",
+            "m",
+            "--control",
+            "c.png",
+            "--sensor",
+            "ViTac",
+            "--pose",
+            "-1,2,0.5,-30",
+            "--out",
+            "o.png",
         ])
         .unwrap();
         let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };

@@ -113,10 +113,7 @@ async fn get_job(State(api): State<ApiState>, Path(id): Path<String>) -> Respons
 }
 
 async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes) -> Response {
-    let json_type = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_none_or(|v| v.starts_with("application/json"));
+    let json_type = headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).is_none_or(|v| v.starts_with("application/json"));
     if !json_type {
         return error(StatusCode::BAD_REQUEST, "the body must be JSON (Content-Type: application/json)");
     }
@@ -125,9 +122,7 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
         Err(e) => {
             return error(
                 StatusCode::BAD_REQUEST,
-                format!(
-                    "bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\", ...the command's options}})"
-                ),
+                format!("bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\", ...the command's options}})"),
             );
         }
     };

@@ -104,8 +104,7 @@ impl DaemonClient {
     }
 
     async fn exchange(&self, method: &str, path: &str, json_body: Option<&[u8]>) -> Result<HttpResponse, ClientError> {
-        let mut stream =
-            TcpStream::connect(&self.addr).await.map_err(|source| ClientError::Connect { addr: self.addr.clone(), source })?;
+        let mut stream = TcpStream::connect(&self.addr).await.map_err(|source| ClientError::Connect { addr: self.addr.clone(), source })?;
         let io = |source| ClientError::Io { addr: self.addr.clone(), source };
         let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n", self.addr);
         if let Some(token) = &self.token {
@@ -207,8 +206,15 @@ mod tests {
 
     #[test]
     fn malformed_responses_are_errors_not_panics() {
-        for raw in [&b""[..], b"HTTP/1.1 200", b"garbage\r\n\r\n", b"HTTP/1.1 abc OK\r\n\r\n", b"HTTP/1.1 200 OK\r\ncontent-length: 9\r\n\r\nab",
-            b"HTTP/1.1 200 OK\r\ntransfer-encoding: chunked\r\n\r\nzz\r\n", b"HTTP/1.1 200 OK\r\ntransfer-encoding: chunked\r\n\r\n5\r\nab"] {
+        for raw in [
+            &b""[..],
+            b"HTTP/1.1 200",
+            b"garbage\r\n\r\n",
+            b"HTTP/1.1 abc OK\r\n\r\n",
+            b"HTTP/1.1 200 OK\r\ncontent-length: 9\r\n\r\nab",
+            b"HTTP/1.1 200 OK\r\ntransfer-encoding: chunked\r\n\r\nzz\r\n",
+            b"HTTP/1.1 200 OK\r\ntransfer-encoding: chunked\r\n\r\n5\r\nab",
+        ] {
             assert!(parse_response(raw).is_err(), "{:?}", String::from_utf8_lossy(raw));
         }
     }

@@ -279,10 +279,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
     let where_ = spec.out.join(&object.name);
     if summary.interrupted {
         return Ok(JobEnd {
-            message: format!(
-                "interrupted: {} poses captured, {} left; continue with resume",
-                summary.captured, summary.remaining
-            ),
+            message: format!("interrupted: {} poses captured, {} left; continue with resume", summary.captured, summary.remaining),
             cancelled: true,
             done: Some((summary.skipped + summary.captured) as u64),
         });
@@ -402,21 +399,11 @@ async fn run_calibrate(spec: &CalibrateSpec, ctx: RigContext<'_>) -> Result<JobE
     let out = spec.out.clone().unwrap_or_else(|| crate::calibration::saved_path(&kind.to_string()));
     let pattern = PressPattern::grid(spec.grid, spec.span_mm, &spec.depths_mm);
     let profile = crate::rigs::profile_for(config)?;
-    let plan: Vec<_> = pattern
-        .offsets
-        .iter()
-        .enumerate()
-        .map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p })
-        .collect();
+    let plan: Vec<_> = pattern.offsets.iter().enumerate().map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p }).collect();
     check_plan(&plan, &config.work_frame, |p| profile.check_reachable(p))?;
     let opened = sensor_names(rig);
     let mesh = indenter_mesh();
-    let indenter = ObjectChoice {
-        name: "indenter".into(),
-        path: None,
-        sha256: String::new(),
-        mesh: Arc::new(mesh),
-    };
+    let indenter = ObjectChoice { name: "indenter".into(), path: None, sha256: String::new(), mesh: Arc::new(mesh) };
     rig.set_object(config, &indenter)?;
     let Rig { arm, cameras, .. } = rig;
     let Some(camera) = cameras.iter_mut().find(|c| c.sensor_dir() == kind.to_string()) else {

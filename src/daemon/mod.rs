@@ -108,9 +108,8 @@ impl Daemon {
         if token.is_none() && !options.listen.ip().is_loopback() {
             return Err(DaemonError::TokenRequired { addr: options.listen });
         }
-        let listener = tokio::net::TcpListener::bind(options.listen)
-            .await
-            .map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
+        let listener =
+            tokio::net::TcpListener::bind(options.listen).await.map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
         let addr = listener.local_addr().map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
 
         let config = options.config;

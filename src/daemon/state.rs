@@ -100,9 +100,9 @@ impl Job {
         // The rate since the first look (which excludes poses a resumed run skipped at
         // once); until that has moved, the rate since the start.
         let origin = if done > pos0 { Some((pos0, t0)) } else { self.started.filter(|_| done > 0).map(|t| (0, t)) };
-        let eta_s = origin.filter(|_| total >= done).map(|(pos0, t0)| {
-            now.duration_since(t0).as_secs_f64() / (done - pos0) as f64 * (total - done) as f64
-        });
+        let eta_s = origin
+            .filter(|_| total >= done)
+            .map(|(pos0, t0)| now.duration_since(t0).as_secs_f64() / (done - pos0) as f64 * (total - done) as f64);
         self.view.progress = Progress { done, total, eta_s };
     }
 }
@@ -288,10 +288,14 @@ impl DaemonState {
     /// Every job, oldest first.
     pub fn jobs(&self) -> Vec<JobView> {
         let mut inner = self.lock();
-        inner.jobs.iter_mut().map(|j| {
-            j.refresh();
-            j.view.clone()
-        }).collect()
+        inner
+            .jobs
+            .iter_mut()
+            .map(|j| {
+                j.refresh();
+                j.view.clone()
+            })
+            .collect()
     }
 
     /// One job.
@@ -330,12 +334,7 @@ impl DaemonState {
         job.view.state = JobState::Running;
         job.view.started_unix_s = Some(unix_now_s());
         job.started = Some(Instant::now());
-        Some(StartedJob {
-            id: job.view.id,
-            spec: job.view.spec.clone(),
-            cancel: job.cancel.subscribe(),
-            progress: job.progress.clone(),
-        })
+        Some(StartedJob { id: job.view.id, spec: job.view.spec.clone(), cancel: job.cancel.subscribe(), progress: job.progress.clone() })
     }
 
     /// Records how the running job `id` ended.
@@ -451,8 +450,7 @@ impl DaemonState {
     pub fn set_synth(&self, job_id: u64, pose_id: u32, control_png: Vec<u8>, image_png: Vec<u8>) {
         let mut inner = self.lock();
         let seq = inner.synth.as_ref().map_or(1, |s| s.seq + 1);
-        inner.synth =
-            Some(SynthPair { seq, job_id, pose_id, control_png: Arc::new(control_png), image_png: Arc::new(image_png) });
+        inner.synth = Some(SynthPair { seq, job_id, pose_id, control_png: Arc::new(control_png), image_png: Arc::new(image_png) });
     }
 
     /// The latest control/synthetic pair.

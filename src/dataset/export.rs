@@ -51,18 +51,8 @@ pub const MDS_COLUMNS: [&str; 16] = [
 ];
 
 /// The tactile-bench header, in order.
-pub const TACTILE_BENCH_COLUMNS: [&str; 10] = [
-    "sensor_image",
-    "object_label",
-    "pose_x",
-    "pose_y",
-    "pose_z",
-    "pose_Rx",
-    "pose_Ry",
-    "pose_Rz",
-    "pose_id",
-    "source",
-];
+pub const TACTILE_BENCH_COLUMNS: [&str; 10] =
+    ["sensor_image", "object_label", "pose_x", "pose_y", "pose_z", "pose_Rx", "pose_Ry", "pose_Rz", "pose_id", "source"];
 
 /// One filled row of an MDS file.
 #[derive(Debug, Clone, PartialEq)]
@@ -105,10 +95,7 @@ pub fn parse_mds(bytes: &[u8], path: &Path) -> Result<Vec<MdsRow>, DatasetError>
     let headers = rdr.headers().map_err(|e| bad(1, e.to_string()))?.clone();
     let mut index = [0usize; 16];
     for (k, name) in MDS_COLUMNS.iter().enumerate() {
-        index[k] = headers
-            .iter()
-            .position(|h| h.trim() == *name)
-            .ok_or_else(|| bad(1, format!("missing column {name}")))?;
+        index[k] = headers.iter().position(|h| h.trim() == *name).ok_or_else(|| bad(1, format!("missing column {name}")))?;
     }
     let mut rows = Vec::new();
     for record in rdr.records() {
@@ -129,9 +116,7 @@ pub fn parse_mds(bytes: &[u8], path: &Path) -> Result<Vec<MdsRow>, DatasetError>
         if image_name.is_empty() {
             return Err(bad(line, "image_name is empty".to_string()));
         }
-        let pose_id = field(3)
-            .parse::<u32>()
-            .map_err(|_| bad(line, format!("pose_id is not a non-negative integer: {:?}", field(3))))?;
+        let pose_id = field(3).parse::<u32>().map_err(|_| bad(line, format!("pose_id is not a non-negative integer: {:?}", field(3))))?;
         let mut pose = [0.0; 6];
         let mut moves = [0.0; 6];
         for j in 0..6 {

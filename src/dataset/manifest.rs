@@ -33,11 +33,7 @@ impl ObjectInfo {
 
     /// An object with its STL file, hashing the file.
     pub fn with_stl(name: &str, stl: &Path) -> Result<Self, DatasetError> {
-        Ok(Self {
-            name: name.to_string(),
-            stl_path: Some(stl.display().to_string()),
-            stl_sha256: Some(sha256_file(stl)?),
-        })
+        Ok(Self { name: name.to_string(), stl_path: Some(stl.display().to_string()), stl_sha256: Some(sha256_file(stl)?) })
     }
 }
 

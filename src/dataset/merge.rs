@@ -34,11 +34,7 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
     let Some(first) = manifests.first().cloned() else {
         return Ok(MergeReport { inputs: 0, appended: 0, already_present: 0 });
     };
-    let mut writer = if out.join(super::MANIFEST_FILE).exists() {
-        DatasetWriter::open(out)?
-    } else {
-        DatasetWriter::create(out, first)?
-    };
+    let mut writer = if out.join(super::MANIFEST_FILE).exists() { DatasetWriter::open(out)? } else { DatasetWriter::create(out, first)? };
     for (dir, m) in inputs.iter().zip(&manifests) {
         writer.manifest().check_same_dataset(m, dir)?;
     }
@@ -57,11 +53,7 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
             match chosen.get(&row.pose_id) {
                 Some((first_dir, first_row, first_png)) => {
                     if *first_row != row || *first_png != png {
-                        return Err(DatasetError::MergeConflict {
-                            pose_id: row.pose_id,
-                            first: first_dir.clone(),
-                            second: dir.clone(),
-                        });
+                        return Err(DatasetError::MergeConflict { pose_id: row.pose_id, first: first_dir.clone(), second: dir.clone() });
                     }
                     already_present += 1;
                 }

@@ -352,9 +352,8 @@ pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
         return vec![root.to_path_buf()];
     }
     let children = |d: &std::path::Path| -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
-            .map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
-            .unwrap_or_default();
+        let mut v: Vec<PathBuf> =
+            std::fs::read_dir(d).map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect()).unwrap_or_default();
         v.sort();
         v
     };
@@ -386,16 +385,9 @@ pub(crate) fn strict_rows(lines: Vec<ParsedLine>, path: &std::path::Path) -> Res
     let mut first_line = std::collections::BTreeMap::new();
     let mut rows = Vec::with_capacity(lines.len());
     for l in lines {
-        let row = l
-            .row
-            .map_err(|reason| DatasetError::MalformedRow { path: path.to_path_buf(), line: l.line, reason })?;
+        let row = l.row.map_err(|reason| DatasetError::MalformedRow { path: path.to_path_buf(), line: l.line, reason })?;
         if let Some(&first) = first_line.get(&row.pose_id) {
-            return Err(DatasetError::DuplicateRow {
-                path: path.to_path_buf(),
-                line: l.line,
-                first_line: first,
-                pose_id: row.pose_id,
-            });
+            return Err(DatasetError::DuplicateRow { path: path.to_path_buf(), line: l.line, first_line: first, pose_id: row.pose_id });
         }
         first_line.insert(row.pose_id, l.line);
         rows.push(row);

@@ -100,11 +100,7 @@ impl DatasetWriter {
             // Killed between the manifest and the header of a new dataset.
             write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
         }
-        let mut csv = OpenOptions::new()
-            .read(true)
-            .append(true)
-            .open(&csv_path)
-            .map_err(DatasetError::io("opening", &csv_path))?;
+        let mut csv = OpenOptions::new().read(true).append(true).open(&csv_path).map_err(DatasetError::io("opening", &csv_path))?;
         lock_exclusive(&csv, &csv_path)?;
 
         let mut bytes = Vec::new();
@@ -180,9 +176,7 @@ impl DatasetWriter {
     /// Takes `bytes` from the budget, or fails with the error a full disk gives.
     fn spend(&mut self, bytes: u64, path: &Path) -> Result<(), DatasetError> {
         match self.budget_left_bytes {
-            Some(left) if bytes > left => {
-                Err(DatasetError::io("writing", path)(std::io::Error::from_raw_os_error(libc::ENOSPC)))
-            }
+            Some(left) if bytes > left => Err(DatasetError::io("writing", path)(std::io::Error::from_raw_os_error(libc::ENOSPC))),
             Some(left) => {
                 self.budget_left_bytes = Some(left - bytes);
                 Ok(())
@@ -293,11 +287,7 @@ fn upgrade_legacy_csv(dir: &Path, legacy: &[u8], old: File) -> Result<File, Data
     }
     tracing::info!("adding the modbus column to {}", csv_path.display());
     write_atomic(dir, POSES_FILE, &upgraded)?;
-    let csv = OpenOptions::new()
-        .read(true)
-        .append(true)
-        .open(&csv_path)
-        .map_err(DatasetError::io("opening", &csv_path))?;
+    let csv = OpenOptions::new().read(true).append(true).open(&csv_path).map_err(DatasetError::io("opening", &csv_path))?;
     lock_exclusive(&csv, &csv_path)?;
     drop(old);
     Ok(csv)
@@ -340,9 +330,7 @@ pub(crate) fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), D
 
 /// Makes renames and removals in `dir` durable.
 pub(crate) fn fsync_dir(dir: &Path) -> Result<(), DatasetError> {
-    File::open(dir)
-        .and_then(|d| d.sync_all())
-        .map_err(DatasetError::io("syncing directory", dir))
+    File::open(dir).and_then(|d| d.sync_all()).map_err(DatasetError::io("syncing directory", dir))
 }
 
 fn dir_is_empty(dir: &Path) -> Result<bool, DatasetError> {

@@ -32,11 +32,7 @@ pub fn object_names() -> &'static [&'static str] {
 pub fn object_path(repo_root_or_dir: impl AsRef<Path>, name: &str) -> PathBuf {
     let root = repo_root_or_dir.as_ref();
     let file = format!("{name}.stl");
-    if root.ends_with(OBJECTS_DIR) || root.join(&file).is_file() {
-        root.join(file)
-    } else {
-        root.join(OBJECTS_DIR).join(file)
-    }
+    if root.ends_with(OBJECTS_DIR) || root.join(&file).is_file() { root.join(file) } else { root.join(OBJECTS_DIR).join(file) }
 }
 
 /// Loads library object `name`: the STL file if one is found (current directory, then the

@@ -46,7 +46,9 @@ pub enum StlError {
     TooShort { file: String, len: usize },
     #[error("STL {file}: truncated: the header declares {declared} triangles ({expected_len} bytes) but the file has {len} bytes")]
     Truncated { file: String, declared: u32, expected_len: u64, len: usize },
-    #[error("STL {file}: wrong triangle count: the header declares {declared} triangles but the {len} bytes hold {implied} ({trailing} bytes left over)")]
+    #[error(
+        "STL {file}: wrong triangle count: the header declares {declared} triangles but the {len} bytes hold {implied} ({trailing} bytes left over)"
+    )]
     CountMismatch { file: String, declared: u32, len: usize, implied: usize, trailing: usize },
     #[error("STL {file}: no triangles")]
     NoTriangles { file: String },
@@ -223,8 +225,7 @@ fn parse_binary(bytes: &[u8], n: usize) -> Mesh {
 }
 
 fn parse_ascii(bytes: &[u8], name: &str) -> Result<Mesh, StlError> {
-    let text = std::str::from_utf8(bytes)
-        .map_err(|e| StlError::AsciiEncoding { file: name.to_string(), offset: e.valid_up_to() })?;
+    let text = std::str::from_utf8(bytes).map_err(|e| StlError::AsciiEncoding { file: name.to_string(), offset: e.valid_up_to() })?;
     let syntax = |line: usize, expected: &'static str, found: &str| StlError::AsciiSyntax {
         file: name.to_string(),
         line,

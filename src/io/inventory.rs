@@ -45,11 +45,7 @@ impl DeviceReport {
                 Err(e) => CameraEntry { node, offers: Vec::new(), error: Some(e.to_string()) },
             })
             .collect();
-        Self {
-            cameras,
-            serial_ports: crate::io::serial::list_serial_ports(),
-            usb_devices: crate::camera::usb::list_usb_devices(),
-        }
+        Self { cameras, serial_ports: crate::io::serial::list_serial_ports(), usb_devices: crate::camera::usb::list_usb_devices() }
     }
 
     /// The human-readable listing.
@@ -64,7 +60,12 @@ impl DeviceReport {
                 match &c.node.usb {
                     Some(u) => {
                         let _ = writeln!(out, "    {u}");
-                        let _ = writeln!(out, "    config: device = \"port:{}\"{}", u.port_path, u.serial.as_ref().map(|s| format!("  or  device = \"serial:{s}\"")).unwrap_or_default());
+                        let _ = writeln!(
+                            out,
+                            "    config: device = \"port:{}\"{}",
+                            u.port_path,
+                            u.serial.as_ref().map(|s| format!("  or  device = \"serial:{s}\"")).unwrap_or_default()
+                        );
                     }
                     None => out.push_str("    not a USB device\n"),
                 }
@@ -121,7 +122,13 @@ mod tests {
 
     #[test]
     fn cameras_show_formats_and_the_config_line() {
-        let usb = UsbIdentity { port_path: "1-2.3".into(), vendor_id: 0x0c45, product_id: 0x6366, serial: Some("TT1".into()), ..UsbIdentity::default() };
+        let usb = UsbIdentity {
+            port_path: "1-2.3".into(),
+            vendor_id: 0x0c45,
+            product_id: 0x6366,
+            serial: Some("TT1".into()),
+            ..UsbIdentity::default()
+        };
         let report = DeviceReport {
             cameras: vec![CameraEntry {
                 node: VideoNode { path: "/dev/video2".into(), name: "TacTip".into(), index: 0, usb: Some(usb) },

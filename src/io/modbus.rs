@@ -162,11 +162,19 @@ pub struct RawModbusPeripheral {
 /// How to reach a peripheral.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ModbusTransport {
-    Tcp { address: String },
-    Rtu { device: PathBuf, baud: u32 },
+    Tcp {
+        address: String,
+    },
+    Rtu {
+        device: PathBuf,
+        baud: u32,
+    },
     /// A simulated device; [`crate::rigs::Rig::open`] starts it on loopback and replaces this
     /// with the [`Tcp`](Self::Tcp) address it listens on.
-    Sim { device: SimPeripheralKind, stop_answering_after: Option<u64> },
+    Sim {
+        device: SimPeripheralKind,
+        stop_answering_after: Option<u64>,
+    },
 }
 
 /// Which simulated Modbus device to start (see [`crate::sim::modbus`] for the register map).
@@ -556,7 +564,9 @@ impl ModbusBench {
             let required = p.config.required;
             match p.ensure_connected().await.map(|_| ()) {
                 Ok(()) => {}
-                Err(e) if !required => tracing::warn!(error = %e, "optional Modbus peripheral not reachable; its values stay empty until it answers"),
+                Err(e) if !required => {
+                    tracing::warn!(error = %e, "optional Modbus peripheral not reachable; its values stay empty until it answers")
+                }
                 Err(e) => return Err(e),
             }
         }
@@ -661,8 +671,24 @@ mod tests {
             before_capture: vec![RegisterWrite { register: 10, value: 800 }],
             after_capture: vec![],
             read: vec![
-                RegisterRead { name: "light_permille".into(), kind: RegisterKind::Holding, register: 10, words: 1, signed: false, scale: 1.0, offset: 0.0 },
-                RegisterRead { name: "force_mN".into(), kind: RegisterKind::Input, register: 0, words: 2, signed: true, scale: 0.1, offset: 0.0 },
+                RegisterRead {
+                    name: "light_permille".into(),
+                    kind: RegisterKind::Holding,
+                    register: 10,
+                    words: 1,
+                    signed: false,
+                    scale: 1.0,
+                    offset: 0.0,
+                },
+                RegisterRead {
+                    name: "force_mN".into(),
+                    kind: RegisterKind::Input,
+                    register: 0,
+                    words: 2,
+                    signed: true,
+                    scale: 0.1,
+                    offset: 0.0,
+                },
             ],
         }
     }
@@ -676,7 +702,15 @@ mod tests {
         assert!(readings[1].value.is_some_and(|v| (v - -123.4).abs() < 1e-9), "{readings:?}");
         assert_eq!(format_readings(&readings[..1]), format!("{name}.light_permille=800"));
         // A register the device does not have: an exception value, not a transport error.
-        p.config.read.push(RegisterRead { name: "missing".into(), kind: RegisterKind::Holding, register: 99, words: 1, signed: false, scale: 1.0, offset: 0.0 });
+        p.config.read.push(RegisterRead {
+            name: "missing".into(),
+            kind: RegisterKind::Holding,
+            register: 99,
+            words: 1,
+            signed: false,
+            scale: 1.0,
+            offset: 0.0,
+        });
         let e = p.read_all().await.unwrap_err();
         assert!(matches!(e, ModbusError::Exception { exception: ExceptionCode::IllegalDataAddress, .. }), "{e}");
     }
@@ -719,10 +753,8 @@ mod tests {
 
     #[test]
     fn config_resolves_and_decodes() {
-        let raw: RawModbusPeripheral = toml::from_str(
-            "transport = \"tcp\"\naddress = \"10.0.0.5\"\nread = [{ name = \"lux\", register = 3 }]\n",
-        )
-        .unwrap();
+        let raw: RawModbusPeripheral =
+            toml::from_str("transport = \"tcp\"\naddress = \"10.0.0.5\"\nread = [{ name = \"lux\", register = 3 }]\n").unwrap();
         let c = ModbusPeripheralConfig::resolve("light", raw).unwrap();
         assert_eq!(c.transport, ModbusTransport::Tcp { address: "10.0.0.5:502".into() });
         assert_eq!(c.read[0].kind, RegisterKind::Holding);
@@ -734,7 +766,10 @@ mod tests {
         let raw: RawModbusPeripheral = toml::from_str("transport = \"sim\"\nsim = \"force\"\nrequired = false\n").unwrap();
         let c = ModbusPeripheralConfig::resolve("force", raw).unwrap();
         assert!(!c.required);
-        assert_eq!(c.transport, ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { stiffness_n_per_mm: 2.0 }, stop_answering_after: None });
+        assert_eq!(
+            c.transport,
+            ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { stiffness_n_per_mm: 2.0 }, stop_answering_after: None }
+        );
         assert_eq!(c.describe(), "force (sim force sensor unit 1, optional)");
         for bad in [
             "transport = \"sim\"\nsim = \"laser\"\n",

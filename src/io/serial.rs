@@ -53,8 +53,7 @@ pub fn list_serial_ports_in(dev: &Path, sys_tty: &Path) -> Vec<SerialPortInfo> {
             let driver = std::fs::read_link(device.join("driver")).ok();
             // A UART whose `type` is 0 (PORT_UNKNOWN) has no hardware behind it.
             let unknown_uart = std::fs::read_to_string(e.path().join("type")).is_ok_and(|t| t.trim() == "0");
-            let is_placeholder =
-                unknown_uart || driver.as_ref().and_then(|d| d.file_name()).is_some_and(|d| d == "serial8250");
+            let is_placeholder = unknown_uart || driver.as_ref().and_then(|d| d.file_name()).is_some_and(|d| d == "serial8250");
             if device.exists() && !is_placeholder && !names.contains(&name) {
                 names.push(name);
             }
@@ -115,7 +114,8 @@ fn make_raw(fd: libc::c_int, baud: Option<u32>) -> io::Result<()> {
     unsafe { libc::cfmakeraw(&mut t) };
     t.c_cflag |= libc::CLOCAL | libc::CREAD;
     if let Some(baud) = baud {
-        let speed = baud_constant(baud).ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("unsupported baud rate {baud}")))?;
+        let speed =
+            baud_constant(baud).ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("unsupported baud rate {baud}")))?;
         // SAFETY: valid termios and a speed constant.
         if unsafe { libc::cfsetspeed(&mut t, speed) } != 0 {
             return Err(io::Error::last_os_error());

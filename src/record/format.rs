@@ -301,9 +301,8 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
     if stored != computed {
         return Err(FormatError::Checksum { what: "the header".into(), offset: 0, stored, computed });
     }
-    let header_json = std::str::from_utf8(header)
-        .map_err(|e| FormatError::HeaderNotText { offset: header_at + e.valid_up_to() })?
-        .to_string();
+    let header_json =
+        std::str::from_utf8(header).map_err(|e| FormatError::HeaderNotText { offset: header_at + e.valid_up_to() })?.to_string();
 
     let mut events = Vec::new();
     loop {
@@ -453,14 +452,15 @@ mod tests {
 
     fn any_event() -> impl proptest::strategy::Strategy<Value = Event> {
         use proptest::prelude::*;
-        let socket = (0u8..3, any::<bool>(), -1e6f64..1e6, proptest::collection::vec(any::<u8>(), 1..64)).prop_map(
-            |(s, to, t_s, bytes)| Event::Socket {
-                socket: SocketId::ALL[usize::from(s)],
-                direction: if to { Direction::ToController } else { Direction::FromController },
-                t_s,
-                bytes,
-            },
-        );
+        let socket =
+            (0u8..3, any::<bool>(), -1e6f64..1e6, proptest::collection::vec(any::<u8>(), 1..64)).prop_map(|(s, to, t_s, bytes)| {
+                Event::Socket {
+                    socket: SocketId::ALL[usize::from(s)],
+                    direction: if to { Direction::ToController } else { Direction::FromController },
+                    t_s,
+                    bytes,
+                }
+            });
         let frame = (any::<u8>(), -1e6f64..1e6, -1e6f64..1e6, any::<u64>(), 0u32..5, 0u32..5, any::<u8>()).prop_map(
             |(camera, t_s, t_capture_s, seq, width, height, v)| {
                 Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, rgb: vec![v; (width * height * 3) as usize] })

@@ -115,8 +115,8 @@ impl Recording {
     /// Decodes recording bytes; `path` is only used in messages. Never panics.
     pub fn decode(bytes: &[u8], path: &Path) -> Result<Self, RecordError> {
         let raw = format::decode(bytes).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })?;
-        let header: RecordingHeader = serde_json::from_str(&raw.header_json)
-            .map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
+        let header: RecordingHeader =
+            serde_json::from_str(&raw.header_json).map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
         for (record, e) in raw.events.iter().enumerate() {
             if let Event::Frame(f) = e
                 && usize::from(f.camera) >= header.sensors.len()
@@ -196,9 +196,7 @@ impl Recorder {
         let mut st = self.lock();
         let path = st.path.clone();
         let json = serde_json::to_string_pretty(header).map_err(|source| RecordError::Header { path: path.clone(), source })?;
-        st.out
-            .write_all(&format::encode_preamble(&json))
-            .map_err(|source| RecordError::Io { path, source })?;
+        st.out.write_all(&format::encode_preamble(&json)).map_err(|source| RecordError::Io { path, source })?;
         for event in st.pending.take().unwrap_or_default() {
             st.write_event(&event);
         }

@@ -110,7 +110,11 @@ fn slot(socket: SocketId) -> usize {
 /// Shortened, escaped text of protocol bytes for messages.
 fn show_bytes(bytes: &[u8]) -> String {
     let text: String = String::from_utf8_lossy(bytes).escape_debug().collect();
-    if text.chars().count() > 120 { format!("\"{}...\" ({} bytes)", text.chars().take(120).collect::<String>(), bytes.len()) } else { format!("\"{text}\"") }
+    if text.chars().count() > 120 {
+        format!("\"{}...\" ({} bytes)", text.chars().take(120).collect::<String>(), bytes.len())
+    } else {
+        format!("\"{text}\"")
+    }
 }
 
 /// Whether an event is the feedback reader's (the only one that runs beside the job).
@@ -222,7 +226,17 @@ pub struct ReplaySession {
 impl ReplaySession {
     /// A session over `events`; `cameras` names the cameras by index (for messages).
     pub fn new(events: Vec<Event>, cameras: Vec<String>) -> Self {
-        let state = SessionState { events, cameras, cursor: 0, offset: 0, divergence: None, waiters: Vec::new(), progress: 0, blocked_read: None, unread: Default::default() };
+        let state = SessionState {
+            events,
+            cameras,
+            cursor: 0,
+            offset: 0,
+            divergence: None,
+            waiters: Vec::new(),
+            progress: 0,
+            blocked_read: None,
+            unread: Default::default(),
+        };
         Self { state: Arc::new(Mutex::new(state)), clock: MockClock::new() }
     }
 

@@ -40,8 +40,7 @@ use tokio::task::JoinHandle;
 use crate::arm::dobot::alarms;
 use crate::arm::dobot::client::Mg400Config;
 use crate::arm::dobot::proto::{
-    DigitalOutput, ErrorId, FeedbackFrame, Port, RatioSetting, Reply, Request, RequestCall, RequestFramer, RobotMode,
-    format_error_id_lists,
+    DigitalOutput, ErrorId, FeedbackFrame, Port, RatioSetting, Reply, Request, RequestCall, RequestFramer, RobotMode, format_error_id_lists,
 };
 use crate::arm::kinematics::Joints;
 use crate::arm::profile::{FirmwareProfile, ReachError, trapezoid_accel_fraction, trapezoid_fraction, trapezoid_time_s};
@@ -371,10 +370,7 @@ impl Controller {
             }
             Request::GetAngle => {
                 let j = self.joints;
-                reply(
-                    ErrorId::Accepted,
-                    format!("{:.6},{:.6},{:.6},{:.6}", j.j1_deg, j.j2_deg, j.j3_deg, j.j4_deg),
-                )
+                reply(ErrorId::Accepted, format!("{:.6},{:.6},{:.6},{:.6}", j.j1_deg, j.j2_deg, j.j3_deg, j.j4_deg))
             }
             Request::GetErrorId => {
                 let mut lists = vec![Vec::new(); ERROR_LISTS];
@@ -428,9 +424,7 @@ impl Controller {
             Request::MovJ { target } => self.enqueue(Motion::Joint(target), call),
             Request::MovL { target } => self.enqueue(Motion::Linear(target), call),
             Request::JointMovJ { joints_deg } => self.enqueue(Motion::Joints(Joints::from_array(joints_deg)), call),
-            Request::Sync => {
-                Answer::WhenIdle(Reply::new(ErrorId::Accepted, String::new(), call.text.clone()))
-            }
+            Request::Sync => Answer::WhenIdle(Reply::new(ErrorId::Accepted, String::new(), call.text.clone())),
         }
     }
 
@@ -526,19 +520,13 @@ impl Controller {
 
     /// Starts the next queued move at `t_s`; false when nothing was started.
     fn start_next(&mut self, t_s: f64) -> bool {
-        if self.active.is_some()
-            || !self.enabled
-            || !self.alarms.is_empty()
-            || !self.queue_running
-            || self.paused
-            || self.stats.frozen
-        {
+        if self.active.is_some() || !self.enabled || !self.alarms.is_empty() || !self.queue_running || self.paused || self.stats.frozen {
             return false;
         }
         let Some(motion) = self.queue.pop_front() else { return false };
         self.stats.moves_started += 1;
-        let collides = self.collision_at_move == Some(self.stats.moves_started)
-            || self.collision_at_moves.contains(&self.stats.moves_started);
+        let collides =
+            self.collision_at_move == Some(self.stats.moves_started) || self.collision_at_moves.contains(&self.stats.moves_started);
         let linear = matches!(motion, Motion::Linear(_));
         let target = match motion {
             Motion::Joint(p) | Motion::Linear(p) => self.profile.reach(&p).map(|j| (j, p)),
@@ -578,8 +566,7 @@ impl Controller {
             let (a, b) = (self.joints.to_array(), to_joints.to_array());
             let mut slowest = (0.0, 0.5);
             for i in 0..4 {
-                let (d, v, acc) =
-                    ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * v, sp.joint_acc_deg_s2[i] * acc_ratio);
+                let (d, v, acc) = ((b[i] - a[i]).abs(), sp.joint_speed_deg_s[i] * v, sp.joint_acc_deg_s2[i] * acc_ratio);
                 let t = trapezoid_time_s(d, v, acc);
                 if t > slowest.0 {
                     slowest = (t, trapezoid_accel_fraction(d, v, acc));
@@ -704,9 +691,8 @@ pub struct SimMg400 {
 impl SimMg400 {
     /// Binds the ports and starts serving.
     pub async fn start(cfg: SimMg400Config, clock: Arc<dyn Clock>) -> Result<SimMg400, std::io::Error> {
-        let unreachable = |e: ReachError| {
-            std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("simulated MG400 start is unreachable: {e}"))
-        };
+        let unreachable =
+            |e: ReachError| std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("simulated MG400 start is unreachable: {e}"));
         let start_pose = match cfg.start_joints {
             Some(j) => {
                 cfg.profile.check_joints(&j).map_err(unreachable)?;
@@ -714,8 +700,7 @@ impl SimMg400 {
             }
             None => cfg.start_pose,
         };
-        let mut controller =
-            Controller::new(cfg.profile.clone(), start_pose, cfg.freeze_queue_depth).map_err(unreachable)?;
+        let mut controller = Controller::new(cfg.profile.clone(), start_pose, cfg.freeze_queue_depth).map_err(unreachable)?;
         controller.collision_at_move = cfg.faults.collision_at_move;
         controller.collision_at_moves = cfg.faults.collision_at_moves.clone();
         controller.last_t_s = clock.now_s();

@@ -21,8 +21,8 @@
 
 use std::future::{Ready, ready};
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
 
 use tokio::sync::watch;
 use tokio_modbus::{ExceptionCode, Request, Response};
@@ -134,20 +134,11 @@ pub struct SimModbusServer {
 
 impl SimModbusServer {
     /// Starts `kind` on `127.0.0.1:0`. A force sensor without `contact` always reads 0.
-    pub async fn start(
-        kind: SimPeripheralKind,
-        contact: Option<ArmContact>,
-        stop_answering_after: Option<u64>,
-    ) -> std::io::Result<Self> {
+    pub async fn start(kind: SimPeripheralKind, contact: Option<ArmContact>, stop_answering_after: Option<u64>) -> std::io::Result<Self> {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
         let addr = listener.local_addr()?;
-        let state = Arc::new(DeviceState {
-            kind,
-            contact,
-            light_permille: AtomicU16::new(0),
-            requests: AtomicU64::new(0),
-            stop_answering_after,
-        });
+        let state =
+            Arc::new(DeviceState { kind, contact, light_permille: AtomicU16::new(0), requests: AtomicU64::new(0), stop_answering_after });
         let service = SimModbusService { state: Arc::clone(&state) };
         let server = tokio_modbus::server::tcp::Server::new(listener);
         let task = tokio::spawn(async move {
@@ -235,14 +226,21 @@ mod tests {
         let readings = bench.after_capture().await.unwrap();
         assert_eq!(format_readings(&readings), "force.force_N=5;force.depth_um=2000;light.level_permille=800");
         assert_eq!(parse_readings(&format_readings(&readings)), Some(readings));
-        assert_eq!(parse_readings("a=1;b="), Some(vec![
-            crate::io::modbus::ModbusReading { name: "a".into(), value: Some(1.0) },
-            crate::io::modbus::ModbusReading { name: "b".into(), value: None },
-        ]));
+        assert_eq!(
+            parse_readings("a=1;b="),
+            Some(vec![
+                crate::io::modbus::ModbusReading { name: "a".into(), value: Some(1.0) },
+                crate::io::modbus::ModbusReading { name: "b".into(), value: None },
+            ])
+        );
         assert_eq!(parse_readings("a=x"), None);
 
         // A level the controller refuses is an exception, not a timeout.
-        let mut bad = ModbusPeripheral::new(config("light", "transport = \"tcp\"\naddress = \"x\"\nbefore_capture = [{ register = 0, value = 1001 }]\n", light.addr()));
+        let mut bad = ModbusPeripheral::new(config(
+            "light",
+            "transport = \"tcp\"\naddress = \"x\"\nbefore_capture = [{ register = 0, value = 1001 }]\n",
+            light.addr(),
+        ));
         let e = bad.before_capture().await.unwrap_err();
         assert!(matches!(e, ModbusError::Exception { exception: ExceptionCode::IllegalDataValue, .. }), "{e}");
     }

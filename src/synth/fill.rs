@@ -157,8 +157,7 @@ pub fn missing_poses(dataset: &Path, out: Option<&Path>, shard: Shard) -> Result
     if let Some(out) = out.filter(|o| o.join("poses.csv").is_file()) {
         present.extend(read_rows(out)?.iter().map(|r| r.pose_id));
     }
-    let todo: Vec<PlannedPose> =
-        grid.iter().filter(|p| !present.contains(&p.pose_id) && shard.owns(p.pose_id)).copied().collect();
+    let todo: Vec<PlannedPose> = grid.iter().filter(|p| !present.contains(&p.pose_id) && shard.owns(p.pose_id)).copied().collect();
     let present = grid.iter().filter(|p| present.contains(&p.pose_id)).count();
     Ok(FillWork { manifest, todo, grid: grid.len(), present })
 }
@@ -259,12 +258,7 @@ pub fn fill_missing_observed(
         }
     }
     writer.finish()?;
-    Ok(FillSummary {
-        grid: work.grid,
-        present: work.present,
-        synthesised: todo.len(),
-        left: total_missing - todo.len(),
-    })
+    Ok(FillSummary { grid: work.grid, present: work.present, synthesised: todo.len(), left: total_missing - todo.len() })
 }
 
 /// What `rig synth --poses-of` did for one dataset.
@@ -378,12 +372,7 @@ pub fn synthesise_poses_of(
         progress.inc(chunk.len() as u64);
     }
     writer.finish()?;
-    Ok(PosesOfSummary {
-        real: real.len(),
-        present: real.len() - waiting,
-        synthesised: todo.len(),
-        left: waiting - todo.len(),
-    })
+    Ok(PosesOfSummary { real: real.len(), present: real.len() - waiting, synthesised: todo.len(), left: waiting - todo.len() })
 }
 
 /// Renders the control images (ControlNet hints) of one dataset's poses, exactly as
@@ -455,7 +444,12 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
         None | Some("default") => {
             let saved = crate::calibration::saved_path(&manifest.sensor);
             if saved.is_file() {
-                return calibration_of(dir, &Manifest { calibration: Some(saved.display().to_string()), ..manifest.clone() }, width, height);
+                return calibration_of(
+                    dir,
+                    &Manifest { calibration: Some(saved.display().to_string()), ..manifest.clone() },
+                    width,
+                    height,
+                );
             }
             Ok(Calibration::default_for(width, height))
         }

@@ -52,11 +52,8 @@ pub enum NpyError {
 impl NpyArray {
     /// An array of `shape` filled from `data`; fails when the element counts differ.
     pub fn new(shape: Vec<usize>, data: Vec<f32>) -> Result<Self, NpyError> {
-        let elements = element_count(&shape).ok_or(NpyError::ShapeMismatch {
-            shape: shape.clone(),
-            elements: usize::MAX,
-            data_len: data.len(),
-        })?;
+        let elements =
+            element_count(&shape).ok_or(NpyError::ShapeMismatch { shape: shape.clone(), elements: usize::MAX, data_len: data.len() })?;
         if elements != data.len() {
             return Err(NpyError::ShapeMismatch { shape, elements, data_len: data.len() });
         }
@@ -83,12 +80,8 @@ impl NpyArray {
             }
             _ => return Err(NpyError::UnsupportedVersion { major, minor }),
         };
-        let header_end = header_start
-            .checked_add(header_len)
-            .ok_or(NpyError::Truncated { needed: usize::MAX, have: bytes.len() })?;
-        let header_bytes = bytes
-            .get(header_start..header_end)
-            .ok_or(NpyError::Truncated { needed: header_end, have: bytes.len() })?;
+        let header_end = header_start.checked_add(header_len).ok_or(NpyError::Truncated { needed: usize::MAX, have: bytes.len() })?;
+        let header_bytes = bytes.get(header_start..header_end).ok_or(NpyError::Truncated { needed: header_end, have: bytes.len() })?;
         let header = String::from_utf8_lossy(header_bytes).into_owned();
         let parsed = parse_header(&header)?;
         if parsed.descr != "<f4" {
@@ -97,19 +90,13 @@ impl NpyArray {
         if parsed.fortran_order {
             return Err(NpyError::FortranOrder);
         }
-        let elements = element_count(&parsed.shape).ok_or(NpyError::BadHeader {
-            reason: "shape overflows",
-            header: header.clone(),
-        })?;
+        let elements = element_count(&parsed.shape).ok_or(NpyError::BadHeader { reason: "shape overflows", header: header.clone() })?;
         let data_bytes = &bytes[header_end..];
         let needed = elements.checked_mul(4).ok_or(NpyError::BadHeader { reason: "shape overflows", header })?;
         if data_bytes.len() < needed {
             return Err(NpyError::Truncated { needed: header_end + needed, have: bytes.len() });
         }
-        let data = data_bytes[..needed]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let data = data_bytes[..needed].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         Ok(Self { shape: parsed.shape, data })
     }
 

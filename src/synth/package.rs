@@ -132,8 +132,7 @@ impl ModelConfig {
     /// Reads and validates `model.toml`.
     pub fn read(path: &Path) -> Result<Self, SynthError> {
         let text = std::fs::read_to_string(path).map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
-        let raw: RawModelToml =
-            toml::from_str(&text).map_err(|source| SynthError::ModelToml { path: path.to_path_buf(), source })?;
+        let raw: RawModelToml = toml::from_str(&text).map_err(|source| SynthError::ModelToml { path: path.to_path_buf(), source })?;
         let bad = |field, value: String, reason| SynthError::BadModelConfig { path: path.to_path_buf(), field, value, reason };
         let hint_encoding = match raw.hint_encoding.as_str() {
             "rgb01" => HintEncoding::Rgb01,
@@ -152,7 +151,11 @@ impl ModelConfig {
         }
         let [w, h] = raw.resolution;
         if w == 0 || h == 0 || !w.is_multiple_of(f) || !h.is_multiple_of(f) {
-            return Err(bad("resolution", format!("{raw_res:?}", raw_res = raw.resolution), "must be positive multiples of vae_scale_factor"));
+            return Err(bad(
+                "resolution",
+                format!("{raw_res:?}", raw_res = raw.resolution),
+                "must be positive multiples of vae_scale_factor",
+            ));
         }
         if raw.sampling_steps == Some(0) {
             return Err(bad("sampling_steps", "0".to_string(), "must be at least 1"));
@@ -199,10 +202,9 @@ impl ModelPackage {
         }
         let config = ModelConfig::read(&dir.join("model.toml"))?;
         let sched_path = dir.join("scheduler/scheduler_config.json");
-        let sched_config = SchedulerConfig::read(&sched_path)
-            .map_err(|source| SynthError::Scheduler { path: sched_path.clone(), source })?;
-        let schedule =
-            NoiseSchedule::new(sched_config).map_err(|source| SynthError::Scheduler { path: sched_path, source })?;
+        let sched_config =
+            SchedulerConfig::read(&sched_path).map_err(|source| SynthError::Scheduler { path: sched_path.clone(), source })?;
+        let schedule = NoiseSchedule::new(sched_config).map_err(|source| SynthError::Scheduler { path: sched_path, source })?;
         Ok(Self { dir: dir.to_path_buf(), config, schedule })
     }
 

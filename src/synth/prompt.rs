@@ -122,7 +122,9 @@ mod tests {
             "{'sensor_context': 'captured by a high-resolution tactile only sensor TacTip.', \
              'object_pose': {'x': -3.06, 'y': -2.04, 'z': 0.8, 'yaw': -89.79}}"
         );
-        assert!(mds_prompt("ViTacTip", &p).starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'"));
+        assert!(
+            mds_prompt("ViTacTip", &p).starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'")
+        );
         assert!(mds_prompt("GelSight", &p).starts_with("{'sensor_context': 'captured by GelSight sensor.'"));
     }
 

@@ -149,10 +149,8 @@ pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
     }
     let library = find_ort_library(opts.ort_lib.as_deref())?;
     let builder = ort::init_from(&library).map_err(|source| SynthError::OrtLoad { path: library.clone(), source })?;
-    let environment = builder
-        .with_name("rig")
-        .build()
-        .map_err(|source| SynthError::Ort { context: "creating the environment".to_string(), source })?;
+    let environment =
+        builder.with_name("rig").build().map_err(|source| SynthError::Ort { context: "creating the environment".to_string(), source })?;
     let rt = Runtime { library, environment };
     Ok(RUNTIME.get_or_init(|| rt).clone())
 }
@@ -173,10 +171,7 @@ impl Runtime {
         let ctx = |what: &str| format!("{what} {}", file.display());
         let err = |what: &str| {
             let context = ctx(what);
-            move |source: ort::Error<ort::session::builder::SessionBuilder>| SynthError::Ort {
-                context,
-                source: source.into(),
-            }
+            move |source: ort::Error<ort::session::builder::SessionBuilder>| SynthError::Ort { context, source: source.into() }
         };
         let mut builder = ort::session::Session::builder(&self.environment)
             .map_err(|source| SynthError::Ort { context: ctx("session builder for"), source })?;
@@ -246,9 +241,7 @@ pub(crate) fn run_f32(
     inputs: Inputs,
     output_names: &[String],
 ) -> Result<Vec<ShapedF32>, SynthError> {
-    let outputs = session
-        .run(inputs)
-        .map_err(|source| SynthError::Ort { context: format!("running {}", file.display()), source })?;
+    let outputs = session.run(inputs).map_err(|source| SynthError::Ort { context: format!("running {}", file.display()), source })?;
     output_names
         .iter()
         .map(|name| {

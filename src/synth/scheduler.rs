@@ -118,11 +118,7 @@ impl NoiseSchedule {
             return Err(SchedulerError::Unsupported { field: "thresholding", value: "true".into(), supported: "false" });
         }
         if config.rescale_betas_zero_snr {
-            return Err(SchedulerError::Unsupported {
-                field: "rescale_betas_zero_snr",
-                value: "true".into(),
-                supported: "false",
-            });
+            return Err(SchedulerError::Unsupported { field: "rescale_betas_zero_snr", value: "true".into(), supported: "false" });
         }
         prediction(&config.prediction_type)?;
         if !["leading", "trailing", "linspace"].contains(&config.timestep_spacing.as_str()) {
@@ -141,10 +137,7 @@ impl NoiseSchedule {
             match config.beta_schedule.as_str() {
                 "linear" => linspace_f32(config.beta_start, config.beta_end, n),
                 // torch.linspace(beta_start**0.5, beta_end**0.5, n, dtype=float32) ** 2
-                "scaled_linear" => linspace_f32(config.beta_start.sqrt(), config.beta_end.sqrt(), n)
-                    .into_iter()
-                    .map(|b| b * b)
-                    .collect(),
+                "scaled_linear" => linspace_f32(config.beta_start.sqrt(), config.beta_end.sqrt(), n).into_iter().map(|b| b * b).collect(),
                 "squaredcos_cap_v2" => {
                     let alpha_bar = |t: f64| ((t + 0.008) / 1.008 * std::f64::consts::PI / 2.0).cos().powi(2);
                     (0..n)
@@ -276,9 +269,7 @@ fn linspace_f32(start: f64, end: f64, n: usize) -> Vec<f32> {
     let step = (end - start) / (n - 1) as f64;
     // torch fills the first half from the start and the second half from the end.
     let half = n / 2;
-    (0..n)
-        .map(|i| if i < half { start + step * i as f64 } else { end - step * (n - 1 - i) as f64 } as f32)
-        .collect()
+    (0..n).map(|i| if i < half { start + step * i as f64 } else { end - step * (n - 1 - i) as f64 } as f32).collect()
 }
 
 /// Which sampler the pipeline runs.
@@ -361,13 +352,7 @@ impl Scheduler {
 
     /// Advances `sample` by one step given the model output at the current timestep. `noise`
     /// (standard normal, same length) is used only when [`needs_noise`](Self::needs_noise).
-    pub fn step(
-        &mut self,
-        schedule: &NoiseSchedule,
-        model_output: &[f32],
-        sample: &[f32],
-        noise: Option<&[f32]>,
-    ) -> Vec<f32> {
+    pub fn step(&mut self, schedule: &NoiseSchedule, model_output: &[f32], sample: &[f32], noise: Option<&[f32]>) -> Vec<f32> {
         let i = self.step_index.min(self.timesteps.len() - 1);
         let t = self.timesteps[i];
         let out = match self.kind {
@@ -460,12 +445,7 @@ impl Scheduler {
                     let h_prev = lambda_t - lambda_prev;
                     let r = h_prev / h;
                     let half_over_r = (0.5 / r) as f32;
-                    sample
-                        .iter()
-                        .zip(&x0)
-                        .zip(prev_x0)
-                        .map(|((&x, &d0), &dm)| ratio * x + coeff * (d0 + half_over_r * (d0 - dm)))
-                        .collect()
+                    sample.iter().zip(&x0).zip(prev_x0).map(|((&x, &d0), &dm)| ratio * x + coeff * (d0 + half_over_r * (d0 - dm))).collect()
                 }
                 _ => sample.iter().zip(&x0).map(|(&x, &d0)| ratio * x + coeff * d0).collect(),
             }
@@ -574,7 +554,11 @@ mod tests {
         let mut eta = Scheduler::new(&s, SchedulerKind::Ddim, 4, 0.5).unwrap();
         assert!(eta.needs_noise());
         eta.step(&s, &e, &x, Some(&z));
-        check(eta.step(&s, &e, &x, Some(&z)), [0.9581247568130493, -1.39934241771698, 2.622256278991699, 0.8481751680374146], "t=501 eta 0.5");
+        check(
+            eta.step(&s, &e, &x, Some(&z)),
+            [0.9581247568130493, -1.39934241771698, 2.622256278991699, 0.8481751680374146],
+            "t=501 eta 0.5",
+        );
     }
 
     #[test]

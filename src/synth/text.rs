@@ -39,8 +39,7 @@ pub struct PromptTokenizer {
 impl PromptTokenizer {
     /// Loads `tokenizer.json`; `end_token` is the padding token (CLIP: `<|endoftext|>`).
     pub fn load(path: &Path, end_token: &str, sequence_len: usize) -> Result<Self, SynthError> {
-        let mut tokenizer =
-            Tokenizer::from_file(path).map_err(|source| SynthError::Tokenizer { path: path.to_path_buf(), source })?;
+        let mut tokenizer = Tokenizer::from_file(path).map_err(|source| SynthError::Tokenizer { path: path.to_path_buf(), source })?;
         let end_id = tokenizer
             .token_to_id(end_token)
             .ok_or_else(|| SynthError::NoEndToken { path: path.to_path_buf(), token: end_token.to_string() })?;
@@ -65,10 +64,7 @@ impl PromptTokenizer {
 
     /// The ids of one prompt, exactly `sequence_len` long.
     pub fn ids(&self, prompt: &str) -> Result<Vec<u32>, SynthError> {
-        let enc = self
-            .tokenizer
-            .encode(prompt, true)
-            .map_err(|source| SynthError::Tokenizer { path: self.path.clone(), source })?;
+        let enc = self.tokenizer.encode(prompt, true).map_err(|source| SynthError::Tokenizer { path: self.path.clone(), source })?;
         let mut ids = enc.get_ids().to_vec();
         // Fixed padding and truncation already give this length; keep the invariant explicit
         // for tokenizers whose post-processor adds more than truncation reserved.

@@ -72,9 +72,7 @@ pub fn from_lists(lists: &[Vec<i64>]) -> Vec<Alarm> {
     lists
         .iter()
         .enumerate()
-        .flat_map(|(source, ids)| {
-            ids.iter().map(move |&id| Alarm { source, id, description: describe(source, id) })
-        })
+        .flat_map(|(source, ids)| ids.iter().map(move |&id| Alarm { source, id, description: describe(source, id) }))
         .collect()
 }
 

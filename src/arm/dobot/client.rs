@@ -213,10 +213,7 @@ impl CommandLink {
             match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
                 Ok(Ok(0)) => {
                     self.reset();
-                    return Err(io_err(
-                        format!("reading the reply to {text} on the {where_}"),
-                        std::io::ErrorKind::UnexpectedEof.into(),
-                    ));
+                    return Err(io_err(format!("reading the reply to {text} on the {where_}"), std::io::ErrorKind::UnexpectedEof.into()));
                 }
                 Ok(Ok(n)) => self.framer.push(&buf[..n]),
                 Ok(Err(e)) => {
@@ -388,8 +385,7 @@ impl Mg400Client {
             connect_timeout: cfg.connect_timeout,
         };
         let (tx, rx) = watch::channel(None);
-        let feedback_task =
-            tokio::spawn(feedback_task(Some(feedback), addrs.2, cfg.connect_timeout, clock.clone(), tx));
+        let feedback_task = tokio::spawn(feedback_task(Some(feedback), addrs.2, cfg.connect_timeout, clock.clone(), tx));
         Mg400Client {
             dashboard: link("dashboard", addrs.0, dashboard),
             motion: link("motion", addrs.1, motion),
@@ -462,9 +458,7 @@ impl Mg400Client {
     /// Sends a dashboard command; a non-zero ErrorID becomes [`ArmError::Refused`].
     pub async fn dashboard(&mut self, req: &Request) -> Result<Reply, ArmError> {
         let timeout = match req {
-            Request::EnableRobot { .. } | Request::DisableRobot | Request::ClearError | Request::ResetRobot => {
-                self.cfg.enable_timeout
-            }
+            Request::EnableRobot { .. } | Request::DisableRobot | Request::ClearError | Request::ResetRobot => self.cfg.enable_timeout,
             _ => self.cfg.reply_timeout,
         };
         let reply = self.dashboard.request(req, timeout, self.cfg.reconnect_attempts).await?;
@@ -634,9 +628,7 @@ impl Arm for Mg400Client {
             .wait_feedback(after, deadline, &what, |s| {
                 let p = s.frame.actual_pose();
                 s.frame.in_alarm()
-                    || (s.frame.mode() == RobotMode::Enabled
-                        && p.distance_mm(&target) <= tol_mm
-                        && p.yaw_error_deg(&target) <= tol_deg)
+                    || (s.frame.mode() == RobotMode::Enabled && p.distance_mm(&target) <= tol_mm && p.yaw_error_deg(&target) <= tol_deg)
             })
             .await;
         let sample = match sample {
@@ -742,10 +734,7 @@ mod tests {
         });
         assert_eq!(client.robot_mode().await.unwrap(), RobotMode::Enabled);
         let err = client.command(&Request::SpeedFactor { percent: 101 }).await.unwrap_err();
-        assert!(
-            matches!(&err, ArmError::Refused { error_id: -40001, command, .. } if command == "SpeedFactor(101)"),
-            "{err:?}"
-        );
+        assert!(matches!(&err, ArmError::Refused { error_id: -40001, command, .. } if command == "SpeedFactor(101)"), "{err:?}");
         robot_side.await.unwrap();
     }
 

@@ -115,9 +115,7 @@ impl ErrorId {
     pub fn meaning(&self) -> String {
         match *self {
             ErrorId::Accepted => "accepted".into(),
-            ErrorId::Failed => {
-                "could not execute (robot in alarm, not enabled, not in TCP mode, or bad index)".into()
-            }
+            ErrorId::Failed => "could not execute (robot in alarm, not enabled, not in TCP mode, or bad index)".into(),
             ErrorId::UnknownCommand => "unknown command".into(),
             ErrorId::WrongParameterCount => "wrong number of parameters".into(),
             ErrorId::ParameterType { index } => format!("parameter {index} has the wrong type"),
@@ -153,7 +151,10 @@ pub enum Port {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Request {
     /// `EnableRobot()`, `EnableRobot(load)` or `EnableRobot(load,cx,cy,cz)`.
-    EnableRobot { load_kg: Option<f64>, centre_mm: Option<[f64; 3]> },
+    EnableRobot {
+        load_kg: Option<f64>,
+        centre_mm: Option<[f64; 3]>,
+    },
     DisableRobot,
     ClearError,
     /// Stops the arm and empties the motion queue.
@@ -162,27 +163,50 @@ pub enum Request {
     Pause,
     Continue,
     /// Global speed, 1..=100 %.
-    SpeedFactor { percent: i64 },
-    User { index: i64 },
-    Tool { index: i64 },
+    SpeedFactor {
+        percent: i64,
+    },
+    User {
+        index: i64,
+    },
+    Tool {
+        index: i64,
+    },
     RobotMode,
     GetPose,
     GetAngle,
     GetErrorId,
     /// `DI(index)`: read a digital input.
-    Di { index: i64 },
+    Di {
+        index: i64,
+    },
     /// `DO(index,status)` and its relatives: set a digital output.
-    Do { output: DigitalOutput, index: i64, on: bool },
+    Do {
+        output: DigitalOutput,
+        index: i64,
+        on: bool,
+    },
     /// `SpeedJ(r)`, `AccL(r)`, ...: per-motion-kind speed and acceleration ratios, %.
-    Ratio { setting: RatioSetting, percent: i64 },
+    Ratio {
+        setting: RatioSetting,
+        percent: i64,
+    },
     /// `SetCollisionLevel(level)`: 0 = off .. 5 = most sensitive.
-    SetCollisionLevel { level: i64 },
+    SetCollisionLevel {
+        level: i64,
+    },
     /// `MovJ(x,y,z,r)`: joint-interpolated move to a base-frame pose.
-    MovJ { target: Pose },
+    MovJ {
+        target: Pose,
+    },
     /// `MovL(x,y,z,r)`: straight-line move to a base-frame pose.
-    MovL { target: Pose },
+    MovL {
+        target: Pose,
+    },
     /// `JointMovJ(j1,j2,j3,j4)`: joint move to joint angles, degrees.
-    JointMovJ { joints_deg: [f64; 4] },
+    JointMovJ {
+        joints_deg: [f64; 4],
+    },
     /// Blocks until the motion queue has drained.
     Sync,
 }
@@ -271,9 +295,7 @@ impl Request {
     /// The port this command is sent on.
     pub fn port(&self) -> Port {
         match self {
-            Request::MovJ { .. } | Request::MovL { .. } | Request::JointMovJ { .. } | Request::Sync => {
-                Port::Motion
-            }
+            Request::MovJ { .. } | Request::MovL { .. } | Request::JointMovJ { .. } | Request::Sync => Port::Motion,
             _ => Port::Dashboard,
         }
     }
@@ -319,18 +341,12 @@ impl Request {
         let name = call.name.to_ascii_lowercase();
         // Optional `Key=value` arguments (SpeedL=, User=, ...) follow the positional ones; the
         // simulated controller accepts and ignores them.
-        let positional: Vec<&str> =
-            call.args.iter().map(String::as_str).filter(|a| !a.contains('=')).collect();
+        let positional: Vec<&str> = call.args.iter().map(String::as_str).filter(|a| !a.contains('=')).collect();
         let count = |allowed: &[usize]| {
             if allowed.contains(&positional.len()) { Ok(()) } else { Err(ErrorId::WrongParameterCount) }
         };
         let float = |i: usize| -> Result<f64, ErrorId> {
-            positional[i]
-                .trim()
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or(ErrorId::ParameterType { index: i as u32 + 1 })
+            positional[i].trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or(ErrorId::ParameterType { index: i as u32 + 1 })
         };
         let int = |i: usize| -> Result<i64, ErrorId> {
             positional[i].trim().parse::<i64>().map_err(|_| ErrorId::ParameterType { index: i as u32 + 1 })
@@ -342,10 +358,7 @@ impl Request {
                 match positional.len() {
                     0 => Request::EnableRobot { load_kg: None, centre_mm: None },
                     1 => Request::EnableRobot { load_kg: Some(float(0)?), centre_mm: None },
-                    _ => Request::EnableRobot {
-                        load_kg: Some(float(0)?),
-                        centre_mm: Some([float(1)?, float(2)?, float(3)?]),
-                    },
+                    _ => Request::EnableRobot { load_kg: Some(float(0)?), centre_mm: Some([float(1)?, float(2)?, float(3)?]) },
                 }
             }
             "disablerobot" => count(&[0]).map(|_| Request::DisableRobot)?,
@@ -502,11 +515,7 @@ impl RequestFramer {
     /// The next complete request, `Ok(None)` when more bytes are needed. A malformed request
     /// is consumed and returned as an error; framing continues after it.
     pub fn next_call(&mut self) -> Result<Option<RequestCall>, ProtoError> {
-        let skip = self
-            .buf
-            .iter()
-            .position(|b| !(b.is_ascii_whitespace() || *b == b';' || *b == 0))
-            .unwrap_or(self.buf.len());
+        let skip = self.buf.iter().position(|b| !(b.is_ascii_whitespace() || *b == b';' || *b == 0)).unwrap_or(self.buf.len());
         self.buf.drain(..skip);
         let Some(end) = self.buf.iter().position(|b| *b == b')') else {
             if self.buf.len() > MAX_REQUEST_LEN {
@@ -928,8 +937,7 @@ impl FeedbackFrame {
 
     /// Decodes one frame. Checks the length, the size field and the test value.
     pub fn decode(bytes: &[u8]) -> Result<FeedbackFrame, ProtoError> {
-        let b: &[u8; FEEDBACK_FRAME_LEN] =
-            bytes.try_into().map_err(|_| ProtoError::FrameSize { got: bytes.len() })?;
+        let b: &[u8; FEEDBACK_FRAME_LEN] = bytes.try_into().map_err(|_| ProtoError::FrameSize { got: bytes.len() })?;
         let message_size = u16::from_le_bytes([b[offset::MESSAGE_SIZE], b[offset::MESSAGE_SIZE + 1]]);
         if usize::from(message_size) != FEEDBACK_FRAME_LEN {
             return Err(ProtoError::FrameLengthField { message_size });
@@ -1029,9 +1037,7 @@ impl FeedbackDecoder {
             let mut start = None;
             let mut p = 0;
             while p + HEADER <= self.buf.len() {
-                if self.buf[p..p + 2] == SIZE_BYTES
-                    && self.buf[p + offset::TEST_VALUE..p + HEADER] == TEST_BYTES
-                {
+                if self.buf[p..p + 2] == SIZE_BYTES && self.buf[p + offset::TEST_VALUE..p + HEADER] == TEST_BYTES {
                     start = Some(p);
                     break;
                 }
@@ -1079,10 +1085,7 @@ mod tests {
     #[test]
     fn encodes_commands() {
         assert_eq!(Request::EnableRobot { load_kg: None, centre_mm: None }.encode(), "EnableRobot()");
-        assert_eq!(
-            Request::EnableRobot { load_kg: Some(0.5), centre_mm: Some([1.0, -2.0, 0.25]) }.encode(),
-            "EnableRobot(0.5,1,-2,0.25)"
-        );
+        assert_eq!(Request::EnableRobot { load_kg: Some(0.5), centre_mm: Some([1.0, -2.0, 0.25]) }.encode(), "EnableRobot(0.5,1,-2,0.25)");
         assert_eq!(Request::SpeedFactor { percent: 50 }.encode(), "SpeedFactor(50)");
         assert_eq!(Request::MovL { target: Pose::new(350.0, 0.0, -20.5, 15.0) }.encode(), "MovL(350,0,-20.5,15)");
         assert_eq!(Request::Do { output: DigitalOutput::Queued, index: 1, on: true }.encode(), "DO(1,1)");
@@ -1307,8 +1310,7 @@ mod tests {
             any::<i64>().prop_map(|level| Request::SetCollisionLevel { level }),
             pose().prop_map(|target| Request::MovJ { target }),
             pose().prop_map(|target| Request::MovL { target }),
-            (finite(), finite(), finite(), finite())
-                .prop_map(|(a, b, c, d)| Request::JointMovJ { joints_deg: [a, b, c, d] }),
+            (finite(), finite(), finite(), finite()).prop_map(|(a, b, c, d)| Request::JointMovJ { joints_deg: [a, b, c, d] }),
         ]
     }
 
@@ -1319,31 +1321,29 @@ mod tests {
             (arr(), arr(), arr(), arr()),
             (any::<i8>(), any::<i8>(), any::<[bool; 8]>(), any::<u8>(), any::<i8>()),
         )
-            .prop_map(|((di, dout, mode, ts, speed), (qt, qa, tva, tvt), (user, tool, flags, brake, rt))| {
-                FeedbackFrame {
-                    digital_inputs: di,
-                    digital_outputs: dout,
-                    robot_mode: mode,
-                    timestamp_ms: ts,
-                    speed_scaling: speed,
-                    q_target_deg: qt,
-                    q_actual_deg: qa,
-                    qd_actual_deg_s: [0.0; 6],
-                    tool_vector_actual: tva,
-                    tcp_speed_actual: [0.0; 6],
-                    tool_vector_target: tvt,
-                    user,
-                    tool,
-                    run_queued_cmd: flags[0],
-                    pause_cmd_flag: flags[1],
-                    brake_status: brake,
-                    enable_status: flags[2],
-                    drag_status: flags[3],
-                    running_status: flags[4],
-                    error_status: flags[5],
-                    jog_status: flags[6],
-                    robot_type: rt,
-                }
+            .prop_map(|((di, dout, mode, ts, speed), (qt, qa, tva, tvt), (user, tool, flags, brake, rt))| FeedbackFrame {
+                digital_inputs: di,
+                digital_outputs: dout,
+                robot_mode: mode,
+                timestamp_ms: ts,
+                speed_scaling: speed,
+                q_target_deg: qt,
+                q_actual_deg: qa,
+                qd_actual_deg_s: [0.0; 6],
+                tool_vector_actual: tva,
+                tcp_speed_actual: [0.0; 6],
+                tool_vector_target: tvt,
+                user,
+                tool,
+                run_queued_cmd: flags[0],
+                pause_cmd_flag: flags[1],
+                brake_status: brake,
+                enable_status: flags[2],
+                drag_status: flags[3],
+                running_status: flags[4],
+                error_status: flags[5],
+                jog_status: flags[6],
+                robot_type: rt,
             })
     }
 

@@ -107,8 +107,7 @@ impl MagicianProfile {
     }
 
     pub fn load(path: &Path) -> Result<Self, MagicianProfileError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| MagicianProfileError::Read { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| MagicianProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
@@ -125,7 +124,9 @@ impl MagicianProfile {
         if !range_ok(p.workspace.r_deg) {
             return Err(invalid("workspace.r_deg", format!("must be [min, max], got {:?}", p.workspace.r_deg)));
         }
-        for (field, v) in [("speed.velocity_ratio_pct", p.speed.velocity_ratio_pct), ("speed.acceleration_ratio_pct", p.speed.acceleration_ratio_pct)] {
+        for (field, v) in
+            [("speed.velocity_ratio_pct", p.speed.velocity_ratio_pct), ("speed.acceleration_ratio_pct", p.speed.acceleration_ratio_pct)]
+        {
             if !(v > 0.0 && v <= 100.0) {
                 return Err(invalid(field, format!("must be in (0, 100], got {v}")));
             }
@@ -182,10 +183,9 @@ fn arm_error(context: &str, e: TransportError) -> ArmError {
             context: context.to_string(),
             source: std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "serial port closed"),
         },
-        TransportError::Open { path, source } => ArmError::Io {
-            context: format!("opening {}", path.display()),
-            source: std::io::Error::other(source),
-        },
+        TransportError::Open { path, source } => {
+            ArmError::Io { context: format!("opening {}", path.display()), source: std::io::Error::other(source) }
+        }
         TransportError::Proto(p) => ArmError::Protocol(format!("{context}: {p}")),
     }
 }
@@ -232,10 +232,9 @@ impl MagicianArm {
 
     async fn alarms(&self) -> Result<Vec<Alarm>, ArmError> {
         match self.request(Command::GetAlarmsState, "reading alarms").await? {
-            Reply::Alarms(codes) => Ok(codes
-                .into_iter()
-                .map(|c| Alarm { source: 0, id: i64::from(c), description: alarm_description(c) })
-                .collect()),
+            Reply::Alarms(codes) => {
+                Ok(codes.into_iter().map(|c| Alarm { source: 0, id: i64::from(c), description: alarm_description(c) }).collect())
+            }
             other => Err(ArmError::Protocol(format!("GetAlarmsState answered {other:?}"))),
         }
     }

@@ -122,8 +122,7 @@ impl Packet {
 
     /// The bytes on the wire. Params longer than 253 bytes cannot be framed.
     pub fn encode(&self) -> Result<Vec<u8>, ProtoError> {
-        let len = u8::try_from(self.params.len() + MIN_PAYLOAD_LEN)
-            .map_err(|_| ProtoError::TooLong { params_len: self.params.len() })?;
+        let len = u8::try_from(self.params.len() + MIN_PAYLOAD_LEN).map_err(|_| ProtoError::TooLong { params_len: self.params.len() })?;
         let mut out = Vec::with_capacity(self.params.len() + OVERHEAD);
         out.extend_from_slice(&HEADER);
         out.push(len);
@@ -252,9 +251,18 @@ pub enum Command {
     /// Queued homing run.
     Home,
     /// Speed and acceleration ratios of PTP moves, percent.
-    SetPtpCommonParams { velocity_ratio_pct: f32, acceleration_ratio_pct: f32 },
+    SetPtpCommonParams {
+        velocity_ratio_pct: f32,
+        acceleration_ratio_pct: f32,
+    },
     /// Queued point-to-point move to a Cartesian target (end-effector r in degrees).
-    SetPtp { mode: PtpMode, x_mm: f32, y_mm: f32, z_mm: f32, r_deg: f32 },
+    SetPtp {
+        mode: PtpMode,
+        x_mm: f32,
+        y_mm: f32,
+        z_mm: f32,
+        r_deg: f32,
+    },
     QueuedStartExec,
     QueuedStopExec,
     QueuedForceStopExec,
@@ -270,8 +278,7 @@ fn f32s(params: &[u8], id: u8, n: usize) -> Result<Vec<f32>, ProtoError> {
 }
 
 fn u64_param(params: &[u8], id: u8) -> Result<u64, ProtoError> {
-    let bytes: [u8; 8] =
-        params.try_into().map_err(|_| ProtoError::ParamLength { id, expected: 8, got: params.len() })?;
+    let bytes: [u8; 8] = params.try_into().map_err(|_| ProtoError::ParamLength { id, expected: 8, got: params.len() })?;
     Ok(u64::from_le_bytes(bytes))
 }
 
@@ -353,13 +360,7 @@ impl Command {
         match self {
             Command::GetPose => {
                 let v = f32s(&reply.params, reply.id, 8)?;
-                Ok(Reply::Pose(MagicianPose {
-                    x_mm: v[0],
-                    y_mm: v[1],
-                    z_mm: v[2],
-                    r_deg: v[3],
-                    joints_deg: [v[4], v[5], v[6], v[7]],
-                }))
+                Ok(Reply::Pose(MagicianPose { x_mm: v[0], y_mm: v[1], z_mm: v[2], r_deg: v[3], joints_deg: [v[4], v[5], v[6], v[7]] }))
             }
             Command::GetAlarmsState => Ok(Reply::Alarms(alarm_bits(&reply.params))),
             Command::Home | Command::SetPtp { .. } => Ok(Reply::QueuedIndex(u64_param(&reply.params, reply.id)?)),
@@ -457,8 +458,8 @@ mod tests {
         assert_eq!(
             ptp.encode(),
             [
-                0xAA, 0xAA, 0x13, 0x54, 0x03, 0x02, 0x00, 0x00, 0x48, 0x43, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x48,
-                0x42, 0x00, 0x00, 0x00, 0x00, check
+                0xAA, 0xAA, 0x13, 0x54, 0x03, 0x02, 0x00, 0x00, 0x48, 0x43, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x48, 0x42, 0x00, 0x00,
+                0x00, 0x00, check
             ]
         );
     }
@@ -523,10 +524,8 @@ mod tests {
             Just(Command::QueuedForceStopExec),
             Just(Command::QueuedClear),
             Just(Command::GetQueuedCurrentIndex),
-            (0.0f32..100.0, 0.0f32..100.0).prop_map(|(v, a)| Command::SetPtpCommonParams {
-                velocity_ratio_pct: v,
-                acceleration_ratio_pct: a
-            }),
+            (0.0f32..100.0, 0.0f32..100.0)
+                .prop_map(|(v, a)| Command::SetPtpCommonParams { velocity_ratio_pct: v, acceleration_ratio_pct: a }),
             (0u8..3, f.clone(), f.clone(), f.clone(), f).prop_map(|(m, x, y, z, r)| Command::SetPtp {
                 mode: PtpMode::from_u8(m).unwrap(),
                 x_mm: x,

@@ -116,13 +116,7 @@ mod tests {
     #[test]
     fn requests_over_a_pseudo_terminal() {
         let pty = PtyPair::open().unwrap();
-        let device = SimMagician::new(MagicianPose {
-            x_mm: 200.0,
-            y_mm: 0.0,
-            z_mm: 50.0,
-            r_deg: 0.0,
-            joints_deg: [0.0; 4],
-        });
+        let device = SimMagician::new(MagicianPose { x_mm: 200.0, y_mm: 0.0, z_mm: 50.0, r_deg: 0.0, joints_deg: [0.0; 4] });
         let server = device.serve_in_thread(pty.master_file().unwrap());
         let mut link = MagicianLink::open(&pty.slave_path, MAGICIAN_BAUD, Duration::from_secs(2)).unwrap();
         let Reply::Pose(p) = link.request(&Command::GetPose).unwrap() else { panic!("not a pose") };

@@ -346,9 +346,7 @@ impl SensorSim {
         let touching = raw.max() > 0.0;
 
         let mut indent = raw.clone();
-        self.stage(Stage::ContactDeformation, || {
-            stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm)
-        });
+        self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm));
 
         let mut markers = self.fixed.markers.clone();
         let mut buf = self.fixed.background.clone();
@@ -358,8 +356,7 @@ impl SensorSim {
                     return;
                 }
                 // Without the elastic spread the skin moves only right at the dent.
-                let spread_px =
-                    if self.runs(Stage::ContactDeformation) { skin::SPREAD_MM * self.px_per_mm } else { cell as f32 };
+                let spread_px = if self.runs(Stage::ContactDeformation) { skin::SPREAD_MM * self.px_per_mm } else { cell as f32 };
                 // The skin moves with the object's own dent, smoothed by the skin; the broad
                 // skirt of the deformation field (which shades) would drag pins far away.
                 let u = stages::displacement_field(
@@ -411,17 +408,13 @@ impl SensorSim {
             stages::draw_markers(&mut buf, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
         }
 
-        self.stage(Stage::Shading, || {
-            stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain)
-        });
+        self.stage(Stage::Shading, || stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain));
         self.stage(Stage::MotionBlur, || {
             let len = motion.streak_px().min(self.scene.max_blur_px);
             stages::contact_motion_blur(&mut buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad)
         });
         self.stage(Stage::Vignetting, || stages::vignetting(&mut buf, &self.fixed.vignette));
-        self.stage(Stage::Noise, || {
-            stages::noise(&mut buf, self.scene.noise_sigma_levels, stages::mix64(self.seed) ^ frame_key)
-        });
+        self.stage(Stage::Noise, || stages::noise(&mut buf, self.scene.noise_sigma_levels, stages::mix64(self.seed) ^ frame_key));
 
         // `as u8` saturates (and maps NaN to 0), so adding 0.5 rounds and clamps in one step.
         let bytes: Vec<u8> = buf.iter().map(|v| (v + 0.5) as u8).collect();

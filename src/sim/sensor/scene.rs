@@ -94,10 +94,7 @@ impl FromStr for Stage {
     type Err = SceneError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let wanted = s.trim().to_ascii_lowercase().replace('-', "_");
-        Stage::ALL
-            .into_iter()
-            .find(|st| st.name() == wanted)
-            .ok_or_else(|| SceneError::UnknownStage { name: s.to_string() })
+        Stage::ALL.into_iter().find(|st| st.name() == wanted).ok_or_else(|| SceneError::UnknownStage { name: s.to_string() })
     }
 }
 
@@ -198,8 +195,7 @@ impl Scene {
         if !std::path::Path::new(spec).exists() {
             return Err(SceneLoadError::NotFound { spec: spec.to_string() });
         }
-        let text = std::fs::read_to_string(spec)
-            .map_err(|source| SceneLoadError::Read { path: spec.to_string(), source })?;
+        let text = std::fs::read_to_string(spec).map_err(|source| SceneLoadError::Read { path: spec.to_string(), source })?;
         Ok(Self::from_toml(&text)?)
     }
 
@@ -249,10 +245,7 @@ mod tests {
         assert_eq!(s.noise_sigma_levels, 4.0);
         assert!(Scene::from_toml("stages = [\"sparkle\"]").is_err());
         assert!(Scene::from_toml("stages = []\nbogus = 1").is_err());
-        assert!(matches!(
-            Scene::from_toml("stages = []\nmax_blur_px = -1.0"),
-            Err(SceneError::BadParameter { field: "max_blur_px", .. })
-        ));
+        assert!(matches!(Scene::from_toml("stages = []\nmax_blur_px = -1.0"), Err(SceneError::BadParameter { field: "max_blur_px", .. })));
         let full = Scene::preset("full").unwrap();
         assert_eq!(Scene::from_toml(&full.to_toml()).unwrap(), full);
         assert_eq!("Motion-Blur".parse::<Stage>().unwrap(), Stage::MotionBlur);

@@ -9,9 +9,7 @@ use crate::geometry::DepthMap;
 /// the centre along its normal, which points at `angle_deg` (image frame) into the object.
 pub fn straight_edge(width: u32, height: u32, px_per_mm: f32, offset_mm: f32, angle_deg: f32, indent_mm: f32) -> DepthMap {
     let (s, c) = angle_deg.to_radians().sin_cos();
-    fill(width, height, px_per_mm, |x_mm, y_mm| {
-        if x_mm * c + y_mm * s >= offset_mm { Some(indent_mm) } else { None }
-    })
+    fill(width, height, px_per_mm, |x_mm, y_mm| if x_mm * c + y_mm * s >= offset_mm { Some(indent_mm) } else { None })
 }
 
 /// A flat-topped bar (the MultiDiffSense object 1 seen from above): `length_mm` x `width_mm`,

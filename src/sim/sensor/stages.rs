@@ -281,12 +281,9 @@ pub fn see_through(
     skin_lum: Option<&[f32]>,
 ) {
     let (w, h) = (depth.width as usize, depth.height as usize);
-    let transmit: Option<Vec<f32>> = skin_lum.filter(|l| l.len() == w * h).map(|l| {
-        buf.chunks_exact(3)
-            .zip(l)
-            .map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 })
-            .collect()
-    });
+    let transmit: Option<Vec<f32>> = skin_lum
+        .filter(|l| l.len() == w * h)
+        .map(|l| buf.chunks_exact(3).zip(l).map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 }).collect());
     let t_at = |i: usize| transmit.as_ref().map(|t| t[i]).unwrap_or(1.0);
     let glow_strength = 0.75;
     glow.for_each_pixel(w, h, 0.0, |i, g| {
@@ -298,7 +295,12 @@ pub fn see_through(
         }
     });
     // Visibility of the object per pixel, then softened by the scattering of the skin.
-    let mut vis = CellField { w, h, cell_px: 1, v: depth.height_mm.iter().map(|&d| if d <= -gap_mm { 0.0 } else { smoothstep(-gap_mm, 0.0, d) }).collect() };
+    let mut vis = CellField {
+        w,
+        h,
+        cell_px: 1,
+        v: depth.height_mm.iter().map(|&d| if d <= -gap_mm { 0.0 } else { smoothstep(-gap_mm, 0.0, d) }).collect(),
+    };
     if vis.v.iter().all(|&v| v == 0.0) {
         return;
     }
