@@ -330,5 +330,22 @@ async fn a_calibrate_job_presses_fits_and_saves() {
     let bad = submit(&client, json!({"kind": "calibrate", "sensor": "thermometer"})).await;
     let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
     assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
+
+    // A cancel stops the pattern between presses: the arm retracts, nothing is saved.
+    let other = tmp.path().join("cancelled.toml");
+    let long = submit(&client, json!({"kind": "calibrate", "sensor": "tactip", "grid": 7, "out": other})).await;
+    poll_until(&client, long.id, |j| j.state == JobState::Running && j.progress.done >= 1).await;
+    let r = client.request("POST", &format!("/api/jobs/{}/cancel", long.id), None).await.expect("cancel");
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    let cancelled = poll_until(&client, long.id, final_state).await.pop().expect("view");
+    assert_eq!((cancelled.state, cancelled.exit_code), (JobState::Cancelled, Some(4)), "{cancelled:?}");
+    assert!(cancelled.progress.done < cancelled.progress.total, "{cancelled:?}");
+    assert!(cancelled.message.as_deref().is_some_and(|m| m.contains("no calibration saved")), "{cancelled:?}");
+    assert!(!other.exists(), "a cancelled calibration saved a file");
+    // Retracted to the approach pose above the pattern's centre, not left pressing.
+    let status: StatusView = client.get_json("/api/status").await.expect("status");
+    let at = status.arm.pose.expect("arm pose");
+    let above = RigConfig::builtin_sim().work_frame.approach_pose(&rig::pose::Pose::default());
+    assert!(at.distance_mm(&above) < 0.5, "arm at {at:?}, approach pose {above:?}");
     daemon.shutdown().await.expect("clean shutdown");
 }

@@ -137,7 +137,11 @@ pub async fn run_once(config: &BenchConfig, pattern: &PressPattern, work_dir: &P
     let options = FitOptions { image_size: [px, px], ..FitOptions::default() };
     let mut detected = 0;
     let t_wall = std::time::Instant::now();
-    let result = run_pattern(&mut station, pattern, &options, |_, press| detected += usize::from(press.contact.is_ok())).await;
+    let result = run_pattern(&mut station, pattern, &options, |_, press| {
+        detected += usize::from(press.contact.is_ok());
+        std::ops::ControlFlow::Continue(())
+    })
+    .await;
     let wall_s = t_wall.elapsed().as_secs_f64();
     drop(station);
     rig.shutdown().await;

@@ -16,6 +16,7 @@
 //! the points to [`fit_points`].
 
 use std::future::Future;
+use std::ops::ControlFlow;
 use std::time::Duration;
 
 use image::RgbImage;
@@ -52,6 +53,8 @@ pub enum PressError {
     NoReference,
     #[error("fit: {0}")]
     Fit(#[from] FitError),
+    #[error("cancelled after {done} of {total} presses (the arm retracted; no calibration fitted)")]
+    Cancelled { done: usize, total: usize },
 }
 
 /// Offsets (work frame, `z_mm` = extra indentation) the run presses at.
@@ -222,14 +225,19 @@ pub async fn run_pattern<S: PressStation>(
     station: &mut S,
     pattern: &PressPattern,
     fit_options: &FitOptions,
-    mut on_press: impl FnMut(usize, &Press),
+    mut on_press: impl FnMut(usize, &Press) -> ControlFlow<()>,
 ) -> Result<PatternRun, PressError> {
     station.take_reference().await?;
-    let mut presses = Vec::with_capacity(pattern.offsets.len());
+    let total = pattern.offsets.len();
+    let mut presses = Vec::with_capacity(total);
     for (k, offset) in pattern.offsets.iter().enumerate() {
         let press = station.press(*offset).await?;
-        on_press(k, &press);
+        let flow = on_press(k, &press);
         presses.push(press);
+        if flow.is_break() && k + 1 < total {
+            station.finish().await?;
+            return Err(PressError::Cancelled { done: k + 1, total });
+        }
     }
     station.finish().await?;
     let points: Vec<FitPoint> = presses.iter().filter_map(Press::point).collect();

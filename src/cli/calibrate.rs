@@ -194,17 +194,20 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         }
     } else {
         let total = pattern.offsets.len();
-        let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| match &press.contact {
-            Ok(c) => println!(
-                "press {:>2}/{total} at ({:+.2}, {:+.2}) mm depth {:+.2}: {c}",
-                k + 1,
-                press.offset.x_mm,
-                press.offset.y_mm,
-                press.offset.z_mm
-            ),
-            Err(e) => {
-                println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
+        let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| {
+            match &press.contact {
+                Ok(c) => println!(
+                    "press {:>2}/{total} at ({:+.2}, {:+.2}) mm depth {:+.2}: {c}",
+                    k + 1,
+                    press.offset.x_mm,
+                    press.offset.y_mm,
+                    press.offset.z_mm
+                ),
+                Err(e) => {
+                    println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
+                }
             }
+            std::ops::ControlFlow::Continue(())
         })
         .await?;
         Some(run.fit)

@@ -391,7 +391,7 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
 }
 
 async fn run_calibrate(spec: &CalibrateSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobError> {
-    let RigContext { rig, config, state, progress, .. } = ctx;
+    let RigContext { rig, config, state, progress, cancel, .. } = ctx;
     let kind: SensorKind = spec
         .sensor
         .parse()
@@ -420,9 +420,22 @@ async fn run_calibrate(spec: &CalibrateSpec, ctx: RigContext<'_>) -> Result<JobE
         reference: None,
     };
     progress.set_length(pattern.offsets.len() as u64);
-    let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |_, _| progress.inc(1)).await;
+    // A cancel is honoured between presses: the arm retracts and nothing is saved.
+    let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |_, _| {
+        progress.inc(1);
+        if *cancel.borrow() { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+    })
+    .await;
     // The press pattern ends in contact-free air; leave the arm disabled like a collection.
     let disabled = station.arm.disable().await;
+    if let Err(PressError::Cancelled { done, total }) = &run {
+        disabled.map_err(PressError::from)?;
+        return Ok(JobEnd {
+            message: format!("cancelled after {done} of {total} presses; no calibration saved ({} untouched)", out.display()),
+            cancelled: true,
+            done: Some(*done as u64),
+        });
+    }
     let run = run?;
     disabled.map_err(PressError::from)?;
     let mut fit = run.fit;
