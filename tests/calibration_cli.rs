@@ -165,3 +165,45 @@ fn collect_uses_the_saved_calibration() {
     let manifest = std::fs::read_to_string(dir.path().join("ds/sphere/tactip/manifest.toml")).unwrap();
     assert!(manifest.contains("calibration/tactip.toml"), "{manifest}");
 }
+
+/// Ctrl-C (SIGINT) mid-pattern: the current press finishes, the arm retracts, nothing is
+/// saved, exit code 4 (cancelled), as `rig collect` does.
+#[test]
+fn ctrl_c_mid_pattern_retracts_and_saves_nothing() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .current_dir(dir.path())
+        .args(["calibrate", "--sensor", "vitac", "--out", "fitted.toml"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starting rig calibrate");
+    let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        let n = stdout.read_line(&mut line).expect("reading stdout");
+        assert!(n > 0, "rig calibrate ended before its second press: {seen}");
+        seen += &line;
+        if line.starts_with("press  2/") {
+            break;
+        }
+    }
+    let pid = i32::try_from(child.id()).expect("pid");
+    // SAFETY: kill(2) on our own child's pid, with a valid signal number.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGINT) }, 0, "sending SIGINT");
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).expect("rest of stdout");
+    let out = child.wait_with_output().expect("waiting for rig");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let all = format!("{seen}{rest}\n{stderr}");
+    assert_eq!(out.status.code(), Some(4), "{all}");
+    assert!(stderr.contains("interrupt: finishing the current press"), "{all}");
+    let last = rest.lines().last().unwrap_or_default();
+    assert!(last.starts_with("interrupted after ") && last.contains("fitted.toml was not written"), "{all}");
+    let presses = (seen + &rest).lines().filter(|l| l.starts_with("press ")).count();
+    assert!(presses < 43, "the pattern ran to its end: {all}");
+    assert!(!dir.path().join("fitted.toml").exists(), "{all}");
+}

@@ -30,7 +30,7 @@ use sha2::{Digest, Sha256};
 
 use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit, fit_points};
-use crate::calibration::press::{ArmStation, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
+use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
 use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
 use crate::calibration::{Calibration, FitPoint, saved_path};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
@@ -194,6 +194,17 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         }
     } else {
         let total = pattern.offsets.len();
+        // Ctrl-C: finish the current press, retract, disable, save nothing (as `rig collect`).
+        let interrupted = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = Arc::clone(&interrupted);
+        // Registered here, before the first press: a SIGINT from then on is seen.
+        let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt()).context("listening for Ctrl-C")?;
+        let watcher = tokio::spawn(async move {
+            if sigint.recv().await.is_some() {
+                eprintln!("interrupt: finishing the current press, then retracting and disabling the arm");
+                flag.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        });
         let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| {
             match &press.contact {
                 Ok(c) => println!(
@@ -207,10 +218,23 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
                     println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
                 }
             }
-            std::ops::ControlFlow::Continue(())
+            if interrupted.load(std::sync::atomic::Ordering::SeqCst) {
+                std::ops::ControlFlow::Break(())
+            } else {
+                std::ops::ControlFlow::Continue(())
+            }
         })
-        .await?;
-        Some(run.fit)
+        .await;
+        watcher.abort();
+        match run {
+            Err(PressError::Cancelled { done, total }) => {
+                drop(station);
+                rig.shutdown().await;
+                println!("interrupted after {done} of {total} presses; the arm is retracted and {} was not written", out.display());
+                bail!(crate::cli::ExitStatus(4));
+            }
+            run => Some(run?.fit),
+        }
     };
     let size = station.reference.as_ref().map(|r| [r.width(), r.height()]);
     drop(station);
