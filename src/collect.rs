@@ -141,6 +141,9 @@ pub struct CollectJob<'a, A: Arm, C: Camera, P: Peripherals = NoPeripherals> {
     pub clock: Arc<dyn Clock>,
     /// Set to `true` to ask the job to stop after the current step.
     pub cancel: watch::Receiver<bool>,
+    /// Stop as if cancelled once this many poses of this run are captured (the replay of an
+    /// interrupted recording stops where the recorded run saw its interrupt). `None`: no limit.
+    pub stop_after: Option<usize>,
     /// Progress display (hidden when not attached to a terminal).
     pub progress: indicatif::ProgressBar,
     /// Modbus peripherals around each capture ([`NoPeripherals`] when none are configured).
@@ -184,7 +187,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         }
 
         for (k, planned) in todo.iter().enumerate() {
-            if self.cancelled() {
+            if self.cancelled() || self.stop_after.is_some_and(|n| k >= n) {
                 summary.remaining = todo.len() - k;
                 summary.interrupted = true;
                 break;

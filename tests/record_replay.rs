@@ -23,21 +23,27 @@ fn text(o: &Output) -> String {
 const CONFIG: &str = "[sensors.tactip]\nwidth = 48\nheight = 40\n[sensors.vitac]\nwidth = 48\nheight = 40\n";
 const SENSORS: [&str; 2] = ["tactip", "vitac"];
 
-/// Records a seeded 3-pose collection into `dir/rec.bin` and `dir/recorded/`.
-fn record(dir: &Path) -> PathBuf {
+/// `rig collect` of a seeded `poses`-pose sphere plan with config `config_toml`, into
+/// `dir/recorded/`, recording into `dir/rec.bin`.
+fn collect_recorded(dir: &Path, poses: u32, config_toml: &str) -> (Command, PathBuf) {
     let config = dir.join("rig.toml");
-    std::fs::write(&config, CONFIG).expect("writing the config");
+    std::fs::write(&config, config_toml).expect("writing the config");
     let rec = dir.join("rec.bin");
-    let o = rig()
-        .args(["collect", "--object", "sphere", "--poses", "3", "--seed", "11", "--sensor", "tactip,vitac"])
+    let mut c = rig();
+    c.args(["collect", "--object", "sphere", "--poses", &poses.to_string(), "--seed", "11", "--sensor", "tactip,vitac"])
         .arg("--config")
         .arg(&config)
         .arg("--out")
         .arg(dir.join("recorded"))
         .arg("--record")
-        .arg(&rec)
-        .output()
-        .expect("running rig collect");
+        .arg(&rec);
+    (c, rec)
+}
+
+/// Records a seeded 3-pose collection into `dir/rec.bin` and `dir/recorded/`.
+fn record(dir: &Path) -> PathBuf {
+    let (mut c, rec) = collect_recorded(dir, 3, CONFIG);
+    let o = c.output().expect("running rig collect");
     assert!(o.status.success(), "rig collect --record failed:\n{}", text(&o));
     assert!(text(&o).contains("recorded "), "collect must say it recorded:\n{}", text(&o));
     rec
@@ -258,4 +264,57 @@ fn an_alarm_and_its_recovery_replay_the_same() {
         log
     });
     assert_eq!(replayed, recorded);
+}
+
+/// Ctrl-C during a recorded collection: the recording says where the job stopped, and the
+/// replay stops there too, retracting exactly as the recorded run did.
+#[test]
+fn an_interrupted_recording_replays_to_the_same_partial_dataset() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path();
+    // A simulated clock at real speed: the run lasts long enough to be interrupted mid-plan.
+    let (mut c, rec) = collect_recorded(dir, 40, &format!("{CONFIG}[arm]\nsim_time_scale = 1.0\n"));
+    let mut child = c
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("starting rig collect");
+    // Wait for two captured rows, then interrupt.
+    let csv = dir.join("recorded/sphere/vitac/poses.csv");
+    let rows = |p: &Path| std::fs::read_to_string(p).map_or(0, |t| t.lines().count().saturating_sub(1));
+    let t0 = std::time::Instant::now();
+    while rows(&csv) < 2 {
+        assert!(t0.elapsed().as_secs() < 120, "no two rows in 120 s");
+        assert!(child.try_wait().expect("polling rig").is_none(), "rig collect ended before it was interrupted");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let pid = i32::try_from(child.id()).expect("pid");
+    // SAFETY: kill(2) on our own child's pid, with a valid signal number.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGINT) }, 0, "sending SIGINT");
+    let o = child.wait_with_output().expect("waiting for rig collect");
+    assert_eq!(o.status.code(), Some(4), "an interrupted collection exits 4:\n{}", text(&o));
+    assert!(text(&o).contains("interrupted: ") && text(&o).contains("recorded "), "{}", text(&o));
+    let captured = rows(&csv);
+    assert!((2..40).contains(&captured), "{captured} rows:\n{}", text(&o));
+
+    let recording = format::decode(&std::fs::read(&rec).expect("reading the recording")).expect("a whole recording");
+    let interrupts: Vec<&Event> = recording.events.iter().filter(|e| matches!(e, Event::Interrupt { .. })).collect();
+    assert!(
+        matches!(interrupts.as_slice(), [Event::Interrupt { captured: c, .. }] if *c as usize == captured),
+        "one interrupt record at {captured} poses: {interrupts:?}"
+    );
+
+    let out = dir.join("replayed");
+    let o = replay(&rec, &out);
+    assert!(o.status.success(), "rig replay failed:\n{}", text(&o));
+    assert!(
+        text(&o).contains(&format!("{captured} poses captured")) && text(&o).contains("stopped where the recorded run was interrupted"),
+        "{}",
+        text(&o)
+    );
+    for sensor in SENSORS {
+        let a = std::fs::read_to_string(dir.join("recorded/sphere").join(sensor).join("poses.csv")).expect("recorded csv");
+        let b = std::fs::read_to_string(out.join("sphere").join(sensor).join("poses.csv")).expect("replayed csv");
+        assert_eq!(a, b, "{sensor}: poses.csv differs");
+    }
 }

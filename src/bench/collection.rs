@@ -128,6 +128,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         options: rig_config.collect.clone(),
         clock: Arc::clone(&clock),
         cancel,
+        stop_after: None,
         progress: indicatif::ProgressBar::hidden(),
         peripherals: crate::io::modbus::NoPeripherals,
     };

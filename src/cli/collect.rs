@@ -173,11 +173,18 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         options: config.collect.clone(),
         clock: Arc::clone(&clock),
         cancel: cancel_rx,
+        stop_after: None,
         progress,
         peripherals: std::mem::take(&mut rig.peripherals),
     };
     let summary = job.run(&plan.poses).await;
-    // Close the recording even when the run failed: its replay reproduces the failure.
+    // Close the recording even when the run failed: its replay reproduces the failure. An
+    // interrupt is recorded as where the job stopped, for the replay to stop there too.
+    if let (Some(recorder), Ok(s)) = (&recorder, &summary)
+        && s.interrupted
+    {
+        recorder.log_interrupt(s.captured as u64);
+    }
     if let (Some(recorder), Some(path)) = (&recorder, &args.record) {
         let records = recorder.finish()?;
         println!("recorded {records} events into {}", path.display());

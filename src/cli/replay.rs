@@ -47,11 +47,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match outcome {
         Ok(o) => {
             println!(
-                "replayed {} of {} recorded events: {} poses captured into {}",
+                "replayed {} of {} recorded events: {} poses captured into {}{}",
                 o.replayed,
                 o.recorded,
                 o.summary.captured,
-                args.out.join(&h.object.name).display()
+                args.out.join(&h.object.name).display(),
+                if o.summary.interrupted {
+                    format!(", then stopped where the recorded run was interrupted ({} poses left)", o.summary.remaining)
+                } else {
+                    String::new()
+                }
             );
             Ok(())
         }

@@ -272,6 +272,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
         options: config.collect.clone(),
         clock,
         cancel,
+        stop_after: None,
         progress,
         peripherals,
     };

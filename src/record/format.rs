@@ -5,7 +5,7 @@
 //! This file depends on nothing but `std` and `thiserror`, so the fuzz target compiles it
 //! alone. The header is carried as text here; `record::header` gives it its meaning.
 //!
-//! # Layout (format version 1), all integers little-endian
+//! # Layout (format version 2; version 1 is read too), all integers little-endian
 //!
 //! | offset | size | field | meaning |
 //! |---|---|---|---|
@@ -19,7 +19,7 @@
 //!
 //! | size | field | meaning |
 //! |---|---|---|
-//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 0xFF end |
+//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt (version 2), 0xFF end |
 //! | 4 | `u32` L | body length, bytes |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
@@ -32,16 +32,25 @@
 //! the frame was handed to the job), `f64` `t_capture_s`, `u64` seq, `u32` width, `u32` height,
 //! then width x height x 3 bytes of RGB8, row-major.
 //!
+//! Interrupt body (16 bytes): `f64` `t_s` (rig clock when the run ended), `u64` poses captured
+//! before the job saw the operator's interrupt (Ctrl-C). The job looks at its cancel flag only
+//! before each pose, so this count is where a replay must stop. Written after the run's last
+//! socket event; at most one.
+//!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
 
 /// First bytes of every recording.
 pub const MAGIC: &[u8; 8] = b"RIGREC\n\0";
-/// The format version this build writes and reads.
-pub const FORMAT_VERSION: u16 = 1;
+/// The format version this build writes (and the newest it reads).
+pub const FORMAT_VERSION: u16 = 2;
+/// The oldest version this build reads (version 1 has no interrupt records).
+pub const OLDEST_READ_VERSION: u16 = 1;
 
 const KIND_SOCKET: u8 = 1;
 const KIND_FRAME: u8 = 2;
+const KIND_INTERRUPT: u8 = 3;
+const INTERRUPT_LEN: usize = 8 + 8;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
@@ -91,6 +100,8 @@ pub enum Direction {
 pub enum Event {
     Socket { socket: SocketId, direction: Direction, t_s: f64, bytes: Vec<u8> },
     Frame(RecordedFrame),
+    /// The operator interrupted the run; the job stopped before pose number `captured` + 1.
+    Interrupt { t_s: f64, captured: u64 },
 }
 
 impl Event {
@@ -99,6 +110,7 @@ impl Event {
         match self {
             Event::Socket { t_s, .. } => *t_s,
             Event::Frame(f) => f.t_s,
+            Event::Interrupt { t_s, .. } => *t_s,
         }
     }
 }
@@ -132,8 +144,8 @@ pub struct RawRecording {
 pub enum FormatError {
     #[error("not a rig recording (the file does not start with the RIGREC magic)")]
     BadMagic,
-    #[error("recording format version {found} is not supported (this rig reads version {supported})")]
-    UnsupportedVersion { found: u16, supported: u16 },
+    #[error("recording format version {found} is not supported (this rig reads versions {oldest} to {supported})")]
+    UnsupportedVersion { found: u16, oldest: u16, supported: u16 },
     #[error(
         "the recording is truncated: it ends at byte {offset} inside {what} (after {records} complete records); \
          the recording run was probably killed before it closed the file"
@@ -233,6 +245,12 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             body.extend_from_slice(&f.rgb);
             encode_record(KIND_FRAME, &body)
         }
+        Event::Interrupt { t_s, captured } => {
+            let mut body = Vec::with_capacity(INTERRUPT_LEN);
+            body.extend_from_slice(&t_s.to_le_bytes());
+            body.extend_from_slice(&captured.to_le_bytes());
+            encode_record(KIND_INTERRUPT, &body)
+        }
     }
 }
 
@@ -290,8 +308,8 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
         None => return Err(FormatError::BadMagic),
     }
     let version = f.u16().ok_or(truncated(bytes.len(), "the format version"))?;
-    if version != FORMAT_VERSION {
-        return Err(FormatError::UnsupportedVersion { found: version, supported: FORMAT_VERSION });
+    if !(OLDEST_READ_VERSION..=FORMAT_VERSION).contains(&version) {
+        return Err(FormatError::UnsupportedVersion { found: version, oldest: OLDEST_READ_VERSION, supported: FORMAT_VERSION });
     }
     let header_len = f.u32().ok_or(truncated(bytes.len(), "the header length"))? as usize;
     let header_at = f.pos;
@@ -361,6 +379,21 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 }
                 events.push(Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, rgb: rgb.to_vec() }));
             }
+            KIND_INTERRUPT if version >= 2 => {
+                let (Some(t_s), Some(captured)) = (b.f64(), b.u64()) else {
+                    return Err(malformed(format!("interrupt record body of {len} bytes, not {INTERRUPT_LEN}")));
+                };
+                if len != INTERRUPT_LEN {
+                    return Err(malformed(format!("interrupt record body of {len} bytes, not {INTERRUPT_LEN}")));
+                }
+                if !t_s.is_finite() {
+                    return Err(malformed(format!("time {t_s} is not finite")));
+                }
+                if events.iter().any(|e| matches!(e, Event::Interrupt { .. })) {
+                    return Err(malformed("a second interrupt record".into()));
+                }
+                events.push(Event::Interrupt { t_s, captured });
+            }
             KIND_END => {
                 let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
                 if said != record as u64 {
@@ -385,12 +418,48 @@ mod tests {
         let events = [
             Event::Socket { socket: SocketId::Motion, direction: Direction::ToController, t_s: 0.5, bytes: b"Sync()".to_vec() },
             Event::Frame(RecordedFrame { camera: 1, t_s: 1.0, t_capture_s: 0.9, seq: 7, width: 2, height: 1, rgb: vec![1, 2, 3, 4, 5, 6] }),
+            Event::Interrupt { t_s: 1.5, captured: 3 },
         ];
         for e in &events {
             out.extend(encode_event(e));
         }
-        out.extend(encode_end(2));
+        out.extend(encode_end(3));
         out
+    }
+
+    /// `sample()`'s bytes with another version number (and the header checksum redone).
+    fn with_version(version: u16) -> Vec<u8> {
+        let mut bytes = sample();
+        bytes[8..10].copy_from_slice(&version.to_le_bytes());
+        let header_len = u32::from_le_bytes([bytes[10], bytes[11], bytes[12], bytes[13]]) as usize;
+        let crc = crc32(&[&bytes[..14 + header_len]]);
+        bytes[14 + header_len..18 + header_len].copy_from_slice(&crc.to_le_bytes());
+        bytes
+    }
+
+    #[test]
+    fn interrupt_records_need_version_2_and_come_once() {
+        let r = decode(&sample()).unwrap();
+        assert_eq!(r.events[2], Event::Interrupt { t_s: 1.5, captured: 3 });
+        // Version 1 has no interrupt kind: such a file is corrupt, not silently misread.
+        assert!(matches!(decode(&with_version(1)), Err(FormatError::UnknownKind { record: 2, kind: 3, .. })));
+        assert!(matches!(decode(&with_version(3)), Err(FormatError::UnsupportedVersion { found: 3, oldest: 1, supported: 2 })));
+        // Two interrupts.
+        let mut two = encode_preamble("{}");
+        for _ in 0..2 {
+            two.extend(encode_event(&Event::Interrupt { t_s: 0.0, captured: 1 }));
+        }
+        two.extend(encode_end(2));
+        assert!(matches!(decode(&two), Err(FormatError::Malformed { record: 1, .. })), "{:?}", decode(&two));
+        // A body of the wrong length.
+        let mut short = encode_preamble("{}");
+        short.extend(encode_record(KIND_INTERRUPT, &[0u8; 15]));
+        short.extend(encode_end(1));
+        assert!(matches!(decode(&short), Err(FormatError::Malformed { record: 0, .. })));
+        let mut long = encode_preamble("{}");
+        long.extend(encode_record(KIND_INTERRUPT, &[0u8; 17]));
+        long.extend(encode_end(1));
+        assert!(matches!(decode(&long), Err(FormatError::Malformed { record: 0, .. })));
     }
 
     #[test]
@@ -413,7 +482,7 @@ mod tests {
     fn round_trip() {
         let r = decode(&sample()).unwrap();
         assert_eq!(r.header_json, "{\"a\":1}");
-        assert_eq!(r.events.len(), 2);
+        assert_eq!(r.events.len(), 3);
         assert!(matches!(&r.events[0], Event::Socket { socket: SocketId::Motion, bytes, .. } if bytes == b"Sync()"));
     }
 
@@ -512,9 +581,9 @@ mod tests {
         more.push(0);
         assert!(matches!(decode(&more), Err(FormatError::TrailingBytes { extra: 1, .. })));
         let mut wrong = sample();
-        let end = encode_end(2);
+        let end = encode_end(3);
         wrong.truncate(wrong.len() - end.len());
         wrong.extend(encode_end(5));
-        assert!(matches!(decode(&wrong), Err(FormatError::CountMismatch { said: 5, found: 2 })));
+        assert!(matches!(decode(&wrong), Err(FormatError::CountMismatch { said: 5, found: 3 })));
     }
 }

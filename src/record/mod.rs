@@ -236,6 +236,12 @@ impl Recorder {
         });
     }
 
+    /// Logs that the operator interrupted the run and the job stopped with `captured` poses
+    /// captured (call after the job returned, before [`Self::finish`]).
+    pub fn log_interrupt(&self, captured: u64) {
+        self.log(|t_s| Event::Interrupt { t_s, captured });
+    }
+
     /// Writes the end record and flushes; later events are dropped. Returns the record count.
     pub fn finish(&self) -> Result<u64, RecordError> {
         let mut st = self.lock();

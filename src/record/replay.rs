@@ -140,6 +140,7 @@ impl SessionState {
                 f.seq,
                 f.t_capture_s
             ),
+            Event::Interrupt { captured, .. } => format!("the operator's interrupt after {captured} poses"),
         }
     }
 
@@ -483,10 +484,16 @@ pub struct ReplayOutcome {
 /// client and job over the recording. `stall_after` is the watchdog's patience.
 pub async fn replay_collection(recording: &Recording, out: &Path, stall_after: Duration) -> Result<ReplayOutcome, ReplayError> {
     let h = &recording.header;
-    let session = ReplaySession::new(recording.events.clone(), h.sensors.iter().map(|s| s.camera.clone()).collect());
+    // An interrupt is not I/O to serve: it says where the job stopped.
+    let stop_after = recording.events.iter().find_map(|e| match e {
+        Event::Interrupt { captured, .. } => Some(usize::try_from(*captured).unwrap_or(usize::MAX)),
+        _ => None,
+    });
+    let events: Vec<Event> = recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. })).cloned().collect();
+    let session = ReplaySession::new(events, h.sensors.iter().map(|s| s.camera.clone()).collect());
     let clock = session.clock();
     let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
-    let result = run_job(recording, out, &session, clock).await;
+    let result = run_job(recording, out, &session, clock, stop_after).await;
     watchdog.abort();
     // The first divergence explains whatever the job made of it afterwards.
     if let Some(d) = session.divergence() {
@@ -503,6 +510,7 @@ async fn run_job(
     out: &Path,
     session: &ReplaySession,
     clock: MockClock,
+    stop_after: Option<usize>,
 ) -> Result<(CollectSummary, Vec<PathBuf>), ReplayError> {
     let h = &recording.header;
     let mut cfg = Mg400Config::new("replay", h.profile.clone());
@@ -544,6 +552,7 @@ async fn run_job(
         options: h.collect.clone(),
         clock,
         cancel,
+        stop_after,
         progress: indicatif::ProgressBar::hidden(),
         // Recordings hold the arm's bytes and the frames, not Modbus traffic: a replay runs
         // without peripherals and leaves the `modbus` column empty.
