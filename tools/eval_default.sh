@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The evaluation behind the README's `rig eval` table (issue #7): test sets for all 8 objects
 # collected on the simulated rig with plans/test.toml, their synthetic twins made by MODEL, and
-# `rig eval` twice, appending both tables to out/eval.md (and JSON beside it):
+# `rig eval` twice, appending both tables to out/eval.md (JSON and per-pose CSV beside it):
 #
 #   unseen poses    training objects (edge cuboid sphere pacman cross) at the test plan's poses;
 #                   poses also in out/train-data are dropped by rig eval
@@ -58,8 +58,8 @@ mapfile -t seen < <(objects_flags $TRAIN_OBJECTS)
 mapfile -t unseen < <(objects_flags $TEST_OBJECTS)
 "$RIG" eval --real "$OUT/test-data" --synthetic "$OUT/synth-test" --collected "$OUT/train-data" \
     "${seen[@]}" --size "$SIZE" --label "unseen poses, model $(basename "$MODEL")" \
-    --markdown "$OUT/eval.md" --json "$OUT/eval-unseen-poses.json"
+    --markdown "$OUT/eval.md" --json "$OUT/eval-unseen-poses.json" --pairs "$OUT/pairs-unseen-poses.csv"
 "$RIG" eval --real "$OUT/test-data" --synthetic "$OUT/synth-test" --collected "$OUT/train-data" \
     "${unseen[@]}" --size "$SIZE" --label "unseen objects, model $(basename "$MODEL")" \
-    --markdown "$OUT/eval.md" --json "$OUT/eval-unseen-objects.json"
+    --markdown "$OUT/eval.md" --json "$OUT/eval-unseen-objects.json" --pairs "$OUT/pairs-unseen-objects.csv"
 echo "tables appended to $OUT/eval.md"
