@@ -196,7 +196,7 @@ fn sigkill_then_resume_keeps_the_modbus_column_consistent() {
 }
 
 #[test]
-fn a_recording_with_peripherals_replays_with_an_empty_modbus_column() {
+fn a_recording_with_peripherals_replays_with_the_same_modbus_column() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let config = write_config(tmp.path(), false, None);
     // Small frames keep the recording small.
@@ -212,14 +212,26 @@ fn a_recording_with_peripherals_replays_with_an_empty_modbus_column() {
         let (a, b) = (recorded.join("sphere").join(sensor), replayed.join("sphere").join(sensor));
         verify(&b);
         check_forces(&a, 3);
-        // Recordings hold the arm's bytes and the frames, not the Modbus traffic: every other
-        // column replays exactly, the modbus column is empty.
+        // The recording holds each peripheral call's readings: every column replays exactly,
+        // the modbus column included.
         let (ra, rb) = (rows(&a), rows(&b));
-        assert_eq!(ra.len(), rb.len());
-        for (mut x, y) in ra.into_iter().zip(rb) {
-            assert_eq!(y["modbus"], "");
-            x.insert("modbus".into(), String::new());
-            assert_eq!(x, y);
-        }
+        assert_eq!(ra.len(), 3);
+        assert!(ra.iter().all(|r| !r["modbus"].is_empty()), "{ra:?}");
+        assert_eq!(ra, rb);
     }
+    // One peripheral call the replay does not make is reported, not ignored: drop the last
+    // recorded peripherals record.
+    let mut r = rig::record::format::decode(&std::fs::read(&rec).expect("recording")).expect("decode");
+    let last = r.events.iter().rposition(|e| matches!(e, rig::record::Event::Peripherals { .. })).expect("a peripherals record");
+    r.events.remove(last);
+    let mut bytes = rig::record::format::encode_preamble(&r.header_json);
+    for e in &r.events {
+        bytes.extend(rig::record::format::encode_event(e));
+    }
+    bytes.extend(rig::record::format::encode_end(r.events.len() as u64));
+    let short = tmp.path().join("short.bin");
+    std::fs::write(&short, bytes).expect("writing");
+    let o = rig().arg("replay").arg(&short).arg("--out").arg(tmp.path().join("from-short")).args(["--stall-s", "20"]).output().expect("rig replay");
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    assert!(text(&o).contains("peripherals call"), "{}", text(&o));
 }

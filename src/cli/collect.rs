@@ -175,7 +175,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         cancel: cancel_rx,
         stop_after: None,
         progress,
-        peripherals: std::mem::take(&mut rig.peripherals),
+        peripherals: crate::record::RecordingPeripherals::new(std::mem::take(&mut rig.peripherals), recorder.clone()),
     };
     let summary = job.run(&plan.poses).await;
     // Close the recording even when the run failed: its replay reproduces the failure. An

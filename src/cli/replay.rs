@@ -60,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Err(e @ ReplayError::Diverged(_)) => {
+        Err(e @ (ReplayError::Diverged(_) | ReplayError::PeripheralsDiverged(_))) => {
             eprintln!("error: {e}");
             bail!(crate::cli::ExitStatus(3))
         }

@@ -61,13 +61,20 @@ pub enum ModbusError {
     Timeout { peripheral: String, operation: String, after: Duration },
     #[error("modbus {peripheral}: {field} {problem}")]
     Invalid { peripheral: String, field: &'static str, problem: String },
+    /// A fault as a recording holds it (`rig replay`), or a replay that left the recording.
+    #[error("modbus (replayed): {message}")]
+    Replayed { message: String, recoverable: bool },
 }
 
 impl ModbusError {
     /// True for faults that may pass (a timeout, a lost connection, a refused request); false
     /// for a configuration the device can never satisfy.
     pub fn is_recoverable(&self) -> bool {
-        !matches!(self, ModbusError::Invalid { .. })
+        match self {
+            ModbusError::Invalid { .. } => false,
+            ModbusError::Replayed { recoverable, .. } => *recoverable,
+            _ => true,
+        }
     }
 
     /// True when the connection may be out of step (a reply may still arrive late, or the

@@ -19,7 +19,7 @@
 //!
 //! | size | field | meaning |
 //! |---|---|---|
-//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt (version 2), 0xFF end |
+//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 0xFF end |
 //! | 4 | `u32` L | body length, bytes |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
@@ -37,6 +37,11 @@
 //! before each pose, so this count is where a replay must stop. Written after the run's last
 //! socket event; at most one.
 //!
+//! Peripherals body: `f64` `t_s`, `u8` phase (0 the writes before a capture, 1 the readings
+//! after it), `u8` outcome (0 ok, 1 a recoverable fault, 2 a fault that ends the run), then
+//! UTF-8 text: after an ok reading, the readings as the dataset's `modbus` column writes them
+//! (`io::modbus::format_readings`); after a fault, its message; else empty.
+//!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
 
@@ -51,6 +56,8 @@ const KIND_SOCKET: u8 = 1;
 const KIND_FRAME: u8 = 2;
 const KIND_INTERRUPT: u8 = 3;
 const INTERRUPT_LEN: usize = 8 + 8;
+const KIND_PERIPHERALS: u8 = 4;
+const PERIPHERALS_FIXED: usize = 8 + 1 + 1;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
@@ -102,6 +109,27 @@ pub enum Event {
     Frame(RecordedFrame),
     /// The operator interrupted the run; the job stopped before pose number `captured` + 1.
     Interrupt { t_s: f64, captured: u64 },
+    /// What the Modbus peripherals did around a capture.
+    Peripherals { t_s: f64, phase: PeripheralPhase, outcome: PeripheralOutcome, text: String },
+}
+
+/// When around a capture the peripherals were used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PeripheralPhase {
+    /// `before_capture`: the writes once the arm has arrived.
+    Before,
+    /// `after_capture`: the readings for the row (then the after-capture writes).
+    After,
+}
+
+/// How a peripheral call ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PeripheralOutcome {
+    Ok,
+    /// A fault the job clears and retries (`ModbusError::is_recoverable`).
+    Recoverable,
+    /// A fault that ends the run.
+    Fatal,
 }
 
 impl Event {
@@ -111,6 +139,7 @@ impl Event {
             Event::Socket { t_s, .. } => *t_s,
             Event::Frame(f) => f.t_s,
             Event::Interrupt { t_s, .. } => *t_s,
+            Event::Peripherals { t_s, .. } => *t_s,
         }
     }
 }
@@ -250,6 +279,21 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             body.extend_from_slice(&t_s.to_le_bytes());
             body.extend_from_slice(&captured.to_le_bytes());
             encode_record(KIND_INTERRUPT, &body)
+        }
+        Event::Peripherals { t_s, phase, outcome, text } => {
+            let mut body = Vec::with_capacity(PERIPHERALS_FIXED + text.len());
+            body.extend_from_slice(&t_s.to_le_bytes());
+            body.push(match phase {
+                PeripheralPhase::Before => 0,
+                PeripheralPhase::After => 1,
+            });
+            body.push(match outcome {
+                PeripheralOutcome::Ok => 0,
+                PeripheralOutcome::Recoverable => 1,
+                PeripheralOutcome::Fatal => 2,
+            });
+            body.extend_from_slice(text.as_bytes());
+            encode_record(KIND_PERIPHERALS, &body)
         }
     }
 }
@@ -394,6 +438,27 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 }
                 events.push(Event::Interrupt { t_s, captured });
             }
+            KIND_PERIPHERALS if version >= 2 => {
+                let (Some(t_s), Some(phase), Some(outcome)) = (b.f64(), b.u8(), b.u8()) else {
+                    return Err(malformed(format!("peripherals record body of {len} bytes is shorter than {PERIPHERALS_FIXED}")));
+                };
+                if !t_s.is_finite() {
+                    return Err(malformed(format!("time {t_s} is not finite")));
+                }
+                let phase = match phase {
+                    0 => PeripheralPhase::Before,
+                    1 => PeripheralPhase::After,
+                    p => return Err(malformed(format!("unknown peripherals phase {p}"))),
+                };
+                let outcome = match outcome {
+                    0 => PeripheralOutcome::Ok,
+                    1 => PeripheralOutcome::Recoverable,
+                    2 => PeripheralOutcome::Fatal,
+                    o => return Err(malformed(format!("unknown peripherals outcome {o}"))),
+                };
+                let text = std::str::from_utf8(b.rest()).map_err(|e| malformed(format!("peripherals text is not UTF-8: {e}")))?;
+                events.push(Event::Peripherals { t_s, phase, outcome, text: text.to_string() });
+            }
             KIND_END => {
                 let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
                 if said != record as u64 {
@@ -419,11 +484,17 @@ mod tests {
             Event::Socket { socket: SocketId::Motion, direction: Direction::ToController, t_s: 0.5, bytes: b"Sync()".to_vec() },
             Event::Frame(RecordedFrame { camera: 1, t_s: 1.0, t_capture_s: 0.9, seq: 7, width: 2, height: 1, rgb: vec![1, 2, 3, 4, 5, 6] }),
             Event::Interrupt { t_s: 1.5, captured: 3 },
+            Event::Peripherals {
+                t_s: 1.6,
+                phase: PeripheralPhase::After,
+                outcome: PeripheralOutcome::Ok,
+                text: "lamp.current=0.25;scale.force=".into(),
+            },
         ];
         for e in &events {
             out.extend(encode_event(e));
         }
-        out.extend(encode_end(3));
+        out.extend(encode_end(4));
         out
     }
 
@@ -460,6 +531,13 @@ mod tests {
         long.extend(encode_record(KIND_INTERRUPT, &[0u8; 17]));
         long.extend(encode_end(1));
         assert!(matches!(decode(&long), Err(FormatError::Malformed { record: 0, .. })));
+        // Peripherals: an unknown phase, an unknown outcome, text that is not UTF-8.
+        for body in [[0u8, 0, 0, 0, 0, 0, 0, 0, 2, 0, b'x'], [0, 0, 0, 0, 0, 0, 0, 0, 1, 3, b'x'], [0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0xFF]] {
+            let mut bad = encode_preamble("{}");
+            bad.extend(encode_record(KIND_PERIPHERALS, &body));
+            bad.extend(encode_end(1));
+            assert!(matches!(decode(&bad), Err(FormatError::Malformed { record: 0, .. })), "{body:?}: {:?}", decode(&bad));
+        }
     }
 
     #[test]
@@ -482,7 +560,8 @@ mod tests {
     fn round_trip() {
         let r = decode(&sample()).unwrap();
         assert_eq!(r.header_json, "{\"a\":1}");
-        assert_eq!(r.events.len(), 3);
+        assert_eq!(r.events.len(), 4);
+        assert!(matches!(&r.events[3], Event::Peripherals { phase: PeripheralPhase::After, text, .. } if text == "lamp.current=0.25;scale.force="));
         assert!(matches!(&r.events[0], Event::Socket { socket: SocketId::Motion, bytes, .. } if bytes == b"Sync()"));
     }
 
@@ -535,7 +614,13 @@ mod tests {
                 Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, rgb: vec![v; (width * height * 3) as usize] })
             },
         );
-        prop_oneof![socket, frame]
+        let peripherals = (-1e6f64..1e6, any::<bool>(), 0u8..3, ".{0,40}").prop_map(|(t_s, before, outcome, text)| Event::Peripherals {
+            t_s,
+            phase: if before { PeripheralPhase::Before } else { PeripheralPhase::After },
+            outcome: [PeripheralOutcome::Ok, PeripheralOutcome::Recoverable, PeripheralOutcome::Fatal][usize::from(outcome)],
+            text,
+        });
+        prop_oneof![socket, frame, peripherals]
     }
 
     proptest::proptest! {
@@ -581,9 +666,9 @@ mod tests {
         more.push(0);
         assert!(matches!(decode(&more), Err(FormatError::TrailingBytes { extra: 1, .. })));
         let mut wrong = sample();
-        let end = encode_end(3);
+        let end = encode_end(4);
         wrong.truncate(wrong.len() - end.len());
         wrong.extend(encode_end(5));
-        assert!(matches!(decode(&wrong), Err(FormatError::CountMismatch { said: 5, found: 3 })));
+        assert!(matches!(decode(&wrong), Err(FormatError::CountMismatch { said: 5, found: 4 })));
     }
 }

@@ -35,10 +35,11 @@ use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
 use crate::dataset::ObjectInfo;
+use crate::io::modbus::{ModbusError, ModbusReading, Peripherals, format_readings};
 use crate::plan::{PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
 
-pub use format::{Direction, Event, FormatError, RecordedFrame, SocketId};
+pub use format::{Direction, Event, FormatError, PeripheralOutcome, PeripheralPhase, RecordedFrame, SocketId};
 
 /// Errors reading or writing a recording.
 #[derive(Debug, thiserror::Error)]
@@ -301,6 +302,46 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for RecordingStream<S> {
     }
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
         Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// Peripherals that log what each call around a capture gave (the readings, or the fault);
+/// a plain pass-through without a recorder.
+pub struct RecordingPeripherals<P> {
+    inner: P,
+    recorder: Option<Recorder>,
+}
+
+impl<P: Peripherals> RecordingPeripherals<P> {
+    pub fn new(inner: P, recorder: Option<Recorder>) -> Self {
+        Self { inner, recorder }
+    }
+
+    fn log<T>(&self, phase: PeripheralPhase, result: &Result<T, ModbusError>, ok_text: impl FnOnce(&T) -> String) {
+        // No peripherals configured: nothing to record (the replay then has none either).
+        let Some(r) = self.recorder.as_ref().filter(|_| !self.inner.is_empty()) else { return };
+        let (outcome, text) = match result {
+            Ok(v) => (PeripheralOutcome::Ok, ok_text(v)),
+            Err(e) if e.is_recoverable() => (PeripheralOutcome::Recoverable, e.to_string()),
+            Err(e) => (PeripheralOutcome::Fatal, e.to_string()),
+        };
+        r.log(|t_s| Event::Peripherals { t_s, phase, outcome, text });
+    }
+}
+
+impl<P: Peripherals> Peripherals for RecordingPeripherals<P> {
+    fn is_empty(&self) -> bool {
+        self.inner.is_empty()
+    }
+    async fn before_capture(&mut self) -> Result<(), ModbusError> {
+        let result = self.inner.before_capture().await;
+        self.log(PeripheralPhase::Before, &result, |_| String::new());
+        result
+    }
+    async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
+        let result = self.inner.after_capture().await;
+        self.log(PeripheralPhase::After, &result, |readings| format_readings(readings));
+        result
     }
 }
 

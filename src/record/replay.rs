@@ -37,13 +37,14 @@ use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
-use super::format::{Direction, Event, SocketId};
+use super::format::{Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
 use super::{REPLAY_CLIENT_TIMEOUT, Recording};
 use crate::arm::dobot::client::{Mg400Client, Mg400Config};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MockClock};
 use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
 use crate::dataset::{DatasetError, DatasetWriter, Manifest};
+use crate::io::modbus::{ModbusError, ModbusReading, Peripherals, parse_readings};
 
 /// Where the replayed run left the recording.
 #[derive(Debug, Clone, PartialEq)]
@@ -80,6 +81,9 @@ pub enum ReplayError {
     Dataset(#[from] DatasetError),
     #[error("the replayed collection finished with {remaining} recorded events not replayed; the next is {next}")]
     Leftover { remaining: usize, next: String },
+    /// The replayed job called its peripherals where the recorded one did not.
+    #[error("{0}")]
+    PeripheralsDiverged(String),
 }
 
 struct SessionState {
@@ -141,6 +145,7 @@ impl SessionState {
                 f.t_capture_s
             ),
             Event::Interrupt { captured, .. } => format!("the operator's interrupt after {captured} poses"),
+            Event::Peripherals { phase, .. } => format!("the peripherals' {phase:?} capture call"),
         }
     }
 
@@ -469,6 +474,100 @@ impl Camera for ReplayCamera {
     }
 }
 
+/// The recorded peripheral calls, handed back in recorded order. They are not served through
+/// the session: the job calls them at fixed points between its own socket traffic, so their
+/// order among themselves is all that matters. Cloning shares the calls.
+#[derive(Clone)]
+pub struct ReplayPeripherals {
+    state: Arc<Mutex<PeripheralCalls>>,
+    /// Whether the recorded run had peripherals (it then logged at least one call).
+    present: bool,
+}
+
+#[derive(Default)]
+struct PeripheralCalls {
+    calls: std::collections::VecDeque<(PeripheralPhase, PeripheralOutcome, String)>,
+    /// The first call that did not match the recording.
+    mismatch: Option<String>,
+}
+
+impl ReplayPeripherals {
+    /// The peripheral calls of `events`, in order.
+    pub fn from_events(events: &[Event]) -> Self {
+        let calls: std::collections::VecDeque<_> = events
+            .iter()
+            .filter_map(|e| match e {
+                Event::Peripherals { phase, outcome, text, .. } => Some((*phase, *outcome, text.clone())),
+                _ => None,
+            })
+            .collect();
+        let present = !calls.is_empty();
+        Self { state: Arc::new(Mutex::new(PeripheralCalls { calls, mismatch: None })), present }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, PeripheralCalls> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Calls recorded but not made by the replay.
+    pub fn left(&self) -> usize {
+        self.lock().calls.len()
+    }
+
+    /// The first call of the replay that the recording does not have.
+    pub fn mismatch(&self) -> Option<String> {
+        self.lock().mismatch.clone()
+    }
+
+    fn next(&self, phase: PeripheralPhase) -> Result<(PeripheralOutcome, String), ModbusError> {
+        let mut st = self.lock();
+        match st.calls.pop_front() {
+            Some((p, outcome, text)) if p == phase => Ok((outcome, text)),
+            other => {
+                let recorded = other.map_or_else(|| "no further call".to_string(), |(p, ..)| format!("a {p:?}-capture call"));
+                let message = format!("replay diverged: the job made a {phase:?}-capture peripherals call, the recording has {recorded}");
+                st.mismatch.get_or_insert_with(|| message.clone());
+                Err(ModbusError::Replayed { message, recoverable: false })
+            }
+        }
+    }
+
+    fn replayed<T>(outcome: PeripheralOutcome, text: String, ok: T) -> Result<T, ModbusError> {
+        match outcome {
+            PeripheralOutcome::Ok => Ok(ok),
+            PeripheralOutcome::Recoverable => Err(ModbusError::Replayed { message: text, recoverable: true }),
+            PeripheralOutcome::Fatal => Err(ModbusError::Replayed { message: text, recoverable: false }),
+        }
+    }
+}
+
+impl Peripherals for ReplayPeripherals {
+    fn is_empty(&self) -> bool {
+        !self.present
+    }
+    async fn before_capture(&mut self) -> Result<(), ModbusError> {
+        if !self.present {
+            return Ok(());
+        }
+        let (outcome, text) = self.next(PeripheralPhase::Before)?;
+        Self::replayed(outcome, text, ())
+    }
+    async fn after_capture(&mut self) -> Result<Vec<ModbusReading>, ModbusError> {
+        // As `NoPeripherals`: the job asks for readings even without peripherals.
+        if !self.present {
+            return Ok(Vec::new());
+        }
+        let (outcome, text) = self.next(PeripheralPhase::After)?;
+        if outcome != PeripheralOutcome::Ok {
+            return Self::replayed(outcome, text, Vec::new());
+        }
+        parse_readings(&text).ok_or_else(|| ModbusError::Replayed {
+            message: format!("the recording's readings {text:?} are not a modbus column"),
+            recoverable: false,
+        })
+    }
+}
+
 /// What a replay did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReplayOutcome {
@@ -489,18 +588,27 @@ pub async fn replay_collection(recording: &Recording, out: &Path, stall_after: D
         Event::Interrupt { captured, .. } => Some(usize::try_from(*captured).unwrap_or(usize::MAX)),
         _ => None,
     });
-    let events: Vec<Event> = recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. })).cloned().collect();
+    // Peripheral calls are served apart from the socket and camera events (see ReplayPeripherals).
+    let peripherals = ReplayPeripherals::from_events(&recording.events);
+    let events: Vec<Event> =
+        recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. } | Event::Peripherals { .. })).cloned().collect();
     let session = ReplaySession::new(events, h.sensors.iter().map(|s| s.camera.clone()).collect());
     let clock = session.clock();
     let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
-    let result = run_job(recording, out, &session, clock, stop_after).await;
+    let result = run_job(recording, out, &session, clock, stop_after, peripherals.clone()).await;
     watchdog.abort();
     // The first divergence explains whatever the job made of it afterwards.
     if let Some(d) = session.divergence() {
         return Err(ReplayError::Diverged(d));
     }
+    if let Some(m) = peripherals.mismatch() {
+        return Err(ReplayError::PeripheralsDiverged(m));
+    }
     let (summary, datasets) = result?;
     session.check_finished()?;
+    if peripherals.left() > 0 {
+        return Err(ReplayError::Leftover { remaining: peripherals.left(), next: "a recorded peripherals call".into() });
+    }
     let (replayed, recorded) = session.position();
     Ok(ReplayOutcome { summary, replayed, recorded, datasets })
 }
@@ -511,6 +619,7 @@ async fn run_job(
     session: &ReplaySession,
     clock: MockClock,
     stop_after: Option<usize>,
+    peripherals: ReplayPeripherals,
 ) -> Result<(CollectSummary, Vec<PathBuf>), ReplayError> {
     let h = &recording.header;
     let mut cfg = Mg400Config::new("replay", h.profile.clone());
@@ -554,9 +663,8 @@ async fn run_job(
         cancel,
         stop_after,
         progress: indicatif::ProgressBar::hidden(),
-        // Recordings hold the arm's bytes and the frames, not Modbus traffic: a replay runs
-        // without peripherals and leaves the `modbus` column empty.
-        peripherals: crate::io::modbus::NoPeripherals,
+        // What the recorded peripherals gave, call by call: the same `modbus` column.
+        peripherals,
     };
     let summary = job.run(&h.plan).await?;
     Ok((summary, datasets))
