@@ -231,7 +231,14 @@ fn a_recording_with_peripherals_replays_with_the_same_modbus_column() {
     bytes.extend(rig::record::format::encode_end(r.events.len() as u64));
     let short = tmp.path().join("short.bin");
     std::fs::write(&short, bytes).expect("writing");
-    let o = rig().arg("replay").arg(&short).arg("--out").arg(tmp.path().join("from-short")).args(["--stall-s", "20"]).output().expect("rig replay");
+    let o = rig()
+        .arg("replay")
+        .arg(&short)
+        .arg("--out")
+        .arg(tmp.path().join("from-short"))
+        .args(["--stall-s", "20"])
+        .output()
+        .expect("rig replay");
     assert_eq!(o.status.code(), Some(3), "{}", text(&o));
     assert!(text(&o).contains("peripherals call"), "{}", text(&o));
 }

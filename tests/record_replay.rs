@@ -274,11 +274,7 @@ fn an_interrupted_recording_replays_to_the_same_partial_dataset() {
     let dir = tmp.path();
     // A simulated clock at real speed: the run lasts long enough to be interrupted mid-plan.
     let (mut c, rec) = collect_recorded(dir, 40, &format!("{CONFIG}[arm]\nsim_time_scale = 1.0\n"));
-    let mut child = c
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("starting rig collect");
+    let mut child = c.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().expect("starting rig collect");
     // Wait for two captured rows, then interrupt.
     let csv = dir.join("recorded/sphere/vitac/poses.csv");
     let rows = |p: &Path| std::fs::read_to_string(p).map_or(0, |t| t.lines().count().saturating_sub(1));

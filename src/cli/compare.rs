@@ -33,13 +33,14 @@ use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 use image::{Rgb, RgbImage, imageops};
 
-use super::sensor_bridge::{TactileSensor, render_tactile_with, simulator_available};
+use super::sensor_bridge::{render_tactile_with, simulator_available};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::metrics::{ssim, ssim_masked};
 use crate::pose::Pose;
+use crate::sim::sensor::SensorKind;
 use crate::sim::sensor::{Scene, Stage};
 
 /// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm); the indentation
@@ -53,7 +54,7 @@ pub const CONTACT_THRESHOLD: u32 = 60;
 pub const FRAMES: std::ops::RangeInclusive<usize> = 0..=5;
 
 /// Fit order: the sharpest outlines first, so their result seeds the others.
-pub const FIT_ORDER: [TactileSensor; 3] = [TactileSensor::ViTacTip, TactileSensor::ViTac, TactileSensor::TacTip];
+pub const FIT_ORDER: [SensorKind; 3] = [SensorKind::ViTacTip, SensorKind::ViTac, SensorKind::TacTip];
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -119,8 +120,8 @@ pub fn load_real_sample(dir: &Path) -> anyhow::Result<RealSample> {
     let mesh = Mesh::load(dir.join("stl/1.stl"))?;
     let poses = read_lepora_poses(&dir.join("csv/1.csv"))?;
     let mut frames = BTreeMap::new();
-    for sensor in TactileSensor::ALL {
-        let name = sensor.dataset_name();
+    for sensor in SensorKind::ALL {
+        let name = sensor.label();
         let mut list: Vec<(usize, RgbImage)> = Vec::new();
         for i in FRAMES {
             let p = dir.join(format!("tactile/1/{name}/target/1_{name}_{i}.png"));
@@ -235,34 +236,32 @@ pub fn iou(a: &[bool], b: &[bool]) -> f64 {
 }
 
 /// Fit target per sensor: outlines for see-through skins, marker displacement for TacTip.
-pub fn fit_target(sensor: TactileSensor, frames: &[&RgbImage]) -> FitTarget {
+pub fn fit_target(sensor: SensorKind, frames: &[&RgbImage]) -> FitTarget {
     match sensor {
-        TactileSensor::TacTip => FitTarget::Difference { reference: median_image(frames) },
-        TactileSensor::ViTac | TactileSensor::ViTacTip => FitTarget::Edges,
+        SensorKind::TacTip => FitTarget::Difference { reference: median_image(frames) },
+        SensorKind::ViTac | SensorKind::ViTacTip => FitTarget::Edges,
     }
 }
 
 /// Fits `calibration/mds-example-<sensor>.toml` for one sensor of the sample.
 pub fn fit_sensor(
     sample: &RealSample,
-    sensor: TactileSensor,
+    sensor: SensorKind,
     seeds: &[Calibration],
 ) -> anyhow::Result<crate::calibration::contact_fit::ContactFit> {
-    let list = sample.frames.get(sensor.dataset_name()).map(Vec::as_slice).unwrap_or(&[]);
+    let list = sample.frames.get(sensor.label()).map(Vec::as_slice).unwrap_or(&[]);
     if list.is_empty() {
-        bail!("no {sensor} frames in the sample");
+        bail!("no {} frames in the sample", sensor.label());
     }
     let frames: Vec<FitFrame> = list
         .iter()
-        .map(|(i, img)| {
-            Ok(FitFrame { name: format!("1_{}_{i}.png", sensor.dataset_name()), pose: pose_of(sample, *i)?, image: img.clone() })
-        })
+        .map(|(i, img)| Ok(FitFrame { name: format!("1_{}_{i}.png", sensor.label()), pose: pose_of(sample, *i)?, image: img.clone() }))
         .collect::<anyhow::Result<_>>()?;
     let refs: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
     let target = fit_target(sensor, &refs);
     let full = list[0].1.width();
     let mut opts = ContactFitOptions { extra_starts: seeds.to_vec(), final_size: Some(full), ..ContactFitOptions::default() };
-    if sensor == TactileSensor::TacTip && !seeds.is_empty() {
+    if sensor == SensorKind::TacTip && !seeds.is_empty() {
         // Markers alone barely constrain the pose correction, which belongs to the pose log
         // (shared by all three sensors), not to the camera: take the see-through sensors' mean.
         opts.fit_pose_correction = false;
@@ -320,15 +319,15 @@ pub struct FrameScores {
 /// measured (leave-one-out) no-contact look.
 pub fn compare_sensor(
     sample: &RealSample,
-    sensor: TactileSensor,
+    sensor: SensorKind,
     calib: &Calibration,
     out: Option<&Path>,
     procedural: bool,
     scene: &Scene,
 ) -> anyhow::Result<Vec<FrameScores>> {
-    let list = sample.frames.get(sensor.dataset_name()).map(Vec::as_slice).unwrap_or(&[]);
+    let list = sample.frames.get(sensor.label()).map(Vec::as_slice).unwrap_or(&[]);
     if list.len() < 2 {
-        bail!("{sensor}: need at least two real frames, have {}", list.len());
+        bail!("{}: need at least two real frames, have {}", sensor.label(), list.len());
     }
     let (w, h) = list[0].1.dimensions();
     let calib = calib.scaled_to(w, h);
@@ -365,13 +364,13 @@ pub fn compare_sensor(
         if let Some(dir) = out {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let panel = panel(real, &baseline, &footprints[k], &mask, sim.as_ref());
-            let p = dir.join(format!("{}_{index}.png", sensor.slug()));
+            let p = dir.join(format!("{sensor}_{index}.png"));
             panel.save(&p).with_context(|| format!("writing {}", p.display()))?;
         }
         scores.push(s);
     }
     if let Some(dir) = out {
-        let p = dir.join(format!("{}_no_contact.png", sensor.slug()));
+        let p = dir.join(format!("{sensor}_no_contact.png"));
         no_contact.save(&p).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(scores)
@@ -417,11 +416,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         for sensor in FIT_ORDER {
             let fit = fit_sensor(&sample, sensor, &seeds)?;
             seeds.push(fit.calibration.clone());
-            let path = args.calibration_dir.join(format!("mds-example-{}.toml", sensor.slug()));
+            let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
             fit.calibration.save(&path)?;
             let c = &fit.calibration;
             println!(
-                "fitted {sensor}: centre ({:.1}, {:.1}) px, scale ({:.2}, {:.2}) px/mm, rotation {:.1} deg, correlation {:.3}, residual per frame [{}] px -> {}",
+                "fitted {}: centre ({:.1}, {:.1}) px, scale ({:.2}, {:.2}) px/mm, rotation {:.1} deg, correlation {:.3}, residual per frame [{}] px -> {}",
+                sensor.label(),
                 c.centre_px[0],
                 c.centre_px[1],
                 c.scale_px_per_mm[0],
@@ -443,14 +443,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => comparison_scene(),
     };
     let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
-    for sensor in TactileSensor::ALL {
-        let path = args.calibration_dir.join(format!("mds-example-{}.toml", sensor.slug()));
-        let calib = Calibration::load(&path).with_context(|| format!("{sensor}: run with --fit to create {}", path.display()))?;
+    for sensor in SensorKind::ALL {
+        let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
+        let calib = Calibration::load(&path).with_context(|| format!("{}: run with --fit to create {}", sensor.label(), path.display()))?;
         let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref(), args.procedural, &scene)?;
         for s in &scores {
             println!(
                 "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
-                sensor.dataset_name(),
+                sensor.label(),
                 s.index,
                 100.0 * s.contact_fraction,
                 s.footprint_iou,
@@ -466,7 +466,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             |f: &dyn Fn(&FrameScores) -> Option<f64>| scores.iter().map(f).collect::<Option<Vec<f64>>>().map(|v| v.iter().sum::<f64>() / n);
         println!(
             "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
-            sensor.dataset_name(),
+            sensor.label(),
             "mean",
             100.0 * mean(&|s| s.contact_fraction),
             mean(&|s| s.footprint_iou),

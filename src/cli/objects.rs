@@ -11,13 +11,14 @@ use anyhow::Context;
 use clap::{Args as ClapArgs, Subcommand};
 use image::{GrayImage, Rgb, RgbImage, imageops};
 
-use super::sensor_bridge::{TactileSensor, render_tactile, simulator_available};
+use super::sensor_bridge::{render_tactile, simulator_available};
 use crate::calibration::Calibration;
 use crate::geometry::DepthMap;
 use crate::geometry::control::control_image;
 use crate::geometry::objects::{OBJECTS_DIR, generate_library, load_object, object_names};
 use crate::geometry::raster::render_depth;
 use crate::pose::Pose;
+use crate::sim::sensor::SensorKind;
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -70,7 +71,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "wrote {} ({} objects x [depth, control, {}]; {}x{} px)",
                 out.display(),
                 object_names().len(),
-                TactileSensor::ALL.map(|s| s.dataset_name()).join(", "),
+                SensorKind::ALL.map(|s| s.label()).join(", "),
                 sheet.width(),
                 sheet.height()
             );
@@ -94,8 +95,8 @@ pub fn depth_preview(depth: &DepthMap) -> RgbImage {
 }
 
 /// Calibration for a sensor column: `<dir>/mds-example-<sensor>.toml` or the default.
-fn sensor_calibration(dir: &Path, sensor: TactileSensor, size: u32) -> anyhow::Result<Calibration> {
-    let path = dir.join(format!("mds-example-{}.toml", sensor.slug()));
+fn sensor_calibration(dir: &Path, sensor: SensorKind, size: u32) -> anyhow::Result<Calibration> {
+    let path = dir.join(format!("mds-example-{sensor}.toml"));
     if path.is_file() {
         let mut c = Calibration::load(&path)?.scaled_to(size, size);
         // The sheet shows objects centred; a dataset's pose correction does not apply here.
@@ -109,7 +110,7 @@ fn sensor_calibration(dir: &Path, sensor: TactileSensor, size: u32) -> anyhow::R
 /// Renders the contact sheet (see [`ObjectsCommand::ContactSheet`]).
 pub fn contact_sheet(pose: &Pose, render_size: u32, tile: u32, calibration_dir: &Path) -> anyhow::Result<RgbImage> {
     let names = object_names();
-    let cols = 2 + TactileSensor::ALL.len() as u32;
+    let cols = 2 + SensorKind::ALL.len() as u32;
     let gap = 4;
     let mut sheet = RgbImage::from_pixel(cols * (tile + gap) + gap, names.len() as u32 * (tile + gap) + gap, Rgb([255, 255, 255]));
     let base_calib = Calibration::default_for(render_size, render_size);
@@ -117,7 +118,7 @@ pub fn contact_sheet(pose: &Pose, render_size: u32, tile: u32, calibration_dir: 
         let mesh = load_object(name)?;
         let depth = render_depth(&mesh, pose, &base_calib, render_size, render_size, 2);
         let mut tiles = vec![depth_preview(&depth), control_image(&depth)];
-        for sensor in TactileSensor::ALL {
+        for sensor in SensorKind::ALL {
             let calib = sensor_calibration(calibration_dir, sensor, render_size)?;
             let d = render_depth(&mesh, pose, &calib, render_size, render_size, 2);
             tiles.push(

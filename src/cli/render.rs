@@ -24,7 +24,7 @@ use std::str::FromStr;
 use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
-use super::sensor_bridge::{TactileSensor, render_tactile};
+use super::sensor_bridge::render_tactile;
 use super::usage;
 use crate::calibration::Calibration;
 use crate::dataset::{Manifest, read_rows};
@@ -45,7 +45,7 @@ pub enum View {
     /// MultiDiffSense control image (viridis, RGB8).
     Control,
     /// A simulated tactile sensor image.
-    Tactile(TactileSensor),
+    Tactile(SensorKind),
 }
 
 impl FromStr for View {
@@ -55,7 +55,7 @@ impl FromStr for View {
             "depth" => Ok(View::Depth),
             "control" => Ok(View::Control),
             other => other
-                .parse::<TactileSensor>()
+                .parse::<SensorKind>()
                 .map(View::Tactile)
                 .map_err(|_| format!("unknown sensor {s:?}; expected tactip, vitac, vitactip, depth or control")),
         }

@@ -105,12 +105,25 @@ pub enum Direction {
 /// One recorded event, in the order the recording saw them.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
-    Socket { socket: SocketId, direction: Direction, t_s: f64, bytes: Vec<u8> },
+    Socket {
+        socket: SocketId,
+        direction: Direction,
+        t_s: f64,
+        bytes: Vec<u8>,
+    },
     Frame(RecordedFrame),
     /// The operator interrupted the run; the job stopped before pose number `captured` + 1.
-    Interrupt { t_s: f64, captured: u64 },
+    Interrupt {
+        t_s: f64,
+        captured: u64,
+    },
     /// What the Modbus peripherals did around a capture.
-    Peripherals { t_s: f64, phase: PeripheralPhase, outcome: PeripheralOutcome, text: String },
+    Peripherals {
+        t_s: f64,
+        phase: PeripheralPhase,
+        outcome: PeripheralOutcome,
+        text: String,
+    },
 }
 
 /// When around a capture the peripherals were used.
@@ -561,7 +574,9 @@ mod tests {
         let r = decode(&sample()).unwrap();
         assert_eq!(r.header_json, "{\"a\":1}");
         assert_eq!(r.events.len(), 4);
-        assert!(matches!(&r.events[3], Event::Peripherals { phase: PeripheralPhase::After, text, .. } if text == "lamp.current=0.25;scale.force="));
+        assert!(
+            matches!(&r.events[3], Event::Peripherals { phase: PeripheralPhase::After, text, .. } if text == "lamp.current=0.25;scale.force=")
+        );
         assert!(matches!(&r.events[0], Event::Socket { socket: SocketId::Motion, bytes, .. } if bytes == b"Sync()"));
     }
 
