@@ -158,26 +158,20 @@ pub async fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport
     let mut rows = Vec::new();
     let mut settle_series = Series { name: format!("settle time ({first_frames} frame)"), ..Default::default() };
     let mut frame_series = Series { name: format!("frames averaged (settle {default_settle} s)"), ..Default::default() };
-    let mut k = 0;
-    for &settle in &config.collect_settle_s {
-        let r = run_once(config, settle, first_frames, &work_dir.join(format!("run{k}"))).await?;
-        k += 1;
-        rows.push(Row {
-            label: format!("settle {settle} s, {first_frames} frame(s)"),
-            values: vec![settle, first_frames as f64, r.noise_levels, r.modelled_s_per_pose, r.wall_s_per_pose],
-        });
-        settle_series.points.push([r.modelled_s_per_pose, r.noise_levels]);
-        settle_series.labels.push(format!("{settle} s"));
-    }
-    for &frames in &config.collect_frames {
-        let r = run_once(config, default_settle, frames, &work_dir.join(format!("run{k}"))).await?;
-        k += 1;
-        rows.push(Row {
-            label: format!("settle {default_settle} s, {frames} frame(s) averaged"),
-            values: vec![default_settle, frames as f64, r.noise_levels, r.modelled_s_per_pose, r.wall_s_per_pose],
-        });
-        frame_series.points.push([r.modelled_s_per_pose, r.noise_levels]);
-        frame_series.labels.push(format!("{frames} fr"));
+    // First the settle times at one frame, then the frame counts at the default settle time.
+    let by_settle = config
+        .collect_settle_s
+        .iter()
+        .map(|&settle| (settle, first_frames, format!("settle {settle} s, {first_frames} frame(s)"), format!("{settle} s"), true));
+    let by_frames = config.collect_frames.iter().map(|&frames| {
+        (default_settle, frames, format!("settle {default_settle} s, {frames} frame(s) averaged"), format!("{frames} fr"), false)
+    });
+    for (k, (settle, frames, label, point, settle_knob)) in by_settle.chain(by_frames).enumerate() {
+        let r = run_once(config, settle, frames, &work_dir.join(format!("run{k}"))).await?;
+        rows.push(Row { label, values: vec![settle, frames as f64, r.noise_levels, r.modelled_s_per_pose, r.wall_s_per_pose] });
+        let series = if settle_knob { &mut settle_series } else { &mut frame_series };
+        series.points.push([r.modelled_s_per_pose, r.noise_levels]);
+        series.labels.push(point);
     }
     if rows.is_empty() {
         return Err(BenchError::Empty { knob: Knob::Collection, reason: "no settle times or frame counts" });
