@@ -322,31 +322,19 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     // No pairs: the synthetic side is another object.
     let other = sets._tmp.path().join("other");
     let sim = sensor(SensorKind::ViTac, 22);
-    let img = render(&sim, "edge", Pose::new(0.0, 0.0, 0.0, 0.0), 1);
-    write(
-        &other.join("edge").join("vitac"),
-        "edge",
-        SensorKind::ViTac,
-        &sim.reference(),
-        &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)],
-        Source::Synthetic,
-    );
+    let origin = Pose::new(0.0, 0.0, 0.0, 0.0);
+    // One synthetic ViTac image of `object` at the origin pose, as pose 1 of `dir/object/vitac`.
+    let write_one = |dir: &Path, object: &str, img: RgbImage| {
+        write(&dir.join(object).join("vitac"), object, SensorKind::ViTac, &sim.reference(), &[(1, origin, img)], Source::Synthetic);
+    };
+    write_one(&other, "edge", render(&sim, "edge", origin, 1));
     let (code, out) = run(eval_cmd(&sets.real, &other, &[]));
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("no pose pairs"), "{out}");
     // A synthetic twin of another size but the same shape is judged (both sides go to --size)...
     let twin_at = |name: &str, w: u32, h: u32| {
         let dir = sets._tmp.path().join(name);
-        let img =
-            image::imageops::resize(&render(&sim, "sphere", Pose::new(0.0, 0.0, 0.0, 0.0), 1), w, h, image::imageops::FilterType::Triangle);
-        write(
-            &dir.join("sphere").join("vitac"),
-            "sphere",
-            SensorKind::ViTac,
-            &sim.reference(),
-            &[(1, Pose::new(0.0, 0.0, 0.0, 0.0), img)],
-            Source::Synthetic,
-        );
+        write_one(&dir, "sphere", image::imageops::resize(&render(&sim, "sphere", origin, 1), w, h, image::imageops::FilterType::Triangle));
         dir
     };
     let (code, out) = run(eval_cmd(&sets.real, &twin_at("small", 64, 64), &[]));

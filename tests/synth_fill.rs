@@ -35,12 +35,7 @@ fn contents(dir: &Path) -> BTreeMap<u32, (String, Vec<u8>)> {
 fn fill_missing_fills_the_grid_and_shards_merge_to_the_same_images() {
     let tmp = tempfile::tempdir().expect("tempdir");
     // A 2 x 2 x 1 x 3 = 12-pose grid; collect 5, fill 7.
-    let ds = collect_vitac_edge(
-        tmp.path(),
-        "sampling = \"random\"\nn_poses = 5\nseed = 3\norder = \"optimised\"\n\
-         [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n\
-         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -45.0\nmax = 45.0\nstep = 45.0\n",
-    );
+    let ds = collect_vitac_edge(tmp.path(), &grid_plan(5, 3, [-2.0, 2.0, 4.0], [-45.0, 45.0, 45.0]));
 
     // Copies: one filled in place, one filled by two shards then merged.
     let whole = tmp.path().join("whole");
@@ -86,6 +81,19 @@ fn fill_missing_fills_the_grid_and_shards_merge_to_the_same_images() {
 
 /// Collects the edge with the simulated ViTac sensor under `dir` with the plan `plan_toml`;
 /// returns the dataset.
+/// A random plan of `n_poses` over x in {-2, 2} mm, z = 0 and the given `[min, max, step]` of
+/// y (mm) and yaw (deg).
+fn grid_plan(n_poses: u32, seed: u64, y_mm: [f64; 3], yaw_deg: [f64; 3]) -> String {
+    let axis = |name: &str, [min, max, step]: [f64; 3]| format!("[{name}]\nmin = {min:?}\nmax = {max:?}\nstep = {step:?}\n");
+    format!(
+        "sampling = \"random\"\nn_poses = {n_poses}\nseed = {seed}\norder = \"optimised\"\n{}{}{}{}",
+        axis("x_mm", [-2.0, 2.0, 4.0]),
+        axis("y_mm", y_mm),
+        axis("z_mm", [0.0, 0.0, 1.0]),
+        axis("yaw_deg", yaw_deg)
+    )
+}
+
 fn collect_vitac_edge(dir: &Path, plan_toml: &str) -> std::path::PathBuf {
     let plan = dir.join("plan.toml");
     std::fs::write(&plan, plan_toml).expect("plan");
@@ -163,12 +171,7 @@ fn render_controls_of_matches_single_renders_and_prompts() {
 fn the_packages_sampling_settings_are_the_fills_default() {
     let tmp = tempfile::tempdir().expect("tempdir");
     // A 2 x 1 x 1 x 2 = 4-pose grid; collect 2, fill 2.
-    let ds = collect_vitac_edge(
-        tmp.path(),
-        "sampling = \"random\"\nn_poses = 2\nseed = 5\norder = \"optimised\"\n\
-         [x_mm]\nmin = -2.0\nmax = 2.0\nstep = 4.0\n[y_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n\
-         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 45.0\nstep = 45.0\n",
-    );
+    let ds = collect_vitac_edge(tmp.path(), &grid_plan(2, 5, [0.0, 0.0, 1.0], [0.0, 45.0, 45.0]));
     // The tiny package, saying dpm++2m and 3 steps.
     let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
     let package = tmp.path().join("package");

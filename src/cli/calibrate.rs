@@ -195,16 +195,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     } else {
         let total = pattern.offsets.len();
         // Ctrl-C: finish the current press, retract, disable, save nothing (as `rig collect`).
-        let interrupted = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let flag = Arc::clone(&interrupted);
-        // Registered here, before the first press: a SIGINT from then on is seen.
-        let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt()).context("listening for Ctrl-C")?;
-        let watcher = tokio::spawn(async move {
-            if sigint.recv().await.is_some() {
-                eprintln!("interrupt: finishing the current press, then retracting and disabling the arm");
-                flag.store(true, std::sync::atomic::Ordering::SeqCst);
-            }
-        });
+        let cancel = super::cancel_on_interrupt("finishing the current press, then retracting and disabling the arm")?;
         let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| {
             match &press.contact {
                 Ok(c) => println!(
@@ -218,14 +209,9 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
                     println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
                 }
             }
-            if interrupted.load(std::sync::atomic::Ordering::SeqCst) {
-                std::ops::ControlFlow::Break(())
-            } else {
-                std::ops::ControlFlow::Continue(())
-            }
+            if *cancel.borrow() { std::ops::ControlFlow::Break(()) } else { std::ops::ControlFlow::Continue(()) }
         })
         .await;
-        watcher.abort();
         match run {
             Err(PressError::Cancelled { done, total }) => {
                 drop(station);

@@ -154,13 +154,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         streams.push(SensorStream { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), writer });
     }
 
-    let (cancel_tx, cancel_rx) = tokio::sync::watch::channel(false);
-    tokio::spawn(async move {
-        if tokio::signal::ctrl_c().await.is_ok() {
-            eprintln!("interrupt: finishing the current pose, then retracting and disabling the arm");
-            let _ = cancel_tx.send(true);
-        }
-    });
+    let cancel_rx = super::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
     let progress = indicatif::ProgressBar::new(plan.poses.len() as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")

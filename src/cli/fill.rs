@@ -66,7 +66,7 @@ pub struct FillArgs {
     /// With --poses-of: the twins' image size. `model`: the model's own resolution, untouched
     /// (what `rig eval` should judge: no resampling of the model's output). `source`: resized
     /// to the real frames' size, as `--fill-missing` writes into a dataset.
-    #[arg(long, value_name = "model|source", default_value = "model", requires = "poses_of")]
+    #[arg(long, value_enum, default_value_t = TwinSize::Model, requires = "poses_of")]
     pub twin_size: TwinSize,
     /// ONNX Runtime library (libonnxruntime.so) or its folder (default: $RIG_ORT_LIB,
     /// $ORT_DYLIB_PATH, then .rig/onnxruntime/).
@@ -182,13 +182,13 @@ fn load_pipeline(args: &FillArgs) -> anyhow::Result<Pipeline> {
 }
 
 fn fill_options(args: &FillArgs, shard: Shard, pipeline: &Pipeline) -> FillOptions {
-    let config = &pipeline.package().config;
     let defaults = FillOptions::default();
+    let sampling = pipeline.package().config.sampling(args.steps, args.guidance, args.sampler, (defaults.steps, defaults.guidance));
     FillOptions {
-        steps: args.steps.or(config.sampling_steps).unwrap_or(defaults.steps),
-        guidance: args.guidance.or(config.guidance).unwrap_or(defaults.guidance),
+        steps: sampling.steps,
+        guidance: sampling.guidance,
         eta: args.eta,
-        scheduler: args.sampler.or(config.sampler).unwrap_or_default(),
+        scheduler: sampling.sampler,
         conditioning_scale: args.conditioning_scale,
         shard,
         batch: args.batch,

@@ -123,4 +123,21 @@ fn end_quietly_when_stdout_closes() {
     }
 }
 
+/// A cancel flag for a job that stops at its next safe point: it turns true at the first Ctrl-C
+/// (SIGINT), which is then announced on stderr with `what` (e.g. "finishing the current pose,
+/// then retracting and disabling the arm"). The listener is in place when this returns, so no
+/// interrupt after it is missed; from then on Ctrl-C no longer kills rig. Needs a Tokio runtime.
+pub(crate) fn cancel_on_interrupt(what: &'static str) -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
+    use anyhow::Context;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt()).context("listening for Ctrl-C")?;
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    tokio::spawn(async move {
+        if sigint.recv().await.is_some() {
+            eprintln!("interrupt: {what}");
+            let _ = tx.send(true);
+        }
+    });
+    Ok(rx)
+}
+
 pub use crate::report::{ExitStatus, UsageError, error_report, exit_code, usage};

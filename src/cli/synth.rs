@@ -13,6 +13,7 @@ use clap::{Args as ClapArgs, Subcommand};
 
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
+use crate::synth::package::Sampling;
 use crate::synth::{ExecutionProviderKind, GenerateRequest, Pipeline, RuntimeOptions, SchedulerKind};
 
 /// `rig synth` arguments.
@@ -155,10 +156,9 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let mut pipeline = load(&args.model, &args.runtime)?;
     let load_s = t0.elapsed().as_secs_f64();
-    let config = &pipeline.package().config;
-    let steps = args.steps.or(config.sampling_steps).unwrap_or(50);
-    let guidance = args.guidance.or(config.guidance).unwrap_or(9.0);
-    let scheduler = args.scheduler.or(config.sampler).unwrap_or_default();
+    // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
+    let Sampling { steps, guidance, sampler: scheduler } =
+        pipeline.package().config.sampling(args.steps, args.guidance, args.scheduler, (50, 9.0));
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
@@ -237,51 +237,20 @@ mod tests {
         assert!(parse_size("ax2").is_err());
     }
 
+    /// `rig synth one --model m --control c.png --out o.png` plus `extra`, parsed.
+    fn parse_one(extra: &[&str]) -> Result<OneArgs, clap::Error> {
+        let base = ["rig", "synth", "one", "--model", "m", "--control", "c.png", "--out", "o.png"];
+        let cli = crate::cli::Cli::try_parse_from(base.iter().chain(extra))?;
+        let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
+        Ok(*one)
+    }
+
     #[test]
     fn one_parses_with_prompt_or_pose() {
-        let cli = crate::cli::Cli::try_parse_from([
-            "rig",
-            "synth",
-            "one",
-            "--model",
-            "m",
-            "--control",
-            "c.png",
-            "--prompt",
-            "p",
-            "--out",
-            "o.png",
-            "--steps",
-            "4",
-            "--scheduler",
-            "dpm++2m",
-            "--size",
-            "64x64",
-        ])
-        .unwrap();
-        let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
+        let one = parse_one(&["--prompt", "p", "--steps", "4", "--scheduler", "dpm++2m", "--size", "64x64"]).unwrap();
         assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
-        let cli = crate::cli::Cli::try_parse_from([
-            "rig",
-            "synth",
-            "one",
-            "--model",
-            "m",
-            "--control",
-            "c.png",
-            "--sensor",
-            "ViTac",
-            "--pose",
-            "-1,2,0.5,-30",
-            "--out",
-            "o.png",
-        ])
-        .unwrap();
-        let crate::cli::Command::Synth(Args { command: Some(SynthCommand::One(one)), .. }) = cli.command else { panic!("not synth one") };
+        let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
-        assert!(
-            crate::cli::Cli::try_parse_from(["rig", "synth", "one", "--model", "m", "--control", "c", "--out", "o"]).is_err(),
-            "a prompt or a pose is required"
-        );
+        assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");
     }
 }

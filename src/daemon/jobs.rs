@@ -326,11 +326,12 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     let model = spec.model.clone().unwrap_or_else(crate::synth::fill::default_model);
     let runtime = RuntimeOptions { ort_lib: spec.ort_lib.clone(), ..RuntimeOptions::default() };
     let defaults = FillOptions::default();
+    // Steps, guidance and sampler are settled once the package is loaded (its model.toml).
     let mut options = FillOptions {
-        steps: spec.steps.unwrap_or(defaults.steps),
-        guidance: spec.guidance.unwrap_or(defaults.guidance),
+        steps: defaults.steps,
+        guidance: defaults.guidance,
         eta: spec.eta,
-        scheduler: scheduler.unwrap_or_default(),
+        scheduler: SchedulerKind::default(),
         conditioning_scale: spec.conditioning_scale,
         shard,
         batch: spec.batch,
@@ -341,6 +342,7 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
     let out = spec.out.clone();
     let (spec_steps, spec_guidance) = (spec.steps, spec.guidance);
+    let fallback = (defaults.steps, defaults.guidance);
     let task = tokio::task::spawn_blocking(move || {
         let mut loaded = match cached {
             Some((_, _, p)) => p,
@@ -350,12 +352,8 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
             },
         };
         // The package's own sampling settings where the job names none.
-        let config = &loaded.package().config;
-        if scheduler.is_none() {
-            options.scheduler = config.sampler.unwrap_or_default();
-        }
-        options.steps = spec_steps.or(config.sampling_steps).unwrap_or(options.steps);
-        options.guidance = spec_guidance.or(config.guidance).unwrap_or(options.guidance);
+        let sampling = loaded.package().config.sampling(spec_steps, spec_guidance, scheduler, fallback);
+        (options.steps, options.guidance, options.scheduler) = (sampling.steps, sampling.guidance, sampling.sampler);
         let mut lines = Vec::new();
         let mut cancelled = false;
         for d in &datasets {

@@ -275,24 +275,12 @@ pub struct PosesOfSummary {
 }
 
 /// The image size of a synthetic twin ([`synthesise_poses_of`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum TwinSize {
     /// The model's resolution: its output as it came (the reference is resized to match).
     Model,
     /// The source dataset's frame size, as `--fill-missing` writes (the output resized).
     Source,
-}
-
-impl std::str::FromStr for TwinSize {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "model" => Ok(Self::Model),
-            "source" => Ok(Self::Source),
-            other => Err(format!("expected `model` or `source`, got {other:?}")),
-        }
-    }
 }
 
 /// Synthesises exactly the poses of `source`'s real rows into the dataset `out` (created with

@@ -128,7 +128,31 @@ pub struct ModelConfig {
     pub sampler: Option<SchedulerKind>,
 }
 
+/// The sampling settings of a request: what was asked for, else the package's, else a fallback.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sampling {
+    pub steps: usize,
+    pub guidance: f32,
+    pub sampler: SchedulerKind,
+}
+
 impl ModelConfig {
+    /// The settings to sample with: each one asked for, else this package's, else `fallback`'s
+    /// (the sampler's fallback is DDIM).
+    pub fn sampling(
+        &self,
+        steps: Option<usize>,
+        guidance: Option<f32>,
+        sampler: Option<SchedulerKind>,
+        fallback: (usize, f32),
+    ) -> Sampling {
+        Sampling {
+            steps: steps.or(self.sampling_steps).unwrap_or(fallback.0),
+            guidance: guidance.or(self.guidance).unwrap_or(fallback.1),
+            sampler: sampler.or(self.sampler).unwrap_or_default(),
+        }
+    }
+
     /// Reads and validates `model.toml`.
     pub fn read(path: &Path) -> Result<Self, SynthError> {
         let text = std::fs::read_to_string(path).map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
@@ -412,6 +436,16 @@ mod tests {
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampling_steps", .. })));
         let (_d, p) = write_toml("name = \"x\"\nguidance = 0.5\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "guidance", .. })));
+        // Sampling settings: asked for, else the package's, else the fallback (and DDIM).
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nsampler = \"dpm++2m\"\n");
+        let c = ModelConfig::read(&p).unwrap();
+        let dpm = SchedulerKind::DpmSolverPp2m;
+        assert_eq!(c.sampling(None, None, None, (50, 9.0)), Sampling { steps: 20, guidance: 9.0, sampler: dpm });
+        let asked = c.sampling(Some(4), Some(2.0), Some(SchedulerKind::Ddim), (50, 9.0));
+        assert_eq!(asked, Sampling { steps: 4, guidance: 2.0, sampler: SchedulerKind::Ddim });
+        let (_d, p) = write_toml("name = \"x\"\n");
+        let bare = ModelConfig::read(&p).unwrap();
+        assert_eq!(bare.sampling(None, None, None, (50, 9.0)), Sampling { steps: 50, guidance: 9.0, sampler: SchedulerKind::Ddim });
     }
 
     #[test]
