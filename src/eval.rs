@@ -252,6 +252,15 @@ pub struct PairRecord {
     pub yaw_err_deg: Option<f64>,
     pub position_vs_true_mm: Option<f64>,
     pub yaw_vs_true_deg: Option<f64>,
+    /// PSNR is infinite for an image identical to its truth (written `inf`).
+    pub psnr_db: Option<f64>,
+    pub mse: Option<f64>,
+    pub contact_psnr_db: Option<f64>,
+    pub contact_mse: Option<f64>,
+    /// The commanded pose gives the mesh a contact: the pose errors were attempted.
+    pub mesh_contact: bool,
+    /// ... and that contact has an observable yaw: the yaw error was attempted.
+    pub yaw_observable: bool,
 }
 
 /// The result of [`evaluate`].
@@ -642,31 +651,24 @@ impl Collected {
     }
 }
 
-/// Sums of one table row.
-#[derive(Default)]
-struct RowSums {
-    n: usize,
-    ssim: f64,
-    psnr: f64,
-    mse: f64,
-    n_contact: usize,
-    contact_ssim: f64,
-    contact_psnr: f64,
-    contact_mse: f64,
-    position: Vec<f64>,
-    position_attempts: usize,
-    yaw: Vec<f64>,
-    yaw_attempts: usize,
-    position_true: Vec<f64>,
-    yaw_true: Vec<f64>,
-}
-
-fn mean(v: &[f64]) -> Option<f64> {
-    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    mean_of(sum, n)
 }
 
 fn mean_of(sum: f64, n: usize) -> Option<f64> {
     (n > 0 && !sum.is_nan()).then(|| sum / n as f64)
+}
+
+/// One image's similarity to its truth; `None` where not measured.
+#[derive(Default)]
+struct ImageFigures {
+    ssim: Option<f64>,
+    psnr_db: Option<f64>,
+    mse: Option<f64>,
+    contact_ssim: Option<f64>,
+    contact_psnr_db: Option<f64>,
+    contact_mse: Option<f64>,
 }
 
 /// One estimate's errors (see [`MethodRow`]); `None`: not measured.
@@ -678,7 +680,7 @@ struct PoseErrors {
     yaw_vs_true_deg: Option<f64>,
 }
 
-/// What one pair gives the recoverability sums.
+/// What one pair gives the recoverability figures.
 struct PoseTruth {
     geometric: Option<ContactEstimate>,
     yaw_observable: bool,
@@ -686,74 +688,71 @@ struct PoseTruth {
     calib: Calibration,
 }
 
-impl RowSums {
-    /// Adds one image; returns its (SSIM, contact SSIM).
-    fn add_image(&mut self, truth: &RgbImage, image: &RgbImage, mask: Option<&[bool]>) -> (Option<f64>, Option<f64>) {
-        let (Ok(s), Ok(m)) = (metrics::ssim(truth, image), metrics::mse(truth, image)) else { return (None, None) };
-        self.n += 1;
-        self.ssim += s;
-        self.mse += m;
-        self.psnr += metrics::psnr(truth, image).unwrap_or(f64::INFINITY);
-        let mut contact = None;
-        if let Some(mask) = mask
-            && let (Ok(cs), Ok(cm)) = (metrics::ssim_masked(truth, image, mask), metrics::mse_masked(truth, image, mask))
-        {
-            self.n_contact += 1;
-            self.contact_ssim += cs;
-            self.contact_mse += cm;
-            self.contact_psnr += metrics::psnr_masked(truth, image, mask).unwrap_or(f64::INFINITY);
-            contact = Some(cs);
-        }
-        (Some(s), contact)
+/// SSIM, PSNR and MSE of `image` against `truth`, whole frame and (with a mask) contact region.
+fn image_figures(truth: &RgbImage, image: &RgbImage, mask: Option<&[bool]>) -> ImageFigures {
+    let (Ok(s), Ok(m)) = (metrics::ssim(truth, image), metrics::mse(truth, image)) else { return ImageFigures::default() };
+    let mut out = ImageFigures {
+        ssim: Some(s),
+        psnr_db: Some(metrics::psnr(truth, image).unwrap_or(f64::INFINITY)),
+        mse: Some(m),
+        ..ImageFigures::default()
+    };
+    if let Some(mask) = mask
+        && let (Ok(cs), Ok(cm)) = (metrics::ssim_masked(truth, image, mask), metrics::mse_masked(truth, image, mask))
+    {
+        out.contact_ssim = Some(cs);
+        out.contact_psnr_db = Some(metrics::psnr_masked(truth, image, mask).unwrap_or(f64::INFINITY));
+        out.contact_mse = Some(cm);
     }
+    out
+}
 
-    /// Adds one pose estimate; returns what it added.
-    fn add_pose(&mut self, estimate: Option<ContactEstimate>, truth: &PoseTruth, vs_true: bool) -> PoseErrors {
-        let calib = &truth.calib;
-        let distance = |e: &ContactEstimate, g: &ContactEstimate| {
-            let (a, b) = (e.centroid_mm(calib), g.centroid_mm(calib));
-            (a[0] - b[0]).hypot(a[1] - b[1])
-        };
-        let axis = |e: &ContactEstimate, g: &ContactEstimate| axis_difference_deg(e.axis_deg(calib), g.axis_deg(calib));
-        let yaw_observable = truth.yaw_observable;
-        let mut out = PoseErrors::default();
-        if let Some(g) = &truth.geometric {
-            self.position_attempts += 1;
-            self.yaw_attempts += usize::from(yaw_observable);
-            out.position_mm = estimate.as_ref().map(|e| distance(e, g));
-            out.yaw_deg = estimate.as_ref().filter(|_| yaw_observable).map(|e| axis(e, g));
-        }
-        if vs_true && let (Some(e), Some(t)) = (&estimate, &truth.truth_estimate) {
-            out.position_vs_true_mm = Some(distance(e, t));
-            out.yaw_vs_true_deg = yaw_observable.then(|| axis(e, t));
-        }
-        self.position.extend(out.position_mm);
-        self.yaw.extend(out.yaw_deg);
-        self.position_true.extend(out.position_vs_true_mm);
-        self.yaw_true.extend(out.yaw_vs_true_deg);
-        out
+/// The pose errors of `estimate`: against the mesh contact, and (with `vs_true`) against the
+/// true image's estimate.
+fn pose_errors(estimate: Option<ContactEstimate>, truth: &PoseTruth, vs_true: bool) -> PoseErrors {
+    let calib = &truth.calib;
+    let distance = |e: &ContactEstimate, g: &ContactEstimate| {
+        let (a, b) = (e.centroid_mm(calib), g.centroid_mm(calib));
+        (a[0] - b[0]).hypot(a[1] - b[1])
+    };
+    let axis = |e: &ContactEstimate, g: &ContactEstimate| axis_difference_deg(e.axis_deg(calib), g.axis_deg(calib));
+    let yaw_observable = truth.yaw_observable;
+    let mut out = PoseErrors::default();
+    if let (Some(g), Some(e)) = (&truth.geometric, &estimate) {
+        out.position_mm = Some(distance(e, g));
+        out.yaw_deg = yaw_observable.then(|| axis(e, g));
     }
+    if vs_true && let (Some(e), Some(t)) = (&estimate, &truth.truth_estimate) {
+        out.position_vs_true_mm = Some(distance(e, t));
+        out.yaw_vs_true_deg = yaw_observable.then(|| axis(e, t));
+    }
+    out
+}
 
-    fn row(&self, sensor: &str, method: Method) -> MethodRow {
+impl MethodRow {
+    /// The table row of `method` on `sensor`: the means over its per-pair `records`.
+    pub fn from_records(sensor: &str, method: Method, records: &[&PairRecord]) -> Self {
+        let over = |f: fn(&PairRecord) -> Option<f64>| mean(records.iter().filter_map(|r| f(r)));
+        let count = |f: fn(&PairRecord) -> bool| records.iter().filter(|r| f(r)).count();
         MethodRow {
             sensor: sensor.to_string(),
             method,
-            n: self.n,
-            ssim: mean_of(self.ssim, self.n),
-            psnr_db: mean_of(self.psnr, self.n),
-            mse: mean_of(self.mse, self.n),
-            n_contact: self.n_contact,
-            contact_ssim: mean_of(self.contact_ssim, self.n_contact),
-            contact_psnr_db: mean_of(self.contact_psnr, self.n_contact),
-            contact_mse: mean_of(self.contact_mse, self.n_contact),
-            position_err_mm: mean(&self.position),
-            position_attempts: self.position_attempts,
-            position_found: self.position.len(),
-            yaw_err_deg: mean(&self.yaw),
-            yaw_attempts: self.yaw_attempts,
-            yaw_found: self.yaw.len(),
-            position_vs_true_mm: mean(&self.position_true),
-            yaw_vs_true_deg: mean(&self.yaw_true),
+            n: count(|r| r.ssim.is_some()),
+            ssim: over(|r| r.ssim),
+            psnr_db: over(|r| r.psnr_db),
+            mse: over(|r| r.mse),
+            n_contact: count(|r| r.contact_ssim.is_some()),
+            contact_ssim: over(|r| r.contact_ssim),
+            contact_psnr_db: over(|r| r.contact_psnr_db),
+            contact_mse: over(|r| r.contact_mse),
+            position_err_mm: over(|r| r.position_err_mm),
+            position_attempts: count(|r| r.mesh_contact),
+            position_found: count(|r| r.position_err_mm.is_some()),
+            yaw_err_deg: over(|r| r.yaw_err_deg),
+            yaw_attempts: count(|r| r.mesh_contact && r.yaw_observable),
+            yaw_found: count(|r| r.yaw_err_deg.is_some()),
+            position_vs_true_mm: over(|r| r.position_vs_true_mm),
+            yaw_vs_true_deg: over(|r| r.yaw_vs_true_deg),
         }
     }
 }
@@ -794,7 +793,6 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
     let mut counts =
         EvalCounts { real_datasets: real.len(), synthetic_datasets: synthetic.len(), collected_images: images, ..EvalCounts::default() };
 
-    let mut sums: BTreeMap<(String, Method), RowSums> = BTreeMap::new();
     let mut pairs: Vec<PairRecord> = Vec::new();
     let mut matched = 0usize;
     for (key, s) in &synthetic {
@@ -884,7 +882,8 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             let pose_truth = PoseTruth { geometric, yaw_observable, truth_estimate, calib: calib.clone() };
 
             let pair_index = counts.pairs - 1;
-            let record = |method: Method, (ssim, contact_ssim): (Option<f64>, Option<f64>), e: PoseErrors| PairRecord {
+            let mesh_contact = geometric.is_some();
+            let record = |method: Method, i: ImageFigures, e: PoseErrors| PairRecord {
                 pair: pair_index,
                 object: object.clone(),
                 sensor: sensor.clone(),
@@ -894,18 +893,23 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
                 z_mm: pose.z_mm,
                 yaw_deg: pose.yaw_deg,
                 method: method.label(),
-                ssim,
-                contact_ssim,
+                ssim: i.ssim,
+                contact_ssim: i.contact_ssim,
                 position_err_mm: e.position_mm,
                 yaw_err_deg: e.yaw_deg,
                 position_vs_true_mm: e.position_vs_true_mm,
                 yaw_vs_true_deg: e.yaw_vs_true_deg,
+                psnr_db: i.psnr_db,
+                mse: i.mse,
+                contact_psnr_db: i.contact_psnr_db,
+                contact_mse: i.contact_mse,
+                mesh_contact,
+                yaw_observable,
             };
             let mut judge = |method: Method, image: &RgbImage| {
-                let row = sums.entry((sensor.clone(), method)).or_default();
-                let similarity = row.add_image(&truth, image, mask.as_deref());
-                let errors = row.add_pose(estimate_contact(image, &reference), &pose_truth, true);
-                pairs.push(record(method, similarity, errors));
+                let figures = image_figures(&truth, image, mask.as_deref());
+                let errors = pose_errors(estimate_contact(image, &reference), &pose_truth, true);
+                pairs.push(record(method, figures, errors));
             };
             judge(Method::Model, &model);
             if let Some(c) = collected_here
@@ -918,8 +922,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
                     judge(Method::NearestNeighbour, &warp_to_pose(&img, &nn_reference, &nn.pose, &pose, &calib));
                 }
             }
-            let errors = sums.entry((sensor.clone(), Method::TrueImage)).or_default().add_pose(truth_estimate, &pose_truth, false);
-            pairs.push(record(Method::TrueImage, (None, None), errors));
+            pairs.push(record(Method::TrueImage, ImageFigures::default(), pose_errors(truth_estimate, &pose_truth, false)));
         }
         for (i, t) in synthetic_rows.iter().enumerate() {
             if !used[i] {
@@ -940,22 +943,15 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             dropped_seen: counts.dropped_seen,
         });
     }
-    let sensors: Vec<String> = {
-        let mut v: Vec<String> = sums.keys().map(|(s, _)| s.clone()).collect();
-        v.dedup();
-        v
-    };
+    let sensors: std::collections::BTreeSet<&str> = pairs.iter().map(|p| p.sensor.as_str()).collect();
     let mut rows = Vec::new();
-    for sensor in &sensors {
+    for sensor in sensors {
         if by_sensor.get(sensor).is_none_or(|c| c.mean.is_none()) {
-            counts.sensors_without_baseline.push(sensor.clone());
+            counts.sensors_without_baseline.push(sensor.to_string());
         }
         for method in Method::ALL {
-            let row = match sums.get(&(sensor.clone(), method)) {
-                Some(s) => s.row(sensor, method),
-                None => RowSums::default().row(sensor, method),
-            };
-            rows.push(row);
+            let records: Vec<&PairRecord> = pairs.iter().filter(|p| p.sensor == sensor && p.method == method.label()).collect();
+            rows.push(MethodRow::from_records(sensor, method, &records));
         }
     }
     Ok(EvalReport {
@@ -1343,7 +1339,7 @@ mod tests {
 
     #[test]
     fn table_says_na_not_nan() {
-        let row = RowSums::default().row("vitac", Method::Model);
+        let row = MethodRow::from_records("vitac", Method::Model, &[]);
         let report = EvalReport {
             label: "t".into(),
             size_px: 64,
@@ -1376,6 +1372,12 @@ mod tests {
             yaw_err_deg: yaw,
             position_vs_true_mm: None,
             yaw_vs_true_deg: None,
+            psnr_db: None,
+            mse: None,
+            contact_psnr_db: None,
+            contact_mse: None,
+            mesh_contact: position.is_some(),
+            yaw_observable: yaw.is_some(),
         }
     }
 
