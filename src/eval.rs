@@ -21,7 +21,8 @@
 //!
 //! Metrics ([`crate::metrics`]): SSIM, PSNR and MSE over the whole frame, and over the contact
 //! region ([`contact_mask`]: pixels where the true image differs from its dataset's
-//! `reference.png`). Pose recoverability ([`estimate_contact`]): the contact's centroid and
+//! `reference.png`). Pose recoverability ([`estimate_contact_with`] and the sensor's
+//! [`ContactEstimator`], the same for every method's image): the contact's centroid and
 //! principal axis, estimated from an image's change against the reference, compared with the
 //! contact the commanded pose gives the object's mesh through the calibration
 //! ([`geometric_contact`]), in mm and degrees, and with the estimate from the true image of the
@@ -53,6 +54,7 @@ use crate::geometry::DepthMap;
 use crate::geometry::stl::Mesh;
 use crate::metrics;
 use crate::pose::Pose;
+use crate::sim::sensor::SensorKind;
 
 /// Two poses are the same pose when x, y, z (mm) and yaw (deg) each differ by at most this.
 pub const POSE_TOLERANCE: f64 = 1e-6;
@@ -129,12 +131,22 @@ pub struct EvalOptions {
     /// Only these objects of the real and synthetic sides (empty: all). The collected set is
     /// not filtered: baselines may use any object of the sensor.
     pub objects: Vec<String>,
+    /// The contact estimator for every sensor (None: each sensor's own,
+    /// [`ContactEstimator::for_sensor`]).
+    pub estimator: Option<ContactEstimator>,
 }
 
 impl EvalOptions {
     /// Defaults at a size: threshold 10 levels, dilation `size / 64` px (2 px at 128).
     pub fn at_size(size_px: u32, label: &str) -> Self {
-        Self { size_px, label: label.to_string(), mask_threshold: 10.0, mask_dilate_px: (size_px / 64).max(1), objects: Vec::new() }
+        Self {
+            size_px,
+            label: label.to_string(),
+            mask_threshold: 10.0,
+            mask_dilate_px: (size_px / 64).max(1),
+            objects: Vec::new(),
+            estimator: None,
+        }
     }
 }
 
@@ -272,6 +284,8 @@ pub struct EvalReport {
     pub mask_dilate_px: u32,
     pub counts: EvalCounts,
     pub rows: Vec<MethodRow>,
+    /// The contact estimator each sensor's images were judged by.
+    pub estimators: BTreeMap<String, ContactEstimator>,
     /// The model against each baseline, pair by pair ([`paired_comparisons`]).
     pub comparisons: Vec<PairedComparison>,
     /// Every method on every pair, in the order judged (not in the JSON: see [`Self::write_pairs_csv`]).
@@ -494,34 +508,105 @@ pub fn axis_difference_deg(a_deg: f64, b_deg: f64) -> f64 {
     d.min(180.0 - d)
 }
 
-/// Estimates the contact in `image` against the no-contact `reference` (same size): the
-/// change (largest channel difference) smoothed by a box blur of radius `size / 64` (at
-/// least one pixel) applied three times, a noise floor (median + 4 MADs), and the connected region around
-/// the strongest change above `floor + 0.3 (peak - floor)`, weighted by how far it rises
-/// above that. `None` when the peak is within 3 levels of the floor (no contact), or on a size
-/// mismatch or an empty image.
-pub fn estimate_contact(image: &RgbImage, reference: &RgbImage) -> Option<ContactEstimate> {
-    let (w, h) = (image.width() as usize, image.height() as usize);
-    if image.dimensions() != reference.dimensions() || w == 0 || h == 0 {
-        return None;
+/// How [`estimate_contact_with`] finds the contact in an image: the blur that turns the change
+/// from the reference into a smooth field, and how far above the noise floor the region starts.
+/// Each sensor kind has its own ([`Self::for_sensor`]), chosen on the true images of the
+/// training collection only (never on a model's images, never on a test set); README, "Choosing
+/// the estimator". Every method's image of a sensor is judged by the same one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ContactEstimator {
+    /// Box-blur radius as a divisor of the image width (radius `width / blur_divisor` rounded
+    /// down, at least 1 px), applied three times.
+    pub blur_divisor: f64,
+    /// The region is the connected pixels around the strongest change above
+    /// `floor + region_fraction (peak - floor)`; 0: everything above the noise floor.
+    pub region_fraction: f64,
+}
+
+impl ContactEstimator {
+    /// Any image: radius `size / 64`, region above `floor + 0.3 (peak - floor)`. Used for
+    /// sensors rig does not know.
+    pub const GENERIC: Self = Self { blur_divisor: 64.0, region_fraction: 0.3 };
+    /// TacTip: the contact shows only as marker motion, scattered pins with no sharp peak, so
+    /// the region is everything above the noise floor.
+    pub const TACTIP: Self = Self { blur_divisor: 32.0, region_fraction: 0.0 };
+    /// ViTac: the see-through skin shows the object itself, with a sharp edge: the least blur.
+    pub const VITAC: Self = Self { blur_divisor: 128.0, region_fraction: 0.4 };
+    /// ViTacTip: see-through skin with markers.
+    pub const VITACTIP: Self = Self { blur_divisor: 128.0, region_fraction: 0.3 };
+
+    /// The estimator of a sensor, by its dataset name (`TacTip`, `vitac`, ...); `GENERIC` for
+    /// a name rig does not know.
+    pub fn for_sensor(sensor: &str) -> Self {
+        match sensor.parse::<SensorKind>() {
+            Ok(SensorKind::TacTip) => Self::TACTIP,
+            Ok(SensorKind::ViTac) => Self::VITAC,
+            Ok(SensorKind::ViTacTip) => Self::VITACTIP,
+            Err(_) => Self::GENERIC,
+        }
     }
-    let mut change = change_map(image, reference);
-    let r = (w / 64).max(1);
+
+    /// Parses `DIVISOR,FRACTION` (`rig eval --estimator 64,0.3`).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let bad = || format!("{text:?}: expected BLUR_DIVISOR,REGION_FRACTION, e.g. 64,0.3 (divisor >= 1, fraction in [0, 1))");
+        let (d, f) = text.split_once(',').ok_or_else(bad)?;
+        let (blur_divisor, region_fraction): (f64, f64) = (d.trim().parse().map_err(|_| bad())?, f.trim().parse().map_err(|_| bad())?);
+        if !(blur_divisor >= 1.0 && blur_divisor.is_finite() && (0.0..1.0).contains(&region_fraction)) {
+            return Err(bad());
+        }
+        Ok(Self { blur_divisor, region_fraction })
+    }
+}
+
+/// The change map blurred three times by a box of `radius` px.
+fn smoothed_change(change: &[f32], w: usize, h: usize, radius: usize) -> Vec<f32> {
+    let mut out = change.to_vec();
     for _ in 0..3 {
-        crate::calibration::detect::box_blur(&mut change, w, h, r);
+        crate::calibration::detect::box_blur(&mut out, w, h, radius);
     }
-    let mut sorted = change.clone();
+    out
+}
+
+/// The noise floor of a change map: median + 4 median absolute deviations.
+fn noise_floor(change: &[f32]) -> f64 {
+    let mut sorted = change.to_vec();
     sorted.sort_by(f32::total_cmp);
     let median = sorted[sorted.len() / 2] as f64;
     let mut dev: Vec<f64> = change.iter().map(|&v| (v as f64 - median).abs()).collect();
     dev.sort_by(f64::total_cmp);
-    let floor = median + 4.0 * dev[dev.len() / 2];
-    let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
-    let peak = peak as f64;
-    if !(peak - floor >= 3.0) {
+    median + 4.0 * dev[dev.len() / 2]
+}
+
+/// [`estimate_contact_with`] the generic estimator.
+pub fn estimate_contact(image: &RgbImage, reference: &RgbImage) -> Option<ContactEstimate> {
+    estimate_contact_with(image, reference, &ContactEstimator::GENERIC)
+}
+
+/// Estimates the contact in `image` against the no-contact `reference` (same size). Whether
+/// there is a contact is decided one way for every estimator: the change (largest channel
+/// difference) box-blurred three times at radius `size / 64` (at least 1 px) must peak at
+/// least 3 levels above its noise floor (median + 4 MADs). Where it is, the change is blurred
+/// at `estimator`'s radius, and the connected region around its strongest change above
+/// `floor + region_fraction (peak - floor)` is weighted by how far it rises above that.
+/// `None` when there is no contact, or on a size mismatch or an empty image.
+pub fn estimate_contact_with(image: &RgbImage, reference: &RgbImage, estimator: &ContactEstimator) -> Option<ContactEstimate> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if image.dimensions() != reference.dimensions() || w == 0 || h == 0 {
         return None;
     }
-    let threshold = floor + 0.3 * (peak - floor);
+    let raw = change_map(image, reference);
+    let gate_radius = (w / 64).max(1);
+    let gate = smoothed_change(&raw, w, h, gate_radius);
+    let gate_peak = gate.iter().fold(f32::MIN, |b, &v| b.max(v)) as f64;
+    if !(gate_peak - noise_floor(&gate) >= 3.0) {
+        return None;
+    }
+    let radius = ((w as f64 / estimator.blur_divisor) as usize).max(1);
+    let change = if radius == gate_radius { gate } else { smoothed_change(&raw, w, h, radius) };
+    let floor = noise_floor(&change);
+    let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+    let peak = peak as f64;
+    let threshold = floor + estimator.region_fraction * (peak - floor);
     let mut seen = vec![false; w * h];
     let mut region = Vec::new();
     let mut stack = vec![peak_i];
@@ -794,6 +879,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         EvalCounts { real_datasets: real.len(), synthetic_datasets: synthetic.len(), collected_images: images, ..EvalCounts::default() };
 
     let mut pairs: Vec<PairRecord> = Vec::new();
+    let mut estimators = BTreeMap::new();
     let mut matched = 0usize;
     for (key, s) in &synthetic {
         if !real.contains_key(key) {
@@ -823,6 +909,8 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         let mesh = mesh_of(&r.manifest);
         let contact_depth_mm = r.manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5);
         let collected_here = by_sensor.get(sensor);
+        let estimator = options.estimator.unwrap_or_else(|| ContactEstimator::for_sensor(sensor));
+        estimators.insert(sensor.clone(), estimator);
         let synthetic_rows: Vec<&PoseRow> = s.rows_of(Source::Synthetic).collect();
         let mut used = vec![false; synthetic_rows.len()];
         for row in r.rows_of(Source::Real) {
@@ -873,7 +961,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             if geometric.is_none() {
                 counts.no_geometric_contact += 1;
             }
-            let truth_estimate = estimate_contact(&truth, &reference);
+            let truth_estimate = estimate_contact_with(&truth, &reference, &estimator);
             let observable_from = geometric.or(truth_estimate);
             let yaw_observable = observable_from.is_some_and(|g| g.isotropy(&calib) < ISOTROPY_RATIO);
             if observable_from.is_some() && !yaw_observable {
@@ -908,7 +996,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             };
             let mut judge = |method: Method, image: &RgbImage| {
                 let figures = image_figures(&truth, image, mask.as_deref());
-                let errors = pose_errors(estimate_contact(image, &reference), &pose_truth, true);
+                let errors = pose_errors(estimate_contact_with(image, &reference, &estimator), &pose_truth, true);
                 pairs.push(record(method, figures, errors));
             };
             judge(Method::Model, &model);
@@ -961,6 +1049,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
         mask_dilate_px: options.mask_dilate_px,
         counts,
         rows,
+        estimators,
         comparisons: paired_comparisons(&pairs),
         pairs,
     })
@@ -1175,6 +1264,14 @@ impl EvalReport {
             c.yaw_unobservable,
             c.no_geometric_contact
         );
+        if !self.estimators.is_empty() {
+            let each: Vec<String> = self
+                .estimators
+                .iter()
+                .map(|(sensor, e)| format!("{sensor} blur size/{}, region {}", e.blur_divisor, e.region_fraction))
+                .collect();
+            s += &format!("Contact estimator: {}.\n", each.join("; "));
+        }
         if !c.unpaired_examples.is_empty() {
             s += &format!("Unpaired, e.g.: {}.\n", c.unpaired_examples.join("; "));
         }
@@ -1292,6 +1389,96 @@ mod tests {
     }
 
     #[test]
+    fn each_sensor_has_its_estimator_and_the_flag_parses() {
+        assert_eq!(ContactEstimator::for_sensor("TacTip"), ContactEstimator::TACTIP);
+        assert_eq!(ContactEstimator::for_sensor("vitac"), ContactEstimator::VITAC);
+        assert_eq!(ContactEstimator::for_sensor("ViTacTip"), ContactEstimator::VITACTIP);
+        assert_eq!(ContactEstimator::for_sensor("gelsight"), ContactEstimator::GENERIC);
+        assert_eq!(ContactEstimator::parse(" 64, 0.3"), Ok(ContactEstimator::GENERIC));
+        assert_eq!(ContactEstimator::parse("128,0"), Ok(ContactEstimator { blur_divisor: 128.0, region_fraction: 0.0 }));
+        for bad in ["64", "0,0.3", "64,1", "64,-0.1", "x,0.3", "inf,0.3", "64,NaN", ""] {
+            assert!(ContactEstimator::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    /// TacTip-like: 2 x 2 px white pins every 6 px on black (pin (63, 63) centred on (64, 64));
+    /// inside an ellipse around that pin (half-axes 24 x 7 px, turned by `turn_deg`) each pin
+    /// has moved 2 px in x.
+    fn pins(size: u32, turn_deg: f64, pressed: bool) -> RgbImage {
+        let (s, c) = turn_deg.to_radians().sin_cos();
+        let centre = 63.0;
+        let mut img = RgbImage::from_pixel(size, size, Rgb([10, 10, 10]));
+        for gy in (3..size).step_by(6) {
+            for gx in (3..size).step_by(6) {
+                let (dx, dy) = (gx as f64 - centre, gy as f64 - centre);
+                let (u, v) = ((c * dx + s * dy) / 24.0, (-s * dx + c * dy) / 7.0);
+                let shift = if pressed && u * u + v * v < 1.0 { 2 } else { 0 };
+                for (px, py) in [(gx + shift, gy), (gx + shift + 1, gy), (gx + shift, gy + 1), (gx + shift + 1, gy + 1)] {
+                    if px < size && py < size {
+                        img.put_pixel(px, py, Rgb([230, 230, 230]));
+                    }
+                }
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn marker_estimator_finds_the_axis_of_scattered_pin_motion() {
+        let size = 128;
+        let calib = Calibration::default_for(size, size);
+        let reference = pins(size, 0.0, false);
+        for turn in [0.0, 30.0, -60.0] {
+            let e = estimate_contact_with(&pins(size, turn, true), &reference, &ContactEstimator::TACTIP).unwrap();
+            // Image y points down, so the image-frame turn shows as -turn in the x-up sensor frame
+            // of the default calibration, or +turn: either way 1 deg of the axis, mod 180.
+            let axis = e.axis_deg(&calib);
+            let off = axis_difference_deg(axis, turn).min(axis_difference_deg(axis, -turn));
+            assert!(off < 4.0, "turn {turn}: axis {axis}");
+            assert!(e.isotropy(&calib) < ISOTROPY_RATIO, "turn {turn}: {}", e.isotropy(&calib));
+            // Half-way between where the pins were and where they went: (65, 64).
+            assert!((e.centroid_px[0] - 65.0).abs() < 1.5 && (e.centroid_px[1] - 64.0).abs() < 1.5, "turn {turn}: {e:?}");
+        }
+    }
+
+    #[test]
+    fn region_fraction_sets_how_much_of_a_soft_contact_counts() {
+        let size = 96;
+        let reference = RgbImage::from_pixel(size, size, Rgb([20, 20, 20]));
+        // A Gaussian bump: the lower the threshold, the wider the region and its moments.
+        let bump = RgbImage::from_fn(size, size, |x, y| {
+            let r2 = (x as f64 - 48.0).powi(2) + (y as f64 - 40.0).powi(2);
+            let v = 20.0 + 150.0 * (-r2 / (2.0 * 8.0f64.powi(2))).exp();
+            Rgb([v as u8; 3])
+        });
+        let spread = |fraction: f64| {
+            let e = estimate_contact_with(&bump, &reference, &ContactEstimator { blur_divisor: 64.0, region_fraction: fraction }).unwrap();
+            assert!((e.centroid_px[0] - 48.0).abs() < 0.5 && (e.centroid_px[1] - 40.0).abs() < 0.5, "{fraction}: {e:?}");
+            e.moments_px2[0] + e.moments_px2[2]
+        };
+        let (wide, mid, narrow) = (spread(0.0), spread(0.3), spread(0.7));
+        assert!(wide > mid && mid > narrow, "{wide} {mid} {narrow}");
+    }
+
+    #[test]
+    fn whether_there_is_a_contact_is_decided_alike_for_every_estimator() {
+        let size = 128;
+        let reference = RgbImage::from_pixel(size, size, Rgb([40, 40, 40]));
+        // One hot pixel, 60 levels up: no contact. Blurred at radius 1 it still stands 4 levels
+        // above the floor; at the shared gate's radius 2 only about 1.4.
+        let mut noisy = reference.clone();
+        noisy.put_pixel(70, 30, Rgb([100, 100, 100]));
+        for estimator in [ContactEstimator::GENERIC, ContactEstimator::TACTIP, ContactEstimator::VITAC, ContactEstimator::VITACTIP] {
+            assert!(estimate_contact_with(&noisy, &reference, &estimator).is_none(), "{estimator:?}");
+            assert!(estimate_contact_with(&reference, &reference, &estimator).is_none(), "{estimator:?}");
+            assert!(
+                estimate_contact_with(&disc(size, 50.0, 70.0, 9.0, 9.0), &RgbImage::from_pixel(size, size, Rgb([20, 20, 20])), &estimator)
+                    .is_some()
+            );
+        }
+    }
+
+    #[test]
     fn axis_difference_wraps_mod_180() {
         assert!((axis_difference_deg(89.0, -89.0) - 2.0).abs() < 1e-12);
         assert!((axis_difference_deg(10.0, 40.0) - 30.0).abs() < 1e-12);
@@ -1347,6 +1534,7 @@ mod tests {
             mask_dilate_px: 1,
             counts: EvalCounts::default(),
             rows: vec![row],
+            estimators: BTreeMap::new(),
             comparisons: Vec::new(),
             pairs: Vec::new(),
         };

@@ -293,6 +293,16 @@ fn cli_writes_the_table_and_json_and_bad_input_exits_2() {
     assert!(written.contains("| vitac | pose-blind | 4 |"), "{written}");
     let parsed: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid json");
     assert_eq!(parsed["counts"]["pairs"], 4);
+    // Each sensor's own contact estimator, said in the table and the JSON...
+    assert!(out.contains("Contact estimator: vitac blur size/128, region 0.4."), "{out}");
+    assert_eq!(parsed["estimators"]["vitac"]["region_fraction"], 0.4);
+    // ...or the one asked for, for every sensor.
+    let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--estimator", "64,0.3"]));
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("Contact estimator: vitac blur size/64, region 0.3."), "{out}");
+    let (code, out) = run(eval_cmd(&sets.real, &sets.synthetic, &["--estimator", "64,1.5"]));
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("--estimator") && out.contains("BLUR_DIVISOR,REGION_FRACTION"), "{out}");
     let pairs_csv = sets._tmp.path().join("pairs.csv");
     let mut c = eval_cmd(&sets.real, &sets.synthetic, &[]);
     c.arg("--collected").arg(&sets.collected).arg("--pairs").arg(&pairs_csv);

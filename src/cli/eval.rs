@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
-use crate::eval::{EvalOptions, evaluate};
+use crate::eval::{ContactEstimator, EvalOptions, evaluate};
 
 /// `rig eval` arguments.
 #[derive(Debug, ClapArgs)]
@@ -41,6 +41,11 @@ pub struct Args {
     /// wrong; the table's means are over these lines).
     #[arg(long, value_name = "FILE")]
     pub pairs: Option<PathBuf>,
+    /// Judge every sensor's images with this contact estimator, BLUR_DIVISOR,REGION_FRACTION
+    /// (e.g. 64,0.3), instead of each sensor's own: to choose one for a new sensor on its true
+    /// images (tools/tune_estimator.sh).
+    #[arg(long, value_name = "DIV,FRAC", value_parser = ContactEstimator::parse)]
+    pub estimator: Option<ContactEstimator>,
 }
 
 /// Runs `rig eval`.
@@ -53,7 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bail!(crate::cli::usage(&format!("{flag} {}: no such directory", dir.display())));
         }
     }
-    let options = EvalOptions { objects: args.object.clone(), ..EvalOptions::at_size(args.size, &args.label) };
+    let options = EvalOptions { objects: args.object.clone(), estimator: args.estimator, ..EvalOptions::at_size(args.size, &args.label) };
     // Every evaluation error is bad input: missing, unpaired or inconsistent datasets.
     let report = evaluate(&args.real, &args.synthetic, &args.collected, &options)
         .map_err(|e| anyhow::Error::new(crate::cli::usage(&e.to_string())))?;
