@@ -27,10 +27,11 @@ fn wait_for(buf: &Arc<Mutex<Vec<u8>>>, needle: &str, count: usize) {
     }
 }
 
-#[test]
-fn wizard_through_a_pseudo_terminal() {
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("truth.toml"), TRUTH).unwrap();
+/// `rig calibrate --interactive ARGS` (TacTip, simulated with the TRUTH calibration) in `dir`,
+/// with a pty as its terminal: the child, the pty's master side, and the transcript as it
+/// arrives (read on a thread of its own, returned to join).
+fn spawn_wizard(dir: &std::path::Path, args: &[&str]) -> (std::process::Child, File, Arc<Mutex<Vec<u8>>>, std::thread::JoinHandle<()>) {
+    std::fs::write(dir.join("truth.toml"), TRUTH).unwrap();
     let (mut master, mut slave) = (-1, -1);
     // SAFETY: openpty writes two new descriptors into the two ints; the null pointers ask for
     // no name, default terminal settings and default size.
@@ -38,27 +39,15 @@ fn wizard_through_a_pseudo_terminal() {
     assert_eq!(rc, 0, "openpty: {}", std::io::Error::last_os_error());
     // SAFETY: both descriptors were just opened by openpty and are owned by nothing else.
     let (master, slave) = unsafe { (File::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
-    let mut child = {
+    let child = {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_rig"));
-        cmd.args([
-            "calibrate",
-            "--sensor",
-            "tactip",
-            "--interactive",
-            "--sim-truth",
-            "truth.toml",
-            "--out",
-            "wizard.toml",
-            "--grid",
-            "3",
-            "--depths-mm",
-            "0.5",
-        ])
-        .current_dir(dir.path())
-        .env_remove("RIG_CONFIG")
-        .stdin(Stdio::from(slave.try_clone().unwrap()))
-        .stdout(Stdio::from(slave.try_clone().unwrap()))
-        .stderr(Stdio::from(slave));
+        cmd.args(["calibrate", "--sensor", "tactip", "--interactive", "--sim-truth", "truth.toml", "--out", "wizard.toml"])
+            .args(args)
+            .current_dir(dir)
+            .env_remove("RIG_CONFIG")
+            .stdin(Stdio::from(slave.try_clone().unwrap()))
+            .stdout(Stdio::from(slave.try_clone().unwrap()))
+            .stderr(Stdio::from(slave));
         cmd.spawn().expect("spawning rig")
         // The command (and with it the parent's copies of the slave) is dropped here, so the
         // reader sees the end when the child exits.
@@ -76,6 +65,13 @@ fn wizard_through_a_pseudo_terminal() {
             sink.lock().unwrap().extend_from_slice(&chunk[..n]);
         }
     });
+    (child, master, buf, reading)
+}
+
+#[test]
+fn wizard_through_a_pseudo_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut child, master, buf, reading) = spawn_wizard(dir.path(), &["--grid", "3", "--depths-mm", "0.5"]);
     let mut master = master;
     let mut answer = |s: &str| master.write_all(s.as_bytes()).unwrap();
 
@@ -126,4 +122,32 @@ fn wizard_through_a_pseudo_terminal() {
     assert_eq!(record.points.len(), 26);
     assert!((saved.rotation_deg + 4.0).abs() < 0.5 && (saved.scale_px_per_mm[1] - 8.2).abs() < 0.2, "{saved:?}");
     assert!((saved.depth_scale_per_mm - 0.03).abs() < 0.015, "{saved:?}");
+}
+
+/// Ctrl-C while the wizard waits for an answer: the wait ends as a quit, the arm retracts,
+/// nothing is saved, exit code 4 (as the automatic run and `rig collect`).
+#[test]
+fn ctrl_c_at_a_prompt_quits_retracts_and_saves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut child, mut master, buf, reading) = spawn_wizard(dir.path(), &["--grid", "3", "--depths-mm", "0.5"]);
+    wait_for(&buf, "(q to quit): ", 1);
+    master.write_all(b"\n").unwrap();
+    wait_for(&buf, "0 = none) [+0.5]: ", 1);
+    master.write_all(b"\n").unwrap();
+    wait_for(&buf, "q = quit: ", 1);
+    master.write_all(b"a\n").unwrap();
+    // At the second press's question, with the process blocked waiting for the answer.
+    wait_for(&buf, "q = quit: ", 2);
+    let pid = i32::try_from(child.id()).expect("pid");
+    // SAFETY: kill(2) on our own child's pid, with a valid signal number.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGINT) }, 0, "sending SIGINT");
+    let status = child.wait().unwrap();
+    reading.join().unwrap();
+    let text = transcript(&buf);
+    assert_eq!(status.code(), Some(4), "{text}");
+    assert!(text.contains("interrupt: finishing the current press"), "{text}");
+    let last = text.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or_default();
+    assert_eq!(last, "interrupted; the arm is retracted and wizard.toml was not written", "{text}");
+    assert!(!text.contains("[3/18]"), "no press after the interrupt: {text}");
+    assert!(!dir.path().join("wizard.toml").exists(), "{text}");
 }

@@ -31,7 +31,7 @@ use sha2::{Digest, Sha256};
 use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit, fit_points};
 use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
-use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
+use crate::calibration::wizard::{WizardIo, WizardOutcome, describe_fit, run_wizard, show};
 use crate::calibration::{Calibration, FitPoint, saved_path};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
 use crate::pose::Pose;
@@ -185,9 +185,17 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     };
     let sensor = args.sensor.to_string();
     let fit = if args.interactive {
-        let stdin = std::io::stdin();
-        let mut io = LineIo { input: stdin.lock(), output: std::io::stdout() };
+        // Ctrl-C: the answer being waited for (or the next one, after the current press) reads
+        // as a quit, so the wizard retracts the arm; nothing is saved.
+        let cancel = super::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;
+        let mut io = TerminalIo::new(cancel.clone());
         let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string()).await?;
+        if *cancel.borrow() {
+            drop(station);
+            rig.shutdown().await;
+            println!("interrupted; the arm is retracted and {} was not written", out.display());
+            bail!(crate::cli::ExitStatus(4));
+        }
         match outcome {
             WizardOutcome::Save(fit) => Some(*fit),
             _ => None,
@@ -230,6 +238,55 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         fit.calibration.image_size = size;
     }
     save_and_report(&fit, out, args.sim_truth.as_deref(), !args.interactive)
+}
+
+/// The wizard's terminal in the binary. Stdin is read line by line on a thread of its own, so
+/// that a Ctrl-C while the wizard waits for an answer ends the wait: the answer reads as the end
+/// of input, which the wizard takes as a quit (retracting the arm), instead of the signal
+/// killing the process with the arm wherever it was.
+struct TerminalIo {
+    lines: std::sync::mpsc::Receiver<String>,
+    cancel: tokio::sync::watch::Receiver<bool>,
+    output: std::io::Stdout,
+}
+
+impl TerminalIo {
+    fn new(cancel: tokio::sync::watch::Receiver<bool>) -> Self {
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            // Ends at the end of input or a read error; the receiver then sees a disconnect.
+            for line in std::io::stdin().lock().lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line.trim_end_matches('\r').to_string()).is_err() {
+                    break;
+                }
+            }
+        });
+        Self { lines, cancel, output: std::io::stdout() }
+    }
+}
+
+impl WizardIo for TerminalIo {
+    fn say(&mut self, line: &str) -> std::io::Result<()> {
+        show(&mut self.output, &format!("{line}\n"))
+    }
+
+    fn ask(&mut self, question: &str) -> std::io::Result<Option<String>> {
+        use std::sync::mpsc::RecvTimeoutError;
+        show(&mut self.output, question)?;
+        loop {
+            if *self.cancel.borrow() {
+                show(&mut self.output, "\n")?;
+                return Ok(None);
+            }
+            match self.lines.recv_timeout(std::time::Duration::from_millis(50)) {
+                Ok(line) => return Ok(Some(line)),
+                Err(RecvTimeoutError::Timeout) => continue,
+                Err(RecvTimeoutError::Disconnected) => return Ok(None),
+            }
+        }
+    }
 }
 
 /// Saves the calibration and prints the mapping (only the residual when the wizard has shown
