@@ -547,8 +547,8 @@ impl ContactEstimator {
     }
 
     /// Parses `DIVISOR,FRACTION` (`rig eval --estimator 64,0.3`).
-    pub fn parse(text: &str) -> Result<Self, String> {
-        let bad = || format!("{text:?}: expected BLUR_DIVISOR,REGION_FRACTION, e.g. 64,0.3 (divisor >= 1, fraction in [0, 1))");
+    pub fn parse(text: &str) -> Result<Self, EstimatorParseError> {
+        let bad = || EstimatorParseError { text: text.to_string() };
         let (d, f) = text.split_once(',').ok_or_else(bad)?;
         let (blur_divisor, region_fraction): (f64, f64) = (d.trim().parse().map_err(|_| bad())?, f.trim().parse().map_err(|_| bad())?);
         if !(blur_divisor >= 1.0 && blur_divisor.is_finite() && (0.0..1.0).contains(&region_fraction)) {
@@ -556,6 +556,13 @@ impl ContactEstimator {
         }
         Ok(Self { blur_divisor, region_fraction })
     }
+}
+
+/// A contact estimator that does not parse ([`ContactEstimator::parse`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{text:?}: expected BLUR_DIVISOR,REGION_FRACTION, e.g. 64,0.3 (divisor >= 1, fraction in [0, 1))")]
+pub struct EstimatorParseError {
+    pub text: String,
 }
 
 /// The change map blurred three times by a box of `radius` px.
