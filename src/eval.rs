@@ -574,14 +574,15 @@ fn smoothed_change(change: &[f32], w: usize, h: usize, radius: usize) -> Vec<f32
     out
 }
 
-/// The noise floor of a change map: median + 4 median absolute deviations.
+/// The noise floor of a change map: median + 4 median absolute deviations (the upper median,
+/// element `len / 2` in order, found by selection rather than a full sort: the estimator
+/// computes it for every image judged, once or twice).
 fn noise_floor(change: &[f32]) -> f64 {
-    let mut sorted = change.to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let median = sorted[sorted.len() / 2] as f64;
+    let mut values = change.to_vec();
+    let mid = values.len() / 2;
+    let median = *values.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
     let mut dev: Vec<f64> = change.iter().map(|&v| (v as f64 - median).abs()).collect();
-    dev.sort_by(f64::total_cmp);
-    median + 4.0 * dev[dev.len() / 2]
+    median + 4.0 * *dev.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// [`estimate_contact_with`] the generic estimator.

@@ -231,18 +231,14 @@ pub struct LineIo<R, W> {
     pub output: W,
 }
 
-/// Writes `text` (a line with `\n`, or a question without) and flushes it to the user.
-pub fn show(output: &mut impl std::io::Write, text: &str) -> std::io::Result<()> {
-    output.write_all(text.as_bytes())?;
-    output.flush()
-}
-
 impl<R: std::io::BufRead, W: std::io::Write> WizardIo for LineIo<R, W> {
     fn say(&mut self, line: &str) -> std::io::Result<()> {
-        show(&mut self.output, &format!("{line}\n"))
+        writeln!(self.output, "{line}")?;
+        self.output.flush()
     }
     fn ask(&mut self, question: &str) -> std::io::Result<Option<String>> {
-        show(&mut self.output, question)?;
+        write!(self.output, "{question}")?;
+        self.output.flush()?;
         let mut line = String::new();
         if self.input.read_line(&mut line)? == 0 {
             return Ok(None);

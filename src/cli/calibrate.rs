@@ -31,7 +31,7 @@ use sha2::{Digest, Sha256};
 use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit, fit_points};
 use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
-use crate::calibration::wizard::{WizardIo, WizardOutcome, describe_fit, run_wizard, show};
+use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
 use crate::calibration::{Calibration, FitPoint, saved_path};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
 use crate::pose::Pose;
@@ -188,7 +188,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         // Ctrl-C: the answer being waited for (or the next one, after the current press) reads
         // as a quit, so the wizard retracts the arm; nothing is saved.
         let cancel = super::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;
-        let mut io = TerminalIo::new(cancel.clone());
+        let mut io = LineIo { input: std::io::BufReader::new(CancellableStdin::new(cancel.clone())), output: std::io::stdout() };
         let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string()).await?;
         if *cancel.borrow() {
             drop(station);
@@ -240,52 +240,50 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     save_and_report(&fit, out, args.sim_truth.as_deref(), !args.interactive)
 }
 
-/// The wizard's terminal in the binary. Stdin is read line by line on a thread of its own, so
-/// that a Ctrl-C while the wizard waits for an answer ends the wait: the answer reads as the end
-/// of input, which the wizard takes as a quit (retracting the arm), instead of the signal
-/// killing the process with the arm wherever it was.
-struct TerminalIo {
-    lines: std::sync::mpsc::Receiver<String>,
+/// Stdin for the wizard, read on a thread of its own so that a Ctrl-C ends a wait for an
+/// answer: once `cancel` is set, reads give the end of input, which the wizard takes as a quit
+/// (retracting the arm), instead of the signal killing the process with the arm wherever it was.
+struct CancellableStdin {
+    chunks: std::sync::mpsc::Receiver<Vec<u8>>,
+    pending: std::collections::VecDeque<u8>,
     cancel: tokio::sync::watch::Receiver<bool>,
-    output: std::io::Stdout,
 }
 
-impl TerminalIo {
+impl CancellableStdin {
     fn new(cancel: tokio::sync::watch::Receiver<bool>) -> Self {
-        let (tx, lines) = std::sync::mpsc::channel();
+        let (tx, chunks) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
-            use std::io::BufRead;
-            // Ends at the end of input or a read error; the receiver then sees a disconnect.
-            for line in std::io::stdin().lock().lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line.trim_end_matches('\r').to_string()).is_err() {
+            use std::io::Read;
+            let mut buf = [0u8; 1024];
+            // Ends at the end of input or a read error; the reader then sees a disconnect.
+            while let Ok(n @ 1..) = std::io::stdin().read(&mut buf) {
+                if tx.send(buf[..n].to_vec()).is_err() {
                     break;
                 }
             }
         });
-        Self { lines, cancel, output: std::io::stdout() }
+        Self { chunks, pending: std::collections::VecDeque::new(), cancel }
     }
 }
 
-impl WizardIo for TerminalIo {
-    fn say(&mut self, line: &str) -> std::io::Result<()> {
-        show(&mut self.output, &format!("{line}\n"))
-    }
-
-    fn ask(&mut self, question: &str) -> std::io::Result<Option<String>> {
+impl std::io::Read for CancellableStdin {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
         use std::sync::mpsc::RecvTimeoutError;
-        show(&mut self.output, question)?;
-        loop {
+        while self.pending.is_empty() {
             if *self.cancel.borrow() {
-                show(&mut self.output, "\n")?;
-                return Ok(None);
+                return Ok(0);
             }
-            match self.lines.recv_timeout(std::time::Duration::from_millis(50)) {
-                Ok(line) => return Ok(Some(line)),
-                Err(RecvTimeoutError::Timeout) => continue,
-                Err(RecvTimeoutError::Disconnected) => return Ok(None),
+            match self.chunks.recv_timeout(std::time::Duration::from_millis(50)) {
+                Ok(chunk) => self.pending.extend(chunk),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return Ok(0),
             }
         }
+        let n = out.len().min(self.pending.len());
+        for (slot, byte) in out.iter_mut().zip(self.pending.drain(..n)) {
+            *slot = byte;
+        }
+        Ok(n)
     }
 }
 
