@@ -4,6 +4,11 @@ baselines of `rig eval` (pose-blind mean image, nearest-neighbour shifted and ro
     python tools/train/quick_eval.py --ckpt out/train/diffusion.pt [--per 4]      # PyTorch sampler
     python tools/train/quick_eval.py --synth out/quick-synth                        # images from rig
 
+Experiments (each adds rows): `--seeds N` samples the model with seeds 1..N-1 too; `--img2img
+0.2,0.5` also starts the sampler from the nearest-neighbour image noised to these strengths
+(the last round(20 * strength) steps); `--seen` judges training rows of data.npz instead of
+unseen test poses (nearest-neighbour then skips the row itself).
+
 Test rows: the real rows of out/test-data/<object>/<sensor> (plans/test.toml) whose pose was not
 collected for training. Everything is compared at 128 x 128 (PIL bilinear, antialiased).
 
@@ -178,8 +183,10 @@ def warp(img, ref, src_pose, dst_pose):
 
 
 @torch.no_grad()
-def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8):
-    """DDIM (eta 0, rig's timesteps) with the PyTorch models of a checkpoint; images in [0, 1]."""
+def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8, init=None, strength=1.0):
+    """DDIM (eta 0, rig's timesteps) with the PyTorch models of a checkpoint; images in [0, 1].
+    With `init` (images in [0, 1]), starts from them noised to the timestep of `strength`
+    (img2img: the last round(steps * strength) steps are run)."""
     from export import load_trained
     from train import alphas_cumprod, encode_prompts
     tok, te, unet, cn, vae, _ = load_trained(train_dir, ckpt)
@@ -187,12 +194,18 @@ def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu"
     eos = tok.token_to_id("<|endoftext|>")
     ac = alphas_cumprod().double()
     ts = list(range(1, 1000, 1000 // steps))[::-1]
+    if init is not None:
+        ts = ts[steps - max(1, round(steps * strength)):]
     g = torch.Generator().manual_seed(seed)
     out = []
     for i in range(0, len(hints), batch):
         h = torch.from_numpy(np.stack(hints[i:i + batch])).permute(0, 3, 1, 2).float().to(device)
         ehs = te(encode_prompts(tok, prompts[i:i + batch], eos).to(device))[0]
         x = torch.randn(len(h), vae.config.latent_channels, SIZE // 4, SIZE // 4, generator=g).to(device)
+        if init is not None:
+            im = torch.from_numpy(np.stack(init[i:i + batch])).permute(0, 3, 1, 2).float().to(device)
+            a0 = ac[ts[0]].float()
+            x = a0.sqrt() * vae.encode(im * 2 - 1) * vae.config.scaling_factor + (1 - a0).sqrt() * x
         for t in ts:
             tt = torch.tensor([t], device=device)
             down, mid = cn(x, tt, encoder_hidden_states=ehs, controlnet_cond=h, return_dict=False)
@@ -220,6 +233,10 @@ def main():
     ap.add_argument("--per", type=int, default=4, help="test poses per object and sensor")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--device", default="cpu", help="where the PyTorch sampler runs (cpu or cuda)")
+    ap.add_argument("--img2img", default="", help="also sample from the nearest-neighbour image at these strengths, e.g. 0.3,0.5")
+    ap.add_argument("--seen", action="store_true",
+                    help="judge training rows (seen poses) instead of unseen test poses; nearest-neighbour skips the row itself")
+    ap.add_argument("--seeds", type=int, default=1, help="also sample the model with seeds 1..N-1")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -250,24 +267,40 @@ def main():
                 if n >= args.per:
                     break
 
+    if args.seen:
+        cases = []
+        refs = {s: train["references"][i].astype(np.float32) / 255.0 for i, s in enumerate(train["ref_sensors"])}
+        for obj in args.objects.split():
+            for s in SENSORS:
+                for j in np.where((t_objects == obj) & (t_sensors == s))[0][:args.per]:
+                    cases.append((obj, s, int(j), tuple(t_poses[j]), t_img[j], refs[s],
+                                  train["hints"][j].astype(np.float32) / 255.0, str(train["prompts"][j])))
     methods = {}
+    batch = 64 if args.device != "cpu" else 8
     if args.ckpt:
-        methods["model"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
-                                        device=args.device, batch=64 if args.device != "cpu" else 8)
+        for seed in range(args.seeds):
+            methods["model" + (f" seed {seed}" if seed else "")] = sample_model(
+                args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
+                device=args.device, batch=batch, seed=seed)
     if args.synth:
         methods["model"] = [load_rgb(os.path.join(args.synth, c[0], c[1], "images", f"{c[2]}.png")) for c in cases]
     means = {s: t_img[t_sensors == s].mean(0) for s in SENSORS}
     methods["pose-blind"] = [means[c[1]] for c in cases]
     nn = []
-    for obj, s, _, pose, _, ref, _, _ in cases:
+    for obj, s, _, pose, _t, ref, _h, _p in cases:
         sel = np.where((t_objects == obj) & (t_sensors == s))[0]
+        if args.seen:
+            sel = sel[sel != _]
         d = t_poses[sel] - np.array(pose)
         dist = np.sqrt((d[:, :3] ** 2).sum(1)) + np.abs(d[:, 3]) / 15.0
         j = sel[int(np.argmin(dist))]
         nn.append(warp(t_img[j], ref, t_poses[j], pose))
     methods["nearest-neighbour"] = nn
+    for st in filter(None, args.img2img.split(",")):
+        methods[f"img2img {st}"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
+                                                device=args.device, batch=batch, init=nn, strength=float(st))
 
-    print(f"{len(cases)} unseen test poses ({args.per} per object and sensor), {SIZE} px")
+    print(f"{len(cases)} {'seen training' if args.seen else 'unseen test'} poses ({args.per} per object and sensor), {SIZE} px")
     print(f"{'sensor':9} {'method':18} {'contact SSIM':>12} {'pos err mm':>10} {'yaw err deg':>11}")
     for s in SENSORS:
         idx = [i for i, c in enumerate(cases) if c[1] == s]
