@@ -7,7 +7,9 @@ baselines of `rig eval` (pose-blind mean image, nearest-neighbour shifted and ro
 Experiments (each adds rows): `--seeds N` samples the model with seeds 1..N-1 too; `--img2img
 0.2,0.5` also starts the sampler from the nearest-neighbour image noised to these strengths
 (the last round(20 * strength) steps); `--seen` judges training rows of data.npz instead of
-unseen test poses (nearest-neighbour then skips the row itself).
+unseen test poses (nearest-neighbour then skips the row itself); `--inside-only` also judges
+each method's image with everything outside the true contact region (dilated 4 px more)
+replaced by the true image, so what error is left comes from inside the contact.
 
 Test rows: the real rows of out/test-data/<object>/<sensor> (plans/test.toml) whose pose was not
 collected for training. Everything is compared at 128 x 128 (PIL bilinear, antialiased).
@@ -236,6 +238,8 @@ def main():
     ap.add_argument("--img2img", default="", help="also sample from the nearest-neighbour image at these strengths, e.g. 0.3,0.5")
     ap.add_argument("--seen", action="store_true",
                     help="judge training rows (seen poses) instead of unseen test poses; nearest-neighbour skips the row itself")
+    ap.add_argument("--inside-only", action="store_true",
+                    help="also judge each method's image with the true image outside the contact region (dilated 4 px)")
     ap.add_argument("--seeds", type=int, default=1, help="also sample the model with seeds 1..N-1")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -299,9 +303,16 @@ def main():
     for st in filter(None, args.img2img.split(",")):
         methods[f"img2img {st}"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
                                                 device=args.device, batch=batch, init=nn, strength=float(st))
+    if args.inside_only:
+        # Each method's image with everything outside the true contact region (dilated 4 px more)
+        # replaced by the true image: what is left of its error comes from inside the contact.
+        masks = [F.max_pool2d(torch.from_numpy(contact_mask(c[4], c[5]).astype(np.float32))[None, None], 9, 1, 4)
+                 [0, 0].numpy()[..., None] > 0.5 for c in cases]
+        for name in list(methods):
+            methods[f"{name}, inside only"] = [np.where(m, img, c[4]) for m, img, c in zip(masks, methods[name], cases)]
 
     print(f"{len(cases)} {'seen training' if args.seen else 'unseen test'} poses ({args.per} per object and sensor), {SIZE} px")
-    print(f"{'sensor':9} {'method':18} {'contact SSIM':>12} {'pos err mm':>10} {'yaw err deg':>11}")
+    print(f"{'sensor':9} {'method':32} {'contact SSIM':>12} {'pos err mm':>10} {'yaw err deg':>11}")
     for s in SENSORS:
         idx = [i for i, c in enumerate(cases) if c[1] == s]
         for name, imgs in [("true image", [cases[i][4] for i in range(len(cases))])] + list(methods.items()):
@@ -322,7 +333,7 @@ def main():
                     dy = abs(em[2] - et[2]) % 180
                     yaw.append(min(dy, 180 - dy))
             f = lambda v: f"{np.mean(v):.3f}" if v else "n/a"  # noqa: E731
-            print(f"{s:9} {name:18} {f(ssims):>12} {f(pos):>10} {f(yaw):>11}")
+            print(f"{s:9} {name:32} {f(ssims):>12} {f(pos):>10} {f(yaw):>11}")
 
 
 if __name__ == "__main__":
