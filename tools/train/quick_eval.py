@@ -249,7 +249,7 @@ def main():
     t_sensors, t_objects, t_poses = train["sensors"], train["objects"], train["poses"]
 
     cases = []  # (object, sensor, pose_id, pose, true, ref, hint, prompt)
-    for obj in args.objects.split():
+    for obj in [] if args.seen else args.objects.split():
         for s in SENSORS:
             ds = os.path.join(args.test, obj, s)
             cdir = os.path.join(args.controls, obj, s)
