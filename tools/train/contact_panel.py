@@ -4,7 +4,7 @@
         --object edge --sensor tactip --rows 4 --out docs/tactip-model-vs-true.png
 
 One row per training row of out/train/data.npz (the first ROWS of that object and sensor), six
-128 px tiles: the true image, the model's image (quick_eval.py's PyTorch DDIM, 20 steps, seed 0),
+tiles at the data's size: the true image, the model's image (quick_eval.py's PyTorch DDIM, 20 steps, seed 0),
 the hint, then |true - reference|, |model - reference| and |model - true| (largest channel, 3x
 brightened). Prints each row's pose and the contact axis rig eval's estimator finds in both.
 """
@@ -19,6 +19,7 @@ from PIL import Image
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+import quick_eval  # noqa: E402
 from quick_eval import contact_estimate, sample_model  # noqa: E402
 
 
@@ -38,6 +39,7 @@ def main():
     sel = np.where((d["objects"] == args.object) & (d["sensors"] == args.sensor))[0][:args.rows]
     if len(sel) == 0:
         sys.exit(f"no training rows of {args.object}/{args.sensor} in {args.train_data}")
+    quick_eval.SIZE = d["images"].shape[1]  # the estimator's radii and the sampler's latent follow it
     ref = d["references"][list(d["ref_sensors"]).index(args.sensor)].astype(np.float32) / 255
     hints = [d["hints"][j].astype(np.float32) / 255 for j in sel]
     model = sample_model(args.ckpt, args.train_dir, hints, [str(d["prompts"][j]) for j in sel],

@@ -3,7 +3,7 @@
     python tools/train/estimator_noise.py [--sensor tactip] [--object edge] [--rows 150]
 
 For the first ROWS training rows of that object and sensor in out/train/data.npz (true images,
-128 px) whose contact has a yaw (eigenvalue ratio below 0.5), and for each blur divisor and
+at the data's size, 128 px for the default) whose contact has a yaw (eigenvalue ratio below 0.5), and for each blur divisor and
 region fraction of the grid (the `ContactEstimator` family, ported in quick_eval.py), adds
 white Gaussian noise of 1 and 2 8-bit levels and prints how far the estimated axis moves (mean
 and median, deg). A synthetic image whose pixels are off by about that much cannot be told from
@@ -40,6 +40,7 @@ def main():
     sel = np.where((d["objects"] == args.object) & (d["sensors"] == args.sensor))[0][:args.rows]
     if len(sel) == 0:
         sys.exit(f"no training rows of {args.object}/{args.sensor} in {args.train_data}")
+    q.SIZE = d["images"].shape[1]  # the estimator's radii follow the image size
     ref = d["references"][list(d["ref_sensors"]).index(args.sensor)].astype(np.float32) / 255
     rng = np.random.default_rng(1)
     print(f"{args.sensor} {args.object}: axis change under white noise, deg (mean / median)")

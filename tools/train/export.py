@@ -1,14 +1,15 @@
 """Exports a train.py checkpoint as a rig model package (default: models/default).
 
     python tools/train/export.py [--ckpt out/train/diffusion.pt] [--train-dir out/train] \
-        [--out models/default] [--name rig-default-128]
+        [--out models/default] [--name rig-default-<size>]
 
 Takes the exponential-moving-average weights of the checkpoint (diffusion.pt, or one of the
 ema-NNNNNN.pt snapshots), the tokenizer and the autoencoder statistics from --train-dir, and
-writes the package layout rig reads (docs/synth.md): model.toml (resolution 128 x 128,
-vae_scale_factor 4, the latent scale of the training latents), tokenizer/, text_encoder/,
-controlnet/, unet/, vae_decoder/ (ONNX) and scheduler/scheduler_config.json (DDIM,
-prediction_type "sample"). Then it checks each ONNX model against PyTorch with onnxruntime.
+writes the package layout rig reads (docs/synth.md): model.toml (the resolution the run trained
+at, from vae.pt's `size`: 128 x 128 for models/default; vae_scale_factor 4; the latent scale of
+the training latents), tokenizer/, text_encoder/, controlnet/, unet/, vae_decoder/ (ONNX) and
+scheduler/scheduler_config.json (DDIM, prediction_type "sample"). Then it checks each ONNX model
+against PyTorch with onnxruntime.
 """
 
 import argparse
@@ -26,7 +27,13 @@ sys.path.insert(0, HERE)
 from model import SCHEDULER_CONFIG, SpaceToDepthAE, build_text_encoder, build_unet_controlnet  # noqa: E402
 from rig_export import export_models, write_model_toml, write_scheduler_config  # noqa: E402
 
-RESOLUTION = 128
+
+
+def trained_size(train_dir):
+    """Image size (px, square) the run trained on: vae.pt's `size`; runs from before it was
+    recorded trained on 128 px."""
+    ae = torch.load(os.path.join(train_dir, "vae.pt"), map_location="cpu", weights_only=False)
+    return int(ae.get("size", 128))
 
 
 def load_trained(train_dir, ckpt):
@@ -48,7 +55,7 @@ def load_trained(train_dir, ckpt):
     return tok, text_encoder, unet, controlnet, vae, state["step"]
 
 
-def check_onnx(out, text_encoder, controlnet, unet, vae, tok):
+def check_onnx(out, text_encoder, controlnet, unet, vae, tok, size):
     """Runs every exported model on the same inputs as PyTorch; prints the largest difference."""
     import onnxruntime as ort
     from rig_export import ControlNetWrapper, UNetWrapper
@@ -57,9 +64,9 @@ def check_onnx(out, text_encoder, controlnet, unet, vae, tok):
     ids = torch.tensor([tok.encode("{'sensor_context': 'x', 'object_pose': {'x': 1.0}}").ids + [1] * 0])
     ids = torch.nn.functional.pad(ids, (0, 77 - ids.shape[1]), value=tok.token_to_id("<|endoftext|>")).to(torch.int32)
     c = vae.config.latent_channels
-    sample = torch.randn(2, c, RESOLUTION // 4, RESOLUTION // 4)
+    sample = torch.randn(2, c, size // 4, size // 4)
     t = torch.tensor([451], dtype=torch.int64)
-    cond = torch.rand(2, 3, RESOLUTION, RESOLUTION)
+    cond = torch.rand(2, 3, size, size)
     with torch.no_grad():
         ehs = text_encoder(ids.long())[0].repeat(2, 1, 1)
         res = ControlNetWrapper(controlnet)(sample, t, ehs, cond, torch.tensor(1.0))
@@ -89,18 +96,20 @@ def main():
     ap.add_argument("--train-dir", default="out/train")
     ap.add_argument("--ckpt", default=None, help="default: <train-dir>/diffusion.pt")
     ap.add_argument("--out", default="models/default")
-    ap.add_argument("--name", default="rig-default-128")
+    ap.add_argument("--name", default=None, help="default: rig-default-<size>")
     args = ap.parse_args()
     ckpt = args.ckpt or os.path.join(args.train_dir, "diffusion.pt")
     tok, text_encoder, unet, controlnet, vae, step = load_trained(args.train_dir, ckpt)
+    size = trained_size(args.train_dir)
+    name = args.name or f"rig-default-{size}"
     out = os.path.abspath(args.out)
     if os.path.isdir(out):
         shutil.rmtree(out)
     os.makedirs(os.path.join(out, "tokenizer"))
     tok.save(os.path.join(out, "tokenizer", "tokenizer.json"))
-    export_models(out, text_encoder, controlnet, unet, vae, RESOLUTION, RESOLUTION, vae_scale_factor=4)
+    export_models(out, text_encoder, controlnet, unet, vae, size, size, vae_scale_factor=4)
     # The exporter writes one file per model; external-data files would appear beside them.
-    write_model_toml(out, args.name, RESOLUTION, RESOLUTION, round(vae.config.scaling_factor, 6),
+    write_model_toml(out, name, size, size, round(vae.config.scaling_factor, 6),
                      vae_scale_factor=4, sampling_steps=20, guidance=1.0,  # see train.py: INFERENCE_TIMESTEPS
                      sampler="dpm++2m")  # README "Evaluating synthesis": beats DDIM on ViTac contact SSIM
     write_scheduler_config(out, SCHEDULER_CONFIG)
@@ -110,7 +119,7 @@ def main():
                 + (f", started from the EMA weights of {targs['init']}" if targs.get("init") else "") + ").\n"
                 "This run's arguments:\n" + json.dumps(targs, indent=2) + "\n"
                 "README \"Training the default synthesis model\" (tools/train/train_default.sh) retrains it.\n")
-    check_onnx(out, text_encoder, controlnet, unet, vae, tok)
+    check_onnx(out, text_encoder, controlnet, unet, vae, tok, size)
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
     print(f"exported step {step} of {ckpt} to {out} ({total / 1e6:.1f} MB)")
 

@@ -6,7 +6,8 @@
 #
 # Writes out/train-data/<object>/<sensor>/ (datasets), out/train-controls/<object>/<sensor>/
 # (<pose_id>.png at 128x128 + prompts.csv) and out/train/data.npz (the packed arrays train.py
-# reads). To train on a real rig's data, collect with your rig.toml instead (same command) or
+# reads). SIZE=256 (say) renders the hints and packs the data at that size instead, into
+# out/train-controls-256/ and out/train-256/data.npz. To train on a real rig's data, collect with your rig.toml instead (same command) or
 # point prepare.py at your own datasets (see docs/training.md).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -14,6 +15,9 @@ RIG=${1:-target/release/rig}
 PY=${PYTHON:-.venv/bin/python}
 OBJECTS=${OBJECTS:-"edge cuboid sphere pacman cross"}
 SIZE=${SIZE:-128}
+# 128 px (the default model's size) keeps the historical paths; other sizes get their own, so
+# the 128 px data is not overwritten: out/train-controls-<SIZE>, out/train-<SIZE>/data.npz.
+if [ "$SIZE" = 128 ]; then SUFFIX=""; else SUFFIX="-$SIZE"; fi
 # One collection per object, all at once: each starts its own simulated rig on free loopback
 # ports, and most of a collection's time is the simulated arm's motion, not CPU.
 pids=()
@@ -25,10 +29,10 @@ for p in "${pids[@]}"; do wait "$p"; done
 pids=()
 for o in $OBJECTS; do
   for s in tactip vitac vitactip; do
-    "$RIG" render --controls-of "out/train-data/$o/$s" --size "${SIZE}x${SIZE}" --out "out/train-controls/$o/$s" &
+    "$RIG" render --controls-of "out/train-data/$o/$s" --size "${SIZE}x${SIZE}" --out "out/train-controls$SUFFIX/$o/$s" &
     pids+=($!)
   done
   for p in "${pids[@]}"; do wait "$p"; done
   pids=()
 done
-"$PY" tools/train/prepare.py --data out/train-data --controls out/train-controls --size "$SIZE" --out out/train/data.npz
+"$PY" tools/train/prepare.py --data out/train-data --controls "out/train-controls$SUFFIX" --size "$SIZE" --out "out/train$SUFFIX/data.npz"

@@ -44,7 +44,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-SIZE = 128
+SIZE = 128  # set by main(): --size, or the run's image size
 PX_PER_MM = 8.5 * SIZE / 512
 THRESH = 12 / 255
 SENSORS = ["tactip", "vitac", "vitactip"]
@@ -226,7 +226,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--train-data", default="out/train/data.npz")
     ap.add_argument("--test", default="out/test-data")
-    ap.add_argument("--controls", default="out/test-controls")
+    ap.add_argument("--controls", default=None, help="default: out/test-controls (128 px), else out/test-controls-<size>")
+    ap.add_argument("--size", type=int, default=None,
+                    help="image size, px (default: the --train-dir run's, with --ckpt; else 128)")
     ap.add_argument("--rig", default="target/release/rig")
     ap.add_argument("--ckpt", default=None)
     ap.add_argument("--train-dir", default="out/train")
@@ -243,9 +245,19 @@ def main():
     ap.add_argument("--seeds", type=int, default=1, help="also sample the model with seeds 1..N-1")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    global SIZE, PX_PER_MM
+    if args.size is None and args.ckpt:
+        from export import trained_size
+        args.size = trained_size(args.train_dir)
+    SIZE = args.size or 128
+    PX_PER_MM = 8.5 * SIZE / 512
+    if args.controls is None:
+        args.controls = "out/test-controls" if SIZE == 128 else f"out/test-controls-{SIZE}"
 
     train = np.load(args.train_data)
     t_img = train["images"].astype(np.float32) / 255.0
+    if t_img.shape[1] != SIZE:
+        sys.exit(f"{args.train_data} holds {t_img.shape[1]} px images, this evaluation is at {SIZE} px (--size)")
     t_sensors, t_objects, t_poses = train["sensors"], train["objects"], train["poses"]
 
     cases = []  # (object, sensor, pose_id, pose, true, ref, hint, prompt)

@@ -161,9 +161,12 @@ def ae_stage(args, data, device):
         z = torch.nn.functional.pixel_unshuffle(x, 4)
         mean = z.mean((0, 2, 3))
         scale = float(1.0 / (z - mean.view(1, -1, 1, 1)).std())
-        ck = {"channel_mean": mean, "scaling_factor": scale}
+        ck = {"channel_mean": mean, "scaling_factor": scale, "size": data.shape[0]}
         save(path, **ck)
-        log(args.out, f"autoencoder: space-to-depth f=4, 48 latent channels, latent_scale {scale:.5f}")
+        log(args.out, f"autoencoder: space-to-depth f=4, 48 latent channels, latent_scale {scale:.5f}, "
+                      f"{data.shape[0]} px images")
+    elif ck.get("size", 128) != data.shape[0]:
+        sys.exit(f"{path} was made for {ck.get('size', 128)} px images, --data has {data.shape[0]} px")
     vae = SpaceToDepthAE(ck["channel_mean"]).to(device)
     vae.config["scaling_factor"] = ck["scaling_factor"]
     return vae
