@@ -492,6 +492,14 @@ impl ContactEstimate {
         0.5 * (2.0 * xy).atan2(xx - yy).to_degrees()
     }
 
+    /// Standard deviation along the contact's longer axis, image pixels (the larger
+    /// eigenvalue of the pixel moments, square-rooted): how far the contact extends.
+    pub fn major_std_px(&self) -> f64 {
+        let [xx, xy, yy] = self.moments_px2;
+        let d = (((xx - yy) / 2.0).powi(2) + xy * xy).sqrt();
+        ((xx + yy) / 2.0 + d).max(0.0).sqrt()
+    }
+
     /// Smaller over larger eigenvalue of the moments in mm^2: 1 for a disc, 0 for a line.
     pub fn isotropy(&self, calib: &Calibration) -> f64 {
         let [xx, xy, yy] = self.moments_mm2(calib);
@@ -500,6 +508,15 @@ impl ContactEstimate {
         let (lo, hi) = (mean - d, mean + d);
         if hi > 0.0 { (lo / hi).clamp(0.0, 1.0) } else { 1.0 }
     }
+}
+
+/// Whether a contact's orientation can be read from an image judged by `estimator` at
+/// `width_px`: it is elongated (eigenvalue ratio below [`ISOTROPY_RATIO`]) and it extends
+/// beyond the estimator's blur (its longer-axis spread at least [`ContactEstimator::blur_std_px`]).
+/// A contact of a pixel or two, a cone's tip touched lightly, has a "long axis" by
+/// rasterisation alone; no image of it shows one.
+pub fn yaw_observable(contact: &ContactEstimate, calib: &Calibration, estimator: &ContactEstimator, width_px: usize) -> bool {
+    contact.isotropy(calib) < ISOTROPY_RATIO && contact.major_std_px() >= estimator.blur_std_px(width_px)
 }
 
 /// Angle between two axes (mod 180), degrees in [0, 90].
@@ -544,6 +561,18 @@ impl ContactEstimator {
             Ok(SensorKind::ViTacTip) => Self::VITACTIP,
             Err(_) => Self::GENERIC,
         }
+    }
+
+    /// Box-blur radius at an image width, px: `width / blur_divisor` rounded down, at least 1.
+    pub fn blur_radius_px(&self, width_px: usize) -> usize {
+        ((width_px as f64 / self.blur_divisor) as usize).max(1)
+    }
+
+    /// Standard deviation of the estimator's blur at an image width, px: three box blurs of
+    /// radius r spread a point by sqrt(r (r + 1)) (each box has variance r (r + 1) / 3).
+    pub fn blur_std_px(&self, width_px: usize) -> f64 {
+        let r = self.blur_radius_px(width_px) as f64;
+        (r * (r + 1.0)).sqrt()
     }
 
     /// Parses `DIVISOR,FRACTION` (`rig eval --estimator 64,0.3`).
@@ -609,7 +638,7 @@ pub fn estimate_contact_with(image: &RgbImage, reference: &RgbImage, estimator: 
     if !(gate_peak - noise_floor(&gate) >= 3.0) {
         return None;
     }
-    let radius = ((w as f64 / estimator.blur_divisor) as usize).max(1);
+    let radius = estimator.blur_radius_px(w);
     let change = if radius == gate_radius { gate } else { smoothed_change(&raw, w, h, radius) };
     let floor = noise_floor(&change);
     let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
@@ -971,7 +1000,7 @@ pub fn evaluate(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], 
             }
             let truth_estimate = estimate_contact_with(&truth, &reference, &estimator);
             let observable_from = geometric.or(truth_estimate);
-            let yaw_observable = observable_from.is_some_and(|g| g.isotropy(&calib) < ISOTROPY_RATIO);
+            let yaw_observable = observable_from.is_some_and(|g| yaw_observable(&g, &calib, &estimator, size as usize));
             if observable_from.is_some() && !yaw_observable {
                 counts.yaw_unobservable += 1;
             }
@@ -1259,7 +1288,7 @@ impl EvalReport {
         s += &format!(
             "{} pairs from {} real and {} synthetic datasets; {} collected images for the baselines. \
              Dropped as seen in the collected set: {}. Without a twin: {} real, {} synthetic poses. \
-             No contact pixels (left out of the contact columns): {}. Yaw not observable (near-isotropic contact, left out of the yaw columns): {}. \
+             No contact pixels (left out of the contact columns): {}. Yaw not observable (contact near-isotropic or within the estimator's blur, left out of the yaw columns): {}. \
              No mesh contact (left out of the pose-error columns): {}.\n",
             c.pairs,
             c.real_datasets,
@@ -1394,6 +1423,52 @@ mod tests {
         assert!(estimate_contact(&reference, &reference).is_none());
         assert!(estimate_contact(&RgbImage::new(10, 96), &reference).is_none());
         assert!(estimate_contact(&RgbImage::new(0, 0), &RgbImage::new(0, 0)).is_none());
+    }
+
+    #[test]
+    fn the_blur_spread_is_what_three_box_blurs_give() {
+        // A point, blurred as the estimator blurs: its spread along x is sqrt(r (r + 1)).
+        let (w, h) = (64, 64);
+        for (divisor, r) in [(32.0, 2usize), (16.0, 4), (128.0, 1)] {
+            let estimator = ContactEstimator { blur_divisor: divisor, region_fraction: 0.0 };
+            assert_eq!(estimator.blur_radius_px(w), r);
+            let mut point = vec![0.0f32; w * h];
+            point[32 * w + 32] = 1.0;
+            let blurred = smoothed_change(&point, w, h, r);
+            let (mut sum, mut sxx) = (0.0f64, 0.0f64);
+            for (i, &v) in blurred.iter().enumerate() {
+                let dx = (i % w) as f64 - 32.0;
+                sum += v as f64;
+                sxx += v as f64 * dx * dx;
+            }
+            let std = (sxx / sum).sqrt();
+            assert!((std - estimator.blur_std_px(w)).abs() < 1e-3, "r {r}: {std} vs {}", estimator.blur_std_px(w));
+        }
+    }
+
+    #[test]
+    fn a_contact_of_a_pixel_or_two_has_no_observable_yaw() {
+        let calib = Calibration::default_for(128, 128);
+        let line = |len: usize| ContactEstimate::from_weights((0..len).map(|k| (64 * 128 + 40 + k, 1.0)), 128).unwrap();
+        // Two lit pixels side by side (a cone's tip touched lightly): a "line" by rasterisation.
+        let tip = line(2);
+        assert!(tip.isotropy(&calib) < ISOTROPY_RATIO);
+        assert!((tip.major_std_px() - 0.5).abs() < 1e-9, "{}", tip.major_std_px());
+        for estimator in [ContactEstimator::TACTIP, ContactEstimator::VITAC, ContactEstimator::VITACTIP, ContactEstimator::GENERIC] {
+            assert!(!yaw_observable(&tip, &calib, &estimator, 128), "{estimator:?}");
+        }
+        // Nine pixels (spread 2.58 px) outlast ViTac's blur (1.41) but not TacTip's (4.47).
+        let short = line(9);
+        assert!(yaw_observable(&short, &calib, &ContactEstimator::VITAC, 128));
+        assert!(!yaw_observable(&short, &calib, &ContactEstimator::TACTIP, 128));
+        // A long edge is observable through every estimator; a disc through none.
+        let edge = line(40);
+        for estimator in [ContactEstimator::TACTIP, ContactEstimator::VITAC, ContactEstimator::VITACTIP, ContactEstimator::GENERIC] {
+            assert!(yaw_observable(&edge, &calib, &estimator, 128), "{estimator:?}");
+        }
+        let reference = RgbImage::from_pixel(128, 128, Rgb([20, 20, 20]));
+        let round = estimate_contact(&disc(128, 64.0, 64.0, 20.0, 20.0), &reference).unwrap();
+        assert!(!yaw_observable(&round, &calib, &ContactEstimator::VITAC, 128));
     }
 
     #[test]
