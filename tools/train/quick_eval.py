@@ -12,7 +12,8 @@ each method's image with everything outside the true contact region (dilated 4 p
 replaced by the true image, so what error is left comes from inside the contact.
 
 Test rows: the real rows of out/test-data/<object>/<sensor> (plans/test.toml) whose pose was not
-collected for training. Everything is compared at 128 x 128 (PIL bilinear, antialiased).
+collected for training. Everything is compared at the run's size, 128 x 128 for the default
+(PIL bilinear, antialiased).
 
 - contact SSIM: Gaussian-window SSIM (11 px, sigma 1.5, per RGB channel, averaged) over the
   pixels where the true image differs from its dataset's reference frame by more than 12/255
@@ -244,6 +245,10 @@ def main():
                     help="also judge each method's image with the true image outside the contact region (dilated 4 px)")
     ap.add_argument("--seeds", type=int, default=1, help="also sample the model with seeds 1..N-1")
     args = ap.parse_args()
+    if args.seen and args.synth:
+        sys.exit("--seen judges training rows, which rig's synthetic images (--synth) are not named by")
+    if args.img2img and not args.ckpt:
+        sys.exit("--img2img samples the model: it needs --ckpt")
     torch.set_num_threads(args.threads)
     global SIZE, PX_PER_MM
     if args.size is None and args.ckpt:
@@ -260,37 +265,39 @@ def main():
         sys.exit(f"{args.train_data} holds {t_img.shape[1]} px images, this evaluation is at {SIZE} px (--size)")
     t_sensors, t_objects, t_poses = train["sensors"], train["objects"], train["poses"]
 
-    cases = []  # (object, sensor, pose_id, pose, true, ref, hint, prompt)
-    for obj in [] if args.seen else args.objects.split():
-        for s in SENSORS:
-            ds = os.path.join(args.test, obj, s)
-            cdir = os.path.join(args.controls, obj, s)
-            if not os.path.isfile(os.path.join(cdir, "prompts.csv")):
-                subprocess.run([args.rig, "render", "--controls-of", ds, "--size", f"{SIZE}x{SIZE}", "--out", cdir],
-                               check=True, stdout=subprocess.DEVNULL)
-            prompts = {int(r["pose_id"]): r["prompt"] for r in csv.DictReader(open(os.path.join(cdir, "prompts.csv")))}
-            seen = {tuple(p) for p, o, ss in zip(t_poses, t_objects, t_sensors) if o == obj and ss == s}
-            ref = load_rgb(os.path.join(ds, "reference.png"))
-            n = 0
-            for r in rows_of(ds):
-                pose = tuple(float(r[k]) for k in ("x_mm", "y_mm", "z_mm", "yaw_deg"))
-                if r["source"] != "real" or pose in seen:
-                    continue
-                pid = int(r["pose_id"])
-                cases.append((obj, s, pid, pose, load_rgb(os.path.join(ds, r["image"])), ref,
-                              load_rgb(os.path.join(cdir, f"{pid}.png")), prompts[pid]))
-                n += 1
-                if n >= args.per:
-                    break
-
+    # (object, sensor, id, pose, true, ref, hint, prompt): id is the test row's pose_id, or with
+    # --seen the training row's index in data.npz.
+    cases = []
     if args.seen:
-        cases = []
         refs = {s: train["references"][i].astype(np.float32) / 255.0 for i, s in enumerate(train["ref_sensors"])}
         for obj in args.objects.split():
             for s in SENSORS:
                 for j in np.where((t_objects == obj) & (t_sensors == s))[0][:args.per]:
                     cases.append((obj, s, int(j), tuple(t_poses[j]), t_img[j], refs[s],
                                   train["hints"][j].astype(np.float32) / 255.0, str(train["prompts"][j])))
+    else:
+        for obj in args.objects.split():
+            for s in SENSORS:
+                ds = os.path.join(args.test, obj, s)
+                cdir = os.path.join(args.controls, obj, s)
+                if not os.path.isfile(os.path.join(cdir, "prompts.csv")):
+                    subprocess.run([args.rig, "render", "--controls-of", ds, "--size", f"{SIZE}x{SIZE}", "--out", cdir],
+                                   check=True, stdout=subprocess.DEVNULL)
+                prompts = {int(r["pose_id"]): r["prompt"] for r in csv.DictReader(open(os.path.join(cdir, "prompts.csv")))}
+                seen = {tuple(p) for p, o, ss in zip(t_poses, t_objects, t_sensors) if o == obj and ss == s}
+                ref = load_rgb(os.path.join(ds, "reference.png"))
+                n = 0
+                for r in rows_of(ds):
+                    pose = tuple(float(r[k]) for k in ("x_mm", "y_mm", "z_mm", "yaw_deg"))
+                    if r["source"] != "real" or pose in seen:
+                        continue
+                    pid = int(r["pose_id"])
+                    cases.append((obj, s, pid, pose, load_rgb(os.path.join(ds, r["image"])), ref,
+                                  load_rgb(os.path.join(cdir, f"{pid}.png")), prompts[pid]))
+                    n += 1
+                    if n >= args.per:
+                        break
+
     methods = {}
     batch = 64 if args.device != "cpu" else 8
     if args.ckpt:
@@ -303,10 +310,10 @@ def main():
     means = {s: t_img[t_sensors == s].mean(0) for s in SENSORS}
     methods["pose-blind"] = [means[c[1]] for c in cases]
     nn = []
-    for obj, s, _, pose, _t, ref, _h, _p in cases:
+    for obj, s, row_id, pose, _true, ref, _hint, _prompt in cases:
         sel = np.where((t_objects == obj) & (t_sensors == s))[0]
         if args.seen:
-            sel = sel[sel != _]
+            sel = sel[sel != row_id]
         d = t_poses[sel] - np.array(pose)
         dist = np.sqrt((d[:, :3] ** 2).sum(1)) + np.abs(d[:, 3]) / 15.0
         j = sel[int(np.argmin(dist))]
