@@ -369,28 +369,12 @@ fn standardise(m: Vec<f32>) -> Vec<f32> {
     m.into_iter().map(|v| ((v as f64 - mean) / sd) as f32).collect()
 }
 
+/// [`super::detect::box_blur`] (clamped-mean window `2r + 1`, rows then columns) of an `n` x `n`
+/// map, as a new map.
 fn box_blur(src: &[f32], n: usize, r: usize) -> Vec<f32> {
-    let pass = |src: &[f32], horizontal: bool| -> Vec<f32> {
-        let mut out = vec![0.0; src.len()];
-        for a in 0..n {
-            for b in 0..n {
-                let lo = b.saturating_sub(r);
-                let hi = (b + r).min(n - 1);
-                let mut s = 0.0;
-                for t in lo..=hi {
-                    s += if horizontal { src[a * n + t] } else { src[t * n + a] };
-                }
-                let v = s / (hi - lo + 1) as f32;
-                if horizontal {
-                    out[a * n + b] = v;
-                } else {
-                    out[b * n + a] = v;
-                }
-            }
-        }
-        out
-    };
-    pass(&pass(src, true), false)
+    let mut out = src.to_vec();
+    super::detect::box_blur(&mut out, n, n, r);
+    out
 }
 
 fn sobel(g: &[f32], n: usize) -> Vec<f32> {
