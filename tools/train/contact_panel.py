@@ -19,8 +19,7 @@ from PIL import Image
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-import quick_eval  # noqa: E402
-from quick_eval import contact_estimate, sample_model  # noqa: E402
+from quick_eval import contact_estimate, sample_model, training_rows  # noqa: E402
 
 
 def main():
@@ -36,11 +35,9 @@ def main():
     args = ap.parse_args()
     torch.set_num_threads(2)
     d = np.load(args.train_data)
-    sel = np.where((d["objects"] == args.object) & (d["sensors"] == args.sensor))[0][:args.rows]
+    sel, ref = training_rows(d, args.object, args.sensor, args.rows)
     if len(sel) == 0:
         sys.exit(f"no training rows of {args.object}/{args.sensor} in {args.train_data}")
-    quick_eval.SIZE = d["images"].shape[1]  # the estimator's radii and the sampler's latent follow it
-    ref = d["references"][list(d["ref_sensors"]).index(args.sensor)].astype(np.float32) / 255
     hints = [d["hints"][j].astype(np.float32) / 255 for j in sel]
     model = sample_model(args.ckpt, args.train_dir, hints, [str(d["prompts"][j]) for j in sel],
                          device=args.device, batch=len(sel))

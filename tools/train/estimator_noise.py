@@ -20,11 +20,9 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import quick_eval as q  # noqa: E402
 
 
-def axis_change(a, b):
-    if b is None:
-        return 90.0
-    d = abs(a[2] - b[2]) % 180
-    return min(d, 180 - d)
+def axis_change(true_estimate, estimate):
+    """How far the axis moved; a lost estimate counts as 90 deg."""
+    return 90.0 if estimate is None else q.axis_difference(true_estimate[2], estimate[2])
 
 
 def main():
@@ -37,11 +35,10 @@ def main():
     ap.add_argument("--fractions", default="0,0.1,0.2,0.3,0.5")
     args = ap.parse_args()
     d = np.load(args.train_data)
-    sel = np.where((d["objects"] == args.object) & (d["sensors"] == args.sensor))[0][:args.rows]
+    sel, ref = q.training_rows(d, args.object, args.sensor, args.rows)
     if len(sel) == 0:
         sys.exit(f"no training rows of {args.object}/{args.sensor} in {args.train_data}")
-    q.SIZE = d["images"].shape[1]  # the estimator's radii follow the image size
-    ref = d["references"][list(d["ref_sensors"]).index(args.sensor)].astype(np.float32) / 255
+    trues = [d["images"][j].astype(np.float32) / 255 for j in sel]
     rng = np.random.default_rng(1)
     print(f"{args.sensor} {args.object}: axis change under white noise, deg (mean / median)")
     print(f"{'divisor':>7} {'fraction':>8} {'poses':>5} {'1 level':>15} {'2 levels':>15}")
@@ -49,8 +46,7 @@ def main():
         for frac in map(float, args.fractions.split(",")):
             q.ESTIMATORS[args.sensor] = (div, frac)
             moved = {1: [], 2: []}
-            for j in sel:
-                true = d["images"][j].astype(np.float32) / 255
+            for true in trues:
                 et = q.contact_estimate(true, ref, args.sensor)
                 if et is None or et[3] >= 0.5:
                     continue

@@ -24,16 +24,14 @@ import torch
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
-from model import SCHEDULER_CONFIG, SpaceToDepthAE, build_text_encoder, build_unet_controlnet  # noqa: E402
+from model import SCHEDULER_CONFIG, SpaceToDepthAE, ae_image_size, build_text_encoder, build_unet_controlnet  # noqa: E402
 from rig_export import export_models, write_model_toml, write_scheduler_config  # noqa: E402
 
 
 
 def trained_size(train_dir):
-    """Image size (px, square) the run trained on: vae.pt's `size`; runs from before it was
-    recorded trained on 128 px."""
-    ae = torch.load(os.path.join(train_dir, "vae.pt"), map_location="cpu", weights_only=False)
-    return int(ae.get("size", 128))
+    """Image size (px, square) the run in train_dir trained on (its vae.pt)."""
+    return ae_image_size(torch.load(os.path.join(train_dir, "vae.pt"), map_location="cpu", weights_only=False))
 
 
 def load_trained(train_dir, ckpt):

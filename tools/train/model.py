@@ -11,6 +11,12 @@ FACTOR = 4  # image pixels per latent pixel
 SEQ_LEN = 77
 
 
+def ae_image_size(ae_state):
+    """The image size (px, square) a run's vae.pt was made for; runs from before it was recorded
+    trained on 128 px."""
+    return int(ae_state.get("size", 128))
+
+
 class _Config(dict):
     __getattr__ = dict.__getitem__
 

@@ -45,11 +45,29 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-SIZE = 128  # set by main(): --size, or the run's image size
-PX_PER_MM = 8.5 * SIZE / 512
+SIZE = 128  # the size main() loads and compares at: --size, or the run's image size
 THRESH = 12 / 255
 SENSORS = ["tactip", "vitac", "vitactip"]
 LABELS = {"tactip": "TacTip", "vitac": "ViTac", "vitactip": "ViTacTip"}
+
+
+def px_per_mm(size):
+    """The default calibration's scale at `size` px (8.5 px/mm at 512)."""
+    return 8.5 * size / 512
+
+
+def axis_difference(a_deg, b_deg):
+    """Angle between two axes (mod 180), degrees in [0, 90] (eval::axis_difference_deg)."""
+    d = abs(a_deg - b_deg) % 180
+    return min(d, 180 - d)
+
+
+def training_rows(train, obj, sensor, n):
+    """Indices of the first n rows of obj/sensor in a data.npz (maybe none), and that sensor's
+    reference frame in [0, 1]."""
+    sel = np.where((train["objects"] == obj) & (train["sensors"] == sensor))[0][:n]
+    ref = train["references"][list(train["ref_sensors"]).index(sensor)].astype(np.float32) / 255.0
+    return sel, ref
 
 
 def load_rgb(path):
@@ -122,12 +140,13 @@ def contact_estimate(img, ref, sensor):
     """(u_px, v_px, axis_deg, isotropy) of the contact as rig eval estimates it, or None
     without one; isotropy is the smaller over the larger eigenvalue of its second moments."""
     raw = np.abs(img - ref).max(-1).astype(np.float64) * 255.0
-    gate_r = max(SIZE // 64, 1)
+    size = img.shape[1]  # radii follow the image width, as in rig
+    gate_r = max(size // 64, 1)
     gate = smoothed(raw, gate_r)
     if not gate.max() - noise_floor(gate) >= 3.0:
         return None
     divisor, fraction = ESTIMATORS[sensor]
-    r = max(int(SIZE / divisor), 1)
+    r = max(int(size / divisor), 1)
     change = gate if r == gate_r else smoothed(raw, r)
     floor = noise_floor(change)
     peak_i = np.unravel_index(np.argmax(change), change.shape)
@@ -154,7 +173,7 @@ def contact_estimate(img, ref, sensor):
         w = np.zeros_like(change)
         w[peak_i] = 1.0
         s = 1.0
-    v, u = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64) + 0.5
+    v, u = np.mgrid[0:change.shape[0], 0:change.shape[1]].astype(np.float64) + 0.5
     cu, cv = (w * u).sum() / s, (w * v).sum() / s
     cuu, cvv, cuv = (w * (u - cu) ** 2).sum() / s, (w * (v - cv) ** 2).sum() / s, (w * (u - cu) * (v - cv)).sum() / s
     axis = 0.5 * math.degrees(math.atan2(2 * cuv, cuu - cvv))
@@ -168,18 +187,20 @@ def warp(img, ref, src_pose, dst_pose):
     (raster.rs: object point p appears at c + S R(-yaw) (p - t)); outside: the reference."""
     x1, y1, _, yaw1 = src_pose
     x2, y2, _, yaw2 = dst_pose
-    c = (SIZE / 2, SIZE / 2)
-    v, u = np.mgrid[0:SIZE, 0:SIZE].astype(np.float64)
+    size = img.shape[1]
+    scale = px_per_mm(size)
+    c = (size / 2, size / 2)
+    v, u = np.mgrid[0:size, 0:size].astype(np.float64)
     # destination pixel -> object point -> source pixel
     a2 = math.radians(yaw2)
-    du, dv = (u + 0.5 - c[0]) / PX_PER_MM, (v + 0.5 - c[1]) / PX_PER_MM  # pixel centres
+    du, dv = (u + 0.5 - c[0]) / scale, (v + 0.5 - c[1]) / scale  # pixel centres
     px = math.cos(a2) * du - math.sin(a2) * dv + x2
     py = math.sin(a2) * du + math.cos(a2) * dv + y2
     a1 = -math.radians(yaw1)
     qx, qy = px - x1, py - y1
-    su = c[0] + PX_PER_MM * (math.cos(a1) * qx - math.sin(a1) * qy)
-    sv = c[1] + PX_PER_MM * (math.sin(a1) * qx + math.cos(a1) * qy)
-    grid = torch.from_numpy(np.stack([su / SIZE * 2 - 1, sv / SIZE * 2 - 1], -1)).float()[None]
+    su = c[0] + scale * (math.cos(a1) * qx - math.sin(a1) * qy)
+    sv = c[1] + scale * (math.sin(a1) * qx + math.cos(a1) * qy)
+    grid = torch.from_numpy(np.stack([su / size * 2 - 1, sv / size * 2 - 1], -1)).float()[None]
     src = torch.from_numpy(img - ref).permute(2, 0, 1)[None]
     out = F.grid_sample(src, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     return np.clip(out[0].permute(1, 2, 0).numpy() + ref, 0, 1)
@@ -204,7 +225,7 @@ def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu"
     for i in range(0, len(hints), batch):
         h = torch.from_numpy(np.stack(hints[i:i + batch])).permute(0, 3, 1, 2).float().to(device)
         ehs = te(encode_prompts(tok, prompts[i:i + batch], eos).to(device))[0]
-        x = torch.randn(len(h), vae.config.latent_channels, SIZE // 4, SIZE // 4, generator=g).to(device)
+        x = torch.randn(len(h), vae.config.latent_channels, h.shape[2] // 4, h.shape[3] // 4, generator=g).to(device)
         if init is not None:
             im = torch.from_numpy(np.stack(init[i:i + batch])).permute(0, 3, 1, 2).float().to(device)
             a0 = ac[ts[0]].float()
@@ -250,12 +271,11 @@ def main():
     if args.img2img and not args.ckpt:
         sys.exit("--img2img samples the model: it needs --ckpt")
     torch.set_num_threads(args.threads)
-    global SIZE, PX_PER_MM
+    global SIZE
     if args.size is None and args.ckpt:
         from export import trained_size
         args.size = trained_size(args.train_dir)
     SIZE = args.size or 128
-    PX_PER_MM = 8.5 * SIZE / 512
     if args.controls is None:
         args.controls = "out/test-controls" if SIZE == 128 else f"out/test-controls-{SIZE}"
 
@@ -269,11 +289,11 @@ def main():
     # --seen the training row's index in data.npz.
     cases = []
     if args.seen:
-        refs = {s: train["references"][i].astype(np.float32) / 255.0 for i, s in enumerate(train["ref_sensors"])}
         for obj in args.objects.split():
             for s in SENSORS:
-                for j in np.where((t_objects == obj) & (t_sensors == s))[0][:args.per]:
-                    cases.append((obj, s, int(j), tuple(t_poses[j]), t_img[j], refs[s],
+                sel, ref = training_rows(train, obj, s, args.per)
+                for j in sel:
+                    cases.append((obj, s, int(j), tuple(t_poses[j]), t_img[j], ref,
                                   train["hints"][j].astype(np.float32) / 255.0, str(train["prompts"][j])))
     else:
         for obj in args.objects.split():
@@ -346,11 +366,10 @@ def main():
                     continue
                 if em is None:
                     em = (SIZE / 2, SIZE / 2, et[2] + 90, 1.0)
-                pos.append(math.hypot(em[0] - et[0], em[1] - et[1]) / PX_PER_MM)
+                pos.append(math.hypot(em[0] - et[0], em[1] - et[1]) / px_per_mm(SIZE))
                 # Yaw only where the true contact has one (rig eval's ISOTROPY_RATIO, 0.5).
                 if et[3] < 0.5:
-                    dy = abs(em[2] - et[2]) % 180
-                    yaw.append(min(dy, 180 - dy))
+                    yaw.append(axis_difference(em[2], et[2]))
             f = lambda v: f"{np.mean(v):.3f}" if v else "n/a"  # noqa: E731
             print(f"{s:9} {name:32} {f(ssims):>12} {f(pos):>10} {f(yaw):>11}")
 

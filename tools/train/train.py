@@ -36,7 +36,7 @@ import torch.nn.functional as F
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
-from model import SCHEDULER_CONFIG, SpaceToDepthAE, build_text_encoder, build_unet_controlnet  # noqa: E402
+from model import SCHEDULER_CONFIG, SpaceToDepthAE, ae_image_size, build_text_encoder, build_unet_controlnet  # noqa: E402
 
 # rig's default sampler: DDIM, 20 steps, "leading" spacing, steps_offset 1.
 INFERENCE_TIMESTEPS = list(range(1, 1000, 50))
@@ -165,8 +165,8 @@ def ae_stage(args, data, device):
         save(path, **ck)
         log(args.out, f"autoencoder: space-to-depth f=4, 48 latent channels, latent_scale {scale:.5f}, "
                       f"{data.shape[0]} px images")
-    elif ck.get("size", 128) != data.shape[0]:
-        sys.exit(f"{path} was made for {ck.get('size', 128)} px images, --data has {data.shape[0]} px")
+    elif ae_image_size(ck) != data.shape[0]:
+        sys.exit(f"{path} was made for {ae_image_size(ck)} px images, --data has {data.shape[0]} px")
     vae = SpaceToDepthAE(ck["channel_mean"]).to(device)
     vae.config["scaling_factor"] = ck["scaling_factor"]
     return vae
