@@ -31,7 +31,10 @@
 //! Means over different poses can mislead: a baseline that finds no contact on the hardest
 //! poses is averaged over easier ones. [`paired_comparisons`] therefore also sets the model
 //! against each baseline pose by pose, over the poses where both have the figure, with a 95%
-//! bootstrap interval of the mean difference and a verdict only where it excludes 0.
+//! bootstrap interval of the mean difference and a verdict only where it excludes 0. Each
+//! comparison also carries its [`Ceiling`]: the same comparison with the true image in the
+//! model's place, which says whether any model could beat that baseline on that test set (a
+//! baseline at the estimator's floor cannot be beaten, only matched).
 //! [`EvalReport::pairs`] keeps every per-pose figure (`rig eval --pairs`).
 //!
 //! Nothing here panics on odd images: a blank image has no contact estimate (counted), an
@@ -1184,6 +1187,34 @@ pub struct PairedComparison {
     /// pairs, a fixed seed: the same data gives the same interval).
     pub interval95: [f64; 2],
     pub verdict: Verdict,
+    /// What a perfect model would show against the same baseline: the true image in the
+    /// model's place ([`ceiling`]). `None` where no pair has the figure on both sides.
+    pub true_image: Option<Ceiling>,
+}
+
+/// The true image against a baseline on one figure, as if it were the model: the best any model
+/// can show on this test set. Its pose errors are measured like any method's; its contact SSIM
+/// is 1 (the image against itself) wherever the baseline has one. Where even this comparison
+/// shows no difference, the baseline sits at the estimator's floor and no model can beat it
+/// here: "no difference shown" is then the best verdict there is.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Ceiling {
+    /// Pairs where the true image and the baseline both have the figure.
+    pub n: usize,
+    pub true_mean: f64,
+    pub baseline_mean: f64,
+    /// Mean of (true image - baseline), and its 95% bootstrap interval.
+    pub difference: f64,
+    pub interval95: [f64; 2],
+    /// [`Verdict::ModelBetter`]: the true image beats the baseline, so a model can too.
+    pub verdict: Verdict,
+}
+
+impl Ceiling {
+    /// Whether a model can show that it beats the baseline on this figure here.
+    pub fn winnable(&self) -> bool {
+        self.verdict == Verdict::ModelBetter
+    }
 }
 
 /// Mean of `d` and its 95% percentile-bootstrap interval (resampling the entries, fixed seed).
@@ -1202,7 +1233,34 @@ pub fn bootstrap_mean_interval(d: &[f64]) -> Option<(f64, [f64; 2])> {
     Some((mean, [lo, hi]))
 }
 
-/// The model against pose-blind and nearest-neighbour on every [`Figure`], per sensor.
+/// One side against another over the pairs where both have a value: (n, means, mean
+/// difference, its interval, verdict from the first side's point of view).
+struct Paired {
+    n: usize,
+    means: [f64; 2],
+    difference: f64,
+    interval95: [f64; 2],
+    verdict: Verdict,
+}
+
+fn paired(values: &[(f64, f64)], figure: Figure) -> Option<Paired> {
+    let d: Vec<f64> = values.iter().map(|(x, y)| x - y).collect();
+    let (difference, interval95) = bootstrap_mean_interval(&d)?;
+    let n = d.len();
+    let verdict = if n < MIN_PAIRS_FOR_VERDICT {
+        Verdict::TooFewPairs
+    } else if interval95[0] > 0.0 || interval95[1] < 0.0 {
+        let first_higher = interval95[0] > 0.0;
+        if first_higher == figure.higher_is_better() { Verdict::ModelBetter } else { Verdict::ModelWorse }
+    } else {
+        Verdict::NoDifferenceShown
+    };
+    let mean = |f: fn(&(f64, f64)) -> f64| values.iter().map(f).sum::<f64>() / n as f64;
+    Some(Paired { n, means: [mean(|v| v.0), mean(|v| v.1)], difference, interval95, verdict })
+}
+
+/// The model against pose-blind and nearest-neighbour on every [`Figure`], per sensor, each
+/// with its [`Ceiling`].
 pub fn paired_comparisons(pairs: &[PairRecord]) -> Vec<PairedComparison> {
     // (sensor, pair) -> method -> record
     let mut by_pair: BTreeMap<(&str, usize), BTreeMap<&str, &PairRecord>> = BTreeMap::new();
@@ -1218,35 +1276,43 @@ pub fn paired_comparisons(pairs: &[PairRecord]) -> Vec<PairedComparison> {
     for sensor in sensors {
         for baseline in [Method::PoseBlind, Method::NearestNeighbour] {
             for figure in Figure::ALL {
-                let (mut m, mut b) = (Vec::new(), Vec::new());
+                let (mut model, mut truth) = (Vec::new(), Vec::new());
                 for methods in by_pair.range((sensor, 0)..=(sensor, usize::MAX)).map(|(_, v)| v) {
                     let get = |method: Method| methods.get(method.label()).and_then(|p| figure.of(p));
-                    if let (Some(x), Some(y)) = (get(Method::Model), get(baseline)) {
-                        m.push(x);
-                        b.push(y);
+                    let Some(b) = get(baseline) else { continue };
+                    if let Some(m) = get(Method::Model) {
+                        model.push((m, b));
+                    }
+                    let t = match figure {
+                        // The true image against itself; pairs without contact pixels have no
+                        // contact SSIM for the baseline either.
+                        Figure::ContactSsim => Some(1.0),
+                        Figure::PositionErr | Figure::YawErr => get(Method::TrueImage),
+                    };
+                    if let Some(t) = t {
+                        truth.push((t, b));
                     }
                 }
-                let d: Vec<f64> = m.iter().zip(&b).map(|(x, y)| x - y).collect();
-                let Some((difference, interval95)) = bootstrap_mean_interval(&d) else { continue };
-                let n = d.len();
-                let verdict = if n < MIN_PAIRS_FOR_VERDICT {
-                    Verdict::TooFewPairs
-                } else if interval95[0] > 0.0 || interval95[1] < 0.0 {
-                    let model_higher = interval95[0] > 0.0;
-                    if model_higher == figure.higher_is_better() { Verdict::ModelBetter } else { Verdict::ModelWorse }
-                } else {
-                    Verdict::NoDifferenceShown
-                };
+                let Some(m) = paired(&model, figure) else { continue };
+                let true_image = paired(&truth, figure).map(|t| Ceiling {
+                    n: t.n,
+                    true_mean: t.means[0],
+                    baseline_mean: t.means[1],
+                    difference: t.difference,
+                    interval95: t.interval95,
+                    verdict: t.verdict,
+                });
                 out.push(PairedComparison {
                     sensor: sensor.to_string(),
                     baseline,
                     figure,
-                    n,
-                    model_mean: m.iter().sum::<f64>() / n as f64,
-                    baseline_mean: b.iter().sum::<f64>() / n as f64,
-                    difference,
-                    interval95,
-                    verdict,
+                    n: m.n,
+                    model_mean: m.means[0],
+                    baseline_mean: m.means[1],
+                    difference: m.difference,
+                    interval95: m.interval95,
+                    verdict: m.verdict,
+                    true_image,
                 });
             }
         }
@@ -1355,14 +1421,28 @@ impl EvalReport {
         if !self.comparisons.is_empty() {
             s += &format!(
                 "\nThe model against each baseline, pose by pose: only poses where both have the figure; difference = model - baseline, \
-                 its mean with a 95% bootstrap interval; a verdict where the interval excludes 0 (and n >= {MIN_PAIRS_FOR_VERDICT}).\n\n"
+                 its mean with a 95% bootstrap interval; a verdict where the interval excludes 0 (and n >= {MIN_PAIRS_FOR_VERDICT}). \
+                 The last two columns put the true image in the model's place (its contact SSIM is 1), over the poses where it and the baseline \
+                 have the figure: the best any model can show. \"no\": not even the true image beats the baseline here (the baseline is at the \
+                 estimator's floor), so \"no difference shown\" is the best verdict a model can get.\n\n"
             );
-            s += "| sensor | baseline | figure | n | model | baseline | difference | 95% interval | verdict |\n";
-            s += "|---|---|---|---:|---:|---:|---:|---|---|\n";
+            s += "| sensor | baseline | figure | n | model | baseline | difference | 95% interval | verdict | true image - baseline | can a model win |\n";
+            s += "|---|---|---|---:|---:|---:|---:|---|---|---|---|\n";
             for c in &self.comparisons {
                 let k = c.figure.decimals();
+                let (ceiling, winnable) = match &c.true_image {
+                    Some(t) => (
+                        format!("{:+.k$} [{:+.k$}, {:+.k$}]", t.difference, t.interval95[0], t.interval95[1]),
+                        match t.verdict {
+                            Verdict::TooFewPairs => "too few pairs",
+                            _ if t.winnable() => "yes",
+                            _ => "no",
+                        },
+                    ),
+                    None => ("n/a".to_string(), "n/a"),
+                };
                 s += &format!(
-                    "| {} | {} | {} | {} | {:.k$} | {:.k$} | {:+.k$} | [{:+.k$}, {:+.k$}] | {} |\n",
+                    "| {} | {} | {} | {} | {:.k$} | {:.k$} | {:+.k$} | [{:+.k$}, {:+.k$}] | {} | {ceiling} | {winnable} |\n",
                     c.sensor,
                     c.baseline.label(),
                     c.figure.label(),
@@ -1689,6 +1769,21 @@ mod tests {
         assert_eq!(find(Method::NearestNeighbour, Figure::PositionErr).verdict, Verdict::ModelBetter);
         let nn_yaw = find(Method::NearestNeighbour, Figure::YawErr);
         assert_eq!((nn_yaw.n, nn_yaw.verdict), (15, Verdict::ModelWorse), "only the 15 pairs where both found a yaw: {nn_yaw:?}");
+        // The ceilings: the true image in the model's place.
+        let ceiling = |b: Method, f: Figure| find(b, f).true_image.clone().expect("ceiling");
+        let ssim = ceiling(Method::NearestNeighbour, Figure::ContactSsim);
+        assert_eq!((ssim.n, ssim.true_mean), (20, 1.0), "the true image's contact SSIM is 1: {ssim:?}");
+        assert!((ssim.difference - 0.2).abs() < 1e-12 && ssim.winnable(), "{ssim:?}");
+        let pos = ceiling(Method::NearestNeighbour, Figure::PositionErr);
+        assert!((pos.difference + 0.6).abs() < 1e-12 && pos.winnable(), "true 0.4 mm against 1.0: {pos:?}");
+        // The baseline's yaw is as good as the true image's: nobody can beat it, only match it.
+        let yaw = ceiling(Method::NearestNeighbour, Figure::YawErr);
+        assert_eq!((yaw.n, yaw.difference, yaw.verdict), (15, 0.0, Verdict::NoDifferenceShown), "{yaw:?}");
+        assert!(!yaw.winnable());
+        // Pose-blind's yaw (2.0) is beaten by the true image (1.0) but not by the model.
+        let pb_yaw = find(Method::PoseBlind, Figure::YawErr);
+        assert_eq!(pb_yaw.verdict, Verdict::NoDifferenceShown);
+        assert!(pb_yaw.true_image.as_ref().is_some_and(Ceiling::winnable), "{pb_yaw:?}");
         for f in Figure::ALL {
             let pb = find(Method::PoseBlind, f);
             assert_eq!(pb.verdict, Verdict::NoDifferenceShown, "{pb:?}");

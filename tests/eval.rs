@@ -190,8 +190,17 @@ fn an_identical_twin_scores_ssim_one_mse_zero_and_the_true_image_pose_errors() {
         .expect("vitac comparison");
     assert_eq!(nn_ssim.verdict, Verdict::TooFewPairs);
     assert!((nn_ssim.model_mean - 1.0).abs() < 1e-12 && nn_ssim.difference > 0.0, "{nn_ssim:?}");
+    // The twin is the true image, so every comparison equals its ceiling (the true image in
+    // the model's place), the contact SSIM one included (the true image scores 1 there).
+    assert!(!report.comparisons.is_empty());
+    for c in &report.comparisons {
+        let t = c.true_image.as_ref().unwrap_or_else(|| panic!("no ceiling: {c:?}"));
+        assert_eq!((t.n, t.verdict), (c.n, c.verdict), "{c:?}");
+        assert!((t.difference - c.difference).abs() < 1e-12 && (t.true_mean - c.model_mean).abs() < 1e-12, "{c:?}");
+    }
     let md = report.to_markdown();
     assert!(md.contains("| vitac | model | 8 | 1.000 | inf | 0.0 |"), "{md}");
+    assert!(md.contains("| true image - baseline | can a model win |") && md.contains("| too few pairs |"), "{md}");
     assert!(md.contains("| vitac | nearest-neighbour | contact SSIM | "), "{md}");
     // Only the edge.
     let edge_only = EvalOptions { objects: vec!["edge".into()], ..options.clone() };
