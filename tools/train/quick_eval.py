@@ -351,27 +351,37 @@ def main():
             methods[f"{name}, inside only"] = [np.where(m, img, c[4]) for m, img, c in zip(masks, methods[name], cases)]
 
     print(f"{len(cases)} {'seen training' if args.seen else 'unseen test'} poses ({args.per} per object and sensor), {SIZE} px")
-    print(f"{'sensor':9} {'method':32} {'contact SSIM':>12} {'pos err mm':>10} {'yaw err deg':>11}")
+    print(f"{'sensor':9} {'method':32} {'contact SSIM':>12} {'pos err mm':>15} {'yaw err deg':>15}")
     for s in SENSORS:
         idx = [i for i, c in enumerate(cases) if c[1] == s]
         for name, imgs in [("true image", [cases[i][4] for i in range(len(cases))])] + list(methods.items()):
             ssims, pos, yaw = [], [], []
+            pos_tries = yaw_tries = 0
             for i in idx:
                 true, ref = cases[i][4], cases[i][5]
                 m = contact_mask(true, ref)
                 if m.sum() > 0:
                     ssims.append(ssim_map(imgs[i], true)[m].mean())
-                et, em = contact_estimate(true, ref, s), contact_estimate(imgs[i], ref, s)
+                et = contact_estimate(true, ref, s)
                 if et is None:
                     continue
-                if em is None:
-                    em = (SIZE / 2, SIZE / 2, et[2] + 90, 1.0)
-                pos.append(math.hypot(em[0] - et[0], em[1] - et[1]) / px_per_mm(SIZE))
                 # Yaw only where the true contact has one (rig eval's ISOTROPY_RATIO, 0.5).
-                if et[3] < 0.5:
+                has_yaw = et[3] < 0.5
+                pos_tries += 1
+                yaw_tries += has_yaw
+                # An image without an estimate is left out and counted, as in rig eval.
+                em = contact_estimate(imgs[i], ref, s)
+                if em is None:
+                    continue
+                pos.append(math.hypot(em[0] - et[0], em[1] - et[1]) / px_per_mm(SIZE))
+                if has_yaw:
                     yaw.append(axis_difference(em[2], et[2]))
-            f = lambda v: f"{np.mean(v):.3f}" if v else "n/a"  # noqa: E731
-            print(f"{s:9} {name:32} {f(ssims):>12} {f(pos):>10} {f(yaw):>11}")
+
+            def f(v, tries=None):
+                text = f"{np.mean(v):.3f}" if v else "n/a"
+                return f"{text} ({len(v)}/{tries})" if tries is not None and len(v) < tries else text
+
+            print(f"{s:9} {name:32} {f(ssims):>12} {f(pos, pos_tries):>15} {f(yaw, yaw_tries):>15}")
 
 
 if __name__ == "__main__":
