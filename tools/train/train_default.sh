@@ -4,10 +4,13 @@
 # synthesis model".
 #
 #   tools/train/train_default.sh [OUT_PACKAGE]        (default: models/default)
+#   SIZE=256 tools/train/train_default.sh [OUT_PACKAGE] (default: out/default-256)
 #
 # Environment: PYTHON (default .venv/bin/python), DEVICE (default cuda; cpu works, but this
-# recipe is ~6000 steps of batch 128-256: days on 2 CPU cores). Data: out/train/data.npz from
-# tools/train/make_data.sh (run here when missing). Each stage resumes from its checkpoint.
+# recipe is ~6000 steps of batch 128-256: days on 2 CPU cores), SIZE (image size, default 128:
+# the shipped model's; another size trains the same recipe on out/train-SIZE/data.npz into
+# out/train-SIZE-1..3, never over models/default). Data: from tools/train/make_data.sh (run here
+# when missing, with the same SIZE). Each stage resumes from its checkpoint.
 #
 # The stages are the runs that produced the shipped package. They were run with
 # `--minutes 5 / 6 / 6.3` (the step count set from the measured speed); the step counts below
@@ -20,14 +23,19 @@
 #   3. from stage 2's EMA weights, batch 256, lr 3e-4, 2145 steps. Its EMA weights are exported.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-PKG=${1:-models/default}
+SIZE=${SIZE:-128}
+case "$SIZE" in
+    128) RUN=out/train DATA=out/train/data.npz PKG=${1:-models/default} ;;
+    *[!0-9]* | "") echo "SIZE=$SIZE: give the image size in px, e.g. 256" >&2; exit 2 ;;
+    *) RUN=out/train-$SIZE DATA=out/train-$SIZE/data.npz PKG=${1:-out/default-$SIZE} ;;
+esac
 PY=${PYTHON:-.venv/bin/python}
 DEVICE=${DEVICE:-cuda}
 AMP=$([ "$DEVICE" = cuda ] && echo --amp || true)
-[ -f out/train/data.npz ] || PYTHON="$PY" tools/train/make_data.sh
+[ -f "$DATA" ] || SIZE="$SIZE" PYTHON="$PY" tools/train/make_data.sh
 
 train() {
-    "$PY" tools/train/train.py --data out/train/data.npz --device "$DEVICE" $AMP --width 48 --ema 0.999 \
+    "$PY" tools/train/train.py --data "$DATA" --device "$DEVICE" $AMP --width 48 --ema 0.999 \
         --threads 3 --log-every 500 --ckpt-every 500 "$@"
 }
 seed_from() {  # stage dir, previous stage dir: reuse its tokenizer and autoencoder statistics
@@ -35,9 +43,9 @@ seed_from() {  # stage dir, previous stage dir: reuse its tokenizer and autoenco
     cp -n "$2/tokenizer.json" "$2/vae.pt" "$1/"
 }
 
-train --out out/train-1 --batch 128 --lr 1e-3 --steps 2184 --pure-noise-from 1000
-seed_from out/train-2 out/train-1
-train --out out/train-2 --batch 256 --lr 5e-4 --steps 1929 --init out/train-1/ema-002184.pt
-seed_from out/train-3 out/train-2
-train --out out/train-3 --batch 256 --lr 3e-4 --steps 2145 --init out/train-2/ema-001929.pt
-"$PY" tools/train/export.py --train-dir out/train-3 --ckpt out/train-3/ema-002145.pt --out "$PKG"
+train --out "$RUN-1" --batch 128 --lr 1e-3 --steps 2184 --pure-noise-from 1000
+seed_from "$RUN-2" "$RUN-1"
+train --out "$RUN-2" --batch 256 --lr 5e-4 --steps 1929 --init "$RUN-1/ema-002184.pt"
+seed_from "$RUN-3" "$RUN-2"
+train --out "$RUN-3" --batch 256 --lr 3e-4 --steps 2145 --init "$RUN-2/ema-001929.pt"
+"$PY" tools/train/export.py --train-dir "$RUN-3" --ckpt "$RUN-3/ema-002145.pt" --out "$PKG"
