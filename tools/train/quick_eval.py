@@ -9,7 +9,9 @@ Experiments (each adds rows): `--seeds N` samples the model with seeds 1..N-1 to
 (the last round(20 * strength) steps); `--seen` judges training rows of data.npz instead of
 unseen test poses (nearest-neighbour then skips the row itself); `--inside-only` also judges
 each method's image with everything outside the true contact region (dilated 4 px more)
-replaced by the true image, so what error is left comes from inside the contact.
+replaced by the true image, so what error is left comes from inside the contact;
+`--one-shot` also judges the clean image the first sampler step predicts from pure noise (the
+model as a plain regression from hint and prompt, no sampling scatter).
 
 Test rows: the real rows of out/test-data/<object>/<sensor> (plans/test.toml) whose pose was not
 collected for training. Everything is compared at the run's size, 128 x 128 for the default
@@ -207,10 +209,12 @@ def warp(img, ref, src_pose, dst_pose):
 
 
 @torch.no_grad()
-def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8, init=None, strength=1.0):
+def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8, init=None, strength=1.0,
+                 one_shot=False):
     """DDIM (eta 0, rig's timesteps) with the PyTorch models of a checkpoint; images in [0, 1].
     With `init` (images in [0, 1]), starts from them noised to the timestep of `strength`
-    (img2img: the last round(steps * strength) steps are run)."""
+    (img2img: the last round(steps * strength) steps are run). `one_shot`: the clean image the
+    first step predicts from pure noise, the sampler's other steps skipped."""
     from export import load_trained
     from train import alphas_cumprod, encode_prompts
     tok, te, unet, cn, vae, _ = load_trained(train_dir, ckpt)
@@ -235,6 +239,9 @@ def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu"
             down, mid = cn(x, tt, encoder_hidden_states=ehs, controlnet_cond=h, return_dict=False)
             x0 = unet(x, tt, encoder_hidden_states=ehs, down_block_additional_residuals=down,
                       mid_block_additional_residual=mid).sample
+            if one_shot:
+                x = x0
+                break
             a = ac[t].float()
             a_prev = ac[t - 1000 // steps].float() if t - 1000 // steps >= 0 else ac[0].float()
             eps = (x - a.sqrt() * x0) / (1 - a).sqrt()
@@ -265,6 +272,8 @@ def main():
     ap.add_argument("--inside-only", action="store_true",
                     help="also judge each method's image with the true image outside the contact region (dilated 4 px)")
     ap.add_argument("--seeds", type=int, default=1, help="also sample the model with seeds 1..N-1")
+    ap.add_argument("--one-shot", action="store_true",
+                    help="also judge the first sampler step's prediction alone (from pure noise, every seed)")
     args = ap.parse_args()
     if args.seen and args.synth:
         sys.exit("--seen judges training rows, which rig's synthetic images (--synth) are not named by")
@@ -325,6 +334,10 @@ def main():
             methods["model" + (f" seed {seed}" if seed else "")] = sample_model(
                 args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
                 device=args.device, batch=batch, seed=seed)
+            if args.one_shot:
+                methods["model one-shot" + (f" seed {seed}" if seed else "")] = sample_model(
+                    args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
+                    device=args.device, batch=batch, seed=seed, one_shot=True)
     if args.synth:
         methods["model"] = [load_rgb(os.path.join(args.synth, c[0], c[1], "images", f"{c[2]}.png")) for c in cases]
     means = {s: t_img[t_sensors == s].mean(0) for s in SENSORS}
