@@ -314,3 +314,36 @@ fn an_interrupted_recording_replays_to_the_same_partial_dataset() {
         assert_eq!(a, b, "{sensor}: poses.csv differs");
     }
 }
+
+/// The arm's dashboard connection is closed, unanswered, at its 6th command (`DisableRobot()`
+/// at the end of the run). A recorded run does not reconnect: it fails there with a note, keeps
+/// its rows, and records the lost connection, so the replay fails at the same point with the
+/// same error instead of running past the end of the recording.
+#[test]
+fn a_lost_arm_connection_is_recorded_and_its_replay_fails_the_same_way() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (mut c, rec) = collect_recorded(tmp.path(), 3, &format!("{CONFIG}[sim.faults]\ndrop_dashboard_after = 5\n"));
+    let o = c.output().expect("running rig collect");
+    let recorded = text(&o);
+    assert_eq!(o.status.code(), Some(3), "an arm failure exits 3:\n{recorded}");
+    assert!(recorded.contains("a recorded run does not reconnect a lost arm connection") && recorded.contains("--resume"), "{recorded}");
+    let failure = "error: i/o error while reading the reply to DisableRobot() on the dashboard stream";
+    assert!(recorded.contains(failure), "{recorded}");
+    let events = format::decode(&std::fs::read(&rec).expect("reading the recording")).expect("a complete recording").events;
+    let lost: Vec<&Event> = events.iter().filter(|e| e.is_connection_lost()).collect();
+    assert!(
+        matches!(
+            lost.as_slice(),
+            [Event::Socket { socket: format::SocketId::Dashboard, direction: format::Direction::FromController, .. }]
+        ),
+        "one lost connection, the dashboard's, seen by a read: {lost:?}"
+    );
+
+    let out = tmp.path().join("replayed");
+    let o = replay(&rec, &out);
+    let replayed = text(&o);
+    assert_eq!(o.status.code(), Some(3), "{replayed}");
+    assert!(replayed.contains("the replayed collection failed: i/o error while reading the reply to DisableRobot()"), "{replayed}");
+    assert!(!replayed.contains("diverged"), "{replayed}");
+    assert_same_dataset(&tmp.path().join("recorded"), &out);
+}

@@ -5,7 +5,7 @@
 //! This file depends on nothing but `std` and `thiserror`, so the fuzz target compiles it
 //! alone. The header is carried as text here; `record::header` gives it its meaning.
 //!
-//! # Layout (format version 2; version 1 is read too), all integers little-endian
+//! # Layout (format version 3; versions 1 and 2 are read too), all integers little-endian
 //!
 //! | offset | size | field | meaning |
 //! |---|---|---|---|
@@ -26,7 +26,10 @@
 //!
 //! Socket body: `u8` socket (0 dashboard, 1 motion, 2 feedback), `u8` direction (0 written by
 //! the client to the controller, 1 read by the client from the controller), `f64` `t_s` (rig
-//! clock when the bytes passed), then the bytes themselves (L - 10 of them, at least 1).
+//! clock when the bytes passed), then the bytes themselves (L - 10 of them). None (version 3):
+//! the connection was lost there. Read by the client: the read found the socket closed, or
+//! failed; written by the client: the write failed. A replay gives the client the same end of
+//! stream (or failed write) at the same point.
 //!
 //! Frame body: `u8` camera (index into the header's sensor list), `f64` `t_s` (rig clock when
 //! the frame was handed to the job), `f64` `t_capture_s`, `u64` seq, `u32` width, `u32` height,
@@ -48,7 +51,7 @@
 /// First bytes of every recording.
 pub const MAGIC: &[u8; 8] = b"RIGREC\n\0";
 /// The format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// The oldest version this build reads (version 1 has no interrupt records).
 pub const OLDEST_READ_VERSION: u16 = 1;
 
@@ -105,6 +108,8 @@ pub enum Direction {
 /// One recorded event, in the order the recording saw them.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
+    /// Bytes that passed on a socket; none: the connection was lost there (version 3), see
+    /// [`Event::is_connection_lost`].
     Socket {
         socket: SocketId,
         direction: Direction,
@@ -124,6 +129,14 @@ pub enum Event {
         outcome: PeripheralOutcome,
         text: String,
     },
+}
+
+impl Event {
+    /// A socket event without bytes: the client's read found the connection closed (or
+    /// failed), or its write failed.
+    pub fn is_connection_lost(&self) -> bool {
+        matches!(self, Event::Socket { bytes, .. } if bytes.is_empty())
+    }
 }
 
 /// When around a capture the peripherals were used.
@@ -412,7 +425,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
                 let data = b.rest();
-                if data.is_empty() {
+                if data.is_empty() && version < 3 {
                     return Err(malformed("socket record without bytes".into()));
                 }
                 events.push(Event::Socket { socket, direction, t_s, bytes: data.to_vec() });
@@ -527,7 +540,7 @@ mod tests {
         assert_eq!(r.events[2], Event::Interrupt { t_s: 1.5, captured: 3 });
         // Version 1 has no interrupt kind: such a file is corrupt, not silently misread.
         assert!(matches!(decode(&with_version(1)), Err(FormatError::UnknownKind { record: 2, kind: 3, .. })));
-        assert!(matches!(decode(&with_version(3)), Err(FormatError::UnsupportedVersion { found: 3, oldest: 1, supported: 2 })));
+        assert!(matches!(decode(&with_version(4)), Err(FormatError::UnsupportedVersion { found: 4, oldest: 1, supported: 3 })));
         // Two interrupts.
         let mut two = encode_preamble("{}");
         for _ in 0..2 {
@@ -616,7 +629,7 @@ mod tests {
     fn any_event() -> impl proptest::strategy::Strategy<Value = Event> {
         use proptest::prelude::*;
         let socket =
-            (0u8..3, any::<bool>(), -1e6f64..1e6, proptest::collection::vec(any::<u8>(), 1..64)).prop_map(|(s, to, t_s, bytes)| {
+            (0u8..3, any::<bool>(), -1e6f64..1e6, proptest::collection::vec(any::<u8>(), 0..64)).prop_map(|(s, to, t_s, bytes)| {
                 Event::Socket {
                     socket: SocketId::ALL[usize::from(s)],
                     direction: if to { Direction::ToController } else { Direction::FromController },
@@ -673,6 +686,21 @@ mod tests {
             bytes.truncate(cut % (len + 1));
             let _ = decode(&bytes);
         }
+    }
+
+    #[test]
+    fn a_lost_connection_is_a_socket_record_without_bytes_from_version_3() {
+        let lost = Event::Socket { socket: SocketId::Dashboard, direction: Direction::FromController, t_s: 2.0, bytes: Vec::new() };
+        assert!(lost.is_connection_lost());
+        let mut bytes = encode_preamble("{}");
+        bytes.extend(encode_event(&lost));
+        bytes.extend(encode_end(1));
+        assert_eq!(decode(&bytes).map(|r| r.events), Ok(vec![lost]));
+        // Before version 3 an empty socket record is damage, not a lost connection.
+        bytes[8..10].copy_from_slice(&2u16.to_le_bytes());
+        let crc = crc32(&[&bytes[..16]]);
+        bytes[16..20].copy_from_slice(&crc.to_le_bytes());
+        assert!(matches!(decode(&bytes), Err(FormatError::Malformed { record: 0, .. })), "{:?}", decode(&bytes));
     }
 
     #[test]

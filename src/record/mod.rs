@@ -222,6 +222,12 @@ impl Recorder {
         self.log(|t_s| Event::Socket { socket, direction, t_s, bytes: bytes.to_vec() });
     }
 
+    /// Logs that the client's read (`FromController`) found `socket` closed or failed, or
+    /// that its write (`ToController`) failed: a socket record without bytes.
+    pub fn log_connection_lost(&self, socket: SocketId, direction: Direction) {
+        self.log(|t_s| Event::Socket { socket, direction, t_s, bytes: Vec::new() });
+    }
+
     /// Logs a frame handed to the job by camera number `camera`.
     pub fn log_frame(&self, camera: u8, frame: &Frame) {
         self.log(|t_s| {
@@ -279,10 +285,17 @@ impl<S> RecordingStream<S> {
 impl<S: AsyncRead + Unpin> AsyncRead for RecordingStream<S> {
     fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<std::io::Result<()>> {
         let before = buf.filled().len();
+        let room = buf.remaining() > 0;
         let this = &mut *self;
         let polled = Pin::new(&mut this.inner).poll_read(cx, buf);
-        if let Poll::Ready(Ok(())) = &polled {
-            this.recorder.log_socket(this.socket, Direction::FromController, &buf.filled()[before..]);
+        match &polled {
+            // Nothing read into a buffer with room: the end of the stream.
+            Poll::Ready(Ok(())) if room && buf.filled().len() == before => {
+                this.recorder.log_connection_lost(this.socket, Direction::FromController)
+            }
+            Poll::Ready(Ok(())) => this.recorder.log_socket(this.socket, Direction::FromController, &buf.filled()[before..]),
+            Poll::Ready(Err(_)) => this.recorder.log_connection_lost(this.socket, Direction::FromController),
+            Poll::Pending => {}
         }
         polled
     }
@@ -292,8 +305,12 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for RecordingStream<S> {
     fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
         let this = &mut *self;
         let polled = Pin::new(&mut this.inner).poll_write(cx, buf);
-        if let Poll::Ready(Ok(n)) = &polled {
-            this.recorder.log_socket(this.socket, Direction::ToController, buf.get(..*n).unwrap_or_default());
+        match &polled {
+            Poll::Ready(Ok(0)) | Poll::Ready(Err(_)) if !buf.is_empty() => {
+                this.recorder.log_connection_lost(this.socket, Direction::ToController)
+            }
+            Poll::Ready(Ok(n)) => this.recorder.log_socket(this.socket, Direction::ToController, buf.get(..*n).unwrap_or_default()),
+            _ => {}
         }
         polled
     }
@@ -389,8 +406,8 @@ async fn connect_socket(cfg: &Mg400Config, port: u16, role: &str) -> Result<TcpS
 }
 
 /// Connects the MG400 client like [`Mg400Client::connect`], with every socket recorded.
-/// The streams are attached, so a dropped socket is not reconnected (a recording could not
-/// replay a reconnection anyway).
+/// The streams are attached, so a dropped socket is not reconnected: the run fails there, and
+/// the recording holds the lost connection, so its replay fails at the same point.
 pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder: Recorder) -> Result<Mg400Client, ArmError> {
     let dashboard = connect_socket(&cfg, cfg.dashboard_port, "dashboard").await?;
     let motion = connect_socket(&cfg, cfg.motion_port, "motion").await?;

@@ -129,6 +129,12 @@ fn is_feedback_read(e: &Event) -> bool {
 impl SessionState {
     fn describe(&self, e: &Event, offset: usize) -> String {
         match e {
+            Event::Socket { socket, direction: Direction::FromController, bytes, .. } if bytes.is_empty() => {
+                format!("the {} socket's connection lost (the client's read finds it closed)", socket.name())
+            }
+            Event::Socket { socket, direction: Direction::ToController, bytes, .. } if bytes.is_empty() => {
+                format!("the {} socket's connection lost (the client's write fails)", socket.name())
+            }
             Event::Socket { socket, direction: Direction::ToController, bytes, .. } => {
                 format!("the client writing {} on the {} socket", show_bytes(bytes.get(offset..).unwrap_or_default()), socket.name())
             }
@@ -194,6 +200,8 @@ impl SessionState {
     fn shelve_unread_replies(&mut self, clock: &MockClock) {
         while let Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) = self.events.get(self.cursor)
             && *socket != SocketId::Feedback
+            // A lost connection is not shelved: the read it ended stays due.
+            && !bytes.is_empty()
         {
             let (socket, t_s, len) = (*socket, *t_s, bytes.len());
             let rest = bytes.get(self.offset..).unwrap_or_default().to_vec();
@@ -398,6 +406,12 @@ impl AsyncWrite for ReplayStream {
             _ => None,
         };
         match matched {
+            Some((true, _, 0, t_s)) => {
+                // The recorded write failed: the connection was lost there.
+                st.served(0, 0, t_s, &session.clock);
+                let what = format!("writing on the {} socket: the connection was lost here in the recording", self.socket.name());
+                Poll::Ready(Err(std::io::Error::new(std::io::ErrorKind::BrokenPipe, what)))
+            }
             Some((true, n, len, t_s)) => {
                 st.served(n, len, t_s, &session.clock);
                 Poll::Ready(Ok(n))
