@@ -1188,7 +1188,7 @@ pub struct PairedComparison {
     pub interval95: [f64; 2],
     pub verdict: Verdict,
     /// What a perfect model would show against the same baseline: the true image in the
-    /// model's place ([`ceiling`]). `None` where no pair has the figure on both sides.
+    /// model's place ([`Ceiling`]). `None` where no pair has the figure on both sides.
     pub true_image: Option<Ceiling>,
 }
 

@@ -1,7 +1,7 @@
 //! MG400 forward and inverse kinematics (fact sheet section 5).
 //!
 //! The MG400 is a 4-axis arm with a parallelogram: J3 is an absolute angle, not relative to
-//! J2. With link lengths L2 = L3 = 175 mm and the offsets of [HX] (MG400_ROS2):
+//! J2. With link lengths L2 = L3 = 175 mm and the offsets of \[HX\] (MG400_ROS2):
 //!
 //! ```text
 //! r = r_offset + L2·sin J2 + L3·cos J3        (r_offset = 43.5 + 66 mm)

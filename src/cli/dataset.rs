@@ -24,6 +24,8 @@ pub enum Format {
     TactileBench,
 }
 
+// The doc comments are `--help` text, where `<obj_id>` is a placeholder, not HTML.
+#[allow(rustdoc::invalid_html_tags)]
 #[derive(Debug, clap::Subcommand)]
 pub enum DatasetCommand {
     /// Report missing images, orphan images, duplicated or malformed rows and leftovers of a

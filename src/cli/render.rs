@@ -14,7 +14,7 @@
 //!
 //! writes, for every row of a collected dataset, the control image `rig synth --fill-missing`
 //! would feed the model for that pose (`DIR/<pose_id>.png`, through
-//! [`ControlRenderer`](crate::synth::fill::ControlRenderer)) and its MultiDiffSense prompt
+//! [`crate::synth::fill::ControlRenderer`]) and its MultiDiffSense prompt
 //! (`DIR/prompts.csv`: pose_id, sensor, prompt): the training pairs of a synthesis model
 //! (`tools/train/`), so training and synthesis see identical hints and prompts.
 

@@ -5,7 +5,7 @@
 //! rig-clock time, and each camera in a [`RecordingCamera`] that logs every frame handed to the
 //! job (raw RGB8 plus its capture timestamp and sequence number). Events land in the file in
 //! the order they happened; the [`RecordingHeader`] (command line, plan, work frame, collect
-//! options, firmware profile, sensors, seed) comes first. The byte layout is in [`format`].
+//! options, firmware profile, sensors, seed) comes first. The byte layout is in [`mod@format`].
 //!
 //! Replay (`rig replay FILE`): [`replay::replay_collection`] attaches the real
 //! [`Mg400Client`] to [`replay::ReplayStream`]s and gives the job [`replay::ReplayCamera`]s,

@@ -19,7 +19,7 @@
 //! empties the queue and stops the queue runner: further motion is refused (-1) until
 //! ClearError, and queued motion waits for Continue. Pause holds the arm mid-move until
 //! Continue. A collision or emergency stop also
-//! disables the arm, so EnableRobot is needed again (as [WS] reports for the real arm).
+//! disables the arm, so EnableRobot is needed again (as \[WS\] reports for the real arm).
 //!
 //! Fault injection ([`SimFaults`], changeable at run time with [`SimMg400::set_faults`]):
 //! reply delays, replies split across writes, garbage in the feedback stream, feedback that

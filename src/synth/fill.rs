@@ -4,7 +4,7 @@
 //! the calibration and the work frame. Every grid pose without a row is synthesised: its
 //! control image is rendered from the object's mesh at that pose through the calibration, its
 //! prompt is the MultiDiffSense prompt of the sensor and pose, and its seed is
-//! [`pose_seed`](super::pose_seed)`(plan seed, pose_id)`, so an image does not depend on
+//! [`super::pose_seed`]`(plan seed, pose_id)`, so an image does not depend on
 //! batching, order or sharding. A shard `i/n` takes the missing poses with
 //! `pose_id % n == i - 1` and writes them to its own dataset directory, which
 //! `rig dataset merge` joins later.

@@ -209,7 +209,7 @@ impl ModelConfig {
 }
 
 /// A package directory whose files are all there and whose configs parse. The ONNX models are
-/// checked when the sessions are made ([`ModelIo::check`]).
+/// checked when the sessions are made ([`ModelIo::expect`] and its siblings).
 #[derive(Debug, Clone)]
 pub struct ModelPackage {
     pub dir: PathBuf,

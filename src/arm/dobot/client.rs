@@ -2,7 +2,7 @@
 //!
 //! [`Mg400Client`] owns three connections:
 //!
-//! - dashboard (29999) and motion (30003): each a [`CommandLink`] that writes one request,
+//! - dashboard (29999) and motion (30003): each a `CommandLink` that writes one request,
 //!   feeds the bytes it reads into a [`ReplyFramer`] and returns the reply whose echo names
 //!   the request (a late reply to an abandoned request is recognised and skipped). A dropped
 //!   socket is reconnected and the request sent again; a timed-out link is closed so the next
@@ -56,7 +56,7 @@ pub struct Mg400Config {
     pub connect_timeout: Duration,
     /// Limit on a reply to an immediate command.
     pub reply_timeout: Duration,
-    /// Limit on EnableRobot and the wait for mode 5 afterwards ([CPP] allows 20 s).
+    /// Limit on EnableRobot and the wait for mode 5 afterwards (\[CPP\] allows 20 s).
     pub enable_timeout: Duration,
     /// Limit on draining the queue when the queued-command bound is reached.
     pub drain_timeout: Duration,
