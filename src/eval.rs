@@ -1320,6 +1320,44 @@ pub fn paired_comparisons(pairs: &[PairRecord]) -> Vec<PairedComparison> {
     out
 }
 
+/// One line per baseline: how many comparisons the model wins, loses and ties, and of the
+/// ties, which no model could win (see [`Ceiling`]).
+pub fn comparison_summary(comparisons: &[PairedComparison]) -> String {
+    let mut s = String::new();
+    for baseline in [Method::PoseBlind, Method::NearestNeighbour] {
+        let mine: Vec<&PairedComparison> = comparisons.iter().filter(|c| c.baseline == baseline).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let name = |c: &&PairedComparison| format!("{} {}", c.sensor, c.figure.label());
+        let with = |v: Verdict| -> Vec<&PairedComparison> { mine.iter().copied().filter(|c| c.verdict == v).collect() };
+        let list = |v: &[&PairedComparison]| v.iter().map(name).collect::<Vec<_>>().join(", ");
+        let (better, worse, ties, few) =
+            (with(Verdict::ModelBetter), with(Verdict::ModelWorse), with(Verdict::NoDifferenceShown), with(Verdict::TooFewPairs));
+        let (winnable, floor): (Vec<_>, Vec<_>) = ties.iter().copied().partition(|c| c.true_image.as_ref().is_some_and(Ceiling::winnable));
+        s += &format!("\nAgainst {}: model better on {} of {}", baseline.label(), better.len(), mine.len());
+        if !worse.is_empty() {
+            s += &format!("; worse on {} ({})", worse.len(), list(&worse));
+        }
+        if !ties.is_empty() {
+            s += &format!("; no difference shown on {}", ties.len());
+            let mut parts = Vec::new();
+            if !floor.is_empty() {
+                parts.push(format!("not winnable here, even the true image shows none: {}", list(&floor)));
+            }
+            if !winnable.is_empty() {
+                parts.push(format!("winnable, the true image beats the baseline: {}", list(&winnable)));
+            }
+            s += &format!(" ({})", parts.join("; "));
+        }
+        if !few.is_empty() {
+            s += &format!("; too few pairs on {}", few.len());
+        }
+        s += ".\n";
+    }
+    s
+}
+
 fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {
     format!("{side} {object}/{sensor} pose_id {} ({}, {}, {}, {})", row.pose_id, row.x_mm, row.y_mm, row.z_mm, row.yaw_deg)
 }
@@ -1455,6 +1493,7 @@ impl EvalReport {
                     c.verdict.label(),
                 );
             }
+            s += &comparison_summary(&self.comparisons);
         }
         s
     }
@@ -1789,6 +1828,23 @@ mod tests {
             assert_eq!(pb.verdict, Verdict::NoDifferenceShown, "{pb:?}");
             assert!(pb.interval95[0] < 0.0 && pb.interval95[1] > 0.0, "{pb:?}");
         }
+        let summary = comparison_summary(&c);
+        assert!(summary.contains("Against nearest-neighbour: model better on 2 of 3; worse on 1 (vitac yaw err deg)."), "{summary}");
+        assert!(
+            summary.contains(
+                "Against pose-blind: model better on 0 of 3; no difference shown on 3 (winnable, the true image beats the baseline: \
+                 vitac contact SSIM, vitac pos err mm, vitac yaw err deg)."
+            ),
+            "{summary}"
+        );
+        // A tie the true image cannot break either is listed as not winnable.
+        let mut floor = find(Method::NearestNeighbour, Figure::YawErr).clone();
+        floor.verdict = Verdict::NoDifferenceShown;
+        let summary = comparison_summary(&[floor]);
+        assert!(
+            summary.contains("no difference shown on 1 (not winnable here, even the true image shows none: vitac yaw err deg)"),
+            "{summary}"
+        );
         // Too few pairs: no verdict, whatever the difference.
         let few: Vec<PairRecord> = pairs.iter().filter(|p| p.pair < MIN_PAIRS_FOR_VERDICT - 1).cloned().collect();
         assert!(paired_comparisons(&few).iter().all(|x| x.verdict == Verdict::TooFewPairs));
