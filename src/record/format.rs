@@ -527,11 +527,16 @@ mod tests {
     /// `sample()`'s bytes with another version number (and the header checksum redone).
     fn with_version(version: u16) -> Vec<u8> {
         let mut bytes = sample();
+        set_version(&mut bytes, version);
+        bytes
+    }
+
+    /// Rewrites a recording's version number and redoes its header checksum.
+    fn set_version(bytes: &mut [u8], version: u16) {
         bytes[8..10].copy_from_slice(&version.to_le_bytes());
         let header_len = u32::from_le_bytes([bytes[10], bytes[11], bytes[12], bytes[13]]) as usize;
         let crc = crc32(&[&bytes[..14 + header_len]]);
         bytes[14 + header_len..18 + header_len].copy_from_slice(&crc.to_le_bytes());
-        bytes
     }
 
     #[test]
@@ -697,9 +702,7 @@ mod tests {
         bytes.extend(encode_end(1));
         assert_eq!(decode(&bytes).map(|r| r.events), Ok(vec![lost]));
         // Before version 3 an empty socket record is damage, not a lost connection.
-        bytes[8..10].copy_from_slice(&2u16.to_le_bytes());
-        let crc = crc32(&[&bytes[..16]]);
-        bytes[16..20].copy_from_slice(&crc.to_le_bytes());
+        set_version(&mut bytes, 2);
         assert!(matches!(decode(&bytes), Err(FormatError::Malformed { record: 0, .. })), "{:?}", decode(&bytes));
     }
 

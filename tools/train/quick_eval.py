@@ -33,6 +33,7 @@ This is a quick proxy for `rig eval`, whose numbers are the ones the README repo
 
 import argparse
 import csv
+import functools
 import math
 import os
 import subprocess
@@ -208,6 +209,13 @@ def warp(img, ref, src_pose, dst_pose):
     return np.clip(out[0].permute(1, 2, 0).numpy() + ref, 0, 1)
 
 
+@functools.lru_cache(maxsize=None)
+def trained_models(train_dir, ckpt):
+    """The checkpoint's models, loaded once however many samplings (seeds, one-shot, img2img) use them."""
+    from export import load_trained
+    return load_trained(train_dir, ckpt)
+
+
 @torch.no_grad()
 def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu", batch=8, init=None, strength=1.0,
                  one_shot=False):
@@ -215,9 +223,8 @@ def sample_model(ckpt, train_dir, hints, prompts, steps=20, seed=0, device="cpu"
     With `init` (images in [0, 1]), starts from them noised to the timestep of `strength`
     (img2img: the last round(steps * strength) steps are run). `one_shot`: the clean image the
     first step predicts from pure noise, the sampler's other steps skipped."""
-    from export import load_trained
     from train import alphas_cumprod, encode_prompts
-    tok, te, unet, cn, vae, _ = load_trained(train_dir, ckpt)
+    tok, te, unet, cn, vae, _ = trained_models(train_dir, ckpt)
     te, unet, cn, vae = te.to(device), unet.to(device), cn.to(device), vae.to(device)
     eos = tok.token_to_id("<|endoftext|>")
     ac = alphas_cumprod().double()
@@ -355,13 +362,16 @@ def main():
     for st in filter(None, args.img2img.split(",")):
         methods[f"img2img {st}"] = sample_model(args.ckpt, args.train_dir, [c[6] for c in cases], [c[7] for c in cases],
                                                 device=args.device, batch=batch, init=nn, strength=float(st))
+    # Each true image's contact region and contact estimate, once for every method.
+    masks = [contact_mask(c[4], c[5]) for c in cases]
+    truths = [contact_estimate(c[4], c[5], c[1]) for c in cases]
     if args.inside_only:
         # Each method's image with everything outside the true contact region (dilated 4 px more)
         # replaced by the true image: what is left of its error comes from inside the contact.
-        masks = [F.max_pool2d(torch.from_numpy(contact_mask(c[4], c[5]).astype(np.float32))[None, None], 9, 1, 4)
-                 [0, 0].numpy()[..., None] > 0.5 for c in cases]
+        wide = [F.max_pool2d(torch.from_numpy(m.astype(np.float32))[None, None], 9, 1, 4)[0, 0].numpy()[..., None] > 0.5
+                for m in masks]
         for name in list(methods):
-            methods[f"{name}, inside only"] = [np.where(m, img, c[4]) for m, img, c in zip(masks, methods[name], cases)]
+            methods[f"{name}, inside only"] = [np.where(m, img, c[4]) for m, img, c in zip(wide, methods[name], cases)]
 
     print(f"{len(cases)} {'seen training' if args.seen else 'unseen test'} poses ({args.per} per object and sensor), {SIZE} px")
     print(f"{'sensor':9} {'method':32} {'contact SSIM':>12} {'pos err mm':>15} {'yaw err deg':>15}")
@@ -371,11 +381,9 @@ def main():
             ssims, pos, yaw = [], [], []
             pos_tries = yaw_tries = 0
             for i in idx:
-                true, ref = cases[i][4], cases[i][5]
-                m = contact_mask(true, ref)
+                true, ref, m, et = cases[i][4], cases[i][5], masks[i], truths[i]
                 if m.sum() > 0:
                     ssims.append(ssim_map(imgs[i], true)[m].mean())
-                et = contact_estimate(true, ref, s)
                 if et is None:
                     continue
                 # Yaw only where the true contact has one (rig eval's ISOTROPY_RATIO, 0.5).
