@@ -185,19 +185,25 @@ fn a_client_that_sends_something_else_is_a_divergence_naming_both_sides() {
 /// The client alone, through a collision alarm and its recovery: recorded against the
 /// simulated MG400 on a multi-threaded runtime (as `rig collect` runs), replayed on one thread
 /// with no simulator; every result must be the same.
-#[test]
-fn an_alarm_and_its_recovery_replay_the_same() {
+/// An in-process arm session on the simulator, recorded, and its replay (the alarm and the
+/// reordering tests below).
+mod session {
     use rig::arm::dobot::client::Mg400Client;
     use rig::arm::{Arm, MoveKind};
     use rig::clock::{Clock, MonotonicClock};
     use rig::pose::Pose;
-    use rig::record::replay::ReplaySession;
+    use rig::record::format::Event;
+    use rig::record::replay::{Divergence, ReplaySession};
     use rig::record::{Recorder, Recording, SocketId, connect_recorded};
     use rig::sim::mg400::{SimFaults, SimMg400, SimMg400Config};
+    use std::path::Path;
     use std::sync::Arc;
     use std::time::Duration;
 
-    async fn session(arm: &mut Mg400Client) -> Vec<String> {
+    /// Enable, two moves (each waited for, then a settle pause as in a collection, so that
+    /// feedback is read between the `Sync()` reply and the next command), ClearError, the
+    /// second move again, disable: the outcome of every call, as text.
+    pub async fn run(arm: &mut Mg400Client) -> Vec<String> {
         let wait = Duration::from_secs(20);
         let (first, second) = (Pose::new(300.0, 20.0, -20.0, 0.0), Pose::new(260.0, -60.0, -30.0, 20.0));
         let mut log = Vec::new();
@@ -205,6 +211,7 @@ fn an_alarm_and_its_recovery_replay_the_same() {
         for target in [first, second] {
             log.push(format!("{:?}", arm.move_to(target, MoveKind::Joint).await));
             log.push(format!("{:?}", arm.wait_arrived(target, wait).await.map(|a| (a.measured, a.error_mm))));
+            tokio::time::sleep(Duration::from_millis(20)).await;
         }
         log.push(format!("{:?}", arm.clear_error().await));
         log.push(format!("{:?}", arm.move_to(second, MoveKind::Joint).await));
@@ -213,56 +220,148 @@ fn an_alarm_and_its_recovery_replay_the_same() {
         log
     }
 
+    /// Runs the session on a simulator with `faults`, recording into `path` (multi-threaded,
+    /// as `rig collect --record` runs).
+    pub fn record(path: &Path, faults: SimFaults) -> Vec<String> {
+        tokio::runtime::Runtime::new().expect("runtime").block_on(async {
+            let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
+            let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
+            let recorder = Recorder::create(path, clock.clone()).expect("recording file");
+            let mut cfg = sim.client_config();
+            cfg.speed_factor_pct = 100;
+            let mut arm = connect_recorded(cfg, clock, recorder.clone()).await.expect("connects");
+            let header = serde_json::from_str(&format!(
+                r#"{{"rig_version":"test","command_line":[],"config_source":null,"object":{{"name":"none"}},"sensors":[],"seed":0,
+                   "plan_spec":{},"plan":[],"work_frame":{},"collect":{{"settle_s":0,"frames_per_pose":1,"average_frames":false,
+                   "move_timeout_s":20,"retries_per_pose":0}},"profile":{},"speed_factor_pct":100}}"#,
+                serde_json::to_string(&rig::plan::PlanSpec::default()).expect("json"),
+                serde_json::to_string(&rig::pose::WorkFrame::default()).expect("json"),
+                serde_json::to_string(&rig::arm::profile::FirmwareProfile::default_mg400()).expect("json"),
+            ))
+            .expect("header");
+            recorder.begin(&header).expect("header written");
+            let log = run(&mut arm).await;
+            recorder.finish().expect("recording closed");
+            drop(arm);
+            sim.shutdown().await;
+            log
+        })
+    }
+
+    /// Replays the session over `events` (of `recording`) on a current-thread runtime, as `rig
+    /// replay` does: its log, or where it left the recording.
+    pub fn replay(recording: &Recording, events: Vec<Event>) -> Result<Vec<String>, Divergence> {
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+        runtime.block_on(async {
+            let replay = ReplaySession::new(events, vec![]);
+            let watchdog = tokio::spawn(replay.clone().watchdog(Duration::from_secs(5)));
+            let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
+            cfg.speed_factor_pct = 100;
+            let clock: Arc<dyn Clock> = Arc::new(replay.clock());
+            let mut arm = Mg400Client::attach(
+                cfg,
+                clock,
+                replay.stream(SocketId::Dashboard),
+                replay.stream(SocketId::Motion),
+                replay.stream(SocketId::Feedback),
+            );
+            let first = arm.wait_first_feedback().await;
+            let log = if first.is_ok() { run(&mut arm).await } else { Vec::new() };
+            watchdog.abort();
+            if let Some(d) = replay.divergence() {
+                return Err(d);
+            }
+            first.expect("first feedback");
+            replay.check_finished().expect("every recorded step replayed");
+            Ok(log)
+        })
+    }
+}
+
+#[test]
+fn an_alarm_and_its_recovery_replay_the_same() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let path = tmp.path().join("alarm.rec");
-    let recorded = tokio::runtime::Runtime::new().expect("runtime").block_on(async {
-        let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
-        let faults = SimFaults { collision_at_move: Some(2), ..Default::default() };
-        let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
-        let recorder = Recorder::create(&path, clock.clone()).expect("recording file");
-        let mut cfg = sim.client_config();
-        cfg.speed_factor_pct = 100;
-        let mut arm = connect_recorded(cfg, clock, recorder.clone()).await.expect("connects");
-        let header = serde_json::from_str(&format!(
-            r#"{{"rig_version":"test","command_line":[],"config_source":null,"object":{{"name":"none"}},"sensors":[],"seed":0,
-               "plan_spec":{},"plan":[],"work_frame":{},"collect":{{"settle_s":0,"frames_per_pose":1,"average_frames":false,
-               "move_timeout_s":20,"retries_per_pose":0}},"profile":{},"speed_factor_pct":100}}"#,
-            serde_json::to_string(&rig::plan::PlanSpec::default()).expect("json"),
-            serde_json::to_string(&rig::pose::WorkFrame::default()).expect("json"),
-            serde_json::to_string(&rig::arm::profile::FirmwareProfile::default_mg400()).expect("json"),
-        ))
-        .expect("header");
-        recorder.begin(&header).expect("header written");
-        let log = session(&mut arm).await;
-        recorder.finish().expect("recording closed");
-        drop(arm);
-        sim.shutdown().await;
-        log
-    });
+    let faults = rig::sim::mg400::SimFaults { collision_at_move: Some(2), ..Default::default() };
+    let recorded = session::record(&path, faults);
     assert!(recorded[4].contains("collision"), "the second move must collide: {recorded:#?}");
+    let recording = rig::record::Recording::read(&path).expect("reading the recording");
+    let replayed = session::replay(&recording, recording.events.clone()).unwrap_or_else(|d| panic!("{d}"));
+    assert_eq!(replayed, recorded);
+}
 
-    let recording = Recording::read(&path).expect("reading the recording");
-    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
-    let replayed = runtime.block_on(async {
-        let replay = ReplaySession::new(recording.events.clone(), vec![]);
-        let watchdog = tokio::spawn(replay.clone().watchdog(Duration::from_secs(10)));
-        let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
-        cfg.speed_factor_pct = 100;
-        let clock: Arc<dyn Clock> = Arc::new(replay.clock());
-        let mut arm = Mg400Client::attach(
-            cfg,
-            clock,
-            replay.stream(SocketId::Dashboard),
-            replay.stream(SocketId::Motion),
-            replay.stream(SocketId::Feedback),
-        );
-        arm.wait_first_feedback().await.expect("first feedback");
-        let log = session(&mut arm).await;
-        watchdog.abort();
-        assert_eq!(replay.divergence(), None);
-        replay.check_finished().expect("every recorded step replayed");
-        log
-    });
+/// The client's feedback reader logs a read, then publishes its frames; the job may look at the
+/// newest frame in between. So a frame can be logged before a `Sync()` reply and yet be the
+/// newest the job sees after it, and the job may act before the next frame arrives. The replay
+/// publishes every frame as soon as it is next, so arrival must not need a frame newer than the
+/// one held after the reply. This rewrites a clean recording into that order. Each socket's
+/// bytes stay in their order; only where the feedback falls between the other sockets' events
+/// changes. Where the feedback right after a `Sync()` reply runs up to a read whose last frame
+/// shows the arm at rest (mode 5), those reads move before the reply (at its time), and the
+/// rest of that feedback moves after the job's next event.
+#[test]
+fn feedback_logged_before_a_sync_reply_but_seen_after_it_replays_the_same() {
+    use rig::arm::dobot::proto::{FeedbackDecoder, RobotMode};
+    use rig::record::SocketId;
+    use rig::record::format::Direction;
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("clean.rec");
+    let recorded = session::record(&path, rig::sim::mg400::SimFaults::default());
+    let recording = rig::record::Recording::read(&path).expect("reading the recording");
+    let is_feedback = |e: &Event| matches!(e, Event::Socket { socket: SocketId::Feedback, .. });
+    let is_sync_reply = |e: &Event| {
+        matches!(e, Event::Socket { socket: SocketId::Motion, direction: Direction::FromController, bytes, .. }
+            if bytes.ends_with(b"Sync();"))
+    };
+    // Whether the last frame completed by each feedback read shows the arm at rest.
+    let mut decoder = FeedbackDecoder::new();
+    let mut at_rest = false;
+    let rests: Vec<bool> = recording
+        .events
+        .iter()
+        .map(|e| {
+            if let Event::Socket { socket: SocketId::Feedback, bytes, .. } = e {
+                decoder.push(bytes);
+                while let Some(frame) = decoder.next_frame() {
+                    at_rest = frame.mode() == RobotMode::Enabled;
+                }
+            }
+            at_rest
+        })
+        .collect();
+    let mut events: Vec<(Event, bool)> = recording.events.iter().cloned().zip(rests).collect();
+    let mut moved = 0;
+    let mut i = 0;
+    while i < events.len() {
+        let run = events[i + 1..].iter().take_while(|(e, _)| is_feedback(e)).count();
+        if is_sync_reply(&events[i].0)
+            && let Some(upto) = events[i + 1..i + 1 + run].iter().position(|&(_, rest)| rest)
+            && i + 1 + run < events.len()
+        {
+            // Reads i+1 ..= i+1+upto go before the reply; the rest of the run after the job's event.
+            let reply_t = events[i].0.t_s();
+            let before: Vec<(Event, bool)> = events.drain(i + 1..i + 2 + upto).collect();
+            let after: Vec<(Event, bool)> = events.drain(i + 1..i + run - upto).collect();
+            events.splice(i + 2..i + 2, after);
+            let n = before.len();
+            events.splice(
+                i..i,
+                before.into_iter().map(|(mut e, rest)| {
+                    if let Event::Socket { t_s, .. } = &mut e {
+                        *t_s = reply_t;
+                    }
+                    (e, rest)
+                }),
+            );
+            i += n;
+            moved += 1;
+        }
+        i += 1;
+    }
+    assert!(moved >= 1, "no Sync() reply is followed by feedback showing the arm at rest");
+    let events: Vec<Event> = events.into_iter().map(|(e, _)| e).collect();
+    assert_eq!(events.len(), recording.events.len());
+    let replayed = session::replay(&recording, events).unwrap_or_else(|d| panic!("{d}"));
     assert_eq!(replayed, recorded);
 }
 

@@ -11,9 +11,15 @@
 //!   publishes the newest one on a `watch` channel, reconnecting when the stream drops.
 //!
 //! Arrival ([`Arm::wait_arrived`]) combines both completion signals of the fact sheet
-//! (section 5): `Sync()` returns once the queue has drained, then feedback frames received
-//! after that reply must show mode 5 and the tool within the arrival tolerance of the target.
-//! A move to the current pose therefore returns as soon as Sync answers. An alarm (mode 9 or
+//! (section 5): `Sync()` returns once the queue has drained, then the newest feedback frame
+//! (or a later one) must show mode 5 and the tool within the arrival tolerance of the target.
+//! A move to the current pose therefore returns as soon as Sync answers. The newest frame may
+//! have been read just before the reply: the reader runs on its own task, so whether a frame
+//! read around the reply is published before the job looks is a matter of scheduling. Waiting
+//! for a frame newer than the one held would make the outcome depend on that race, and a
+//! recording could then not be replayed (`record::replay` publishes each frame as soon as it
+//! is next). A frame showing mode 5 at the target cannot predate the move, except when the
+//! arm was already there. An alarm (mode 9 or
 //! ErrorStatus in the feedback, or a refused command while in alarm) becomes
 //! [`ArmError::Fault`] with the named alarm ids from GetErrorID, kept apart from I/O errors
 //! and timeouts; [`Arm::clear_error`] runs the recovery flow (GetErrorID, ClearError,
@@ -420,13 +426,13 @@ impl Mg400Client {
 
     async fn first_feedback(&mut self) -> Result<FeedbackSample, ArmError> {
         let deadline = Instant::now() + self.cfg.connect_timeout;
-        self.wait_feedback(0, deadline, "waiting for the first MG400 feedback frame", |_| true).await
+        self.wait_feedback(deadline, "waiting for the first MG400 feedback frame", |_| true).await
     }
 
-    /// Waits for a feedback sample newer than `after_seq` that satisfies `pred`.
+    /// Waits until the newest feedback sample satisfies `pred`: the one held now, or a later
+    /// one (never a frame newer than some snapshot: see the module docs on arrival).
     async fn wait_feedback(
         &mut self,
-        after_seq: u64,
         deadline: Instant,
         what: &str,
         mut pred: impl FnMut(&FeedbackSample) -> bool,
@@ -434,7 +440,6 @@ impl Mg400Client {
         let start = Instant::now();
         loop {
             if let Some(s) = *self.feedback.borrow_and_update()
-                && s.seq > after_seq
                 && pred(&s)
             {
                 return Ok(s);
@@ -449,10 +454,6 @@ impl Mg400Client {
                 }
             }
         }
-    }
-
-    fn latest_seq(&self) -> u64 {
-        self.feedback.borrow().map(|s| s.seq).unwrap_or(0)
     }
 
     /// Sends a dashboard command; a non-zero ErrorID becomes [`ArmError::Refused`].
@@ -542,12 +543,11 @@ impl Mg400Client {
             return Err(e);
         }
         let deadline = Instant::now() + self.cfg.enable_timeout;
-        let seq = self.latest_seq();
         // Frames already in flight may still show the state from before ClearError, so an
         // alarm counts only when several frames in a row report it.
         let mut alarm_frames = 0;
         let sample = self
-            .wait_feedback(seq, deadline, "waiting for the MG400 to report enabled (mode 5)", |s| {
+            .wait_feedback(deadline, "waiting for the MG400 to report enabled (mode 5)", |s| {
                 alarm_frames = if s.frame.in_alarm() { alarm_frames + 1 } else { 0 };
                 alarm_frames >= STALE_FRAMES || matches!(s.frame.mode(), RobotMode::Enabled | RobotMode::Running)
             })
@@ -621,11 +621,10 @@ impl Arm for Mg400Client {
     async fn wait_arrived(&mut self, target: Pose, timeout: Duration) -> Result<Arrival, ArmError> {
         let deadline = Instant::now() + timeout;
         self.sync(timeout).await?;
-        let after = self.latest_seq();
         let (tol_mm, tol_deg) = (self.cfg.arrival_tolerance_mm, self.cfg.arrival_tolerance_deg);
         let what = format!("waiting for the feedback to show the arm at rest at {target}");
         let sample = self
-            .wait_feedback(after, deadline, &what, |s| {
+            .wait_feedback(deadline, &what, |s| {
                 let p = s.frame.actual_pose();
                 s.frame.in_alarm()
                     || (s.frame.mode() == RobotMode::Enabled && p.distance_mm(&target) <= tol_mm && p.yaw_error_deg(&target) <= tol_deg)
@@ -672,8 +671,7 @@ impl Arm for Mg400Client {
             self.dashboard(&Request::ClearError).await?;
             self.dashboard(&Request::Continue).await?;
             let deadline = Instant::now() + self.cfg.reply_timeout;
-            let seq = self.latest_seq();
-            if self.wait_feedback(seq, deadline, "waiting for the alarm to clear", |s| !s.frame.in_alarm()).await.is_ok() {
+            if self.wait_feedback(deadline, "waiting for the alarm to clear", |s| !s.frame.in_alarm()).await.is_ok() {
                 cleared = true;
                 break;
             }
