@@ -86,14 +86,6 @@ impl Step<'_> {
     }
 }
 
-impl CollectError {
-    /// Whether the arm's connection was lost (an I/O error on one of its sockets), directly or
-    /// as the last error of a retried step.
-    pub fn lost_arm_connection(&self) -> bool {
-        matches!(self, CollectError::Arm(ArmError::Io { .. }) | CollectError::RetriesExhausted { last: ArmError::Io { .. }, .. })
-    }
-}
-
 fn describe_pose(pose_id: Option<u32>) -> String {
     match pose_id {
         Some(id) => format!("plan pose {id}"),

@@ -183,14 +183,6 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         let records = recorder.finish()?;
         println!("recorded {records} events into {}", path.display());
     }
-    if let (Some(_), Err(e)) = (&recorder, &summary)
-        && e.lost_arm_connection()
-    {
-        eprintln!(
-            "note: a recorded run does not reconnect a lost arm connection (the recording holds the loss, and its replay \
-             stops at the same point); the rows captured are kept: continue with --resume, without --record"
-        );
-    }
     let summary = summary?;
     rig.shutdown().await;
     if summary.interrupted {

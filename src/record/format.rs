@@ -5,7 +5,7 @@
 //! This file depends on nothing but `std` and `thiserror`, so the fuzz target compiles it
 //! alone. The header is carried as text here; `record::header` gives it its meaning.
 //!
-//! # Layout (format version 3; versions 1 and 2 are read too), all integers little-endian
+//! # Layout (format version 4; versions 1 to 3 are read too), all integers little-endian
 //!
 //! | offset | size | field | meaning |
 //! |---|---|---|---|
@@ -19,7 +19,7 @@
 //!
 //! | size | field | meaning |
 //! |---|---|---|
-//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 0xFF end |
+//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 0xFF end |
 //! | 4 | `u32` L | body length, bytes |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
@@ -45,13 +45,17 @@
 //! UTF-8 text: after an ok reading, the readings as the dataset's `modbus` column writes them
 //! (`io::modbus::format_readings`); after a fault, its message; else empty.
 //!
+//! Connect body (10 bytes, version 4): `u8` socket, `f64` `t_s`, `u8` outcome (0 connected, 1
+//! failed, 2 timed out): the client opening a socket again after losing it. The first
+//! connection of each socket is not recorded (it precedes the header).
+//!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
 
 /// First bytes of every recording.
 pub const MAGIC: &[u8; 8] = b"RIGREC\n\0";
 /// The format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
 /// The oldest version this build reads (version 1 has no interrupt records).
 pub const OLDEST_READ_VERSION: u16 = 1;
 
@@ -61,6 +65,8 @@ const KIND_INTERRUPT: u8 = 3;
 const INTERRUPT_LEN: usize = 8 + 8;
 const KIND_PERIPHERALS: u8 = 4;
 const PERIPHERALS_FIXED: usize = 8 + 1 + 1;
+const KIND_CONNECT: u8 = 5;
+const CONNECT_LEN: usize = 1 + 8 + 1;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
@@ -129,6 +135,22 @@ pub enum Event {
         outcome: PeripheralOutcome,
         text: String,
     },
+    /// The client opened `socket` again after losing it (version 4).
+    Connect {
+        socket: SocketId,
+        t_s: f64,
+        outcome: ConnectOutcome,
+    },
+}
+
+/// How a reconnection went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConnectOutcome {
+    Connected,
+    /// The connection was refused or failed.
+    Failed,
+    /// It did not complete within the client's connect timeout.
+    TimedOut,
 }
 
 impl Event {
@@ -166,6 +188,7 @@ impl Event {
             Event::Frame(f) => f.t_s,
             Event::Interrupt { t_s, .. } => *t_s,
             Event::Peripherals { t_s, .. } => *t_s,
+            Event::Connect { t_s, .. } => *t_s,
         }
     }
 }
@@ -320,6 +343,17 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             });
             body.extend_from_slice(text.as_bytes());
             encode_record(KIND_PERIPHERALS, &body)
+        }
+        Event::Connect { socket, t_s, outcome } => {
+            let mut body = Vec::with_capacity(CONNECT_LEN);
+            body.push(socket.code());
+            body.extend_from_slice(&t_s.to_le_bytes());
+            body.push(match outcome {
+                ConnectOutcome::Connected => 0,
+                ConnectOutcome::Failed => 1,
+                ConnectOutcome::TimedOut => 2,
+            });
+            encode_record(KIND_CONNECT, &body)
         }
     }
 }
@@ -485,6 +519,25 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 let text = std::str::from_utf8(b.rest()).map_err(|e| malformed(format!("peripherals text is not UTF-8: {e}")))?;
                 events.push(Event::Peripherals { t_s, phase, outcome, text: text.to_string() });
             }
+            KIND_CONNECT if version >= 4 => {
+                let (Some(socket), Some(t_s), Some(outcome)) = (b.u8(), b.f64(), b.u8()) else {
+                    return Err(malformed(format!("connect record body of {len} bytes, not {CONNECT_LEN}")));
+                };
+                if len != CONNECT_LEN {
+                    return Err(malformed(format!("connect record body of {len} bytes, not {CONNECT_LEN}")));
+                }
+                let socket = SocketId::from_code(socket).ok_or_else(|| malformed(format!("unknown socket {socket}")))?;
+                if !t_s.is_finite() {
+                    return Err(malformed(format!("time {t_s} is not finite")));
+                }
+                let outcome = match outcome {
+                    0 => ConnectOutcome::Connected,
+                    1 => ConnectOutcome::Failed,
+                    2 => ConnectOutcome::TimedOut,
+                    o => return Err(malformed(format!("unknown connect outcome {o}"))),
+                };
+                events.push(Event::Connect { socket, t_s, outcome });
+            }
             KIND_END => {
                 let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
                 if said != record as u64 {
@@ -545,7 +598,7 @@ mod tests {
         assert_eq!(r.events[2], Event::Interrupt { t_s: 1.5, captured: 3 });
         // Version 1 has no interrupt kind: such a file is corrupt, not silently misread.
         assert!(matches!(decode(&with_version(1)), Err(FormatError::UnknownKind { record: 2, kind: 3, .. })));
-        assert!(matches!(decode(&with_version(4)), Err(FormatError::UnsupportedVersion { found: 4, oldest: 1, supported: 3 })));
+        assert!(matches!(decode(&with_version(5)), Err(FormatError::UnsupportedVersion { found: 5, oldest: 1, supported: 4 })));
         // Two interrupts.
         let mut two = encode_preamble("{}");
         for _ in 0..2 {
@@ -653,7 +706,12 @@ mod tests {
             outcome: [PeripheralOutcome::Ok, PeripheralOutcome::Recoverable, PeripheralOutcome::Fatal][usize::from(outcome)],
             text,
         });
-        prop_oneof![socket, frame, peripherals]
+        let connect = (0u8..3, -1e6f64..1e6, 0u8..3).prop_map(|(s, t_s, o)| Event::Connect {
+            socket: SocketId::ALL[usize::from(s)],
+            t_s,
+            outcome: [ConnectOutcome::Connected, ConnectOutcome::Failed, ConnectOutcome::TimedOut][usize::from(o)],
+        });
+        prop_oneof![socket, frame, peripherals, connect]
     }
 
     proptest::proptest! {
@@ -704,6 +762,17 @@ mod tests {
         // Before version 3 an empty socket record is damage, not a lost connection.
         set_version(&mut bytes, 2);
         assert!(matches!(decode(&bytes), Err(FormatError::Malformed { record: 0, .. })), "{:?}", decode(&bytes));
+    }
+
+    #[test]
+    fn a_reconnection_is_a_connect_record_from_version_4() {
+        let again = Event::Connect { socket: SocketId::Feedback, t_s: 2.5, outcome: ConnectOutcome::TimedOut };
+        let mut bytes = encode_preamble("{}");
+        bytes.extend(encode_event(&again));
+        bytes.extend(encode_end(1));
+        assert_eq!(decode(&bytes).map(|r| r.events), Ok(vec![again]));
+        set_version(&mut bytes, 3);
+        assert!(matches!(decode(&bytes), Err(FormatError::UnknownKind { record: 0, kind: 5, .. })), "{:?}", decode(&bytes));
     }
 
     #[test]

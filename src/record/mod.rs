@@ -7,8 +7,11 @@
 //! the order they happened; the [`RecordingHeader`] (command line, plan, work frame, collect
 //! options, firmware profile, sensors, seed) comes first. The byte layout is in [`mod@format`].
 //!
-//! Replay (`rig replay FILE`): [`replay::replay_collection`] attaches the real
-//! [`Mg400Client`] to [`replay::ReplayStream`]s and gives the job [`replay::ReplayCamera`]s,
+//! A lost socket is reopened as by an unrecorded client, and the reconnection is recorded too.
+//!
+//! Replay (`rig replay FILE`): [`replay::replay_collection`] runs the real [`Mg400Client`] on
+//! [`replay::ReplayStream`]s (reopened where the recording reconnected) and gives the job
+//! [`replay::ReplayCamera`]s,
 //! all fed from one [`replay::ReplaySession`] that serves the recorded events in recorded
 //! order, checks that what the client writes is what was recorded, and stops at the first
 //! divergence with both sides named. See `replay` for how it stays deterministic.
@@ -29,7 +32,7 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::TcpStream;
 
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{Mg400Client, Mg400Config};
+use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen};
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
@@ -39,7 +42,7 @@ use crate::io::modbus::{ModbusError, ModbusReading, Peripherals, format_readings
 use crate::plan::{PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
 
-pub use format::{Direction, Event, FormatError, PeripheralOutcome, PeripheralPhase, RecordedFrame, SocketId};
+pub use format::{ConnectOutcome, Direction, Event, FormatError, PeripheralOutcome, PeripheralPhase, RecordedFrame, SocketId};
 
 /// Errors reading or writing a recording.
 #[derive(Debug, thiserror::Error)]
@@ -228,6 +231,11 @@ impl Recorder {
         self.log(|t_s| Event::Socket { socket, direction, t_s, bytes: Vec::new() });
     }
 
+    /// Logs how the client's reconnection of `socket` went.
+    pub fn log_connect(&self, socket: SocketId, outcome: ConnectOutcome) {
+        self.log(|t_s| Event::Connect { socket, t_s, outcome });
+    }
+
     /// Logs a frame handed to the job by camera number `camera`.
     pub fn log_frame(&self, camera: u8, frame: &Frame) {
         self.log(|t_s| {
@@ -406,21 +414,44 @@ async fn connect_socket(cfg: &Mg400Config, port: u16, role: &str) -> Result<TcpS
 }
 
 /// Connects the MG400 client like [`Mg400Client::connect`], with every socket recorded.
-/// The streams are attached, so a dropped socket is not reconnected: the run fails there, and
-/// the recording holds the lost connection, so its replay fails at the same point.
+/// A lost socket is reconnected as by an unrecorded client: the loss (a socket record without
+/// bytes), each reconnection attempt and the new connection's bytes are recorded, so the
+/// replay loses and reopens it at the same points.
 pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder: Recorder) -> Result<Mg400Client, ArmError> {
-    let dashboard = connect_socket(&cfg, cfg.dashboard_port, "dashboard").await?;
-    let motion = connect_socket(&cfg, cfg.motion_port, "motion").await?;
-    let feedback = connect_socket(&cfg, cfg.feedback_port, "feedback").await?;
-    let mut client = Mg400Client::attach(
-        cfg,
-        clock,
-        RecordingStream::new(dashboard, SocketId::Dashboard, recorder.clone()),
-        RecordingStream::new(motion, SocketId::Motion, recorder.clone()),
-        RecordingStream::new(feedback, SocketId::Feedback, recorder),
-    );
+    let open = |socket: SocketId, port: u16| {
+        let (cfg, recorder) = (cfg.clone(), recorder.clone());
+        async move {
+            let first = connect_socket(&cfg, port, socket.name()).await?;
+            let stream: Box<dyn ByteStream> = Box::new(RecordingStream::new(first, socket, recorder.clone()));
+            Ok::<_, ArmError>((stream, recorded_reopen(&cfg, port, socket, recorder)))
+        }
+    };
+    let dashboard = open(SocketId::Dashboard, cfg.dashboard_port).await?;
+    let motion = open(SocketId::Motion, cfg.motion_port).await?;
+    let feedback = open(SocketId::Feedback, cfg.feedback_port).await?;
+    let mut client = Mg400Client::with_reopen(cfg, clock, [dashboard, motion, feedback]);
     client.wait_first_feedback().await?;
     Ok(client)
+}
+
+/// Reconnects `socket` over TCP, recording the attempt and then the new connection's bytes.
+fn recorded_reopen(cfg: &Mg400Config, port: u16, socket: SocketId, recorder: Recorder) -> Reopen {
+    let cfg = cfg.clone();
+    Arc::new(move || {
+        let (cfg, recorder) = (cfg.clone(), recorder.clone());
+        Box::pin(async move {
+            let opened = connect_socket(&cfg, port, socket.name()).await;
+            recorder.log_connect(
+                socket,
+                match &opened {
+                    Ok(_) => ConnectOutcome::Connected,
+                    Err(ArmError::Timeout { .. }) => ConnectOutcome::TimedOut,
+                    Err(_) => ConnectOutcome::Failed,
+                },
+            );
+            opened.map(|s| Box::new(RecordingStream::new(s, socket, recorder)) as Box<dyn ByteStream>)
+        })
+    })
 }
 
 /// Timeouts of a replayed client: long, so that a stalled replay is reported by the replay's

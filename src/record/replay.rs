@@ -20,6 +20,10 @@
 //!   watchdog reports it if nothing else happens; and when the job goes on past replies it
 //!   read in the recording but gave up on this time, those stay in their socket, as on the
 //!   wire, and are read later);
+//! - a reconnection (version 4) is served like the socket's reads: the feedback reader's when
+//!   it is next, the job's when it is next or after the feedback recorded before it, and the
+//!   job's facing anything else is a divergence. A lost connection (a socket record without
+//!   bytes) is served as the end of the stream, or as a failed write;
 //! - after each chunk a stream yields once, so the job's task sees every feedback frame the
 //!   way it did live (the client keeps only the newest frame).
 //!
@@ -37,9 +41,10 @@ use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
-use super::format::{Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
+use super::format::{ConnectOutcome, Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
 use super::{REPLAY_CLIENT_TIMEOUT, Recording};
-use crate::arm::dobot::client::{Mg400Client, Mg400Config};
+use crate::arm::ArmError;
+use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MockClock};
 use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
@@ -123,7 +128,11 @@ fn show_bytes(bytes: &[u8]) -> String {
 
 /// Whether an event is the feedback reader's (the only one that runs beside the job).
 fn is_feedback_read(e: &Event) -> bool {
-    matches!(e, Event::Socket { socket: SocketId::Feedback, direction: Direction::FromController, .. })
+    matches!(
+        e,
+        Event::Socket { socket: SocketId::Feedback, direction: Direction::FromController, .. }
+            | Event::Connect { socket: SocketId::Feedback, .. }
+    )
 }
 
 impl SessionState {
@@ -152,6 +161,7 @@ impl SessionState {
             ),
             Event::Interrupt { captured, .. } => format!("the operator's interrupt after {captured} poses"),
             Event::Peripherals { phase, .. } => format!("the peripherals' {phase:?} capture call"),
+            Event::Connect { socket, outcome, .. } => format!("the client reconnecting the {} socket ({outcome:?})", socket.name()),
         }
     }
 
@@ -266,6 +276,51 @@ impl ReplaySession {
     /// The replay side of one MG400 socket.
     pub fn stream(&self, socket: SocketId) -> ReplayStream {
         ReplayStream { session: self.clone(), socket, yield_next: false }
+    }
+
+    /// Opens `socket` again where the recording has the client reconnecting it: a new
+    /// [`ReplayStream`], or the recorded failure.
+    pub fn reopen(&self, socket: SocketId) -> Reopen {
+        let session = self.clone();
+        Arc::new(move || {
+            let session = session.clone();
+            Box::pin(async move {
+                let outcome = poll_fn(|cx| session.poll_connect(socket, cx)).await?;
+                let what = || format!("reconnecting the {} socket (as in the recording)", socket.name());
+                match outcome {
+                    ConnectOutcome::Connected => Ok(Box::new(session.stream(socket)) as Box<dyn ByteStream>),
+                    ConnectOutcome::Failed => Err(ArmError::Io { context: what(), source: std::io::ErrorKind::ConnectionRefused.into() }),
+                    ConnectOutcome::TimedOut => Err(ArmError::Timeout { what: what(), after: Duration::ZERO }),
+                }
+            })
+        })
+    }
+
+    fn poll_connect(&self, socket: SocketId, cx: &mut Context<'_>) -> Poll<Result<ConnectOutcome, ArmError>> {
+        let mut st = self.lock();
+        let failed =
+            |st: &SessionState| ArmError::Io { context: format!("reconnecting the {} socket", socket.name()), source: st.failure() };
+        if st.divergence.is_some() {
+            return Poll::Ready(Err(failed(&st)));
+        }
+        if socket != SocketId::Feedback {
+            st.shelve_unread_replies(&self.clock);
+        }
+        let cursor = st.cursor;
+        if let Some(Event::Connect { socket: s, t_s, outcome }) = st.events.get(cursor)
+            && *s == socket
+        {
+            let (t_s, outcome) = (*t_s, *outcome);
+            st.served(1, 1, t_s, &self.clock);
+            return Poll::Ready(Ok(outcome));
+        }
+        // The feedback reader waits for its turn; the job waits for the feedback before its step.
+        if socket == SocketId::Feedback || st.events.get(cursor).is_some_and(is_feedback_read) {
+            st.wait(cx);
+            return Poll::Pending;
+        }
+        let _ = st.diverge(format!("the client reconnected the {} socket", socket.name()));
+        Poll::Ready(Err(failed(&st)))
     }
 
     /// The replay of camera number `index` of the header's list.
@@ -643,12 +698,11 @@ async fn run_job(
     cfg.enable_timeout = REPLAY_CLIENT_TIMEOUT;
     cfg.drain_timeout = REPLAY_CLIENT_TIMEOUT;
     let clock: Arc<dyn Clock> = Arc::new(clock);
-    let mut arm = Mg400Client::attach(
+    let replayed = |socket| (Box::new(session.stream(socket)) as Box<dyn ByteStream>, session.reopen(socket));
+    let mut arm = Mg400Client::with_reopen(
         cfg,
         Arc::clone(&clock),
-        session.stream(SocketId::Dashboard),
-        session.stream(SocketId::Motion),
-        session.stream(SocketId::Feedback),
+        [replayed(SocketId::Dashboard), replayed(SocketId::Motion), replayed(SocketId::Feedback)],
     );
     // As the recorded run's connect did.
     arm.wait_first_feedback().await.map_err(CollectError::from)?;
@@ -711,6 +765,42 @@ mod tests {
         assert_eq!(&buf[..n], b"0,{5},RobotMode();");
         assert_eq!(session.clock().now_s(), 1.5);
         assert!(session.check_finished().is_ok());
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn reconnections_get_the_recorded_outcomes_in_order() {
+        let connect = |t_s, outcome| Event::Connect { socket: SocketId::Motion, t_s, outcome };
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::FromController, 1.0, b""),
+                connect(1.1, ConnectOutcome::Failed),
+                connect(1.2, ConnectOutcome::TimedOut),
+                connect(1.3, ConnectOutcome::Connected),
+                ev(SocketId::Motion, Direction::ToController, 1.4, b"Sync()"),
+            ],
+            vec![],
+        );
+        let mut m = session.stream(SocketId::Motion);
+        let mut buf = [0u8; 16];
+        assert_eq!(m.read(&mut buf).await.unwrap(), 0, "the recorded loss is the end of the stream");
+        let reopen = session.reopen(SocketId::Motion);
+        assert!(matches!(reopen().await, Err(ArmError::Io { .. })));
+        assert!(matches!(reopen().await, Err(ArmError::Timeout { .. })));
+        assert!((session.clock().now_s() - 1.2).abs() < 1e-9, "the clock follows the served records");
+        let mut again = reopen().await.expect("the third attempt connected");
+        again.write_all(b"Sync()").await.unwrap();
+        assert_eq!(session.position(), (5, 5));
+        assert_eq!(session.divergence(), None);
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_reconnection_the_recording_lacks_is_a_divergence() {
+        let session = ReplaySession::new(vec![ev(SocketId::Dashboard, Direction::ToController, 1.0, b"RobotMode()")], vec![]);
+        let err = session.reopen(SocketId::Dashboard)().await.err().expect("no reconnection recorded");
+        assert!(matches!(err, ArmError::Io { .. }), "{err:?}");
+        let d = session.divergence().expect("a divergence");
+        assert_eq!(d.record, 0);
+        assert!(d.expected.contains("RobotMode()") && d.got.contains("reconnected the dashboard socket"), "{d}");
     }
 
     #[tokio::test(flavor = "current_thread")]

@@ -30,6 +30,8 @@
 //! Socket timeouts run on real time; [`Arrival::t_s`] is stamped from the [`Clock`] passed in.
 
 use std::collections::VecDeque;
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -125,39 +127,52 @@ fn io_err(context: String, source: std::io::Error) -> ArmError {
     ArmError::Io { context, source }
 }
 
+/// Opens a new connection to one of the arm's ports, when the old one was lost.
+pub type Reopen = Arc<dyn Fn() -> Pin<Box<dyn Future<Output = Result<Box<dyn ByteStream>, ArmError>> + Send>> + Send + Sync>;
+
+/// A [`Reopen`] that connects over TCP.
+fn tcp_reopen(host: &str, port: u16, timeout: Duration, role: &'static str) -> Reopen {
+    let host = host.to_string();
+    Arc::new(move || {
+        let host = host.clone();
+        Box::pin(async move { connect_tcp(&host, port, timeout, role).await.map(|s| Box::new(s) as Box<dyn ByteStream>) })
+    })
+}
+
 /// One request/reply connection (dashboard or motion).
 struct CommandLink {
     /// "dashboard" or "motion", for messages.
     role: &'static str,
-    /// Where to reconnect; `None` for an attached stream, which cannot be reopened.
-    addr: Option<(String, u16)>,
+    /// Names the connection in messages ("dashboard port 192.168.1.6:29999").
+    where_: String,
+    /// How to reconnect; `None` for an attached stream, which cannot be reopened.
+    reopen: Option<Reopen>,
+    /// Whether a request abandoned (timed out, or lost a race) closes the connection so the
+    /// next request opens a fresh one. Only for TCP: a recorded or replayed link keeps its
+    /// stream, so the replay does not depend on which way such a race went.
+    reset_on_abandon: bool,
     stream: Option<Box<dyn ByteStream>>,
     framer: ReplyFramer,
     /// Names of requests abandoned on this stream whose replies are still due, oldest first.
     abandoned: VecDeque<&'static str>,
-    connect_timeout: Duration,
 }
 
 impl CommandLink {
     fn where_(&self) -> String {
-        match &self.addr {
-            Some((h, p)) => format!("{} port {h}:{p}", self.role),
-            None => format!("{} stream", self.role),
-        }
+        self.where_.clone()
     }
 
     async fn open(&mut self) -> Result<(), ArmError> {
         if self.stream.is_some() {
             return Ok(());
         }
-        let Some((host, port)) = self.addr.clone() else {
+        let Some(reopen) = self.reopen.clone() else {
             return Err(io_err(
                 format!("using the {} (attached stream closed, cannot reconnect)", self.where_()),
                 std::io::ErrorKind::NotConnected.into(),
             ));
         };
-        let stream = connect_tcp(&host, port, self.connect_timeout, self.role).await?;
-        self.stream = Some(Box::new(stream));
+        self.stream = Some(reopen().await?);
         self.framer.clear();
         self.abandoned.clear();
         Ok(())
@@ -166,16 +181,17 @@ impl CommandLink {
     /// Forgets the stream after trouble, so the next request reconnects (when it can) instead
     /// of reading replies meant for requests nobody waits for any more.
     fn reset(&mut self) {
-        if self.addr.is_some() {
+        if self.reopen.is_some() {
             self.stream = None;
             self.framer.clear();
             self.abandoned.clear();
         }
     }
 
-    /// Marks `name` as abandoned after its reply was not awaited to the end.
+    /// Marks `name` as abandoned after its reply was not awaited to the end: a fresh connection
+    /// when `reset_on_abandon`, else its late reply is skipped on this one.
     fn abandon(&mut self, name: &'static str) {
-        if self.addr.is_some() {
+        if self.reset_on_abandon {
             self.reset();
         } else {
             self.abandoned.push_back(name);
@@ -240,7 +256,7 @@ impl CommandLink {
         let mut tries = 0;
         loop {
             match self.exchange(req, timeout).await {
-                Err(ArmError::Io { context, source }) if self.addr.is_some() && tries < attempts => {
+                Err(ArmError::Io { context, source }) if self.reopen.is_some() && tries < attempts => {
                     tries += 1;
                     tracing::warn!(%context, error = %source, attempt = tries, "reconnecting the MG400 {}", self.role);
                     tokio::time::sleep(Duration::from_millis(20 << tries.min(5))).await;
@@ -277,11 +293,10 @@ pub struct FeedbackSample {
     pub t_s: f64,
 }
 
-/// Reads the feedback stream, publishing each frame; reconnects when `addr` is known.
+/// Reads the feedback stream, publishing each frame; reconnects with `reopen` when given.
 async fn feedback_task(
     first: Option<Box<dyn ByteStream>>,
-    addr: Option<(String, u16)>,
-    connect_timeout: Duration,
+    reopen: Option<Reopen>,
     clock: Arc<dyn Clock>,
     tx: watch::Sender<Option<FeedbackSample>>,
 ) {
@@ -292,9 +307,9 @@ async fn feedback_task(
         let mut s = match stream.take() {
             Some(s) => s,
             None => {
-                let Some((host, port)) = addr.as_ref() else { return };
-                match connect_tcp(host, *port, connect_timeout, "feedback").await {
-                    Ok(s) => Box::new(s) as Box<dyn ByteStream>,
+                let Some(reopen) = reopen.as_ref() else { return };
+                match reopen().await {
+                    Ok(s) => s,
                     Err(e) => {
                         tracing::warn!(error = %e, "MG400 feedback reconnect failed; retrying");
                         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -351,12 +366,9 @@ impl Mg400Client {
         let dashboard = connect_tcp(&cfg.host, cfg.dashboard_port, t, "dashboard").await?;
         let motion = connect_tcp(&cfg.host, cfg.motion_port, t, "motion").await?;
         let feedback = connect_tcp(&cfg.host, cfg.feedback_port, t, "feedback").await?;
-        let addrs = (
-            Some((cfg.host.clone(), cfg.dashboard_port)),
-            Some((cfg.host.clone(), cfg.motion_port)),
-            Some((cfg.host.clone(), cfg.feedback_port)),
-        );
-        let mut client = Self::build(cfg, clock, Box::new(dashboard), Box::new(motion), Box::new(feedback), addrs);
+        let link = |port, role| (Some(tcp_reopen(&cfg.host, port, t, role)), format!("{role} port {}:{port}", cfg.host));
+        let links = [link(cfg.dashboard_port, "dashboard"), link(cfg.motion_port, "motion"), link(cfg.feedback_port, "feedback")];
+        let mut client = Self::build(cfg, clock, [Box::new(dashboard), Box::new(motion), Box::new(feedback)], links, true);
         client.first_feedback().await?;
         Ok(client)
     }
@@ -370,31 +382,46 @@ impl Mg400Client {
         motion: impl ByteStream,
         feedback: impl ByteStream,
     ) -> Mg400Client {
-        Self::build(cfg, clock, Box::new(dashboard), Box::new(motion), Box::new(feedback), (None, None, None))
+        let links = ["dashboard", "motion", "feedback"].map(|role| (None, format!("{role} stream")));
+        Self::build(cfg, clock, [Box::new(dashboard), Box::new(motion), Box::new(feedback)], links, false)
     }
 
-    #[allow(clippy::type_complexity)]
+    /// Runs the client over already-open streams (dashboard, motion, feedback), each with how
+    /// to open it again when it is lost: a recorded run's sockets, a replay's streams. Only a
+    /// lost connection is reopened; an abandoned request's late reply is skipped on the same
+    /// connection, as with attached streams.
+    pub fn with_reopen(cfg: Mg400Config, clock: Arc<dyn Clock>, streams: [(Box<dyn ByteStream>, Reopen); 3]) -> Mg400Client {
+        let [(dashboard, d), (motion, m), (feedback, f)] = streams;
+        let links =
+            [(Some(d), "dashboard stream".to_string()), (Some(m), "motion stream".to_string()), (Some(f), "feedback stream".to_string())];
+        Self::build(cfg, clock, [dashboard, motion, feedback], links, false)
+    }
+
+    /// `streams` and `links` (how to reopen each, and its name in messages): dashboard, motion,
+    /// feedback.
     fn build(
         cfg: Mg400Config,
         clock: Arc<dyn Clock>,
-        dashboard: Box<dyn ByteStream>,
-        motion: Box<dyn ByteStream>,
-        feedback: Box<dyn ByteStream>,
-        addrs: (Option<(String, u16)>, Option<(String, u16)>, Option<(String, u16)>),
+        streams: [Box<dyn ByteStream>; 3],
+        links: [(Option<Reopen>, String); 3],
+        reset_on_abandon: bool,
     ) -> Mg400Client {
-        let link = |role, addr, stream| CommandLink {
+        let [dashboard, motion, feedback] = streams;
+        let [(d_reopen, d_where), (m_reopen, m_where), (f_reopen, _)] = links;
+        let link = |role, reopen, where_, stream| CommandLink {
             role,
-            addr,
+            where_,
+            reopen,
+            reset_on_abandon,
             stream: Some(stream),
             framer: ReplyFramer::new(),
             abandoned: VecDeque::new(),
-            connect_timeout: cfg.connect_timeout,
         };
         let (tx, rx) = watch::channel(None);
-        let feedback_task = tokio::spawn(feedback_task(Some(feedback), addrs.2, cfg.connect_timeout, clock.clone(), tx));
+        let feedback_task = tokio::spawn(feedback_task(Some(feedback), f_reopen, clock.clone(), tx));
         Mg400Client {
-            dashboard: link("dashboard", addrs.0, dashboard),
-            motion: link("motion", addrs.1, motion),
+            dashboard: link("dashboard", d_reopen, d_where, dashboard),
+            motion: link("motion", m_reopen, m_where, motion),
             feedback: rx,
             feedback_task,
             queued_moves: 0,
