@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The test command: installs what the tests need, runs the whole suite, then smoke-runs every
-# fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
+# The test command: installs what the tests need, runs the whole suite, checks that the API
+# docs build without warnings, then smoke-runs every fuzz target for a few seconds
+# (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
@@ -14,6 +15,8 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
 echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs about 3 GiB)"
 cargo test --all-targets --locked
+# The API docs must build without warnings (broken intra-doc links, bad HTML in comments).
+RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --no-deps --locked
 fuzz_seconds="${FUZZ_SECONDS:-5}"
 if [ "$fuzz_seconds" != 0 ]; then
   ./scripts/fuzz-smoke.sh "$fuzz_seconds"
