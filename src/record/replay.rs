@@ -290,7 +290,11 @@ impl ReplaySession {
                 match outcome {
                     ConnectOutcome::Connected => Ok(Box::new(session.stream(socket)) as Box<dyn ByteStream>),
                     ConnectOutcome::Failed => Err(ArmError::Io { context: what(), source: std::io::ErrorKind::ConnectionRefused.into() }),
-                    ConnectOutcome::TimedOut => Err(ArmError::Timeout { what: what(), after: Duration::ZERO }),
+                    // The recording keeps the outcome, not the wait; the replay does not wait.
+                    ConnectOutcome::TimedOut => Err(ArmError::Timeout {
+                        what: format!("reconnecting the {} socket (it timed out in the recorded run)", socket.name()),
+                        after: Duration::ZERO,
+                    }),
                 }
             })
         })
