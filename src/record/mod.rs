@@ -29,10 +29,9 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::TcpStream;
 
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen};
+use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, connect_tcp};
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
@@ -400,19 +399,6 @@ impl<C: Camera> Camera for RecordingCamera<C> {
     }
 }
 
-async fn connect_socket(cfg: &Mg400Config, port: u16, role: &str) -> Result<TcpStream, ArmError> {
-    let what = || format!("connecting to the MG400 {role} port at {}:{port}", cfg.host);
-    match tokio::time::timeout(cfg.connect_timeout, TcpStream::connect((cfg.host.as_str(), port))).await {
-        Ok(Ok(s)) => {
-            // Same as the client's own connect: small commands, latency first.
-            let _ = s.set_nodelay(true);
-            Ok(s)
-        }
-        Ok(Err(source)) => Err(ArmError::Io { context: what(), source }),
-        Err(_) => Err(ArmError::Timeout { what: what(), after: cfg.connect_timeout }),
-    }
-}
-
 /// Connects the MG400 client like [`Mg400Client::connect`], with every socket recorded.
 /// A lost socket is reconnected as by an unrecorded client: the loss (a socket record without
 /// bytes), each reconnection attempt and the new connection's bytes are recorded, so the
@@ -421,7 +407,7 @@ pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder:
     let open = |socket: SocketId, port: u16| {
         let (cfg, recorder) = (cfg.clone(), recorder.clone());
         async move {
-            let first = connect_socket(&cfg, port, socket.name()).await?;
+            let first = connect_tcp(&cfg.host, port, cfg.connect_timeout, socket.name()).await?;
             let stream: Box<dyn ByteStream> = Box::new(RecordingStream::new(first, socket, recorder.clone()));
             Ok::<_, ArmError>((stream, recorded_reopen(&cfg, port, socket, recorder)))
         }
@@ -440,7 +426,7 @@ fn recorded_reopen(cfg: &Mg400Config, port: u16, socket: SocketId, recorder: Rec
     Arc::new(move || {
         let (cfg, recorder) = (cfg.clone(), recorder.clone());
         Box::pin(async move {
-            let opened = connect_socket(&cfg, port, socket.name()).await;
+            let opened = connect_tcp(&cfg.host, port, cfg.connect_timeout, socket.name()).await;
             recorder.log_connect(
                 socket,
                 match &opened {

@@ -267,7 +267,8 @@ impl CommandLink {
     }
 }
 
-async fn connect_tcp(host: &str, port: u16, timeout: Duration, role: &str) -> Result<TcpStream, ArmError> {
+/// Opens one of the arm's TCP ports within `timeout` (no Nagle delay: commands are small).
+pub(crate) async fn connect_tcp(host: &str, port: u16, timeout: Duration, role: &str) -> Result<TcpStream, ArmError> {
     match tokio::time::timeout(timeout, TcpStream::connect((host, port))).await {
         Ok(Ok(s)) => {
             // Commands are small and latency matters more than throughput.
