@@ -371,7 +371,18 @@ impl ReplaySession {
             } else if last.1.elapsed() >= stall_after {
                 let doing = match st.blocked_read {
                     Some(socket) => format!("the client waits for a reply on the {} socket", socket.name()),
-                    None => "the replayed run waits for something else".to_string(),
+                    None => {
+                        // The job may wait for feedback the recording has only after its step.
+                        let cursor = st.cursor;
+                        let next_feedback = st.events.iter().enumerate().skip(cursor).find(|(_, e)| is_feedback_read(e));
+                        match next_feedback {
+                            Some((k, _)) if k > cursor => format!(
+                                "the replayed run waits for something else (if for a feedback frame, the recording has the next \
+                                 one only after this step, at record {k})"
+                            ),
+                            _ => "the replayed run waits for something else".to_string(),
+                        }
+                    }
                 };
                 let _ = st.diverge(format!("{doing}, and nothing happened for {stall_after:?}"));
                 return;
@@ -893,5 +904,20 @@ mod tests {
         session.clone().watchdog(Duration::from_millis(40)).await;
         let d = session.divergence().unwrap();
         assert!(d.expected.contains("Sync()") && d.got.contains("nothing happened"), "{d}");
+        assert!(!d.got.contains("feedback frame"), "no feedback is recorded: {d}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_stall_before_recorded_feedback_names_where_the_feedback_is() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::ToController, 3.0, b"Sync()"),
+                ev(SocketId::Feedback, Direction::FromController, 3.1, b"frame"),
+            ],
+            vec![],
+        );
+        session.clone().watchdog(Duration::from_millis(40)).await;
+        let d = session.divergence().unwrap();
+        assert!(d.expected.contains("Sync()") && d.got.contains("only after this step, at record 1"), "{d}");
     }
 }
