@@ -153,6 +153,20 @@ pub enum ConnectOutcome {
     TimedOut,
 }
 
+impl ConnectOutcome {
+    pub const ALL: [ConnectOutcome; 3] = [ConnectOutcome::Connected, ConnectOutcome::Failed, ConnectOutcome::TimedOut];
+    fn code(self) -> u8 {
+        match self {
+            ConnectOutcome::Connected => 0,
+            ConnectOutcome::Failed => 1,
+            ConnectOutcome::TimedOut => 2,
+        }
+    }
+    fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|o| o.code() == code)
+    }
+}
+
 impl Event {
     /// A socket event without bytes: the client's read found the connection closed (or
     /// failed), or its write failed.
@@ -348,11 +362,7 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             let mut body = Vec::with_capacity(CONNECT_LEN);
             body.push(socket.code());
             body.extend_from_slice(&t_s.to_le_bytes());
-            body.push(match outcome {
-                ConnectOutcome::Connected => 0,
-                ConnectOutcome::Failed => 1,
-                ConnectOutcome::TimedOut => 2,
-            });
+            body.push(outcome.code());
             encode_record(KIND_CONNECT, &body)
         }
     }
@@ -530,12 +540,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 if !t_s.is_finite() {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
-                let outcome = match outcome {
-                    0 => ConnectOutcome::Connected,
-                    1 => ConnectOutcome::Failed,
-                    2 => ConnectOutcome::TimedOut,
-                    o => return Err(malformed(format!("unknown connect outcome {o}"))),
-                };
+                let outcome = ConnectOutcome::from_code(outcome).ok_or_else(|| malformed(format!("unknown connect outcome {outcome}")))?;
                 events.push(Event::Connect { socket, t_s, outcome });
             }
             KIND_END => {
@@ -709,7 +714,7 @@ mod tests {
         let connect = (0u8..3, -1e6f64..1e6, 0u8..3).prop_map(|(s, t_s, o)| Event::Connect {
             socket: SocketId::ALL[usize::from(s)],
             t_s,
-            outcome: [ConnectOutcome::Connected, ConnectOutcome::Failed, ConnectOutcome::TimedOut][usize::from(o)],
+            outcome: ConnectOutcome::ALL[usize::from(o)],
         });
         prop_oneof![socket, frame, peripherals, connect]
     }

@@ -224,6 +224,18 @@ impl SessionState {
         }
     }
 
+    /// A step of the job (a write, a frame request, a reconnection) that is not the event under
+    /// the cursor: it waits while feedback recorded before the step is still unread; facing
+    /// anything else, the replay diverged (`got`: what the job did).
+    fn job_step_elsewhere(&mut self, cx: &Context<'_>, got: impl FnOnce() -> String) -> Poll<std::io::Error> {
+        if self.events.get(self.cursor).is_some_and(is_feedback_read) {
+            self.wait(cx);
+            Poll::Pending
+        } else {
+            Poll::Ready(self.diverge(got()))
+        }
+    }
+
     /// Marks `n` more bytes of the current event (of `len`) served, at recorded time `t_s`.
     fn served(&mut self, n: usize, len: usize, t_s: f64, clock: &MockClock) {
         self.offset += n;
@@ -302,10 +314,9 @@ impl ReplaySession {
 
     fn poll_connect(&self, socket: SocketId, cx: &mut Context<'_>) -> Poll<Result<ConnectOutcome, ArmError>> {
         let mut st = self.lock();
-        let failed =
-            |st: &SessionState| ArmError::Io { context: format!("reconnecting the {} socket", socket.name()), source: st.failure() };
+        let failed = |source| ArmError::Io { context: format!("reconnecting the {} socket", socket.name()), source };
         if st.divergence.is_some() {
-            return Poll::Ready(Err(failed(&st)));
+            return Poll::Ready(Err(failed(st.failure())));
         }
         if socket != SocketId::Feedback {
             st.shelve_unread_replies(&self.clock);
@@ -318,13 +329,12 @@ impl ReplaySession {
             st.served(1, 1, t_s, &self.clock);
             return Poll::Ready(Ok(outcome));
         }
-        // The feedback reader waits for its turn; the job waits for the feedback before its step.
-        if socket == SocketId::Feedback || st.events.get(cursor).is_some_and(is_feedback_read) {
+        // The feedback reader waits for its turn.
+        if socket == SocketId::Feedback {
             st.wait(cx);
             return Poll::Pending;
         }
-        let _ = st.diverge(format!("the client reconnected the {} socket", socket.name()));
-        Poll::Ready(Err(failed(&st)))
+        st.job_step_elsewhere(cx, || format!("the client reconnected the {} socket", socket.name())).map(|e| Err(failed(e)))
     }
 
     /// The replay of camera number `index` of the header's list.
@@ -371,18 +381,19 @@ impl ReplaySession {
             } else if last.1.elapsed() >= stall_after {
                 let doing = match st.blocked_read {
                     Some(socket) => format!("the client waits for a reply on the {} socket", socket.name()),
-                    None => {
-                        // The job may wait for feedback the recording has only after its step.
-                        let cursor = st.cursor;
-                        let next_feedback = st.events.iter().enumerate().skip(cursor).find(|(_, e)| is_feedback_read(e));
-                        match next_feedback {
-                            Some((k, _)) if k > cursor => format!(
-                                "the replayed run waits for something else (if for a feedback frame, the recording has the next \
-                                 one only after this step, at record {k})"
-                            ),
-                            _ => "the replayed run waits for something else".to_string(),
-                        }
-                    }
+                    // The job may wait for feedback the recording has only after its next step.
+                    None => match st
+                        .events
+                        .get(st.cursor)
+                        .filter(|e| !is_feedback_read(e))
+                        .and_then(|_| st.events.iter().skip(st.cursor + 1).position(is_feedback_read).map(|i| st.cursor + 1 + i))
+                    {
+                        Some(k) => format!(
+                            "the replayed run waits for something else (if for a feedback frame, the recording has the next \
+                             one only after this step, at record {k})"
+                        ),
+                        None => "the replayed run waits for something else".to_string(),
+                    },
                 };
                 let _ = st.diverge(format!("{doing}, and nothing happened for {stall_after:?}"));
                 return;
@@ -490,13 +501,8 @@ impl AsyncWrite for ReplayStream {
                 let got = format!("the client wrote {} on the {} socket", show_bytes(buf), self.socket.name());
                 Poll::Ready(Err(st.diverge(got)))
             }
-            None if st.events.get(cursor).is_some_and(is_feedback_read) => {
-                st.wait(cx);
-                Poll::Pending
-            }
             None => {
-                let got = format!("the client wrote {} on the {} socket", show_bytes(buf), self.socket.name());
-                Poll::Ready(Err(st.diverge(got)))
+                st.job_step_elsewhere(cx, || format!("the client wrote {} on the {} socket", show_bytes(buf), self.socket.name())).map(Err)
             }
         }
     }
@@ -539,13 +545,7 @@ impl ReplayCamera {
             };
             return Poll::Ready(Ok(Frame { image, t_capture_s: f.t_capture_s, seq: f.seq }));
         }
-        if st.events.get(cursor).is_some_and(is_feedback_read) {
-            st.wait(cx);
-            return Poll::Pending;
-        }
-        let got = format!("the job asked camera {} for a frame", self.name);
-        let _ = st.diverge(got);
-        Poll::Ready(Err(device_error(st.failure().to_string())))
+        st.job_step_elsewhere(cx, || format!("the job asked camera {} for a frame", self.name)).map(|e| Err(device_error(e.to_string())))
     }
 }
 

@@ -363,13 +363,13 @@ impl Drop for Mg400Client {
 impl Mg400Client {
     /// Connects the three sockets and waits for the first valid feedback frame.
     pub async fn connect(cfg: Mg400Config, clock: Arc<dyn Clock>) -> Result<Mg400Client, ArmError> {
-        let t = cfg.connect_timeout;
-        let dashboard = connect_tcp(&cfg.host, cfg.dashboard_port, t, "dashboard").await?;
-        let motion = connect_tcp(&cfg.host, cfg.motion_port, t, "motion").await?;
-        let feedback = connect_tcp(&cfg.host, cfg.feedback_port, t, "feedback").await?;
-        let link = |port, role| (Some(tcp_reopen(&cfg.host, port, t, role)), format!("{role} port {}:{port}", cfg.host));
+        let link = |port, role| (tcp_reopen(&cfg.host, port, cfg.connect_timeout, role), format!("{role} port {}:{port}", cfg.host));
         let links = [link(cfg.dashboard_port, "dashboard"), link(cfg.motion_port, "motion"), link(cfg.feedback_port, "feedback")];
-        let mut client = Self::build(cfg, clock, [Box::new(dashboard), Box::new(motion), Box::new(feedback)], links, true);
+        // The first connections are opened the way lost ones are reopened.
+        let [(d, _), (m, _), (f, _)] = &links;
+        let streams = [d().await?, m().await?, f().await?];
+        let links = links.map(|(open, where_)| (Some(open), where_));
+        let mut client = Self::build(cfg, clock, streams, links, true);
         client.first_feedback().await?;
         Ok(client)
     }
