@@ -183,9 +183,6 @@ fn a_client_that_sends_something_else_is_a_divergence_naming_both_sides() {
     assert!(first_write.is_some(), "the recording holds requests");
 }
 
-/// The client alone, through a collision alarm and its recovery: recorded against the
-/// simulated MG400 on a multi-threaded runtime (as `rig collect` runs), replayed on one thread
-/// with no simulator; every result must be the same.
 /// An in-process arm session on the simulator, recorded, and its replay (the alarm and the
 /// reordering tests below).
 mod session {
@@ -224,6 +221,11 @@ mod session {
     /// Runs the session on a simulator with `faults`, recording into `path` (multi-threaded,
     /// as `rig collect --record` runs).
     pub fn record(path: &Path, faults: SimFaults) -> Vec<String> {
+        record_script(path, faults, run)
+    }
+
+    /// [`record`] with another session than [`run`].
+    pub fn record_script(path: &Path, faults: SimFaults, script: impl AsyncFn(&mut Mg400Client) -> Vec<String>) -> Vec<String> {
         tokio::runtime::Runtime::new().expect("runtime").block_on(async {
             let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
             let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
@@ -241,7 +243,7 @@ mod session {
             ))
             .expect("header");
             recorder.begin(&header).expect("header written");
-            let log = run(&mut arm).await;
+            let log = script(&mut arm).await;
             recorder.finish().expect("recording closed");
             drop(arm);
             sim.shutdown().await;
@@ -250,8 +252,19 @@ mod session {
     }
 
     /// Replays the session over `events` (of `recording`) on a current-thread runtime, as `rig
-    /// replay` does: its log, or where it left the recording.
-    pub fn replay(recording: &Recording, events: Vec<Event>) -> Result<Vec<String>, Divergence> {
+    /// replay` does: its log, or where it left the recording. `decisions`: the client's
+    /// decisions on the feedback follow the recorded ones, as for a recording of version 5 on.
+    pub fn replay(recording: &Recording, events: Vec<Event>, decisions: bool) -> Result<Vec<String>, Divergence> {
+        replay_script(recording, events, decisions, run)
+    }
+
+    /// [`replay`] with another session than [`run`].
+    pub fn replay_script(
+        recording: &Recording,
+        events: Vec<Event>,
+        decisions: bool,
+        script: impl AsyncFn(&mut Mg400Client) -> Vec<String>,
+    ) -> Result<Vec<String>, Divergence> {
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
         runtime.block_on(async {
             let replay = ReplaySession::new(events, vec![]);
@@ -266,8 +279,11 @@ mod session {
                 clock,
                 [replayed(SocketId::Dashboard), replayed(SocketId::Motion), replayed(SocketId::Feedback)],
             );
+            if decisions {
+                arm.set_witness(replay.witness());
+            }
             let first = arm.wait_first_feedback().await;
-            let log = if first.is_ok() { run(&mut arm).await } else { Vec::new() };
+            let log = if first.is_ok() { script(&mut arm).await } else { Vec::new() };
             watchdog.abort();
             if let Some(d) = replay.divergence() {
                 return Err(d);
@@ -279,6 +295,9 @@ mod session {
     }
 }
 
+/// The client alone, through a collision alarm and its recovery: recorded against the
+/// simulated MG400 on a multi-threaded runtime (as `rig collect` runs), replayed on one thread
+/// with no simulator; every result must be the same.
 #[test]
 fn an_alarm_and_its_recovery_replay_the_same() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -287,8 +306,62 @@ fn an_alarm_and_its_recovery_replay_the_same() {
     let recorded = session::record(&path, faults);
     assert!(recorded[4].contains("collision"), "the second move must collide: {recorded:#?}");
     let recording = rig::record::Recording::read(&path).expect("reading the recording");
-    let replayed = session::replay(&recording, recording.events.clone()).unwrap_or_else(|d| panic!("{d}"));
+    assert!(recording.version >= 5 && recording.events.iter().any(|e| matches!(e, Event::FeedbackUsed { .. })));
+    let replayed = session::replay(&recording, recording.events.clone(), true).unwrap_or_else(|d| panic!("{d}"));
     assert_eq!(replayed, recorded);
+}
+
+/// Since format version 5 the recording names the feedback frame each decision of the client
+/// went by (in alarm? arrived? enabled? the queue running?). Live, a frame can be logged before a
+/// decision and yet not be the one it saw: the reader logs a read, then publishes its frames.
+/// A replay publishes a frame as soon as its read is next, so it must decide on the recorded
+/// frame, not the newest. This moves every run of feedback reads before up to three events ahead
+/// of it (back to the previous feedback, at the time of the first event passed), so that
+/// decisions face frames newer than the ones they went by, and replays: the same outcome, for a
+/// clean session and for one with a collision alarm.
+#[test]
+fn decisions_go_by_the_recorded_frame_however_early_the_feedback_is_read() {
+    use rig::record::SocketId;
+    let is_feedback =
+        |e: &Event| matches!(e, Event::Socket { socket: SocketId::Feedback, .. } | Event::Connect { socket: SocketId::Feedback, .. });
+    let tmp = tempfile::tempdir().expect("tempdir");
+    for (name, faults) in [
+        ("clean", rig::sim::mg400::SimFaults::default()),
+        ("alarm", rig::sim::mg400::SimFaults { collision_at_move: Some(2), ..Default::default() }),
+    ] {
+        let path = tmp.path().join(format!("{name}.rec"));
+        let recorded = session::record(&path, faults);
+        let recording = rig::record::Recording::read(&path).expect("reading the recording");
+        let mut events: Vec<Event> = Vec::new();
+        let (mut moved, mut past_decisions) = (0, 0);
+        let mut rest = recording.events.as_slice();
+        while let Some(e) = rest.first() {
+            let run = rest.iter().take_while(|e| is_feedback(e)).count();
+            // Up to three events ahead of the run, back to the previous feedback.
+            let keep = events.len() - events.iter().rev().take(3).take_while(|a| !is_feedback(a)).count();
+            if run > 0 && keep < events.len() {
+                let ahead = events.split_off(keep);
+                past_decisions += ahead.iter().filter(|a| matches!(a, Event::FeedbackUsed { .. })).count();
+                let t_first = ahead[0].t_s();
+                events.extend(rest[..run].iter().cloned().map(|mut f| {
+                    if let Event::Socket { t_s, .. } = &mut f {
+                        *t_s = t_first;
+                    }
+                    f
+                }));
+                events.extend(ahead);
+                moved += 1;
+                rest = &rest[run..];
+            } else {
+                events.push(e.clone());
+                rest = &rest[1..];
+            }
+        }
+        assert_eq!(events.len(), recording.events.len());
+        assert!(moved >= 5 && past_decisions >= 4, "{name}: {moved} runs moved, {past_decisions} past a decision");
+        let replayed = session::replay(&recording, events, true).unwrap_or_else(|d| panic!("{name}: {d}"));
+        assert_eq!(replayed, recorded, "{name}");
+    }
 }
 
 /// The client's feedback reader logs a read, then publishes its frames; the job may look at the
@@ -299,7 +372,8 @@ fn an_alarm_and_its_recovery_replay_the_same() {
 /// bytes stay in their order; only where the feedback falls between the other sockets' events
 /// changes. Where the feedback right after a `Sync()` reply runs up to a read whose last frame
 /// shows the arm at rest (mode 5), those reads move before the reply (at its time), and the
-/// rest of that feedback moves after the job's next event.
+/// rest of that feedback moves after the job's next event. A recording of version 4 or older
+/// (no decisions recorded), so the replayed client decides on the frames it holds.
 #[test]
 fn feedback_logged_before_a_sync_reply_but_seen_after_it_replays_the_same() {
     use rig::arm::dobot::proto::{FeedbackDecoder, RobotMode};
@@ -308,7 +382,8 @@ fn feedback_logged_before_a_sync_reply_but_seen_after_it_replays_the_same() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let path = tmp.path().join("clean.rec");
     let recorded = session::record(&path, rig::sim::mg400::SimFaults::default());
-    let recording = rig::record::Recording::read(&path).expect("reading the recording");
+    let mut recording = rig::record::Recording::read(&path).expect("reading the recording");
+    recording.events.retain(|e| !matches!(e, Event::FeedbackUsed { .. }));
     let is_feedback = |e: &Event| matches!(e, Event::Socket { socket: SocketId::Feedback, .. });
     let is_sync_reply = |e: &Event| {
         matches!(e, Event::Socket { socket: SocketId::Motion, direction: Direction::FromController, bytes, .. }
@@ -362,7 +437,40 @@ fn feedback_logged_before_a_sync_reply_but_seen_after_it_replays_the_same() {
     assert!(moved >= 1, "no Sync() reply is followed by feedback showing the arm at rest");
     let events: Vec<Event> = events.into_iter().map(|(e, _)| e).collect();
     assert_eq!(events.len(), recording.events.len());
-    let replayed = session::replay(&recording, events).unwrap_or_else(|d| panic!("{d}"));
+    let replayed = session::replay(&recording, events, false).unwrap_or_else(|d| panic!("{d}"));
+    assert_eq!(replayed, recorded);
+}
+
+/// A wait for arrival that timed out (for a pose the arm was not sent to: the queue is empty,
+/// so `Sync()` answers at once, and the feedback never shows that pose) is recorded as such and
+/// replays as a timeout at the same point, although a replay takes no time.
+#[test]
+fn a_wait_that_timed_out_replays_as_a_timeout() {
+    use rig::arm::dobot::client::Mg400Client;
+    use rig::arm::{Arm, MoveKind};
+    use rig::pose::Pose;
+    async fn script(arm: &mut Mg400Client) -> Vec<String> {
+        let target = Pose::new(250.0, -80.0, -40.0, 30.0);
+        let elsewhere = Pose::new(250.0, -80.0, -40.0, 31.0);
+        let mut log = vec![format!("{:?}", arm.enable().await), format!("{:?}", arm.move_to(target, MoveKind::Joint).await)];
+        for (pose, wait_ms) in [(target, 20_000), (elsewhere, 300), (target, 20_000)] {
+            let arrived = arm.wait_arrived(pose, std::time::Duration::from_millis(wait_ms)).await;
+            log.push(match arrived {
+                Ok(a) => format!("arrived at {:?}", a.measured),
+                Err(e) => format!("timed out: {}", matches!(e, rig::arm::ArmError::Timeout { .. })),
+            });
+        }
+        log.push(format!("{:?}", arm.disable().await));
+        log
+    }
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("timeout.rec");
+    let recorded = session::record_script(&path, rig::sim::mg400::SimFaults::default(), script);
+    assert!(recorded[2].starts_with("arrived") && recorded[4].starts_with("arrived"), "{recorded:#?}");
+    assert_eq!(recorded[3], "timed out: true", "{recorded:#?}");
+    let recording = rig::record::Recording::read(&path).expect("reading the recording");
+    assert!(recording.events.iter().any(|e| matches!(e, Event::FeedbackUsed { seq: None, .. })), "no timed-out wait recorded");
+    let replayed = session::replay_script(&recording, recording.events.clone(), true, script).unwrap_or_else(|d| panic!("{d}"));
     assert_eq!(replayed, recorded);
 }
 

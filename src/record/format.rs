@@ -5,7 +5,7 @@
 //! This file depends on nothing but `std` and `thiserror`, so the fuzz target compiles it
 //! alone. The header is carried as text here; `record::header` gives it its meaning.
 //!
-//! # Layout (format version 4; versions 1 to 3 are read too), all integers little-endian
+//! # Layout (format version 5; versions 1 to 4 are read too), all integers little-endian
 //!
 //! | offset | size | field | meaning |
 //! |---|---|---|---|
@@ -19,7 +19,7 @@
 //!
 //! | size | field | meaning |
 //! |---|---|---|
-//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 0xFF end |
+//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 6 feedback used (version 5), 0xFF end |
 //! | 4 | `u32` L | body length, bytes |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
@@ -49,13 +49,20 @@
 //! failed, 2 timed out): the client opening a socket again after losing it. The first
 //! connection of each socket is not recorded (it precedes the header).
 //!
+//! Feedback-used body (17 bytes, version 5): `f64` `t_s`, `u8` what (0 a frame, 1 a wait that
+//! timed out), `u64` the frame's number (frames count from 1 since the client started; 0: none
+//! had arrived yet; 0 after a timeout): the client deciding something on the feedback (whether
+//! the arm is in alarm, has arrived, is enabled), with the frame it went by. The feedback
+//! reader publishes a frame only after its read was recorded, so which frame a decision saw is
+//! a matter of scheduling; a replay makes the same decision on the same frame.
+//!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
 
 /// First bytes of every recording.
 pub const MAGIC: &[u8; 8] = b"RIGREC\n\0";
 /// The format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 4;
+pub const FORMAT_VERSION: u16 = 5;
 /// The oldest version this build reads (version 1 has no interrupt records).
 pub const OLDEST_READ_VERSION: u16 = 1;
 
@@ -67,6 +74,8 @@ const KIND_PERIPHERALS: u8 = 4;
 const PERIPHERALS_FIXED: usize = 8 + 1 + 1;
 const KIND_CONNECT: u8 = 5;
 const CONNECT_LEN: usize = 1 + 8 + 1;
+const KIND_FEEDBACK_USED: u8 = 6;
+const FEEDBACK_USED_LEN: usize = 8 + 1 + 8;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
@@ -141,6 +150,13 @@ pub enum Event {
         t_s: f64,
         outcome: ConnectOutcome,
     },
+    /// The client decided something on the feedback (version 5): `Some(seq)`, by the frame
+    /// numbered `seq` (from 1; 0: no frame had arrived), `None`: its wait for a frame that
+    /// fits timed out.
+    FeedbackUsed {
+        t_s: f64,
+        seq: Option<u64>,
+    },
 }
 
 /// How a reconnection went.
@@ -203,6 +219,7 @@ impl Event {
             Event::Interrupt { t_s, .. } => *t_s,
             Event::Peripherals { t_s, .. } => *t_s,
             Event::Connect { t_s, .. } => *t_s,
+            Event::FeedbackUsed { t_s, .. } => *t_s,
         }
     }
 }
@@ -364,6 +381,13 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             body.extend_from_slice(&t_s.to_le_bytes());
             body.push(outcome.code());
             encode_record(KIND_CONNECT, &body)
+        }
+        Event::FeedbackUsed { t_s, seq } => {
+            let mut body = Vec::with_capacity(FEEDBACK_USED_LEN);
+            body.extend_from_slice(&t_s.to_le_bytes());
+            body.push(u8::from(seq.is_none()));
+            body.extend_from_slice(&seq.unwrap_or(0).to_le_bytes());
+            encode_record(KIND_FEEDBACK_USED, &body)
         }
     }
 }
@@ -543,6 +567,24 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 let outcome = ConnectOutcome::from_code(outcome).ok_or_else(|| malformed(format!("unknown connect outcome {outcome}")))?;
                 events.push(Event::Connect { socket, t_s, outcome });
             }
+            KIND_FEEDBACK_USED if version >= 5 => {
+                let (Some(t_s), Some(what), Some(seq)) = (b.f64(), b.u8(), b.u64()) else {
+                    return Err(malformed(format!("feedback-used record body of {len} bytes, not {FEEDBACK_USED_LEN}")));
+                };
+                if len != FEEDBACK_USED_LEN {
+                    return Err(malformed(format!("feedback-used record body of {len} bytes, not {FEEDBACK_USED_LEN}")));
+                }
+                if !t_s.is_finite() {
+                    return Err(malformed(format!("time {t_s} is not finite")));
+                }
+                let seq = match (what, seq) {
+                    (0, seq) => Some(seq),
+                    (1, 0) => None,
+                    (1, seq) => return Err(malformed(format!("a timed-out wait names frame {seq}"))),
+                    (w, _) => return Err(malformed(format!("unknown feedback use {w}"))),
+                };
+                events.push(Event::FeedbackUsed { t_s, seq });
+            }
             KIND_END => {
                 let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
                 if said != record as u64 {
@@ -603,7 +645,7 @@ mod tests {
         assert_eq!(r.events[2], Event::Interrupt { t_s: 1.5, captured: 3 });
         // Version 1 has no interrupt kind: such a file is corrupt, not silently misread.
         assert!(matches!(decode(&with_version(1)), Err(FormatError::UnknownKind { record: 2, kind: 3, .. })));
-        assert!(matches!(decode(&with_version(5)), Err(FormatError::UnsupportedVersion { found: 5, oldest: 1, supported: 4 })));
+        assert!(matches!(decode(&with_version(6)), Err(FormatError::UnsupportedVersion { found: 6, oldest: 1, supported: 5 })));
         // Two interrupts.
         let mut two = encode_preamble("{}");
         for _ in 0..2 {
@@ -716,7 +758,8 @@ mod tests {
             t_s,
             outcome: ConnectOutcome::ALL[usize::from(o)],
         });
-        prop_oneof![socket, frame, peripherals, connect]
+        let used = (-1e6f64..1e6, proptest::option::of(any::<u64>())).prop_map(|(t_s, seq)| Event::FeedbackUsed { t_s, seq });
+        prop_oneof![socket, frame, peripherals, connect, used]
     }
 
     proptest::proptest! {
@@ -778,6 +821,28 @@ mod tests {
         assert_eq!(decode(&bytes).map(|r| r.events), Ok(vec![again]));
         set_version(&mut bytes, 3);
         assert!(matches!(decode(&bytes), Err(FormatError::UnknownKind { record: 0, kind: 5, .. })), "{:?}", decode(&bytes));
+    }
+
+    #[test]
+    fn a_decision_on_the_feedback_is_a_feedback_used_record_from_version_5() {
+        let used = [Event::FeedbackUsed { t_s: 3.0, seq: Some(41) }, Event::FeedbackUsed { t_s: 3.5, seq: None }];
+        let mut bytes = encode_preamble("{}");
+        for e in &used {
+            bytes.extend(encode_event(e));
+        }
+        bytes.extend(encode_end(2));
+        assert_eq!(&encode_event(&used[0])[..5], &[6, 17, 0, 0, 0]);
+        assert_eq!(decode(&bytes).map(|r| r.events), Ok(used.to_vec()));
+        set_version(&mut bytes, 4);
+        assert!(matches!(decode(&bytes), Err(FormatError::UnknownKind { record: 0, kind: 6, .. })), "{:?}", decode(&bytes));
+        // A timed-out wait has no frame; an unknown use is damage.
+        let t = 1.0f64.to_le_bytes();
+        for (what, seq) in [(1u8, 7u64), (2, 0)] {
+            let mut bad = encode_preamble("{}");
+            bad.extend(encode_record(KIND_FEEDBACK_USED, &[&t[..], &[what], &seq.to_le_bytes()].concat()));
+            bad.extend(encode_end(1));
+            assert!(matches!(decode(&bad), Err(FormatError::Malformed { record: 0, .. })), "{what} {seq}: {:?}", decode(&bad));
+        }
     }
 
     #[test]

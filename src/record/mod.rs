@@ -8,6 +8,8 @@
 //! options, firmware profile, sensors, seed) comes first. The byte layout is in [`mod@format`].
 //!
 //! A lost socket is reopened as by an unrecorded client, and the reconnection is recorded too.
+//! So is each decision the client makes on the feedback, with the frame it went by (the
+//! client's [`Witness`]).
 //!
 //! Replay (`rig replay FILE`): [`replay::replay_collection`] runs the real [`Mg400Client`] on
 //! [`replay::ReplayStream`]s (reopened where the recording reconnected) and gives the job
@@ -31,7 +33,7 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, connect_tcp};
+use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, Witness, connect_tcp};
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
@@ -104,6 +106,8 @@ pub struct RecordingHeader {
 /// A decoded recording: header and events.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording {
+    /// The format version it was written in.
+    pub version: u16,
     pub header: RecordingHeader,
     pub events: Vec<Event>,
 }
@@ -132,7 +136,7 @@ impl Recording {
                 });
             }
         }
-        Ok(Self { header, events: raw.events })
+        Ok(Self { version: raw.version, header, events: raw.events })
     }
 }
 
@@ -233,6 +237,12 @@ impl Recorder {
     /// Logs how the client's reconnection of `socket` went.
     pub fn log_connect(&self, socket: SocketId, outcome: ConnectOutcome) {
         self.log(|t_s| Event::Connect { socket, t_s, outcome });
+    }
+
+    /// Logs a decision of the client on the feedback: the frame it went by (`Some(seq)`, 0: none
+    /// had arrived) or that its wait timed out (`None`).
+    pub fn log_feedback_used(&self, seq: Option<u64>) {
+        self.log(|t_s| Event::FeedbackUsed { t_s, seq });
     }
 
     /// Logs a frame handed to the job by camera number `camera`.
@@ -416,6 +426,7 @@ pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder:
     let motion = open(SocketId::Motion, cfg.motion_port).await?;
     let feedback = open(SocketId::Feedback, cfg.feedback_port).await?;
     let mut client = Mg400Client::with_reopen(cfg, clock, [dashboard, motion, feedback]);
+    client.set_witness(Witness::Report(Arc::new(move |seq| recorder.log_feedback_used(seq))));
     client.wait_first_feedback().await?;
     Ok(client)
 }

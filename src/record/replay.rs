@@ -24,6 +24,12 @@
 //!   it is next, the job's when it is next or after the feedback recorded before it, and the
 //!   job's facing anything else is a divergence. A lost connection (a socket record without
 //!   bytes) is served as the end of the stream, or as a failed write;
+//! - a decision of the client on the feedback (version 5: in alarm? arrived? enabled?) is served
+//!   like a write: the recorded frame's number, when it is next or after the feedback recorded
+//!   before it, and facing anything else it is a divergence; the client then decides by that
+//!   frame, not by the newest it holds (a live reader logs a read before it publishes, so a frame
+//!   logged before a decision need not be one it saw). An alarm racing a `Sync()` reply waits
+//!   behind the reply instead. Before version 5 the client decides on the frames it holds;
 //! - after each chunk a stream yields once, so the job's task sees every feedback frame the
 //!   way it did live (the client keeps only the newest frame).
 //!
@@ -44,7 +50,7 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use super::format::{ConnectOutcome, Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
 use super::{REPLAY_CLIENT_TIMEOUT, Recording};
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen};
+use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, Witness};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MockClock};
 use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
@@ -162,6 +168,9 @@ impl SessionState {
             Event::Interrupt { captured, .. } => format!("the operator's interrupt after {captured} poses"),
             Event::Peripherals { phase, .. } => format!("the peripherals' {phase:?} capture call"),
             Event::Connect { socket, outcome, .. } => format!("the client reconnecting the {} socket ({outcome:?})", socket.name()),
+            Event::FeedbackUsed { seq: Some(0), .. } => "the client deciding on the feedback before any frame arrived".to_string(),
+            Event::FeedbackUsed { seq: Some(seq), .. } => format!("the client deciding on the feedback by frame {seq}"),
+            Event::FeedbackUsed { seq: None, .. } => "the client's wait for a fitting feedback frame timing out".to_string(),
         }
     }
 
@@ -335,6 +344,40 @@ impl ReplaySession {
             return Poll::Pending;
         }
         st.job_step_elsewhere(cx, || format!("the client reconnected the {} socket", socket.name())).map(|e| Err(failed(e)))
+    }
+
+    /// Dictates the replayed client's decisions on the feedback: each is served the recorded
+    /// decision's frame where the recording has it (a recording of version 5 on).
+    pub fn witness(&self) -> Witness {
+        let session = self.clone();
+        Witness::Dictate(Arc::new(move |races_a_reply| {
+            let session = session.clone();
+            Box::pin(async move { poll_fn(|cx| session.poll_feedback_used(races_a_reply, cx)).await })
+        }))
+    }
+
+    fn poll_feedback_used(&self, races_a_reply: bool, cx: &mut Context<'_>) -> Poll<Result<Option<u64>, ArmError>> {
+        let mut st = self.lock();
+        let failed = |source| ArmError::Io { context: "deciding on the MG400 feedback".into(), source };
+        if st.divergence.is_some() {
+            return Poll::Ready(Err(failed(st.failure())));
+        }
+        // Replies the client gave up on stay in their socket, as before a write; not while the
+        // decision races a reply (an alarm during `Sync`), which waits while anything else comes
+        // first.
+        if !races_a_reply {
+            st.shelve_unread_replies(&self.clock);
+        }
+        if let Some(Event::FeedbackUsed { t_s, seq }) = st.events.get(st.cursor) {
+            let (t_s, seq) = (*t_s, *seq);
+            st.served(1, 1, t_s, &self.clock);
+            return Poll::Ready(Ok(seq));
+        }
+        if races_a_reply {
+            st.wait(cx);
+            return Poll::Pending;
+        }
+        st.job_step_elsewhere(cx, || "the client decided on the feedback".to_string()).map(|e| Err(failed(e)))
     }
 
     /// The replay of camera number `index` of the header's list.
@@ -719,6 +762,11 @@ async fn run_job(
         Arc::clone(&clock),
         [replayed(SocketId::Dashboard), replayed(SocketId::Motion), replayed(SocketId::Feedback)],
     );
+    // Before version 5 the decisions on the feedback were not recorded: the client makes them
+    // on the frames it holds, which is a matter of scheduling (the module docs).
+    if recording.version >= 5 {
+        arm.set_witness(session.witness());
+    }
     // As the recorded run's connect did.
     arm.wait_first_feedback().await.map_err(CollectError::from)?;
 
@@ -816,6 +864,63 @@ mod tests {
         let d = session.divergence().expect("a divergence");
         assert_eq!(d.record, 0);
         assert!(d.expected.contains("RobotMode()") && d.got.contains("reconnected the dashboard socket"), "{d}");
+    }
+
+    /// The decision the witness dictates, as the client asks for it.
+    async fn decide(session: &ReplaySession, races_a_reply: bool) -> Result<Option<u64>, ArmError> {
+        let Witness::Dictate(next) = session.witness() else { panic!("a replay dictates") };
+        next(races_a_reply).await
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn decisions_get_the_recorded_frames_after_the_feedback_before_them() {
+        let session = ReplaySession::new(
+            vec![
+                Event::FeedbackUsed { t_s: 0.5, seq: Some(0) },
+                ev(SocketId::Feedback, Direction::FromController, 1.0, b"frame"),
+                Event::FeedbackUsed { t_s: 1.5, seq: Some(1) },
+                Event::FeedbackUsed { t_s: 2.0, seq: None },
+            ],
+            vec![],
+        );
+        assert_eq!(decide(&session, false).await.unwrap(), Some(0));
+        let s = session.clone();
+        let second = tokio::spawn(async move { decide(&s, false).await });
+        tokio::task::yield_now().await;
+        assert_eq!(session.position().0, 1, "the decision waits for the feedback recorded before it");
+        let mut f = session.stream(SocketId::Feedback);
+        let mut buf = [0u8; 8];
+        assert_eq!(f.read(&mut buf).await.unwrap(), 5);
+        assert_eq!(second.await.unwrap().unwrap(), Some(1));
+        assert_eq!(decide(&session, false).await.unwrap(), None, "the recorded wait timed out");
+        assert_eq!(session.clock().now_s(), 2.0);
+        assert!(session.check_finished().is_ok());
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_decision_the_recording_lacks_is_a_divergence_and_one_racing_a_reply_waits() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::FromController, 1.0, b"0,{},Sync();"),
+                ev(SocketId::Dashboard, Direction::ToController, 1.1, b"GetErrorID()"),
+            ],
+            vec![],
+        );
+        // Racing the Sync reply: it waits while the reply is next.
+        let s = session.clone();
+        let racing = tokio::spawn(async move { decide(&s, true).await });
+        tokio::task::yield_now().await;
+        assert!(!racing.is_finished() && session.divergence().is_none());
+        racing.abort();
+        let mut m = session.stream(SocketId::Motion);
+        let mut buf = [0u8; 32];
+        assert_eq!(m.read(&mut buf).await.unwrap(), 12);
+        // Not racing anything, facing a write: a divergence naming both.
+        let err = decide(&session, false).await.unwrap_err();
+        assert!(matches!(err, ArmError::Io { .. }), "{err:?}");
+        let d = session.divergence().expect("a divergence");
+        assert_eq!(d.record, 1);
+        assert!(d.expected.contains("GetErrorID()") && d.got.contains("decided on the feedback"), "{d}");
     }
 
     #[tokio::test(flavor = "current_thread")]

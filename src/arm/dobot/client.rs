@@ -25,6 +25,15 @@
 //! and timeouts; [`Arm::clear_error`] runs the recovery flow (GetErrorID, ClearError,
 //! Continue, EnableRobot when the arm dropped to mode 4).
 //!
+//! Decisions on the feedback: whether the arm is in alarm before a move or a `Sync()`, which
+//! frame ends a wait (arrival, enable, a cleared alarm), whether the queue runner is stopped,
+//! whether the arm dropped to disabled, and the pose it reports. Each goes by the newest frame
+//! the client holds, and which frame that is depends on scheduling: the reader may have read a
+//! frame and not yet published it. So every such decision goes through a [`Witness`]: a
+//! recording logs the number of the frame it went by (or that a wait timed out), and a replay
+//! makes it by that frame, kept in a short history, whatever the reader has decoded since. A
+//! `Sync()` racing an alarm takes the reply when both are ready, live and replayed alike.
+//!
 //! The client never keeps more than `max_queued_commands` moves queued on the controller:
 //! past that it waits for Sync before sending more (the real controller freezes past ~50).
 //! Socket timeouts run on real time; [`Arrival::t_s`] is stamped from the [`Clock`] passed in.
@@ -129,6 +138,30 @@ fn io_err(context: String, source: std::io::Error) -> ArmError {
 
 /// Opens a new connection to one of the arm's ports, when the old one was lost.
 pub type Reopen = Arc<dyn Fn() -> Pin<Box<dyn Future<Output = Result<Box<dyn ByteStream>, ArmError>> + Send>> + Send + Sync>;
+
+/// What a replayed decision on the feedback went by, when the recording gives it: see [`Witness`].
+pub type Dictated = Pin<Box<dyn Future<Output = Result<Option<u64>, ArmError>> + Send>>;
+
+/// Who learns of the client's decisions on the feedback (see "Decisions on the feedback" in
+/// the module docs).
+#[derive(Clone, Default)]
+pub enum Witness {
+    /// Nobody (an unrecorded run).
+    #[default]
+    Unwatched,
+    /// Each decision is reported as it is made (a recording): the number of the frame it went
+    /// by ([`FeedbackSample::seq`]; 0 when none had arrived), or `None` when a wait for a
+    /// fitting frame timed out.
+    Report(Arc<dyn Fn(Option<u64>) + Send + Sync>),
+    /// Each decision is dictated (a replay): the future gives what the recorded decision went
+    /// by, in the same terms. Its argument says whether the decision races a reply (an alarm
+    /// during `Sync`), so that it may wait behind the reply instead of finding it out of place.
+    Dictate(Arc<dyn Fn(bool) -> Dictated + Send + Sync>),
+}
+
+/// How many of the newest feedback samples the client keeps, so that a replayed decision can
+/// go by the recorded frame although the reader has decoded later ones.
+const HISTORY: usize = 64;
 
 /// A [`Reopen`] that connects over TCP.
 fn tcp_reopen(host: &str, port: u16, timeout: Duration, role: &'static str) -> Reopen {
@@ -300,6 +333,7 @@ async fn feedback_task(
     reopen: Option<Reopen>,
     clock: Arc<dyn Clock>,
     tx: watch::Sender<Option<FeedbackSample>>,
+    history: Arc<std::sync::Mutex<VecDeque<FeedbackSample>>>,
 ) {
     let mut stream = first;
     let mut seq = 0u64;
@@ -327,7 +361,15 @@ async fn feedback_task(
                     decoder.push(&buf[..n]);
                     while let Some(frame) = decoder.next_frame() {
                         seq += 1;
-                        tx.send_replace(Some(FeedbackSample { frame, seq, t_s: clock.now_s() }));
+                        let sample = FeedbackSample { frame, seq, t_s: clock.now_s() };
+                        {
+                            let mut held = history.lock().unwrap_or_else(|p| p.into_inner());
+                            if held.len() == HISTORY {
+                                held.pop_front();
+                            }
+                            held.push_back(sample);
+                        }
+                        tx.send_replace(Some(sample));
                     }
                 }
             }
@@ -349,6 +391,9 @@ pub struct Mg400Client {
     dashboard: CommandLink,
     motion: CommandLink,
     feedback: watch::Receiver<Option<FeedbackSample>>,
+    /// The newest [`HISTORY`] samples, oldest first.
+    history: Arc<std::sync::Mutex<VecDeque<FeedbackSample>>>,
+    witness: Witness,
     feedback_task: JoinHandle<()>,
     /// Moves sent since the queue was last known to be empty.
     queued_moves: usize,
@@ -419,11 +464,14 @@ impl Mg400Client {
             abandoned: VecDeque::new(),
         };
         let (tx, rx) = watch::channel(None);
-        let feedback_task = tokio::spawn(feedback_task(Some(feedback), f_reopen, clock.clone(), tx));
+        let history = Arc::new(std::sync::Mutex::new(VecDeque::with_capacity(HISTORY)));
+        let feedback_task = tokio::spawn(feedback_task(Some(feedback), f_reopen, clock.clone(), tx, Arc::clone(&history)));
         Mg400Client {
             dashboard: link("dashboard", d_reopen, d_where, dashboard),
             motion: link("motion", m_reopen, m_where, motion),
             feedback: rx,
+            history,
+            witness: Witness::Unwatched,
             feedback_task,
             queued_moves: 0,
             clock,
@@ -441,9 +489,61 @@ impl Mg400Client {
         self.queued_moves
     }
 
-    /// The newest feedback frame, if any arrived.
+    /// The newest feedback frame, if any arrived. For display: the client's own decisions go
+    /// through the [`Witness`].
     pub fn latest_feedback(&self) -> Option<FeedbackSample> {
         *self.feedback.borrow()
+    }
+
+    /// Sets who learns of the client's decisions on the feedback (before the first one: a
+    /// recording before [`wait_first_feedback`](Self::wait_first_feedback)).
+    pub fn set_witness(&mut self, witness: Witness) {
+        self.witness = witness;
+    }
+
+    fn report(&self, used: Option<u64>) {
+        if let Witness::Report(report) = &self.witness {
+            report(used);
+        }
+    }
+
+    /// The newest feedback sample, for a decision: reported to the witness, or in a replay, the
+    /// sample the recorded decision went by.
+    async fn observe(&mut self) -> Result<Option<FeedbackSample>, ArmError> {
+        let Witness::Dictate(next) = &self.witness else {
+            let sample = self.latest_feedback();
+            self.report(Some(sample.map_or(0, |s| s.seq)));
+            return Ok(sample);
+        };
+        match next(false).await? {
+            Some(seq) => self.sample_numbered(seq).await,
+            None => Err(ArmError::Protocol(
+                "the recording has a wait for feedback that timed out where the replayed client looked at the newest frame".into(),
+            )),
+        }
+    }
+
+    /// The sample numbered `seq` (0: none), once the feedback reader has decoded it.
+    async fn sample_numbered(&mut self, seq: u64) -> Result<Option<FeedbackSample>, ArmError> {
+        if seq == 0 {
+            return Ok(None);
+        }
+        loop {
+            {
+                let held = self.history.lock().unwrap_or_else(|p| p.into_inner());
+                if let Some(s) = held.iter().find(|s| s.seq == seq) {
+                    return Ok(Some(*s));
+                }
+                if held.back().is_some_and(|s| s.seq > seq) {
+                    return Err(ArmError::Protocol(format!(
+                        "the recorded decision went by feedback frame {seq}, older than the {HISTORY} frames the client keeps"
+                    )));
+                }
+            }
+            if self.feedback.changed().await.is_err() {
+                return Err(io_err(format!("waiting for feedback frame {seq}"), std::io::Error::other("the feedback reader stopped")));
+            }
+        }
     }
 
     /// Waits (up to the connect timeout) for the first feedback frame, as [`connect`](Self::connect)
@@ -458,8 +558,34 @@ impl Mg400Client {
     }
 
     /// Waits until the newest feedback sample satisfies `pred`: the one held now, or a later
-    /// one (never a frame newer than some snapshot: see the module docs on arrival).
+    /// one (never a frame newer than some snapshot: see the module docs on arrival). A decision:
+    /// the sample, or the timeout, goes to the witness; a replay returns the recorded one.
     async fn wait_feedback(
+        &mut self,
+        deadline: Instant,
+        what: &str,
+        pred: impl FnMut(&FeedbackSample) -> bool,
+    ) -> Result<FeedbackSample, ArmError> {
+        if let Witness::Dictate(next) = &self.witness {
+            return match next(false).await? {
+                Some(seq) => self
+                    .sample_numbered(seq)
+                    .await?
+                    .ok_or_else(|| ArmError::Protocol(format!("{what}: the recording has the wait end before any feedback frame arrived"))),
+                // The recording keeps that the wait timed out, not how long it waited.
+                None => Err(ArmError::Timeout { what: format!("{what} (it timed out in the recorded run)"), after: Duration::ZERO }),
+            };
+        }
+        let waited = self.wait_feedback_live(deadline, what, pred).await;
+        match &waited {
+            Ok(s) => self.report(Some(s.seq)),
+            Err(ArmError::Timeout { .. }) => self.report(None),
+            Err(_) => {}
+        }
+        waited
+    }
+
+    async fn wait_feedback_live(
         &mut self,
         deadline: Instant,
         what: &str,
@@ -528,21 +654,47 @@ impl Mg400Client {
         }
     }
 
-    fn feedback_in_alarm(&self) -> bool {
-        self.latest_feedback().is_some_and(|s| s.frame.in_alarm())
+    /// Whether the newest feedback shows an alarm (a decision, see [`observe`](Self::observe)).
+    async fn feedback_in_alarm(&mut self) -> Result<bool, ArmError> {
+        Ok(self.observe().await?.is_some_and(|s| s.frame.in_alarm()))
+    }
+
+    /// Resolves once the feedback shows an alarm (never, if the feedback stops): a decision
+    /// that races a reply; reported when it resolves.
+    fn alarm_in_feedback(&self) -> impl Future<Output = Result<(), ArmError>> + Send + 'static {
+        let mut feedback = self.feedback.clone();
+        let witness = self.witness.clone();
+        async move {
+            match witness {
+                Witness::Dictate(next) => next(true).await.map(drop),
+                Witness::Report(report) => {
+                    report(Some(wait_for_alarm(&mut feedback).await));
+                    Ok(())
+                }
+                Witness::Unwatched => {
+                    wait_for_alarm(&mut feedback).await;
+                    Ok(())
+                }
+            }
+        }
     }
 
     /// Blocks until the motion queue has drained (Sync), failing early with
     /// [`ArmError::Fault`] when the feedback shows an alarm meanwhile.
     pub async fn sync(&mut self, timeout: Duration) -> Result<(), ArmError> {
-        if self.feedback_in_alarm() {
+        if self.feedback_in_alarm().await? {
             return Err(self.fault().await);
         }
-        let mut feedback = self.feedback.clone();
+        let alarm = self.alarm_in_feedback();
         let attempts = self.cfg.reconnect_attempts;
+        // The reply first: when both are ready, the reply wins, live and in a replay alike.
         let outcome = tokio::select! {
+            biased;
             r = self.motion.request(&Request::Sync, timeout, attempts) => Some(r),
-            () = wait_for_alarm(&mut feedback) => None,
+            seen = alarm => {
+                seen?;
+                None
+            }
         };
         match outcome {
             Some(reply) => {
@@ -587,7 +739,7 @@ impl Mg400Client {
         self.dashboard(&Request::User { index: i64::from(self.cfg.user_index) }).await?;
         self.dashboard(&Request::Tool { index: i64::from(self.cfg.tool_index) }).await?;
         // The official demos restart a stopped queue runner the same way.
-        if self.latest_feedback().is_some_and(|s| !s.frame.run_queued_cmd) {
+        if self.observe().await?.is_some_and(|s| !s.frame.run_queued_cmd) {
             self.dashboard(&Request::Continue).await?;
         }
         self.queued_moves = 0;
@@ -595,11 +747,14 @@ impl Mg400Client {
     }
 }
 
-/// Resolves once a feedback frame shows an alarm (never, if the feedback stops).
-async fn wait_for_alarm(feedback: &mut watch::Receiver<Option<FeedbackSample>>) {
+/// Resolves once a feedback frame shows an alarm, with its number (never, if the feedback
+/// stops).
+async fn wait_for_alarm(feedback: &mut watch::Receiver<Option<FeedbackSample>>) -> u64 {
     loop {
-        if feedback.borrow_and_update().is_some_and(|s| s.frame.in_alarm()) {
-            return;
+        if let Some(s) = *feedback.borrow_and_update()
+            && s.frame.in_alarm()
+        {
+            return s.seq;
         }
         if feedback.changed().await.is_err() {
             std::future::pending::<()>().await;
@@ -624,7 +779,7 @@ impl Arm for Mg400Client {
     async fn move_to(&mut self, target: Pose, kind: MoveKind) -> Result<(), ArmError> {
         // The fence comes first: nothing is sent for a target outside the profile.
         self.cfg.profile.check_reachable(&target)?;
-        if self.feedback_in_alarm() {
+        if self.feedback_in_alarm().await? {
             return Err(self.fault().await);
         }
         if self.queued_moves >= self.cfg.max_queued_commands {
@@ -637,7 +792,7 @@ impl Arm for Mg400Client {
         let reply = self.motion.request(&req, self.cfg.reply_timeout, self.cfg.reconnect_attempts).await?;
         if let Err(refused) = accepted(&req, reply) {
             // A controller in alarm refuses motion with -1: report the alarm, not the refusal.
-            if self.feedback_in_alarm() || matches!(self.robot_mode().await, Ok(RobotMode::Error)) {
+            if self.feedback_in_alarm().await? || matches!(self.robot_mode().await, Ok(RobotMode::Error)) {
                 return Err(self.fault().await);
             }
             return Err(refused);
@@ -678,7 +833,7 @@ impl Arm for Mg400Client {
     }
 
     async fn pose(&mut self) -> Result<Pose, ArmError> {
-        if let Some(s) = self.latest_feedback() {
+        if let Some(s) = self.observe().await? {
             return Ok(s.frame.actual_pose());
         }
         let reply = self.dashboard(&Request::GetPose).await?;
@@ -709,7 +864,7 @@ impl Arm for Mg400Client {
         }
         self.queued_moves = 0;
         // After a collision or emergency stop the arm sits disabled (mode 4).
-        let disabled = self.latest_feedback().is_some_and(|s| !s.frame.enable_status);
+        let disabled = self.observe().await?.is_some_and(|s| !s.frame.enable_status);
         if disabled {
             self.enable_inner().await?;
         }
@@ -804,5 +959,73 @@ mod tests {
         let sample = client.first_feedback().await.unwrap();
         assert_eq!(sample.frame, frame);
         assert_eq!(client.pose().await.unwrap(), Pose::new(310.0, 1.0, 2.0, 3.0));
+    }
+
+    /// A frame at rest at `x` mm, or (`alarm`) one in mode 9.
+    fn frame_at(x: f64, alarm: bool) -> Vec<u8> {
+        let mode = if alarm { 9 } else { 5 };
+        FeedbackFrame { robot_mode: mode, tool_vector_actual: [x, 0.0, 0.0, 0.0, 0.0, 0.0], ..Default::default() }.encode().to_vec()
+    }
+
+    async fn until_seq(client: &mut Mg400Client, seq: u64) {
+        while client.latest_feedback().is_none_or(|s| s.seq < seq) {
+            client.feedback.changed().await.unwrap();
+        }
+    }
+
+    #[tokio::test]
+    async fn decisions_on_the_feedback_are_reported_with_their_frame() {
+        let (mut client, _d, _m, mut feedback) = attached();
+        let reported = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let log = Arc::clone(&reported);
+        client.set_witness(Witness::Report(Arc::new(move |used| log.lock().unwrap().push(used))));
+        assert!(!client.feedback_in_alarm().await.unwrap(), "no frame yet");
+        feedback.write_all(&frame_at(300.0, false)).await.unwrap();
+        client.wait_first_feedback().await.unwrap();
+        feedback.write_all(&frame_at(301.0, false)).await.unwrap();
+        until_seq(&mut client, 2).await;
+        assert_eq!(client.pose().await.unwrap().x_mm, 301.0);
+        let deadline = Instant::now() + Duration::from_millis(30);
+        let err = client.wait_feedback(deadline, "waiting for an alarm", |s| s.frame.in_alarm()).await.unwrap_err();
+        assert!(matches!(err, ArmError::Timeout { .. }), "{err:?}");
+        // Each decision once: the alarm check before any frame, the first frame, the pose, the
+        // timeout.
+        assert_eq!(*reported.lock().unwrap(), vec![Some(0), Some(1), Some(2), None]);
+    }
+
+    #[tokio::test]
+    async fn a_dictated_decision_goes_by_the_recorded_frame_not_the_newest() {
+        let (mut client, _d, _m, mut feedback) = attached();
+        let script = Arc::new(std::sync::Mutex::new(VecDeque::from([Some(1), Some(1), Some(0), None, Some(1)])));
+        let next = Arc::clone(&script);
+        client.set_witness(Witness::Dictate(Arc::new(move |_| {
+            let used = next.lock().unwrap().pop_front().expect("a scripted decision");
+            Box::pin(async move { Ok(used) })
+        })));
+        feedback.write_all(&frame_at(300.0, false)).await.unwrap();
+        feedback.write_all(&frame_at(301.0, true)).await.unwrap();
+        until_seq(&mut client, 2).await;
+        // The newest frame shows an alarm at 301 mm; the recorded decisions went by frame 1.
+        assert_eq!(client.pose().await.unwrap().x_mm, 300.0);
+        assert!(!client.feedback_in_alarm().await.unwrap());
+        assert_eq!(client.observe().await.unwrap(), None, "frame 0: none had arrived");
+        let err = client.wait_feedback(Instant::now(), "waiting", |_| true).await.unwrap_err();
+        assert!(matches!(&err, ArmError::Timeout { what, .. } if what.contains("timed out in the recorded run")), "{err:?}");
+        // A frame the client no longer keeps is an error, not another frame.
+        for k in 0..HISTORY {
+            feedback.write_all(&frame_at(302.0 + k as f64, false)).await.unwrap();
+        }
+        until_seq(&mut client, 2 + HISTORY as u64).await;
+        let err = client.pose().await.unwrap_err();
+        assert!(matches!(&err, ArmError::Protocol(m) if m.contains("older than the 64 frames")), "{err:?}");
+        // A frame not decoded yet is waited for.
+        let late = tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            feedback.write_all(&frame_at(400.0, false)).await.unwrap();
+            feedback
+        });
+        script.lock().unwrap().push_back(Some(3 + HISTORY as u64));
+        assert_eq!(client.pose().await.unwrap().x_mm, 400.0);
+        late.await.unwrap();
     }
 }
