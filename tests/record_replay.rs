@@ -255,20 +255,22 @@ mod session {
     /// replay` does: its log, or where it left the recording. `decisions`: the client's
     /// decisions on the feedback follow the recorded ones, as for a recording of version 5 on.
     pub fn replay(recording: &Recording, events: Vec<Event>, decisions: bool) -> Result<Vec<String>, Divergence> {
-        replay_script(recording, events, decisions, run)
+        replay_script(recording, events, decisions, Duration::from_secs(5), run)
     }
 
-    /// [`replay`] with another session than [`run`].
+    /// [`replay`] with another session than [`run`], and a watchdog reporting a replay that
+    /// makes no progress for `stall`.
     pub fn replay_script(
         recording: &Recording,
         events: Vec<Event>,
         decisions: bool,
+        stall: Duration,
         script: impl AsyncFn(&mut Mg400Client) -> Vec<String>,
     ) -> Result<Vec<String>, Divergence> {
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
         runtime.block_on(async {
             let replay = ReplaySession::new(events, vec![]);
-            let watchdog = tokio::spawn(replay.clone().watchdog(Duration::from_secs(5)));
+            let watchdog = tokio::spawn(replay.clone().watchdog(stall));
             let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
             cfg.speed_factor_pct = 100;
             let clock: Arc<dyn Clock> = Arc::new(replay.clock());
@@ -470,7 +472,41 @@ fn a_wait_that_timed_out_replays_as_a_timeout() {
     assert_eq!(recorded[3], "timed out: true", "{recorded:#?}");
     let recording = rig::record::Recording::read(&path).expect("reading the recording");
     assert!(recording.events.iter().any(|e| matches!(e, Event::FeedbackUsed { seq: None, .. })), "no timed-out wait recorded");
-    let replayed = session::replay_script(&recording, recording.events.clone(), true, script).unwrap_or_else(|d| panic!("{d}"));
+    let replayed = session::replay_script(&recording, recording.events.clone(), true, std::time::Duration::from_secs(5), script)
+        .unwrap_or_else(|d| panic!("{d}"));
+    assert_eq!(replayed, recorded);
+}
+
+/// A reply that did not come in time (the simulator answers every command 2 s late; the first
+/// `Sync()` waits 1.5 s) is recorded, and the replay gives up on it where the recording did,
+/// not on its clock: the replay's watchdog, at 1 s, would report a replay that waited 1.5 s for
+/// nothing. The late reply is then read and skipped by the next `Sync()`, in both runs.
+#[test]
+fn a_reply_that_timed_out_replays_as_a_timeout_without_waiting() {
+    use rig::arm::dobot::client::Mg400Client;
+    use std::time::Duration;
+    async fn script(arm: &mut Mg400Client) -> Vec<String> {
+        let mut log = Vec::new();
+        for wait in [Duration::from_millis(1500), Duration::from_secs(10)] {
+            log.push(match arm.sync(wait).await {
+                Ok(()) => "synced".to_string(),
+                Err(e) => format!("timed out: {}", matches!(e, rig::arm::ArmError::Timeout { .. })),
+            });
+        }
+        log
+    }
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("late.rec");
+    let faults = rig::sim::mg400::SimFaults { reply_delay: Duration::from_secs(2), ..Default::default() };
+    let recorded = session::record_script(&path, faults, script);
+    assert_eq!(recorded, ["timed out: true", "synced"]);
+    let recording = rig::record::Recording::read(&path).expect("reading the recording");
+    assert!(
+        recording.events.iter().any(|e| matches!(e, Event::ReplyTimedOut { socket: rig::record::SocketId::Motion, .. })),
+        "no timed-out reply recorded"
+    );
+    let replayed = session::replay_script(&recording, recording.events.clone(), true, Duration::from_secs(1), script)
+        .unwrap_or_else(|d| panic!("{d}"));
     assert_eq!(replayed, recorded);
 }
 

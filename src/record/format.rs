@@ -19,7 +19,7 @@
 //!
 //! | size | field | meaning |
 //! |---|---|---|
-//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 6 feedback used (version 5), 0xFF end |
+//! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 6 feedback used and 7 reply timed out (version 5), 0xFF end |
 //! | 4 | `u32` L | body length, bytes |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
@@ -56,6 +56,10 @@
 //! reader publishes a frame only after its read was recorded, so which frame a decision saw is
 //! a matter of scheduling; a replay makes the same decision on the same frame.
 //!
+//! Reply-timed-out body (9 bytes, version 5): `u8` socket (0 dashboard, 1 motion), `f64`
+//! `t_s`: the client gave up waiting for a reply on that socket (its late reply, if it comes,
+//! is read later like any bytes). A replay times out there, not on its clock.
+//!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
 
@@ -76,6 +80,8 @@ const KIND_CONNECT: u8 = 5;
 const CONNECT_LEN: usize = 1 + 8 + 1;
 const KIND_FEEDBACK_USED: u8 = 6;
 const FEEDBACK_USED_LEN: usize = 8 + 1 + 8;
+const KIND_REPLY_TIMED_OUT: u8 = 7;
+const REPLY_TIMED_OUT_LEN: usize = 1 + 8;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
@@ -157,6 +163,11 @@ pub enum Event {
         t_s: f64,
         seq: Option<u64>,
     },
+    /// The client gave up waiting for a reply on `socket` (version 5; dashboard or motion).
+    ReplyTimedOut {
+        socket: SocketId,
+        t_s: f64,
+    },
 }
 
 /// How a reconnection went.
@@ -220,6 +231,7 @@ impl Event {
             Event::Peripherals { t_s, .. } => *t_s,
             Event::Connect { t_s, .. } => *t_s,
             Event::FeedbackUsed { t_s, .. } => *t_s,
+            Event::ReplyTimedOut { t_s, .. } => *t_s,
         }
     }
 }
@@ -388,6 +400,12 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             body.push(u8::from(seq.is_none()));
             body.extend_from_slice(&seq.unwrap_or(0).to_le_bytes());
             encode_record(KIND_FEEDBACK_USED, &body)
+        }
+        Event::ReplyTimedOut { socket, t_s } => {
+            let mut body = Vec::with_capacity(REPLY_TIMED_OUT_LEN);
+            body.push(socket.code());
+            body.extend_from_slice(&t_s.to_le_bytes());
+            encode_record(KIND_REPLY_TIMED_OUT, &body)
         }
     }
 }
@@ -585,6 +603,22 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 };
                 events.push(Event::FeedbackUsed { t_s, seq });
             }
+            KIND_REPLY_TIMED_OUT if version >= 5 => {
+                let (Some(socket), Some(t_s)) = (b.u8(), b.f64()) else {
+                    return Err(malformed(format!("reply-timed-out record body of {len} bytes, not {REPLY_TIMED_OUT_LEN}")));
+                };
+                if len != REPLY_TIMED_OUT_LEN {
+                    return Err(malformed(format!("reply-timed-out record body of {len} bytes, not {REPLY_TIMED_OUT_LEN}")));
+                }
+                let socket = match SocketId::from_code(socket) {
+                    Some(s @ (SocketId::Dashboard | SocketId::Motion)) => s,
+                    _ => return Err(malformed(format!("socket {socket} has no replies"))),
+                };
+                if !t_s.is_finite() {
+                    return Err(malformed(format!("time {t_s} is not finite")));
+                }
+                events.push(Event::ReplyTimedOut { socket, t_s });
+            }
             KIND_END => {
                 let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
                 if said != record as u64 {
@@ -759,7 +793,8 @@ mod tests {
             outcome: ConnectOutcome::ALL[usize::from(o)],
         });
         let used = (-1e6f64..1e6, proptest::option::of(any::<u64>())).prop_map(|(t_s, seq)| Event::FeedbackUsed { t_s, seq });
-        prop_oneof![socket, frame, peripherals, connect, used]
+        let timed_out = (0u8..2, -1e6f64..1e6).prop_map(|(s, t_s)| Event::ReplyTimedOut { socket: SocketId::ALL[usize::from(s)], t_s });
+        prop_oneof![socket, frame, peripherals, connect, used, timed_out]
     }
 
     proptest::proptest! {
@@ -824,24 +859,35 @@ mod tests {
     }
 
     #[test]
-    fn a_decision_on_the_feedback_is_a_feedback_used_record_from_version_5() {
-        let used = [Event::FeedbackUsed { t_s: 3.0, seq: Some(41) }, Event::FeedbackUsed { t_s: 3.5, seq: None }];
+    fn decisions_are_feedback_used_and_reply_timed_out_records_from_version_5() {
+        let used = [
+            Event::FeedbackUsed { t_s: 3.0, seq: Some(41) },
+            Event::FeedbackUsed { t_s: 3.5, seq: None },
+            Event::ReplyTimedOut { socket: SocketId::Motion, t_s: 4.0 },
+        ];
         let mut bytes = encode_preamble("{}");
         for e in &used {
             bytes.extend(encode_event(e));
         }
-        bytes.extend(encode_end(2));
+        bytes.extend(encode_end(3));
         assert_eq!(&encode_event(&used[0])[..5], &[6, 17, 0, 0, 0]);
+        assert_eq!(&encode_event(&used[2])[..6], &[7, 9, 0, 0, 0, 1]);
         assert_eq!(decode(&bytes).map(|r| r.events), Ok(used.to_vec()));
         set_version(&mut bytes, 4);
         assert!(matches!(decode(&bytes), Err(FormatError::UnknownKind { record: 0, kind: 6, .. })), "{:?}", decode(&bytes));
-        // A timed-out wait has no frame; an unknown use is damage.
+        // A timed-out wait has no frame; an unknown use is damage; the feedback socket has no replies.
         let t = 1.0f64.to_le_bytes();
-        for (what, seq) in [(1u8, 7u64), (2, 0)] {
+        let bad_bodies = [
+            (KIND_FEEDBACK_USED, [&t[..], &[1], &7u64.to_le_bytes()].concat()),
+            (KIND_FEEDBACK_USED, [&t[..], &[2], &0u64.to_le_bytes()].concat()),
+            (KIND_REPLY_TIMED_OUT, [&[2], &t[..]].concat()),
+            (KIND_REPLY_TIMED_OUT, [&[0], &t[..], &[0]].concat()),
+        ];
+        for (kind, body) in bad_bodies {
             let mut bad = encode_preamble("{}");
-            bad.extend(encode_record(KIND_FEEDBACK_USED, &[&t[..], &[what], &seq.to_le_bytes()].concat()));
+            bad.extend(encode_record(kind, &body));
             bad.extend(encode_end(1));
-            assert!(matches!(decode(&bad), Err(FormatError::Malformed { record: 0, .. })), "{what} {seq}: {:?}", decode(&bad));
+            assert!(matches!(decode(&bad), Err(FormatError::Malformed { record: 0, .. })), "{kind} {body:?}: {:?}", decode(&bad));
         }
     }
 

@@ -33,7 +33,8 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, Witness, connect_tcp};
+use crate::arm::dobot::client::{ByteStream, Decision, Mg400Client, Mg400Config, Reopen, Witness, connect_tcp};
+use crate::arm::dobot::proto::Port;
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::Clock;
@@ -239,10 +240,14 @@ impl Recorder {
         self.log(|t_s| Event::Connect { socket, t_s, outcome });
     }
 
-    /// Logs a decision of the client on the feedback: the frame it went by (`Some(seq)`, 0: none
-    /// had arrived) or that its wait timed out (`None`).
-    pub fn log_feedback_used(&self, seq: Option<u64>) {
-        self.log(|t_s| Event::FeedbackUsed { t_s, seq });
+    /// Logs a decision of the client that timing settled: a feedback-used or a
+    /// reply-timed-out record.
+    pub fn log_decision(&self, decision: Decision) {
+        self.log(|t_s| match decision {
+            Decision::Feedback(seq) => Event::FeedbackUsed { t_s, seq: Some(seq) },
+            Decision::FeedbackTimedOut => Event::FeedbackUsed { t_s, seq: None },
+            Decision::ReplyTimedOut(port) => Event::ReplyTimedOut { socket: socket_of(port), t_s },
+        });
     }
 
     /// Logs a frame handed to the job by camera number `camera`.
@@ -426,9 +431,17 @@ pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder:
     let motion = open(SocketId::Motion, cfg.motion_port).await?;
     let feedback = open(SocketId::Feedback, cfg.feedback_port).await?;
     let mut client = Mg400Client::with_reopen(cfg, clock, [dashboard, motion, feedback]);
-    client.set_witness(Witness::Report(Arc::new(move |seq| recorder.log_feedback_used(seq))));
+    client.set_witness(Witness::Report(Arc::new(move |decision| recorder.log_decision(decision))));
     client.wait_first_feedback().await?;
     Ok(client)
+}
+
+/// The recording's name for a command port.
+pub fn socket_of(port: Port) -> SocketId {
+    match port {
+        Port::Dashboard => SocketId::Dashboard,
+        Port::Motion => SocketId::Motion,
+    }
 }
 
 /// Reconnects `socket` over TCP, recording the attempt and then the new connection's bytes.

@@ -29,7 +29,9 @@
 //!   before it, and facing anything else it is a divergence; the client then decides by that
 //!   frame, not by the newest it holds (a live reader logs a read before it publishes, so a frame
 //!   logged before a decision need not be one it saw). An alarm racing a `Sync()` reply waits
-//!   behind the reply instead. Before version 5 the client decides on the frames it holds;
+//!   behind the reply instead. A reply the recorded client gave up on (version 5) times out
+//!   when that record is next, while the reply read waits. Before version 5 the client decides
+//!   on the frames it holds, and its reply timeouts run on the clock;
 //! - after each chunk a stream yields once, so the job's task sees every feedback frame the
 //!   way it did live (the client keeps only the newest frame).
 //!
@@ -48,9 +50,9 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use super::format::{ConnectOutcome, Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
-use super::{REPLAY_CLIENT_TIMEOUT, Recording};
+use super::{REPLAY_CLIENT_TIMEOUT, Recording, socket_of};
 use crate::arm::ArmError;
-use crate::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config, Reopen, Witness};
+use crate::arm::dobot::client::{Ask, ByteStream, Decision, Mg400Client, Mg400Config, Reopen, Witness};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MockClock};
 use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
@@ -171,6 +173,7 @@ impl SessionState {
             Event::FeedbackUsed { seq: Some(0), .. } => "the client deciding on the feedback before any frame arrived".to_string(),
             Event::FeedbackUsed { seq: Some(seq), .. } => format!("the client deciding on the feedback by frame {seq}"),
             Event::FeedbackUsed { seq: None, .. } => "the client's wait for a fitting feedback frame timing out".to_string(),
+            Event::ReplyTimedOut { socket, .. } => format!("the client giving up on a reply on the {} socket", socket.name()),
         }
     }
 
@@ -346,34 +349,42 @@ impl ReplaySession {
         st.job_step_elsewhere(cx, || format!("the client reconnected the {} socket", socket.name())).map(|e| Err(failed(e)))
     }
 
-    /// Dictates the replayed client's decisions on the feedback: each is served the recorded
-    /// decision's frame where the recording has it (a recording of version 5 on).
+    /// Dictates the replayed client's decisions that timing settled (a recording of version 5
+    /// on): each is served where the recording has it.
     pub fn witness(&self) -> Witness {
         let session = self.clone();
-        Witness::Dictate(Arc::new(move |races_a_reply| {
+        Witness::Dictate(Arc::new(move |ask| {
             let session = session.clone();
-            Box::pin(async move { poll_fn(|cx| session.poll_feedback_used(races_a_reply, cx)).await })
+            Box::pin(async move { poll_fn(|cx| session.poll_decision(ask, cx)).await })
         }))
     }
 
-    fn poll_feedback_used(&self, races_a_reply: bool, cx: &mut Context<'_>) -> Poll<Result<Option<u64>, ArmError>> {
+    fn poll_decision(&self, ask: Ask, cx: &mut Context<'_>) -> Poll<Result<Decision, ArmError>> {
         let mut st = self.lock();
-        let failed = |source| ArmError::Io { context: "deciding on the MG400 feedback".into(), source };
+        let failed = |source| ArmError::Io { context: "deciding what the MG400 client does next".into(), source };
         if st.divergence.is_some() {
             return Poll::Ready(Err(failed(st.failure())));
         }
-        // Replies the client gave up on stay in their socket, as before a write; not while the
-        // decision races a reply (an alarm during `Sync`), which waits while anything else comes
-        // first.
-        if !races_a_reply {
+        // A decision on the feedback that is the client's next step: replies it gave up on stay
+        // in their socket, as before a write. The others race a reply and wait while anything
+        // else comes first.
+        if ask == Ask::Feedback {
             st.shelve_unread_replies(&self.clock);
         }
-        if let Some(Event::FeedbackUsed { t_s, seq }) = st.events.get(st.cursor) {
-            let (t_s, seq) = (*t_s, *seq);
+        let decision = match (st.events.get(st.cursor), ask) {
+            (Some(Event::FeedbackUsed { t_s, seq }), Ask::Feedback | Ask::AlarmDuringSync) => {
+                Some((*t_s, seq.map_or(Decision::FeedbackTimedOut, Decision::Feedback)))
+            }
+            (Some(Event::ReplyTimedOut { socket, t_s }), Ask::ReplyTimeout(port)) if *socket == socket_of(port) => {
+                Some((*t_s, Decision::ReplyTimedOut(port)))
+            }
+            _ => None,
+        };
+        if let Some((t_s, decision)) = decision {
             st.served(1, 1, t_s, &self.clock);
-            return Poll::Ready(Ok(seq));
+            return Poll::Ready(Ok(decision));
         }
-        if races_a_reply {
+        if ask != Ask::Feedback {
             st.wait(cx);
             return Poll::Pending;
         }
@@ -804,6 +815,7 @@ async fn run_job(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::arm::dobot::proto::Port;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
     fn ev(socket: SocketId, direction: Direction, t_s: f64, bytes: &[u8]) -> Event {
@@ -867,9 +879,9 @@ mod tests {
     }
 
     /// The decision the witness dictates, as the client asks for it.
-    async fn decide(session: &ReplaySession, races_a_reply: bool) -> Result<Option<u64>, ArmError> {
+    async fn decide(session: &ReplaySession, ask: Ask) -> Result<Decision, ArmError> {
         let Witness::Dictate(next) = session.witness() else { panic!("a replay dictates") };
-        next(races_a_reply).await
+        next(ask).await
     }
 
     #[tokio::test(flavor = "current_thread")]
@@ -883,16 +895,16 @@ mod tests {
             ],
             vec![],
         );
-        assert_eq!(decide(&session, false).await.unwrap(), Some(0));
+        assert_eq!(decide(&session, Ask::Feedback).await.unwrap(), Decision::Feedback(0));
         let s = session.clone();
-        let second = tokio::spawn(async move { decide(&s, false).await });
+        let second = tokio::spawn(async move { decide(&s, Ask::Feedback).await });
         tokio::task::yield_now().await;
         assert_eq!(session.position().0, 1, "the decision waits for the feedback recorded before it");
         let mut f = session.stream(SocketId::Feedback);
         let mut buf = [0u8; 8];
         assert_eq!(f.read(&mut buf).await.unwrap(), 5);
-        assert_eq!(second.await.unwrap().unwrap(), Some(1));
-        assert_eq!(decide(&session, false).await.unwrap(), None, "the recorded wait timed out");
+        assert_eq!(second.await.unwrap().unwrap(), Decision::Feedback(1));
+        assert_eq!(decide(&session, Ask::Feedback).await.unwrap(), Decision::FeedbackTimedOut, "the recorded wait timed out");
         assert_eq!(session.clock().now_s(), 2.0);
         assert!(session.check_finished().is_ok());
     }
@@ -908,7 +920,7 @@ mod tests {
         );
         // Racing the Sync reply: it waits while the reply is next.
         let s = session.clone();
-        let racing = tokio::spawn(async move { decide(&s, true).await });
+        let racing = tokio::spawn(async move { decide(&s, Ask::AlarmDuringSync).await });
         tokio::task::yield_now().await;
         assert!(!racing.is_finished() && session.divergence().is_none());
         racing.abort();
@@ -916,11 +928,35 @@ mod tests {
         let mut buf = [0u8; 32];
         assert_eq!(m.read(&mut buf).await.unwrap(), 12);
         // Not racing anything, facing a write: a divergence naming both.
-        let err = decide(&session, false).await.unwrap_err();
+        let err = decide(&session, Ask::Feedback).await.unwrap_err();
         assert!(matches!(err, ArmError::Io { .. }), "{err:?}");
         let d = session.divergence().expect("a divergence");
         assert_eq!(d.record, 1);
         assert!(d.expected.contains("GetErrorID()") && d.got.contains("decided on the feedback"), "{d}");
+    }
+
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_reply_times_out_where_the_recording_gave_up_on_it() {
+        let session = ReplaySession::new(
+            vec![
+                ev(SocketId::Motion, Direction::ToController, 1.0, b"Sync()"),
+                Event::ReplyTimedOut { socket: SocketId::Motion, t_s: 2.0 },
+            ],
+            vec![],
+        );
+        // Before the write, and on the other socket, the timeout is not due: both wait.
+        let (s1, s2) = (session.clone(), session.clone());
+        let motion = tokio::spawn(async move { decide(&s1, Ask::ReplyTimeout(Port::Motion)).await });
+        let dashboard = tokio::spawn(async move { decide(&s2, Ask::ReplyTimeout(Port::Dashboard)).await });
+        tokio::task::yield_now().await;
+        assert!(!motion.is_finished() && !dashboard.is_finished());
+        session.stream(SocketId::Motion).write_all(b"Sync()").await.unwrap();
+        assert_eq!(motion.await.unwrap().unwrap(), Decision::ReplyTimedOut(Port::Motion));
+        tokio::task::yield_now().await;
+        assert!(!dashboard.is_finished(), "the motion socket's timeout is not the dashboard's");
+        dashboard.abort();
+        assert_eq!(session.clock().now_s(), 2.0);
+        assert!(session.check_finished().is_ok() && session.divergence().is_none());
     }
 
     #[tokio::test(flavor = "current_thread")]

@@ -32,7 +32,9 @@
 //! frame and not yet published it. So every such decision goes through a [`Witness`]: a
 //! recording logs the number of the frame it went by (or that a wait timed out), and a replay
 //! makes it by that frame, kept in a short history, whatever the reader has decoded since. A
-//! `Sync()` racing an alarm takes the reply when both are ready, live and replayed alike.
+//! `Sync()` racing an alarm takes the reply when both are ready, live and replayed alike. A
+//! reply that does not come in time is such a decision too: a recording logs it, and a replay
+//! gives up on the reply where the recording did, not on its clock.
 //!
 //! The client never keeps more than `max_queued_commands` moves queued on the controller:
 //! past that it waits for Sync before sending more (the real controller freezes past ~50).
@@ -139,24 +141,43 @@ fn io_err(context: String, source: std::io::Error) -> ArmError {
 /// Opens a new connection to one of the arm's ports, when the old one was lost.
 pub type Reopen = Arc<dyn Fn() -> Pin<Box<dyn Future<Output = Result<Box<dyn ByteStream>, ArmError>> + Send>> + Send + Sync>;
 
-/// What a replayed decision on the feedback went by, when the recording gives it: see [`Witness`].
-pub type Dictated = Pin<Box<dyn Future<Output = Result<Option<u64>, ArmError>> + Send>>;
+/// A decision of the client that timing settles, not bytes (see "Decisions on the feedback"
+/// in the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Decision {
+    /// Made by the feedback frame numbered so ([`FeedbackSample::seq`]; 0: none had arrived).
+    Feedback(u64),
+    /// A wait for a fitting feedback frame timed out.
+    FeedbackTimedOut,
+    /// The reply awaited on this port did not come in time.
+    ReplyTimedOut(Port),
+}
 
-/// Who learns of the client's decisions on the feedback (see "Decisions on the feedback" in
-/// the module docs).
+/// What the client asks a replay's [`Witness::Dictate`] for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ask {
+    /// A decision on the feedback, next of the client's steps.
+    Feedback,
+    /// An alarm in the feedback racing the `Sync()` reply: it may wait behind the reply.
+    AlarmDuringSync,
+    /// Whether the reply awaited on this port timed out: it waits behind the reply, which may
+    /// come instead.
+    ReplyTimeout(Port),
+}
+
+/// A dictated decision, when the recording gives it: see [`Witness`].
+pub type Dictated = Pin<Box<dyn Future<Output = Result<Decision, ArmError>> + Send>>;
+
+/// Who learns of the client's decisions that timing settles.
 #[derive(Clone, Default)]
 pub enum Witness {
     /// Nobody (an unrecorded run).
     #[default]
     Unwatched,
-    /// Each decision is reported as it is made (a recording): the number of the frame it went
-    /// by ([`FeedbackSample::seq`]; 0 when none had arrived), or `None` when a wait for a
-    /// fitting frame timed out.
-    Report(Arc<dyn Fn(Option<u64>) + Send + Sync>),
-    /// Each decision is dictated (a replay): the future gives what the recorded decision went
-    /// by, in the same terms. Its argument says whether the decision races a reply (an alarm
-    /// during `Sync`), so that it may wait behind the reply instead of finding it out of place.
-    Dictate(Arc<dyn Fn(bool) -> Dictated + Send + Sync>),
+    /// Each decision is reported as it is made (a recording).
+    Report(Arc<dyn Fn(Decision) + Send + Sync>),
+    /// Each decision is dictated (a replay): the future gives what the recorded one was.
+    Dictate(Arc<dyn Fn(Ask) -> Dictated + Send + Sync>),
 }
 
 /// How many of the newest feedback samples the client keeps, so that a replayed decision can
@@ -188,6 +209,9 @@ struct CommandLink {
     framer: ReplyFramer,
     /// Names of requests abandoned on this stream whose replies are still due, oldest first.
     abandoned: VecDeque<&'static str>,
+    port: Port,
+    /// Learns of a reply that timed out, or (a replay) says whether it did.
+    witness: Witness,
 }
 
 impl CommandLink {
@@ -265,17 +289,35 @@ impl CommandLink {
             let Some(stream) = self.stream.as_mut() else {
                 return Err(io_err(format!("reading the reply to {text}"), std::io::ErrorKind::NotConnected.into()));
             };
-            match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
-                Ok(Ok(0)) => {
+            // A replay times out where the recording did, not on the clock.
+            let read = match &self.witness {
+                Witness::Dictate(next) => {
+                    let timed_out = next(Ask::ReplyTimeout(self.port));
+                    tokio::select! {
+                        biased;
+                        r = stream.read(&mut buf) => Some(r),
+                        d = timed_out => {
+                            d?;
+                            None
+                        }
+                    }
+                }
+                _ => tokio::time::timeout_at(deadline, stream.read(&mut buf)).await.ok(),
+            };
+            match read {
+                Some(Ok(0)) => {
                     self.reset();
                     return Err(io_err(format!("reading the reply to {text} on the {where_}"), std::io::ErrorKind::UnexpectedEof.into()));
                 }
-                Ok(Ok(n)) => self.framer.push(&buf[..n]),
-                Ok(Err(e)) => {
+                Some(Ok(n)) => self.framer.push(&buf[..n]),
+                Some(Err(e)) => {
                     self.reset();
                     return Err(io_err(format!("reading the reply to {text} on the {where_}"), e));
                 }
-                Err(_) => {
+                None => {
+                    if let Witness::Report(report) = &self.witness {
+                        report(Decision::ReplyTimedOut(self.port));
+                    }
                     self.abandon(req.name());
                     return Err(ArmError::Timeout { what: format!("waiting for the reply to {text} on the {where_}"), after: timeout });
                 }
@@ -454,8 +496,10 @@ impl Mg400Client {
     ) -> Mg400Client {
         let [dashboard, motion, feedback] = streams;
         let [(d_reopen, d_where), (m_reopen, m_where), (f_reopen, _)] = links;
-        let link = |role, reopen, where_, stream| CommandLink {
+        let link = |role, port, reopen, where_, stream| CommandLink {
             role,
+            port,
+            witness: Witness::Unwatched,
             where_,
             reopen,
             reset_on_abandon,
@@ -467,8 +511,8 @@ impl Mg400Client {
         let history = Arc::new(std::sync::Mutex::new(VecDeque::with_capacity(HISTORY)));
         let feedback_task = tokio::spawn(feedback_task(Some(feedback), f_reopen, clock.clone(), tx, Arc::clone(&history)));
         Mg400Client {
-            dashboard: link("dashboard", d_reopen, d_where, dashboard),
-            motion: link("motion", m_reopen, m_where, motion),
+            dashboard: link("dashboard", Port::Dashboard, d_reopen, d_where, dashboard),
+            motion: link("motion", Port::Motion, m_reopen, m_where, motion),
             feedback: rx,
             history,
             witness: Witness::Unwatched,
@@ -498,12 +542,14 @@ impl Mg400Client {
     /// Sets who learns of the client's decisions on the feedback (before the first one: a
     /// recording before [`wait_first_feedback`](Self::wait_first_feedback)).
     pub fn set_witness(&mut self, witness: Witness) {
+        self.dashboard.witness = witness.clone();
+        self.motion.witness = witness.clone();
         self.witness = witness;
     }
 
-    fn report(&self, used: Option<u64>) {
+    fn report(&self, decision: Decision) {
         if let Witness::Report(report) = &self.witness {
-            report(used);
+            report(decision);
         }
     }
 
@@ -512,14 +558,14 @@ impl Mg400Client {
     async fn observe(&mut self) -> Result<Option<FeedbackSample>, ArmError> {
         let Witness::Dictate(next) = &self.witness else {
             let sample = self.latest_feedback();
-            self.report(Some(sample.map_or(0, |s| s.seq)));
+            self.report(Decision::Feedback(sample.map_or(0, |s| s.seq)));
             return Ok(sample);
         };
-        match next(false).await? {
-            Some(seq) => self.sample_numbered(seq).await,
-            None => Err(ArmError::Protocol(
-                "the recording has a wait for feedback that timed out where the replayed client looked at the newest frame".into(),
-            )),
+        match next(Ask::Feedback).await? {
+            Decision::Feedback(seq) => self.sample_numbered(seq).await,
+            other => {
+                Err(ArmError::Protocol(format!("the recording has {other:?} where the replayed client looked at the newest feedback")))
+            }
         }
     }
 
@@ -567,19 +613,22 @@ impl Mg400Client {
         pred: impl FnMut(&FeedbackSample) -> bool,
     ) -> Result<FeedbackSample, ArmError> {
         if let Witness::Dictate(next) = &self.witness {
-            return match next(false).await? {
-                Some(seq) => self
+            return match next(Ask::Feedback).await? {
+                Decision::Feedback(seq) => self
                     .sample_numbered(seq)
                     .await?
                     .ok_or_else(|| ArmError::Protocol(format!("{what}: the recording has the wait end before any feedback frame arrived"))),
                 // The recording keeps that the wait timed out, not how long it waited.
-                None => Err(ArmError::Timeout { what: format!("{what} (it timed out in the recorded run)"), after: Duration::ZERO }),
+                Decision::FeedbackTimedOut => {
+                    Err(ArmError::Timeout { what: format!("{what} (it timed out in the recorded run)"), after: Duration::ZERO })
+                }
+                other => Err(ArmError::Protocol(format!("{what}: the recording has {other:?} here"))),
             };
         }
         let waited = self.wait_feedback_live(deadline, what, pred).await;
         match &waited {
-            Ok(s) => self.report(Some(s.seq)),
-            Err(ArmError::Timeout { .. }) => self.report(None),
+            Ok(s) => self.report(Decision::Feedback(s.seq)),
+            Err(ArmError::Timeout { .. }) => self.report(Decision::FeedbackTimedOut),
             Err(_) => {}
         }
         waited
@@ -666,9 +715,9 @@ impl Mg400Client {
         let witness = self.witness.clone();
         async move {
             match witness {
-                Witness::Dictate(next) => next(true).await.map(drop),
+                Witness::Dictate(next) => next(Ask::AlarmDuringSync).await.map(drop),
                 Witness::Report(report) => {
-                    report(Some(wait_for_alarm(&mut feedback).await));
+                    report(Decision::Feedback(wait_for_alarm(&mut feedback).await));
                     Ok(())
                 }
                 Witness::Unwatched => {
@@ -990,13 +1039,16 @@ mod tests {
         assert!(matches!(err, ArmError::Timeout { .. }), "{err:?}");
         // Each decision once: the alarm check before any frame, the first frame, the pose, the
         // timeout.
-        assert_eq!(*reported.lock().unwrap(), vec![Some(0), Some(1), Some(2), None]);
+        use Decision::{Feedback, FeedbackTimedOut};
+        assert_eq!(*reported.lock().unwrap(), vec![Feedback(0), Feedback(1), Feedback(2), FeedbackTimedOut]);
     }
 
     #[tokio::test]
     async fn a_dictated_decision_goes_by_the_recorded_frame_not_the_newest() {
         let (mut client, _d, _m, mut feedback) = attached();
-        let script = Arc::new(std::sync::Mutex::new(VecDeque::from([Some(1), Some(1), Some(0), None, Some(1)])));
+        let script = Arc::new(std::sync::Mutex::new(VecDeque::from(
+            [1, 1, 0, u64::MAX, 1].map(|seq| if seq == u64::MAX { Decision::FeedbackTimedOut } else { Decision::Feedback(seq) }),
+        )));
         let next = Arc::clone(&script);
         client.set_witness(Witness::Dictate(Arc::new(move |_| {
             let used = next.lock().unwrap().pop_front().expect("a scripted decision");
@@ -1024,7 +1076,7 @@ mod tests {
             feedback.write_all(&frame_at(400.0, false)).await.unwrap();
             feedback
         });
-        script.lock().unwrap().push_back(Some(3 + HISTORY as u64));
+        script.lock().unwrap().push_back(Decision::Feedback(3 + HISTORY as u64));
         assert_eq!(client.pose().await.unwrap().x_mm, 400.0);
         late.await.unwrap();
     }
