@@ -211,6 +211,19 @@ pub enum PeripheralPhase {
     After,
 }
 
+impl PeripheralPhase {
+    pub const ALL: [PeripheralPhase; 2] = [PeripheralPhase::Before, PeripheralPhase::After];
+    fn code(self) -> u8 {
+        match self {
+            PeripheralPhase::Before => 0,
+            PeripheralPhase::After => 1,
+        }
+    }
+    fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.code() == code)
+    }
+}
+
 /// How a peripheral call ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PeripheralOutcome {
@@ -219,6 +232,20 @@ pub enum PeripheralOutcome {
     Recoverable,
     /// A fault that ends the run.
     Fatal,
+}
+
+impl PeripheralOutcome {
+    pub const ALL: [PeripheralOutcome; 3] = [PeripheralOutcome::Ok, PeripheralOutcome::Recoverable, PeripheralOutcome::Fatal];
+    fn code(self) -> u8 {
+        match self {
+            PeripheralOutcome::Ok => 0,
+            PeripheralOutcome::Recoverable => 1,
+            PeripheralOutcome::Fatal => 2,
+        }
+    }
+    fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|o| o.code() == code)
+    }
 }
 
 impl Event {
@@ -375,15 +402,8 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
         Event::Peripherals { t_s, phase, outcome, text } => {
             let mut body = Vec::with_capacity(PERIPHERALS_FIXED + text.len());
             body.extend_from_slice(&t_s.to_le_bytes());
-            body.push(match phase {
-                PeripheralPhase::Before => 0,
-                PeripheralPhase::After => 1,
-            });
-            body.push(match outcome {
-                PeripheralOutcome::Ok => 0,
-                PeripheralOutcome::Recoverable => 1,
-                PeripheralOutcome::Fatal => 2,
-            });
+            body.push(phase.code());
+            body.push(outcome.code());
             body.extend_from_slice(text.as_bytes());
             encode_record(KIND_PERIPHERALS, &body)
         }
@@ -557,17 +577,9 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 if !t_s.is_finite() {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
-                let phase = match phase {
-                    0 => PeripheralPhase::Before,
-                    1 => PeripheralPhase::After,
-                    p => return Err(malformed(format!("unknown peripherals phase {p}"))),
-                };
-                let outcome = match outcome {
-                    0 => PeripheralOutcome::Ok,
-                    1 => PeripheralOutcome::Recoverable,
-                    2 => PeripheralOutcome::Fatal,
-                    o => return Err(malformed(format!("unknown peripherals outcome {o}"))),
-                };
+                let phase = PeripheralPhase::from_code(phase).ok_or_else(|| malformed(format!("unknown peripherals phase {phase}")))?;
+                let outcome =
+                    PeripheralOutcome::from_code(outcome).ok_or_else(|| malformed(format!("unknown peripherals outcome {outcome}")))?;
                 let text = std::str::from_utf8(b.rest()).map_err(|e| malformed(format!("peripherals text is not UTF-8: {e}")))?;
                 events.push(Event::Peripherals { t_s, phase, outcome, text: text.to_string() });
             }
@@ -784,7 +796,7 @@ mod tests {
         let peripherals = (-1e6f64..1e6, any::<bool>(), 0u8..3, ".{0,40}").prop_map(|(t_s, before, outcome, text)| Event::Peripherals {
             t_s,
             phase: if before { PeripheralPhase::Before } else { PeripheralPhase::After },
-            outcome: [PeripheralOutcome::Ok, PeripheralOutcome::Recoverable, PeripheralOutcome::Fatal][usize::from(outcome)],
+            outcome: PeripheralOutcome::ALL[usize::from(outcome)],
             text,
         });
         let connect = (0u8..3, -1e6f64..1e6, 0u8..3).prop_map(|(s, t_s, o)| Event::Connect {
