@@ -119,6 +119,23 @@ fn a_recorded_collection_replays_to_the_same_dataset_and_damage_is_reported() {
         assert_same_dataset(&tmp.path().join("recorded"), &out, 3);
     }
 
+    // What it holds, without replaying: 3 poses and the reference frame per sensor, decisions
+    // recorded, nothing lost.
+    let info_out = tmp.path().join("not-written");
+    let o = rig().arg("replay").arg(&rec).arg("--info").arg("--out").arg(&info_out).output().expect("running rig replay --info");
+    assert!(o.status.success(), "rig replay --info failed:\n{}", text(&o));
+    for line in
+        ["object sphere, sensors tactip, vitac, 3 planned poses (seed 11)", "camera frames: tactip 4, vitac 4", "connections lost: none"]
+    {
+        assert!(text(&o).contains(line), "{line:?} missing:\n{}", text(&o));
+    }
+    let decisions = text(&o)
+        .lines()
+        .find_map(|l| l.strip_prefix("decisions on the feedback: ")?.split(' ').next()?.parse::<usize>().ok())
+        .unwrap_or_else(|| panic!("no count of decisions:\n{}", text(&o)));
+    assert!(decisions >= 9, "at least one per move of 3 poses: {decisions}");
+    assert!(!info_out.exists(), "--info replays nothing");
+
     let bytes = std::fs::read(&rec).expect("reading the recording");
 
     // Cut short, as when the recording run is killed.

@@ -1,5 +1,6 @@
 //! `rig replay FILE [--out DIR]`: re-runs a recorded collection against its recording, with
-//! no hardware, and writes the dataset again.
+//! no hardware, and writes the dataset again. `rig replay FILE --info` says what the
+//! recording holds instead.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -26,6 +27,9 @@ pub struct Args {
     /// Seconds without progress after which the replay is declared stuck.
     #[arg(long, default_value_t = 10.0)]
     pub stall_s: f64,
+    /// Say what the recording holds (header and counted events) instead of replaying it.
+    #[arg(long)]
+    pub info: bool,
 }
 
 /// Runs `rig replay`.
@@ -36,6 +40,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Err(e) => bail!(crate::cli::UsageError(e.to_string())),
     };
     let h = &recording.header;
+    if args.info {
+        println!("{}: recorded by rig {}: {}", args.file.display(), h.rig_version, h.command_line.join(" "));
+        println!(
+            "object {}, sensors {}, {} planned poses (seed {}), firmware profile {}",
+            h.object.name,
+            h.sensors.iter().map(|s| s.sensor_dir.as_str()).collect::<Vec<_>>().join(", "),
+            h.plan.len(),
+            h.seed,
+            h.profile.name
+        );
+        println!("{}", recording.summary());
+        return Ok(());
+    }
     println!("replaying {} ({} events, rig {}): {}", args.file.display(), recording.events.len(), h.rig_version, h.command_line.join(" "));
     if !(args.stall_s.is_finite() && args.stall_s > 0.0) {
         bail!(crate::cli::usage("--stall-s must be a positive number of seconds"));

@@ -141,6 +141,132 @@ impl Recording {
     }
 }
 
+/// What a recording holds, counted (`rig replay FILE --info`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Summary {
+    pub version: u16,
+    pub events: usize,
+    /// Rig-clock time of the first and the last event, s.
+    pub span_s: Option<(f64, f64)>,
+    /// Per socket (dashboard, motion, feedback): writes and reads with bytes, and their bytes.
+    pub writes: [usize; 3],
+    pub reads: [usize; 3],
+    pub bytes: [usize; 3],
+    /// Per socket: connections lost (socket records without bytes) and reconnection attempts
+    /// by outcome (connected, failed, timed out).
+    pub lost: [usize; 3],
+    pub reconnections: [[usize; 3]; 3],
+    /// Decisions on the feedback by a frame, waits for one that timed out, replies given up
+    /// on (dashboard, motion).
+    pub decisions: usize,
+    pub waits_timed_out: usize,
+    pub replies_timed_out: [usize; 2],
+    /// Camera frames per sensor of the header's list (its dataset name, frames).
+    pub frames: Vec<(String, usize)>,
+    /// Peripherals calls, and of those, faults.
+    pub peripheral_calls: usize,
+    pub peripheral_faults: usize,
+    /// Poses captured before the operator's interrupt, if the run was interrupted.
+    pub interrupted_after: Option<u64>,
+}
+
+impl Recording {
+    /// Counts what the recording holds.
+    pub fn summary(&self) -> Summary {
+        let slot = |s: SocketId| SocketId::ALL.iter().position(|x| *x == s).unwrap_or(0);
+        let mut sum = Summary {
+            version: self.version,
+            events: self.events.len(),
+            frames: self.header.sensors.iter().map(|s| (s.sensor_dir.clone(), 0)).collect(),
+            ..Summary::default()
+        };
+        if let (Some(first), Some(last)) = (self.events.first(), self.events.last()) {
+            sum.span_s = Some((first.t_s(), last.t_s()));
+        }
+        for e in &self.events {
+            match e {
+                Event::Socket { socket, bytes, .. } if bytes.is_empty() => sum.lost[slot(*socket)] += 1,
+                Event::Socket { socket, direction, bytes, .. } => {
+                    let k = slot(*socket);
+                    match direction {
+                        Direction::ToController => sum.writes[k] += 1,
+                        Direction::FromController => sum.reads[k] += 1,
+                    }
+                    sum.bytes[k] += bytes.len();
+                }
+                Event::Connect { socket, outcome, .. } => {
+                    let o = ConnectOutcome::ALL.iter().position(|x| x == outcome).unwrap_or(0);
+                    sum.reconnections[slot(*socket)][o] += 1;
+                }
+                Event::FeedbackUsed { seq: Some(_), .. } => sum.decisions += 1,
+                Event::FeedbackUsed { seq: None, .. } => sum.waits_timed_out += 1,
+                Event::ReplyTimedOut { socket, .. } => sum.replies_timed_out[slot(*socket).min(1)] += 1,
+                Event::Frame(f) => {
+                    if let Some((_, n)) = sum.frames.get_mut(usize::from(f.camera)) {
+                        *n += 1;
+                    }
+                }
+                Event::Peripherals { outcome, .. } => {
+                    sum.peripheral_calls += 1;
+                    sum.peripheral_faults += usize::from(*outcome != PeripheralOutcome::Ok);
+                }
+                Event::Interrupt { captured, .. } => sum.interrupted_after = Some(*captured),
+            }
+        }
+        sum
+    }
+}
+
+/// `name n` pairs joined, the zero counts left out; "none" when all are.
+fn counted(pairs: &[(&str, usize)]) -> String {
+    let parts: Vec<String> = pairs.iter().filter(|(_, n)| *n > 0).map(|(name, n)| format!("{name} {n}")).collect();
+    if parts.is_empty() { "none".to_string() } else { parts.join(", ") }
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let names = SocketId::ALL.map(SocketId::name);
+        match self.span_s {
+            Some((a, b)) => {
+                writeln!(f, "format version {}, {} events from t = {a:.3} s to {b:.3} s of rig time", self.version, self.events)?
+            }
+            None => writeln!(f, "format version {}, no events", self.version)?,
+        }
+        for (k, name) in names.iter().enumerate() {
+            writeln!(f, "{name} socket: {} writes, {} reads, {} bytes", self.writes[k], self.reads[k], self.bytes[k])?;
+        }
+        let lost: Vec<(&str, usize)> = names.iter().copied().zip(self.lost).collect();
+        writeln!(f, "connections lost: {}", counted(&lost))?;
+        let by_outcome: Vec<String> = ["connected", "failed", "timed out"]
+            .iter()
+            .enumerate()
+            .filter_map(|(o, outcome)| {
+                let pairs: Vec<(&str, usize)> = names.iter().copied().zip(self.reconnections.map(|r| r[o])).collect();
+                pairs.iter().any(|(_, n)| *n > 0).then(|| format!("{outcome} {}", counted(&pairs)))
+            })
+            .collect();
+        writeln!(f, "reconnections: {}", if by_outcome.is_empty() { "none".to_string() } else { by_outcome.join("; ") })?;
+        if self.version >= 5 {
+            writeln!(
+                f,
+                "decisions on the feedback: {} by a frame, {} waits timed out; replies given up on: {}",
+                self.decisions,
+                self.waits_timed_out,
+                counted(&[("dashboard", self.replies_timed_out[0]), ("motion", self.replies_timed_out[1])])
+            )?;
+        } else {
+            writeln!(f, "decisions on the feedback: not recorded before format version 5")?;
+        }
+        let frames: Vec<(&str, usize)> = self.frames.iter().map(|(name, n)| (name.as_str(), *n)).collect();
+        writeln!(f, "camera frames: {}", counted(&frames))?;
+        writeln!(f, "peripherals calls: {} ({} faults)", self.peripheral_calls, self.peripheral_faults)?;
+        match self.interrupted_after {
+            Some(n) => write!(f, "interrupted by the operator after {n} poses"),
+            None => write!(f, "not interrupted"),
+        }
+    }
+}
+
 /// What the recorder holds behind its lock.
 struct RecorderState {
     path: PathBuf,
@@ -531,6 +657,52 @@ mod tests {
         let Event::Frame(f) = &r.events[2] else { panic!("a frame: {:?}", r.events[2]) };
         assert_eq!((f.width, f.height, f.seq, f.t_capture_s), (2, 3, 42, frame.t_capture_s));
         assert_eq!(f.rgb, frame.image.as_raw().clone());
+    }
+
+    #[test]
+    fn a_summary_counts_every_kind_of_event() {
+        let mut h = header();
+        h.sensors = vec![RecordedSensor { camera: "cam".into(), sensor_dir: "tactip".into(), calibration: "default".into() }];
+        let socket = |socket, direction, bytes: &[u8]| Event::Socket { socket, direction, t_s: 1.0, bytes: bytes.to_vec() };
+        let frame = RecordedFrame { camera: 0, t_s: 2.0, t_capture_s: 1.9, seq: 1, width: 1, height: 1, rgb: vec![0; 3] };
+        let events = vec![
+            socket(SocketId::Motion, Direction::ToController, b"Sync()"),
+            socket(SocketId::Motion, Direction::FromController, b""),
+            Event::Connect { socket: SocketId::Motion, t_s: 1.1, outcome: ConnectOutcome::Failed },
+            Event::Connect { socket: SocketId::Motion, t_s: 1.2, outcome: ConnectOutcome::Connected },
+            socket(SocketId::Feedback, Direction::FromController, &[0; 1440]),
+            Event::FeedbackUsed { t_s: 1.3, seq: Some(1) },
+            Event::FeedbackUsed { t_s: 1.4, seq: None },
+            Event::ReplyTimedOut { socket: SocketId::Dashboard, t_s: 1.5 },
+            Event::Frame(frame),
+            Event::Peripherals { t_s: 2.1, phase: PeripheralPhase::After, outcome: PeripheralOutcome::Recoverable, text: "x".into() },
+            Event::Interrupt { t_s: 3.0, captured: 2 },
+        ];
+        let s = Recording { version: 5, header: h, events }.summary();
+        assert_eq!((s.events, s.span_s), (11, Some((1.0, 3.0))));
+        assert_eq!((s.writes, s.reads, s.bytes, s.lost), ([0, 1, 0], [0, 0, 1], [0, 6, 1440], [0, 1, 0]));
+        assert_eq!(s.reconnections, [[0, 0, 0], [1, 1, 0], [0, 0, 0]]);
+        assert_eq!((s.decisions, s.waits_timed_out, s.replies_timed_out), (1, 1, [1, 0]));
+        assert_eq!(s.frames, vec![("tactip".to_string(), 1)]);
+        assert_eq!((s.peripheral_calls, s.peripheral_faults, s.interrupted_after), (1, 1, Some(2)));
+        let text = s.to_string();
+        for line in [
+            "format version 5, 11 events from t = 1.000 s to 3.000 s of rig time",
+            "motion socket: 1 writes, 0 reads, 6 bytes",
+            "connections lost: motion 1",
+            "reconnections: connected motion 1; failed motion 1",
+            "decisions on the feedback: 1 by a frame, 1 waits timed out; replies given up on: dashboard 1",
+            "camera frames: tactip 1",
+            "peripherals calls: 1 (1 faults)",
+            "interrupted by the operator after 2 poses",
+        ] {
+            assert!(text.lines().any(|l| l == line), "{line:?} not in:\n{text}");
+        }
+        let old = Recording { version: 4, header: header(), events: Vec::new() }.summary().to_string();
+        assert!(
+            old.contains("no events") && old.contains("not recorded before format version 5") && old.contains("reconnections: none"),
+            "{old}"
+        );
     }
 
     #[test]
