@@ -107,6 +107,10 @@ impl SocketId {
     fn from_code(code: u8) -> Option<Self> {
         Self::ALL.into_iter().find(|s| s.code() == code)
     }
+    /// Its place in [`Self::ALL`] (for per-socket tables).
+    pub fn index(self) -> usize {
+        usize::from(self.code())
+    }
     /// `dashboard`, `motion` or `feedback`.
     pub fn name(self) -> &'static str {
         match self {
@@ -182,6 +186,18 @@ pub enum ConnectOutcome {
 
 impl ConnectOutcome {
     pub const ALL: [ConnectOutcome; 3] = [ConnectOutcome::Connected, ConnectOutcome::Failed, ConnectOutcome::TimedOut];
+    /// Its place in [`Self::ALL`].
+    pub fn index(self) -> usize {
+        usize::from(self.code())
+    }
+    /// `connected`, `failed` or `timed out`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ConnectOutcome::Connected => "connected",
+            ConnectOutcome::Failed => "failed",
+            ConnectOutcome::TimedOut => "timed out",
+        }
+    }
     fn code(self) -> u8 {
         match self {
             ConnectOutcome::Connected => 0,

@@ -157,10 +157,10 @@ pub struct Summary {
     pub lost: [usize; 3],
     pub reconnections: [[usize; 3]; 3],
     /// Decisions on the feedback by a frame, waits for one that timed out, replies given up
-    /// on (dashboard, motion).
+    /// on per socket.
     pub decisions: usize,
     pub waits_timed_out: usize,
-    pub replies_timed_out: [usize; 2],
+    pub replies_timed_out: [usize; 3],
     /// Camera frames per sensor of the header's list (its dataset name, frames).
     pub frames: Vec<(String, usize)>,
     /// Peripherals calls, and of those, faults.
@@ -173,7 +173,6 @@ pub struct Summary {
 impl Recording {
     /// Counts what the recording holds.
     pub fn summary(&self) -> Summary {
-        let slot = |s: SocketId| SocketId::ALL.iter().position(|x| *x == s).unwrap_or(0);
         let mut sum = Summary {
             version: self.version,
             events: self.events.len(),
@@ -185,22 +184,19 @@ impl Recording {
         }
         for e in &self.events {
             match e {
-                Event::Socket { socket, bytes, .. } if bytes.is_empty() => sum.lost[slot(*socket)] += 1,
+                Event::Socket { socket, bytes, .. } if bytes.is_empty() => sum.lost[socket.index()] += 1,
                 Event::Socket { socket, direction, bytes, .. } => {
-                    let k = slot(*socket);
+                    let k = socket.index();
                     match direction {
                         Direction::ToController => sum.writes[k] += 1,
                         Direction::FromController => sum.reads[k] += 1,
                     }
                     sum.bytes[k] += bytes.len();
                 }
-                Event::Connect { socket, outcome, .. } => {
-                    let o = ConnectOutcome::ALL.iter().position(|x| x == outcome).unwrap_or(0);
-                    sum.reconnections[slot(*socket)][o] += 1;
-                }
+                Event::Connect { socket, outcome, .. } => sum.reconnections[socket.index()][outcome.index()] += 1,
                 Event::FeedbackUsed { seq: Some(_), .. } => sum.decisions += 1,
                 Event::FeedbackUsed { seq: None, .. } => sum.waits_timed_out += 1,
-                Event::ReplyTimedOut { socket, .. } => sum.replies_timed_out[slot(*socket).min(1)] += 1,
+                Event::ReplyTimedOut { socket, .. } => sum.replies_timed_out[socket.index()] += 1,
                 Event::Frame(f) => {
                     if let Some((_, n)) = sum.frames.get_mut(usize::from(f.camera)) {
                         *n += 1;
@@ -237,12 +233,11 @@ impl std::fmt::Display for Summary {
         }
         let lost: Vec<(&str, usize)> = names.iter().copied().zip(self.lost).collect();
         writeln!(f, "connections lost: {}", counted(&lost))?;
-        let by_outcome: Vec<String> = ["connected", "failed", "timed out"]
+        let by_outcome: Vec<String> = ConnectOutcome::ALL
             .iter()
-            .enumerate()
-            .filter_map(|(o, outcome)| {
-                let pairs: Vec<(&str, usize)> = names.iter().copied().zip(self.reconnections.map(|r| r[o])).collect();
-                pairs.iter().any(|(_, n)| *n > 0).then(|| format!("{outcome} {}", counted(&pairs)))
+            .filter_map(|outcome| {
+                let pairs: Vec<(&str, usize)> = names.iter().copied().zip(self.reconnections.map(|r| r[outcome.index()])).collect();
+                pairs.iter().any(|(_, n)| *n > 0).then(|| format!("{} {}", outcome.name(), counted(&pairs)))
             })
             .collect();
         writeln!(f, "reconnections: {}", if by_outcome.is_empty() { "none".to_string() } else { by_outcome.join("; ") })?;
@@ -252,7 +247,7 @@ impl std::fmt::Display for Summary {
                 "decisions on the feedback: {} by a frame, {} waits timed out; replies given up on: {}",
                 self.decisions,
                 self.waits_timed_out,
-                counted(&[("dashboard", self.replies_timed_out[0]), ("motion", self.replies_timed_out[1])])
+                counted(&names.iter().copied().zip(self.replies_timed_out).collect::<Vec<_>>())
             )?;
         } else {
             writeln!(f, "decisions on the feedback: not recorded before format version 5")?;
@@ -369,11 +364,7 @@ impl Recorder {
     /// Logs a decision of the client that timing settled: a feedback-used or a
     /// reply-timed-out record.
     pub fn log_decision(&self, decision: Decision) {
-        self.log(|t_s| match decision {
-            Decision::Feedback(seq) => Event::FeedbackUsed { t_s, seq: Some(seq) },
-            Decision::FeedbackTimedOut => Event::FeedbackUsed { t_s, seq: None },
-            Decision::ReplyTimedOut(port) => Event::ReplyTimedOut { socket: socket_of(port), t_s },
-        });
+        self.log(|t_s| decision_event(decision, t_s));
     }
 
     /// Logs a frame handed to the job by camera number `camera`.
@@ -562,11 +553,24 @@ pub async fn connect_recorded(cfg: Mg400Config, clock: Arc<dyn Clock>, recorder:
     Ok(client)
 }
 
-/// The recording's name for a command port.
-pub fn socket_of(port: Port) -> SocketId {
-    match port {
-        Port::Dashboard => SocketId::Dashboard,
-        Port::Motion => SocketId::Motion,
+/// The record of a client decision made at `t_s`; [`decision_of`] reads it back.
+pub fn decision_event(decision: Decision, t_s: f64) -> Event {
+    match decision {
+        Decision::Feedback(seq) => Event::FeedbackUsed { t_s, seq: Some(seq) },
+        Decision::FeedbackTimedOut => Event::FeedbackUsed { t_s, seq: None },
+        Decision::ReplyTimedOut(Port::Dashboard) => Event::ReplyTimedOut { socket: SocketId::Dashboard, t_s },
+        Decision::ReplyTimedOut(Port::Motion) => Event::ReplyTimedOut { socket: SocketId::Motion, t_s },
+    }
+}
+
+/// The client decision an event records, if it records one (the inverse of [`decision_event`]).
+pub fn decision_of(event: &Event) -> Option<Decision> {
+    match event {
+        Event::FeedbackUsed { seq: Some(seq), .. } => Some(Decision::Feedback(*seq)),
+        Event::FeedbackUsed { seq: None, .. } => Some(Decision::FeedbackTimedOut),
+        Event::ReplyTimedOut { socket: SocketId::Dashboard, .. } => Some(Decision::ReplyTimedOut(Port::Dashboard)),
+        Event::ReplyTimedOut { socket: SocketId::Motion, .. } => Some(Decision::ReplyTimedOut(Port::Motion)),
+        _ => None,
     }
 }
 
@@ -682,7 +686,7 @@ mod tests {
         assert_eq!((s.events, s.span_s), (11, Some((1.0, 3.0))));
         assert_eq!((s.writes, s.reads, s.bytes, s.lost), ([0, 1, 0], [0, 0, 1], [0, 6, 1440], [0, 1, 0]));
         assert_eq!(s.reconnections, [[0, 0, 0], [1, 1, 0], [0, 0, 0]]);
-        assert_eq!((s.decisions, s.waits_timed_out, s.replies_timed_out), (1, 1, [1, 0]));
+        assert_eq!((s.decisions, s.waits_timed_out, s.replies_timed_out), (1, 1, [1, 0, 0]));
         assert_eq!(s.frames, vec![("tactip".to_string(), 1)]);
         assert_eq!((s.peripheral_calls, s.peripheral_faults, s.interrupted_after), (1, 1, Some(2)));
         let text = s.to_string();

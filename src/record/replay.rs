@@ -50,7 +50,7 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use super::format::{ConnectOutcome, Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
-use super::{REPLAY_CLIENT_TIMEOUT, Recording, socket_of};
+use super::{REPLAY_CLIENT_TIMEOUT, Recording, decision_of};
 use crate::arm::ArmError;
 use crate::arm::dobot::client::{Ask, ByteStream, Decision, Mg400Client, Mg400Config, Reopen, Witness};
 use crate::camera::{Camera, CameraError, Frame};
@@ -114,14 +114,6 @@ struct SessionState {
     /// Controller bytes the client has not read yet although it went on, per socket (what
     /// would sit in the socket's receive buffer), served before further recorded reads.
     unread: [Vec<u8>; 3],
-}
-
-fn slot(socket: SocketId) -> usize {
-    match socket {
-        SocketId::Dashboard => 0,
-        SocketId::Motion => 1,
-        SocketId::Feedback => 2,
-    }
 }
 
 /// Shortened, escaped text of protocol bytes for messages.
@@ -227,7 +219,7 @@ impl SessionState {
         {
             let (socket, t_s, len) = (*socket, *t_s, bytes.len());
             let rest = bytes.get(self.offset..).unwrap_or_default().to_vec();
-            self.unread[slot(socket)].extend_from_slice(&rest);
+            self.unread[socket.index()].extend_from_slice(&rest);
             self.served(rest.len(), len, t_s, clock);
             if self.offset != 0 {
                 // Nothing was left to move (an empty tail cannot happen with recorded events).
@@ -371,16 +363,14 @@ impl ReplaySession {
         if ask == Ask::Feedback {
             st.shelve_unread_replies(&self.clock);
         }
-        let decision = match (st.events.get(st.cursor), ask) {
-            (Some(Event::FeedbackUsed { t_s, seq }), Ask::Feedback | Ask::AlarmDuringSync) => {
-                Some((*t_s, seq.map_or(Decision::FeedbackTimedOut, Decision::Feedback)))
+        let next = st.events.get(st.cursor).and_then(|e| Some((e.t_s(), decision_of(e)?)));
+        if let Some((t_s, decision)) = next
+            && match (decision, ask) {
+                (Decision::Feedback(_) | Decision::FeedbackTimedOut, Ask::Feedback | Ask::AlarmDuringSync) => true,
+                (Decision::ReplyTimedOut(recorded), Ask::ReplyTimeout(asked)) => recorded == asked,
+                _ => false,
             }
-            (Some(Event::ReplyTimedOut { socket, t_s }), Ask::ReplyTimeout(port)) if *socket == socket_of(port) => {
-                Some((*t_s, Decision::ReplyTimedOut(port)))
-            }
-            _ => None,
-        };
-        if let Some((t_s, decision)) = decision {
+        {
             st.served(1, 1, t_s, &self.clock);
             return Poll::Ready(Ok(decision));
         }
@@ -480,7 +470,7 @@ impl AsyncRead for ReplayStream {
         if buf.remaining() == 0 {
             return Poll::Ready(Ok(()));
         }
-        let waiting = &mut st.unread[slot(this.socket)];
+        let waiting = &mut st.unread[this.socket.index()];
         if !waiting.is_empty() {
             let n = waiting.len().min(buf.remaining());
             buf.put_slice(&waiting[..n]);

@@ -180,6 +180,15 @@ pub enum Witness {
     Dictate(Arc<dyn Fn(Ask) -> Dictated + Send + Sync>),
 }
 
+impl Witness {
+    /// Tells a reporting witness of `decision`; the others need not hear it.
+    fn report(&self, decision: Decision) {
+        if let Witness::Report(report) = self {
+            report(decision);
+        }
+    }
+}
+
 /// How many of the newest feedback samples the client keeps, so that a replayed decision can
 /// go by the recorded frame although the reader has decoded later ones.
 const HISTORY: usize = 64;
@@ -315,9 +324,7 @@ impl CommandLink {
                     return Err(io_err(format!("reading the reply to {text} on the {where_}"), e));
                 }
                 None => {
-                    if let Witness::Report(report) = &self.witness {
-                        report(Decision::ReplyTimedOut(self.port));
-                    }
+                    self.witness.report(Decision::ReplyTimedOut(self.port));
                     self.abandon(req.name());
                     return Err(ArmError::Timeout { what: format!("waiting for the reply to {text} on the {where_}"), after: timeout });
                 }
@@ -547,18 +554,12 @@ impl Mg400Client {
         self.witness = witness;
     }
 
-    fn report(&self, decision: Decision) {
-        if let Witness::Report(report) = &self.witness {
-            report(decision);
-        }
-    }
-
     /// The newest feedback sample, for a decision: reported to the witness, or in a replay, the
     /// sample the recorded decision went by.
     async fn observe(&mut self) -> Result<Option<FeedbackSample>, ArmError> {
         let Witness::Dictate(next) = &self.witness else {
             let sample = self.latest_feedback();
-            self.report(Decision::Feedback(sample.map_or(0, |s| s.seq)));
+            self.witness.report(Decision::Feedback(sample.map_or(0, |s| s.seq)));
             return Ok(sample);
         };
         match next(Ask::Feedback).await? {
@@ -627,8 +628,8 @@ impl Mg400Client {
         }
         let waited = self.wait_feedback_live(deadline, what, pred).await;
         match &waited {
-            Ok(s) => self.report(Decision::Feedback(s.seq)),
-            Err(ArmError::Timeout { .. }) => self.report(Decision::FeedbackTimedOut),
+            Ok(s) => self.witness.report(Decision::Feedback(s.seq)),
+            Err(ArmError::Timeout { .. }) => self.witness.report(Decision::FeedbackTimedOut),
             Err(_) => {}
         }
         waited
@@ -716,12 +717,8 @@ impl Mg400Client {
         async move {
             match witness {
                 Witness::Dictate(next) => next(Ask::AlarmDuringSync).await.map(drop),
-                Witness::Report(report) => {
-                    report(Decision::Feedback(wait_for_alarm(&mut feedback).await));
-                    Ok(())
-                }
-                Witness::Unwatched => {
-                    wait_for_alarm(&mut feedback).await;
+                live => {
+                    live.report(Decision::Feedback(wait_for_alarm(&mut feedback).await));
                     Ok(())
                 }
             }
