@@ -8,7 +8,7 @@
 # (<pose_id>.png at 128x128 + prompts.csv) and out/train/data.npz (the packed arrays train.py
 # reads). SIZE=256 (say) renders the hints and packs the data at that size instead, into
 # out/train-controls-256/ and out/train-256/data.npz. To train on a real rig's data, collect with your rig.toml instead (same command) or
-# point prepare.py at your own datasets (see docs/training.md).
+# point prepare.py at your own datasets (see README, "Retraining on your own data").
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RIG=${1:-target/release/rig}
