@@ -6,14 +6,14 @@
 # Dobot Magician serial packets (magician_decoder), the recording file (recording_decoder),
 # STL (stl_decoder) and plan TOML. The firmware profile, calibration and rig config TOML and
 # the MDS CSV import have no cargo-fuzz target (they reach too far into rig to compile
-# alone); tests/decoders_never_panic.rs covers them, and every decoder here, with
+# alone); tests/files/decoders_never_panic.rs covers them, and every decoder here, with
 # proptest as part of `cargo test`.
 #
 # Only a stable toolchain is installed here; cargo fuzz passes nightly-only flags (-Z...),
 # which RUSTC_BOOTSTRAP=1 unlocks on stable. Where cargo fuzz cannot run at all, the same
 # decoders are covered by the proptest fallbacks `decoders_never_panic` and
 # `mutated_valid_input_never_panics` in src/arm/dobot/proto.rs, `decoder_never_panics` in
-# src/arm/magician/proto.rs and tests/decoders_never_panic.rs (part of `cargo test`).
+# src/arm/magician/proto.rs and tests/files/decoders_never_panic.rs (part of `cargo test`).
 #
 # Cost on a fresh machine (2 cores): installing cargo-fuzz was not timed here (it was
 # preinstalled); the first build of the six targets took 15 min on 2 shared cores; each run is the given

@@ -39,7 +39,7 @@ PY
 fi
 echo "setup: ONNX Runtime at $ORT_LIB"
 
-# Headless Chromium for the daemon's page test (tests/daemon_browser.rs); Debian's package.
+# Headless Chromium for the daemon's page test (tests/rig/daemon_browser.rs); Debian's package.
 # The demo does not need it: scripts/demo.sh sets RIG_SETUP_BROWSER=0.
 if [ "${RIG_SETUP_BROWSER:-1}" = "0" ]; then
   :

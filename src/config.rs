@@ -7,7 +7,7 @@
 //! Lookup order: `--config FILE`, then `$RIG_CONFIG`, then `./rig.toml`.
 //!
 //! `[sim.faults]` (simulated rig only) injects faults into a run, for the fault matrix
-//! (`tests/fault_matrix.rs`) and for trying recovery by hand: controller reply delays and
+//! (`tests/rig/fault_matrix.rs`) and for trying recovery by hand: controller reply delays and
 //! split replies, feedback garbage, alarms at chosen moves, dropped sockets, camera timeouts
 //! and a full disk (a byte budget the dataset writer honours). See [`FaultConfig`].
 //! A real bench (see `examples/bench-rig.toml`) names the arm (`mg400` by address, `magician`

@@ -1,5 +1,5 @@
 """Builds small ONNX graphs that break rig's model-package contract in one way each, for the
-error tests (tests/synth_errors.rs). Each graph has the right names except for the one fault;
+error tests (tests/synth/synth_errors.rs). Each graph has the right names except for the one fault;
 the computation is a placeholder (Identity), as only the interface is under test.
 
     .venv/bin/python tools/make_broken_models.py   # writes tests/data/broken-models/*.onnx

@@ -1,5 +1,5 @@
 //! Opt-in checks against a real MG400 (run with
-//! `RIG_ARM_ADDR=192.168.1.6 cargo test --test mg400_hardware -- --ignored`). The robot must be
+//! `RIG_ARM_ADDR=192.168.1.6 cargo test --test rig mg400_hardware:: -- --ignored`). The robot must be
 //! in "TCP/IP secondary development" remote-control mode. The only move is to the pose the arm
 //! already holds, so nothing travels.
 

@@ -1,11 +1,9 @@
 //! The stage pipeline: a scene runs exactly the stages it lists, and each stage does what it
 //! says.
 
-mod sensor_support;
-
+use crate::sensor_support::{central, radii, spots};
 use rig::geometry::DepthMap;
 use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, Stage, shapes};
-use sensor_support::{central, radii, spots};
 
 const PX_PER_MM: f32 = 8.5;
 

@@ -1,5 +1,5 @@
 //! Opt-in checks against a real Modbus peripheral. Run with
-//! `RIG_MODBUS_TCP=192.168.1.50:502 cargo test --test hw_modbus -- --ignored --nocapture` or
+//! `RIG_MODBUS_TCP=192.168.1.50:502 cargo test --test rig hw_modbus:: -- --ignored --nocapture` or
 //! `RIG_MODBUS_RTU=/dev/ttyUSB1 RIG_MODBUS_BAUD=19200 ...`; `RIG_MODBUS_UNIT` (default 1) and
 //! `RIG_MODBUS_REGISTER` (default 0, a holding register) pick what is read. Nothing is written
 //! unless `RIG_MODBUS_WRITE=<register>=<value>` is set: then the capture-cycle test writes it

@@ -1,5 +1,5 @@
 //! Opt-in checks against a real Dobot Magician. Run with
-//! `RIG_MAGICIAN_PORT=/dev/ttyUSB0 cargo test --test hw_magician -- --ignored`.
+//! `RIG_MAGICIAN_PORT=/dev/ttyUSB0 cargo test --test rig hw_magician:: -- --ignored`.
 //! The only move is to the pose the arm already holds, so nothing travels.
 
 use std::path::PathBuf;

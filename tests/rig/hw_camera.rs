@@ -1,5 +1,5 @@
 //! Opt-in checks against a real USB camera through V4L2 (Linux). Run with
-//! `RIG_HW_CAMERA=port:1-2.1 cargo test --test hw_camera -- --ignored --nocapture`
+//! `RIG_HW_CAMERA=port:1-2.1 cargo test --test rig hw_camera:: -- --ignored --nocapture`
 //! (any `device =` value of the rig config works: `/dev/video0`, `serial:...`).
 //! Optional: `RIG_HW_CAMERA_SIZE=640x480`, `RIG_HW_CAMERA_FPS=30`, `RIG_HW_CAMERA_EXPOSURE=156`.
 

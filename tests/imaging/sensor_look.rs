@@ -3,10 +3,8 @@
 //! outside. Measured the same way on both. Needs `$RIG_SHARED/real-sample` (default
 //! `../shared` from the repository root).
 
-mod sensor_support;
-
+use crate::sensor_support::{central, radii, real_image, ring_mean, spots};
 use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, shapes};
-use sensor_support::{central, radii, real_image, ring_mean, spots};
 
 const K: f32 = 8.5;
 
@@ -46,7 +44,7 @@ fn tactip_pins_match_in_count_and_rings() {
     let err = (0..n).map(|i| (rr[i] - rs[i]).abs()).sum::<f32>() / n as f32;
     eprintln!("mean ring-radius error {err:.2} px");
     assert!(err < 2.5, "ring radii differ by {err} px on average");
-    let area = |s: &[sensor_support::Spot]| s.iter().map(|p| p.area).sum::<f32>() / s.len() as f32;
+    let area = |s: &[crate::sensor_support::Spot]| s.iter().map(|p| p.area).sum::<f32>() / s.len() as f32;
     eprintln!("pin area: real {:.1} sim {:.1}", area(&real), area(&simulated));
     assert!((area(&real) - area(&simulated)).abs() < 0.25 * area(&real));
 }

@@ -1,0 +1,21 @@
+//! End-to-end tests of the rig binary, the MG400 client, the daemon and the opt-in hardware checks.
+//!
+//! One test binary per area; run one module with
+//! `cargo test --test rig <module>::`.
+
+mod bad_input;
+mod bench_report;
+mod calibration_cli;
+mod calibration_wizard;
+mod collect_e2e;
+mod collect_modbus;
+mod daemon_api;
+mod daemon_browser;
+mod dataset_kill;
+mod fault_matrix;
+mod hw_camera;
+mod hw_magician;
+mod hw_modbus;
+mod mg400_client;
+mod mg400_hardware;
+mod record_replay;

@@ -1,0 +1,10 @@
+//! Synthesis with the committed tiny package (ONNX Runtime) and the evaluation of synthetic images.
+//!
+//! One test binary per area; run one module with
+//! `cargo test --test synth <module>::`.
+
+mod eval;
+mod synth_errors;
+mod synth_fill;
+mod synth_parity;
+mod synth_prompt_real;
