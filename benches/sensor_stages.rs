@@ -13,7 +13,8 @@
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, Stage, shapes};
+use rig::sensor::SensorKind;
+use rig::sim::sensor::{MotionState, Scene, SensorSim, Stage, shapes};
 
 fn ms_per_frame(sim: &SensorSim, depth: &rig::geometry::DepthMap, motion: &MotionState, budget: Duration) -> f64 {
     // Warm up, then time frames until the budget is spent; report the fastest frame, which
@@ -70,7 +71,7 @@ fn main() {
             println!("{} {w}x{h}: none {t_none:.2}  fast {t_fast:.2}  full {t_full:.2}  full, arm still {t_full_still:.2}", kind.label());
             println!("  {:<20} {:>9} {:>9} {:>13} {:>8} {:>13}", "stage", "alone", "full", "full - stage", "cost", "timed in full");
             for stage in Stage::ALL {
-                if !kind.supports(stage) {
+                if !stage.applies_to(kind) {
                     println!("  {:<20} {:>9}", stage.name(), "n/a");
                     continue;
                 }

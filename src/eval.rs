@@ -57,7 +57,7 @@ use crate::geometry::DepthMap;
 use crate::geometry::stl::Mesh;
 use crate::metrics;
 use crate::pose::Pose;
-use crate::sim::sensor::SensorKind;
+use crate::sensor::SensorKind;
 
 /// Two poses are the same pose when x, y, z (mm) and yaw (deg) each differ by at most this.
 pub const POSE_TOLERANCE: f64 = 1e-6;
@@ -313,7 +313,7 @@ impl DatasetInfo {
     }
 
     fn key(&self) -> (String, String) {
-        (self.manifest.object.name.clone(), self.manifest.sensor.to_ascii_lowercase())
+        (self.manifest.object.name.clone(), self.manifest.sensor.to_string())
     }
 
     fn rows_of(&self, source: Source) -> impl Iterator<Item = &PoseRow> {

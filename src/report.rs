@@ -43,7 +43,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         }
         if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
             use crate::rigs::RigError as R;
-            if matches!(e, R::UnknownSensor { .. } | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
+            if matches!(e, R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
                 return 2;
             }
             if let R::Modbus(m) = e {

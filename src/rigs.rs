@@ -37,15 +37,16 @@ use crate::geometry::objects::{load_object, object_path};
 use crate::geometry::stl::Mesh;
 use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
 use crate::pose::{Pose, WorkFrame};
+use crate::sensor::{SensorKind, SensorKindParseError, SensorSet};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use crate::sim::modbus::{ArmContact, SimModbusServer};
-use crate::sim::sensor::{Scene, SensorKind, SensorSim, SimCamera};
+use crate::sim::sensor::{Scene, SensorSim, SimCamera};
 
 /// Errors assembling the rig.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
-    #[error("unknown sensor {given:?}: expected tactip, vitac, vitactip or all")]
-    UnknownSensor { given: String },
+    #[error(transparent)]
+    UnknownSensor(#[from] SensorKindParseError),
     #[error("object {name:?}: {reason}")]
     Object { name: String, reason: String },
     #[error("firmware profile {name}: {reason}")]
@@ -67,27 +68,6 @@ pub enum RigError {
     /// A required Modbus peripheral could not be reached (or a simulated one started).
     #[error(transparent)]
     Modbus(#[from] ModbusError),
-}
-
-/// Which sensors a command asked for.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SensorChoice(pub Vec<SensorKind>);
-
-impl SensorChoice {
-    /// `tactip|vitac|vitactip|all`, or a comma-separated list.
-    pub fn parse(text: &str) -> Result<Self, RigError> {
-        if text.eq_ignore_ascii_case("all") {
-            return Ok(Self(vec![SensorKind::TacTip, SensorKind::ViTac, SensorKind::ViTacTip]));
-        }
-        let mut kinds = Vec::new();
-        for part in text.split(',').map(str::trim) {
-            let kind = part.parse::<SensorKind>().map_err(|_| RigError::UnknownSensor { given: part.to_string() })?;
-            if !kinds.contains(&kind) {
-                kinds.push(kind);
-            }
-        }
-        Ok(Self(kinds))
-    }
 }
 
 /// The object being pressed: its mesh and provenance.
@@ -202,11 +182,15 @@ impl InjectedTimeouts {
 }
 
 impl RigCamera {
+    /// The sensor it captures.
+    pub fn kind(&self) -> SensorKind {
+        match self {
+            RigCamera::Simulated { kind, .. } | RigCamera::V4l2 { kind, .. } | RigCamera::Nokhwa { kind, .. } => *kind,
+        }
+    }
     /// Directory name of its dataset (`tactip`, `vitac`, `vitactip`).
     pub fn sensor_dir(&self) -> String {
-        match self {
-            RigCamera::Simulated { kind, .. } | RigCamera::V4l2 { kind, .. } | RigCamera::Nokhwa { kind, .. } => kind.to_string(),
-        }
+        self.kind().to_string()
     }
     /// The calibration it renders or was fitted with, for the manifest.
     pub fn calibration_name(&self) -> String {
@@ -324,7 +308,7 @@ impl Rig {
     pub async fn open(
         config: &RigConfig,
         object: &ObjectChoice,
-        sensors: &SensorChoice,
+        sensors: &SensorSet,
         seed: u64,
         clock: Arc<dyn Clock>,
     ) -> Result<Self, RigError> {
@@ -336,7 +320,7 @@ impl Rig {
     pub async fn open_with(
         config: &RigConfig,
         object: &ObjectChoice,
-        sensors: &SensorChoice,
+        sensors: &SensorSet,
         seed: u64,
         clock: Arc<dyn Clock>,
         recorder: Option<crate::record::Recorder>,

@@ -23,8 +23,9 @@ use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_m
 use crate::camera::v4l2::CameraSettings;
 use crate::config::{ArmBackend, RigConfig, SensorBackend, SensorConfig};
 use crate::pose::{Pose, WorkFrame};
-use crate::rigs::{ObjectChoice, Rig, SensorChoice};
-use crate::sim::sensor::SensorKind;
+use crate::rigs::{ObjectChoice, Rig};
+use crate::sensor::SensorKind;
+use crate::sensor::SensorSet;
 
 /// Half the side of the pressed square, mm (`rig calibrate`'s default span).
 pub const HALF_SPAN_MM: f64 = 4.0;
@@ -124,7 +125,7 @@ pub async fn run_once(config: &BenchConfig, pattern: &PressPattern, work_dir: &P
     let mesh = indenter_mesh();
     let object = ObjectChoice { name: "indenter".into(), path: None, sha256: String::new(), mesh: Arc::new(mesh) };
     let clock = crate::rigs::clock_for(&rig_config);
-    let mut rig = Rig::open(&rig_config, &object, &SensorChoice(vec![kind]), 0, Arc::clone(&clock)).await?;
+    let mut rig = Rig::open(&rig_config, &object, &SensorSet::one(kind), 0, Arc::clone(&clock)).await?;
     let camera = rig.cameras.pop().ok_or(BenchError::Empty { knob: Knob::Calibration, reason: "the simulated rig opened no camera" })?;
     let mut station = ArmStation {
         arm: &mut rig.arm,

@@ -30,8 +30,9 @@ use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, image_rel_path};
 use crate::metrics::MetricsError;
 use crate::plan::PlannedPose;
 use crate::pose::{Pose, WorkFrame};
-use crate::rigs::{ObjectChoice, Rig, SensorChoice};
-use crate::sim::sensor::SensorKind;
+use crate::rigs::{ObjectChoice, Rig};
+use crate::sensor::SensorKind;
+use crate::sensor::SensorSet;
 
 /// Frame period of the simulated cameras, s.
 pub const FRAME_PERIOD_S: f64 = 1.0 / 30.0;
@@ -114,11 +115,11 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
 
     let object = ObjectChoice::resolve("pacman", None)?;
     let clock = crate::rigs::clock_for(&rig_config);
-    let mut rig = Rig::open(&rig_config, &object, &SensorChoice(vec![kind]), 0, Arc::clone(&clock)).await?;
+    let mut rig = Rig::open(&rig_config, &object, &SensorSet::one(kind), 0, Arc::clone(&clock)).await?;
     // A fresh dataset per run: the scratch folder of an earlier run would make this a resume.
     let _ = std::fs::remove_dir_all(dir);
     let info = ObjectInfo { name: object.name.clone(), stl_path: None, stl_sha256: Some(object.sha256.clone()) };
-    let writer = DatasetWriter::create(dir, Manifest::new(&kind.to_string(), info, None))?;
+    let writer = DatasetWriter::create(dir, Manifest::new(kind, info, None))?;
     let camera = rig.cameras.pop().ok_or(BenchError::Empty { knob: Knob::Collection, reason: "the simulated rig opened no camera" })?;
     let (_cancel_tx, cancel) = tokio::sync::watch::channel(false);
     let job = CollectJob {

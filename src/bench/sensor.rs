@@ -15,7 +15,8 @@ use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, fastest};
 use crate::calibration::DEFAULT_SCALE_PX_PER_MM_AT_512;
 use crate::geometry::DepthMap;
 use crate::metrics::ssim;
-use crate::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, Stage, shapes};
+use crate::sensor::SensorKind;
+use crate::sim::sensor::{MotionState, Scene, SensorSim, Stage, shapes};
 
 /// Fastest of `frames` renders (after one warm-up), ms, and the last image.
 fn time_render(sim: &SensorSim, depth: &DepthMap, motion: &MotionState, frames: usize) -> (f64, image::RgbImage) {
@@ -31,7 +32,7 @@ fn time_render(sim: &SensorSim, depth: &DepthMap, motion: &MotionState, frames: 
 
 /// The renderer's stages that apply to `kind`, in pipeline order.
 pub fn render_stages(kind: SensorKind) -> Vec<Stage> {
-    Stage::ALL.into_iter().filter(|s| *s != Stage::StaleFrame && kind.supports(*s)).collect()
+    Stage::ALL.into_iter().filter(|s| *s != Stage::StaleFrame && s.applies_to(kind)).collect()
 }
 
 /// One row per stage set per kind.

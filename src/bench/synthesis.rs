@@ -25,7 +25,8 @@ use crate::geometry::objects::load_object;
 use crate::geometry::raster::render_depth;
 use crate::metrics::ssim;
 use crate::pose::{Pose, WorkFrame};
-use crate::sim::sensor::{MotionState, Scene, SensorKind, SensorSim};
+use crate::sensor::SensorKind;
+use crate::sim::sensor::{MotionState, Scene, SensorSim};
 use crate::synth::prompt::mds_prompt;
 use crate::synth::{GenerateRequest, Pipeline, RuntimeOptions};
 

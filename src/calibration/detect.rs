@@ -60,8 +60,8 @@ pub enum ContactDetector {
 impl ContactDetector {
     /// The detector suited to a sensor kind at an image width: markers for TacTip (white
     /// pins), the imprint's outline for ViTac and ViTacTip (with its dark markers filled).
-    pub fn for_sensor(kind: crate::sim::sensor::SensorKind, width: u32) -> Self {
-        use crate::sim::sensor::SensorKind;
+    pub fn for_sensor(kind: crate::sensor::SensorKind, width: u32) -> Self {
+        use crate::sensor::SensorKind;
         match kind {
             SensorKind::TacTip => Self::Markers(MarkerOptions::default()),
             SensorKind::ViTac => Self::Imprint(ImprintOptions::for_width(width)),

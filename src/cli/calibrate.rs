@@ -35,8 +35,9 @@ use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard
 use crate::calibration::{Calibration, FitPoint, saved_path};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
 use crate::pose::Pose;
-use crate::rigs::{ObjectChoice, Rig, SensorChoice};
-use crate::sim::sensor::SensorKind;
+use crate::rigs::{ObjectChoice, Rig};
+use crate::sensor::SensorKind;
+use crate::sensor::SensorSet;
 
 /// The accuracy the calibration should reach (the paper's figure), px RMS.
 pub const TARGET_RMS_PX: f64 = 5.0;
@@ -172,7 +173,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         mesh: Arc::new(mesh),
     };
     let clock = crate::rigs::clock_for(&config);
-    let mut rig = Rig::open(&config, &object, &SensorChoice(vec![args.sensor]), args.seed, clock).await?;
+    let mut rig = Rig::open(&config, &object, &SensorSet::one(args.sensor), args.seed, clock).await?;
     let camera = rig.cameras.pop().context("the rig opened no camera")?;
     let sensor_name = args.sensor.to_string();
     let mut station = ArmStation {

@@ -11,7 +11,8 @@ use crate::collect::{CollectJob, SensorStream, check_plan};
 use crate::config::RigConfig;
 use crate::dataset::{DatasetWriter, Manifest, ObjectInfo};
 use crate::plan::PlanSpec;
-use crate::rigs::{Rig, SensorChoice};
+use crate::rigs::Rig;
+use crate::sensor::SensorSet;
 
 /// Arguments of `rig collect`.
 #[derive(Debug, Args)]
@@ -103,7 +104,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         spec.seed = s;
     }
     spec.validate().context("checking the plan")?;
-    let sensors = SensorChoice::parse(&args.sensor)?;
+    let sensors: SensorSet = args.sensor.parse()?;
     let object = crate::rigs::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
 
     let profile = crate::rigs::profile_for(&config)?;
@@ -143,7 +144,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
             stl_path: object.path.as_ref().map(|p| p.display().to_string()),
             stl_sha256: Some(object.sha256.clone()),
         };
-        let mut manifest = Manifest::new(&camera.sensor_dir(), object_info, Some(spec.clone()));
+        let mut manifest = Manifest::new(camera.kind(), object_info, Some(spec.clone()));
         manifest.calibration = Some(camera.calibration_name());
         manifest.firmware_profile = Some(profile.name.clone());
         manifest.work_frame = Some(config.work_frame);

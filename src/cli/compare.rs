@@ -40,7 +40,7 @@ use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::metrics::{ssim, ssim_masked};
 use crate::pose::Pose;
-use crate::sim::sensor::SensorKind;
+use crate::sensor::SensorKind;
 use crate::sim::sensor::{Scene, Stage};
 
 /// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm); the indentation

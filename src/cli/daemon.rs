@@ -11,7 +11,7 @@ use clap::Args as ClapArgs;
 
 use crate::config::RigConfig;
 use crate::daemon::{Daemon, DaemonOptions};
-use crate::rigs::SensorChoice;
+use crate::sensor::SensorSet;
 
 /// Arguments of `rig daemon`.
 #[derive(Debug, ClapArgs)]
@@ -49,7 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             listen: args.listen,
             token: args.token,
             config,
-            sensors: SensorChoice::parse(&args.sensor)?,
+            sensors: args.sensor.parse::<SensorSet>()?,
             object: args.object,
             seed: args.seed,
             idle_refresh: (args.idle_refresh_ms > 0).then(|| Duration::from_millis(args.idle_refresh_ms)),

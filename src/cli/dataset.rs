@@ -7,6 +7,7 @@ use anyhow::{Context, bail};
 
 use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
 use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, merge, read_rows, verify};
+use crate::sensor::SensorKind;
 
 /// `rig dataset ...`
 #[derive(Debug, clap::Args)]
@@ -57,9 +58,10 @@ pub enum DatasetCommand {
         /// Folder holding the images.
         #[arg(long)]
         images: Option<PathBuf>,
-        /// Sensor name, as in the image file names (TacTip, ViTac, ViTacTip).
-        #[arg(long, default_value = "TacTip")]
-        sensor: String,
+        /// The sensor (tactip, vitac or vitactip, any case); its images are looked for as
+        /// <obj_id>_<Label>_<i>.png with Label TacTip, ViTac or ViTacTip.
+        #[arg(long, default_value = "tactip")]
+        sensor: SensorKind,
         /// Object name for the manifest (default: the obj_id column).
         #[arg(long)]
         object: Option<String>,
@@ -123,7 +125,7 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
             if let Some(img_dir) = images_out {
                 std::fs::create_dir_all(img_dir).with_context(|| format!("creating {}", img_dir.display()))?;
                 for (i, r) in rows.iter().enumerate() {
-                    let dest = img_dir.join(format!("{obj_id}_{}_{i}.png", manifest.sensor));
+                    let dest = img_dir.join(format!("{obj_id}_{}_{i}.png", manifest.sensor.label()));
                     std::fs::copy(dir.join(&r.image), &dest).with_context(|| format!("copying to {}", dest.display()))?;
                 }
             }
@@ -144,7 +146,7 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
 struct ImportTarget {
     out: Option<PathBuf>,
     images: Option<PathBuf>,
-    sensor: String,
+    sensor: SensorKind,
     object: Option<String>,
     stl: Option<PathBuf>,
     resume: bool,
@@ -162,7 +164,7 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
         return Ok(());
     };
     let Some(images) = target.images.as_deref() else { bail!("--out needs --images: a dataset row needs its image") };
-    let sensor = &target.sensor;
+    let sensor = target.sensor;
     let obj_name = target.object.clone().or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
     let object = match &target.stl {
         Some(stl) => ObjectInfo::with_stl(&obj_name, stl)?,
@@ -174,7 +176,7 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
     for r in rows.iter().filter(|r| !writer.done_ids().contains(&r.pose_id)).collect::<Vec<_>>() {
         let mut candidates = vec![images.join(&r.image_name)];
         if let Some(i) = r.frame_index() {
-            candidates.push(images.join(format!("{}_{sensor}_{i}.png", r.obj_id)));
+            candidates.push(images.join(format!("{}_{}_{i}.png", r.obj_id, sensor.label())));
         }
         let Some(path) = candidates.into_iter().find(|p| p.is_file()) else {
             skipped.push(r.image_name.clone());

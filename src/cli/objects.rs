@@ -18,7 +18,7 @@ use crate::geometry::control::control_image;
 use crate::geometry::objects::{OBJECTS_DIR, generate_library, load_object, object_names};
 use crate::geometry::raster::render_depth;
 use crate::pose::Pose;
-use crate::sim::sensor::SensorKind;
+use crate::sensor::SensorKind;
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {

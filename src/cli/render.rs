@@ -33,7 +33,7 @@ use crate::geometry::objects::load_object;
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::pose::Pose;
-use crate::sim::sensor::SensorKind;
+use crate::sensor::SensorKind;
 use crate::synth::fill::ControlRenderer;
 use crate::synth::prompt::mds_prompt;
 
@@ -164,8 +164,7 @@ fn controls_of(dataset: &Path, size: ImageSize, supersample: u32, out_dir: &Path
         return Err(usage(&format!("{} is not a dataset (no manifest.toml)", dataset.display())).into());
     }
     let manifest = Manifest::load(dataset)?;
-    let kind = SensorKind::from_str(&manifest.sensor)
-        .map_err(|_| usage(&format!("dataset {}: unknown sensor {:?}", dataset.display(), manifest.sensor)))?;
+    let kind = manifest.sensor;
     let rows = read_rows(dataset)?;
     let renderer = ControlRenderer::for_dataset(dataset, &manifest, size.width, size.height, supersample)?;
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;

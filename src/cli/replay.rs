@@ -45,7 +45,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!(
             "object {}, sensors {}, {} planned poses (seed {}), firmware profile {}",
             h.object.name,
-            h.sensors.iter().map(|s| s.sensor_dir.as_str()).collect::<Vec<_>>().join(", "),
+            h.sensors.iter().map(|s| s.sensor_dir.name()).collect::<Vec<_>>().join(", "),
             h.plan.len(),
             h.seed,
             h.profile.name
@@ -105,7 +105,7 @@ pub(crate) fn recording_header(
         },
         sensors: cameras
             .iter()
-            .map(|c| RecordedSensor { camera: c.name().to_string(), sensor_dir: c.sensor_dir(), calibration: c.calibration_name() })
+            .map(|c| RecordedSensor { camera: c.name().to_string(), sensor_dir: c.kind(), calibration: c.calibration_name() })
             .collect(),
         seed: spec.seed,
         plan_spec: spec.clone(),

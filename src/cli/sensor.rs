@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Subcommand, ValueEnum};
 
-use crate::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, shapes};
+use crate::sensor::SensorKind;
+use crate::sim::sensor::{MotionState, Scene, SensorSim, shapes};
 
 /// Arguments of `rig sensor`.
 #[derive(Debug, clap::Args)]

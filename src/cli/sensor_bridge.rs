@@ -7,7 +7,8 @@ use image::RgbImage;
 
 use crate::calibration::Calibration;
 use crate::geometry::DepthMap;
-use crate::sim::sensor::{MotionState, Scene, SensorKind, SensorSim};
+use crate::sensor::SensorKind;
+use crate::sim::sensor::{MotionState, Scene, SensorSim};
 
 /// The tactile-sensor simulator could not render.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -27,8 +27,9 @@ use crate::collect::{CollectError, CollectJob, SensorStream, check_plan};
 use crate::config::RigConfig;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, ObjectInfo};
 use crate::plan::{PlanError, PlanSpec};
-use crate::rigs::{ObjectChoice, Rig, RigError, SensorChoice};
-use crate::sim::sensor::SensorKind;
+use crate::rigs::{ObjectChoice, Rig, RigError};
+use crate::sensor::SensorKind;
+use crate::sensor::SensorSet;
 use crate::synth::fill::{FillError, FillOptions, Shard, fill_missing_observed};
 use crate::synth::{Pipeline, RuntimeOptions, SchedulerKind, SynthError};
 
@@ -233,7 +234,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
         plan_spec.seed = s;
     }
     plan_spec.validate()?;
-    let sensors = SensorChoice::parse(&spec.sensor)?;
+    let sensors: SensorSet = spec.sensor.parse().map_err(RigError::from)?;
     let object = ObjectChoice::resolve(&spec.object, spec.stl.as_deref())?;
     let profile = crate::rigs::profile_for(config)?;
     let plan = plan_spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b))?;
@@ -255,7 +256,7 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
             stl_path: object.path.as_ref().map(|p| p.display().to_string()),
             stl_sha256: Some(object.sha256.clone()),
         };
-        let mut manifest = Manifest::new(&camera.sensor_dir(), object_info, Some(plan_spec.clone()));
+        let mut manifest = Manifest::new(camera.kind(), object_info, Some(plan_spec.clone()));
         manifest.calibration = Some(camera.calibration_name());
         manifest.firmware_profile = Some(profile.name.clone());
         manifest.work_frame = Some(config.work_frame);

@@ -37,7 +37,8 @@ pub use jobs::{CalibrateSpec, CollectSpec, JobSpec, SynthSpec};
 pub use state::{DaemonState, JobState, JobView, StatusView};
 
 use crate::config::RigConfig;
-use crate::rigs::{ObjectChoice, Rig, RigError, SensorChoice};
+use crate::rigs::{ObjectChoice, Rig, RigError};
+use crate::sensor::SensorSet;
 
 /// Errors starting or stopping the daemon.
 #[derive(Debug, thiserror::Error)]
@@ -67,7 +68,7 @@ pub struct DaemonOptions {
     pub token: Option<String>,
     pub config: RigConfig,
     /// The sensors to open (jobs may use any subset).
-    pub sensors: SensorChoice,
+    pub sensors: SensorSet,
     /// The object the simulated sensors show until a job names one.
     pub object: String,
     /// Seed of the simulated sensors' noise, fixed for the daemon's life.
@@ -84,7 +85,7 @@ impl DaemonOptions {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             token: None,
             config,
-            sensors: SensorChoice::parse("all").unwrap_or(SensorChoice(Vec::new())),
+            sensors: SensorSet::all(),
             object: "sphere".into(),
             seed: 0,
             idle_refresh: Some(Duration::from_secs(1)),

@@ -11,6 +11,7 @@ use sha2::{Digest, Sha256};
 use super::DatasetError;
 use crate::plan::PlanSpec;
 use crate::pose::WorkFrame;
+use crate::sensor::SensorKind;
 
 /// The object pressed by the sensor.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -57,8 +58,8 @@ pub fn sha256_file(path: &Path) -> Result<String, DatasetError> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
     pub rig_version: String,
-    /// Sensor name (`tactip`, `vitac`, `vitactip`, ...).
-    pub sensor: String,
+    /// The sensor (written `tactip`, `vitac` or `vitactip`; read in any case).
+    pub sensor: SensorKind,
     /// Calibration file used, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<String>,
@@ -84,10 +85,10 @@ pub struct Manifest {
 
 impl Manifest {
     /// A manifest for a new run starting now.
-    pub fn new(sensor: &str, object: ObjectInfo, plan: Option<PlanSpec>) -> Self {
+    pub fn new(sensor: SensorKind, object: ObjectInfo, plan: Option<PlanSpec>) -> Self {
         Self {
             rig_version: crate::version().to_string(),
-            sensor: sensor.to_string(),
+            sensor,
             calibration: None,
             firmware_profile: None,
             started_utc: utc_now(),
@@ -122,7 +123,7 @@ impl Manifest {
             requested,
         };
         if self.sensor != requested.sensor {
-            return Err(mismatch("sensor", self.sensor.clone(), requested.sensor.clone()));
+            return Err(mismatch("sensor", self.sensor.to_string(), requested.sensor.to_string()));
         }
         if self.object.name != requested.object.name {
             return Err(mismatch("object", self.object.name.clone(), requested.object.name.clone()));
@@ -186,7 +187,7 @@ mod tests {
 
     #[test]
     fn manifest_toml_round_trip() {
-        let mut m = Manifest::new("tactip", ObjectInfo::named("edge"), Some(PlanSpec::default()));
+        let mut m = Manifest::new(SensorKind::TacTip, ObjectInfo::named("edge"), Some(PlanSpec::default()));
         m.work_frame = Some(WorkFrame::default());
         m.firmware_profile = Some("mg400-v1.6".into());
         let text = toml::to_string(&m).unwrap();

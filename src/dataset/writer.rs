@@ -400,7 +400,7 @@ mod tests {
     use crate::pose::Pose;
 
     fn manifest() -> Manifest {
-        Manifest::new("tactip", ObjectInfo::named("edge"), Some(crate::plan::PlanSpec::default()))
+        Manifest::new(crate::sensor::SensorKind::TacTip, ObjectInfo::named("edge"), Some(crate::plan::PlanSpec::default()))
     }
 
     fn img(v: u8) -> RgbImage {
@@ -481,7 +481,7 @@ mod tests {
         assert!(w.done_ids().is_empty());
         drop(w);
         let mut other = manifest();
-        other.sensor = "vitac".into();
+        other.sensor = crate::sensor::SensorKind::ViTac;
         let err = DatasetWriter::resume(&dir, other).unwrap_err();
         assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
         let mut other = manifest();

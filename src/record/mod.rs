@@ -79,7 +79,7 @@ pub struct RecordedSensor {
     /// The camera's name (`Camera::name`).
     pub camera: String,
     /// Dataset directory name (`tactip`, `vitac`, `vitactip`).
-    pub sensor_dir: String,
+    pub sensor_dir: crate::sensor::SensorKind,
     /// Calibration named in the manifest.
     pub calibration: String,
 }
@@ -176,7 +176,7 @@ impl Recording {
         let mut sum = Summary {
             version: self.version,
             events: self.events.len(),
-            frames: self.header.sensors.iter().map(|s| (s.sensor_dir.clone(), 0)).collect(),
+            frames: self.header.sensors.iter().map(|s| (s.sensor_dir.to_string(), 0)).collect(),
             ..Summary::default()
         };
         if let (Some(first), Some(last)) = (self.events.first(), self.events.last()) {
@@ -610,7 +610,11 @@ mod tests {
             command_line: vec!["rig".into(), "collect".into()],
             config_source: None,
             object: ObjectInfo { name: "sphere".into(), stl_path: None, stl_sha256: None },
-            sensors: vec![RecordedSensor { camera: "tactip".into(), sensor_dir: "tactip".into(), calibration: "default".into() }],
+            sensors: vec![RecordedSensor {
+                camera: "tactip".into(),
+                sensor_dir: crate::sensor::SensorKind::TacTip,
+                calibration: "default".into(),
+            }],
             seed: 1,
             plan_spec: PlanSpec::default(),
             plan: vec![PlannedPose { pose_id: 4, pose: crate::pose::Pose::new(1.0, 2.0, 0.5, 15.0) }],
@@ -666,7 +670,8 @@ mod tests {
     #[test]
     fn a_summary_counts_every_kind_of_event() {
         let mut h = header();
-        h.sensors = vec![RecordedSensor { camera: "cam".into(), sensor_dir: "tactip".into(), calibration: "default".into() }];
+        h.sensors =
+            vec![RecordedSensor { camera: "cam".into(), sensor_dir: crate::sensor::SensorKind::TacTip, calibration: "default".into() }];
         let socket = |socket, direction, bytes: &[u8]| Event::Socket { socket, direction, t_s: 1.0, bytes: bytes.to_vec() };
         let frame = RecordedFrame { camera: 0, t_s: 2.0, t_capture_s: 1.9, seq: 1, width: 1, height: 1, rgb: vec![0; 3] };
         let events = vec![

@@ -774,8 +774,8 @@ async fn run_job(
     let mut sensors = Vec::new();
     let mut datasets = Vec::new();
     for (index, s) in h.sensors.iter().enumerate() {
-        let dir = out.join(&h.object.name).join(&s.sensor_dir);
-        let mut manifest = Manifest::new(&s.sensor_dir, h.object.clone(), Some(h.plan_spec.clone()));
+        let dir = out.join(&h.object.name).join(s.sensor_dir.name());
+        let mut manifest = Manifest::new(s.sensor_dir, h.object.clone(), Some(h.plan_spec.clone()));
         manifest.calibration = Some(s.calibration.clone());
         manifest.firmware_profile = Some(h.profile.name.clone());
         manifest.work_frame = Some(h.work_frame);

@@ -22,7 +22,6 @@ use crate::geometry::objects::load_object;
 use crate::geometry::stl::Mesh;
 use crate::plan::PlannedPose;
 use crate::pose::Pose;
-use crate::sim::sensor::SensorKind;
 
 /// Errors of the fill job.
 #[derive(Debug, thiserror::Error)]
@@ -33,8 +32,6 @@ pub enum FillError {
     Synth(#[from] SynthError),
     #[error("dataset {dir}: its manifest has no plan, so the missing poses are unknown")]
     NoPlan { dir: PathBuf },
-    #[error("dataset {dir}: sensor {sensor:?} is not one rig can prompt for (tactip, vitac, vitactip)")]
-    UnknownSensor { dir: PathBuf, sensor: String },
     #[error("dataset {dir}: object {object}: {reason}")]
     Object { dir: PathBuf, object: String, reason: String },
     #[error("dataset {dir}: calibration {calibration}: {reason}")]
@@ -200,8 +197,7 @@ pub fn fill_missing_observed(
     let manifest = work.manifest.clone();
     let dir = dataset.to_path_buf();
     let spec_seed = manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
-    let kind = SensorKind::from_str(&manifest.sensor)
-        .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: manifest.sensor.clone() })?;
+    let kind = manifest.sensor;
     let (width, height) = pipeline.resolution();
     let renderer = ControlRenderer::for_dataset(&dir, &manifest, width, height, options.supersample)?;
     let output_size = reference_size(dataset);
@@ -329,8 +325,7 @@ pub fn synthesise_poses_of(
     {
         writer.write_reference(&resized_to(reference.to_rgb8(), output_size))?;
     }
-    let kind = SensorKind::from_str(&source_manifest.sensor)
-        .map_err(|_| FillError::UnknownSensor { dir: dir.clone(), sensor: source_manifest.sensor.clone() })?;
+    let kind = source_manifest.sensor;
     let renderer = ControlRenderer::for_dataset(&dir, &source_manifest, width, height, options.supersample)?;
     let spec_seed = source_manifest.plan.as_ref().map(|p| p.seed).unwrap_or(0);
     let model = pipeline.package_hash().to_string();
@@ -430,7 +425,7 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
     match manifest.calibration.as_deref() {
         // An uncalibrated collection: the calibration `rig calibrate` saved since, if any.
         None | Some("default") => {
-            let saved = crate::calibration::saved_path(&manifest.sensor);
+            let saved = crate::calibration::saved_path(manifest.sensor.name());
             if saved.is_file() {
                 return calibration_of(
                     dir,

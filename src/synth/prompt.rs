@@ -21,15 +21,14 @@
 //! (z mm, indentation) and `pose_6` (yaw deg), i.e. [`Pose`] in the work frame.
 
 use crate::pose::Pose;
+use crate::sensor::SensorKind;
 
 /// The sensor sentence MultiDiffSense uses for a sensor label (`TacTip`, `ViTac`, `ViTacTip`;
 /// other labels get its generic fallback sentence). Labels are case-sensitive, as in its code.
 pub fn sensor_context(sensor_label: &str) -> String {
-    match sensor_label {
-        "ViTacTip" => format!("captured by a high-resolution visuo-tactile sensor {sensor_label}."),
-        "ViTac" => format!("captured by a high-resolution vision only sensor {sensor_label}."),
-        "TacTip" => format!("captured by a high-resolution tactile only sensor {sensor_label}."),
-        other => format!("captured by {other} sensor."),
+    match SensorKind::from_label(sensor_label) {
+        Some(kind) => kind.prompt_context().to_string(),
+        None => format!("captured by {sensor_label} sensor."),
     }
 }
 

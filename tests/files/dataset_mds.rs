@@ -43,7 +43,7 @@ fn real_sample_imports_into_a_clean_dataset_and_exports_back() {
     let images = sample().join("tactile/1/TacTip/target");
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path().join("imported");
-    let mut w = DatasetWriter::create(&dir, Manifest::new("TacTip", ObjectInfo::named("1"), None)).expect("create");
+    let mut w = DatasetWriter::create(&dir, Manifest::new(rig::sensor::SensorKind::TacTip, ObjectInfo::named("1"), None)).expect("create");
     let mut imported: Vec<&MdsRow> = Vec::new();
     for r in &rows {
         let i = r.frame_index().expect("frame_<i>_0.png names");

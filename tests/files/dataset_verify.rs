@@ -11,7 +11,7 @@ use rig::plan::PlanSpec;
 use rig::pose::Pose;
 
 fn manifest() -> Manifest {
-    Manifest::new("vitac", ObjectInfo::named("sphere"), Some(PlanSpec::default()))
+    Manifest::new(rig::sensor::SensorKind::ViTac, ObjectInfo::named("sphere"), Some(PlanSpec::default()))
 }
 
 fn img(v: u8) -> RgbImage {
@@ -100,7 +100,7 @@ fn merge_joins_shards_and_refuses_conflicts() {
     // A shard of another sensor is refused by name.
     let d = tmp.path().join("d");
     let mut m = manifest();
-    m.sensor = "tactip".into();
+    m.sensor = rig::sensor::SensorKind::TacTip;
     DatasetWriter::create(&d, m).expect("create").finish().expect("finish");
     let err = merge(&[a, d], &tmp.path().join("out2")).unwrap_err();
     assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");

@@ -12,8 +12,9 @@ use rig::camera::{Camera, CameraError};
 use rig::clock::Clock;
 use rig::geometry::DepthMap;
 use rig::pose::{Pose, WorkFrame};
+use rig::sensor::SensorKind;
 use rig::sim::ArmTruth;
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, SimCamera, Stage, shapes};
+use rig::sim::sensor::{MotionState, Scene, SensorSim, SimCamera, Stage, shapes};
 use tokio::sync::watch;
 
 struct ScriptedClock {

@@ -2,7 +2,8 @@
 
 use proptest::prelude::*;
 use rig::geometry::DepthMap;
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim};
+use rig::sensor::SensorKind;
+use rig::sim::sensor::{MotionState, Scene, SensorSim};
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]

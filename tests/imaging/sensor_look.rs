@@ -4,7 +4,8 @@
 //! `../shared` from the repository root).
 
 use crate::sensor_support::{central, radii, real_image, ring_mean, spots};
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, shapes};
+use rig::sensor::SensorKind;
+use rig::sim::sensor::{MotionState, Scene, SensorSim, shapes};
 
 const K: f32 = 8.5;
 

@@ -3,7 +3,8 @@
 
 use crate::sensor_support::{central, radii, spots};
 use rig::geometry::DepthMap;
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim, Stage, shapes};
+use rig::sensor::SensorKind;
+use rig::sim::sensor::{MotionState, Scene, SensorSim, Stage, shapes};
 
 const PX_PER_MM: f32 = 8.5;
 
@@ -34,7 +35,7 @@ fn a_scene_without_a_stage_never_runs_it() {
             assert_eq!(counts.get(left_out), 0, "{kind}: {left_out} left out but ran ({counts})");
             for st in Stage::ALL {
                 // Stale frames are a camera effect; render never runs them.
-                let expected = if st == left_out || !kind.supports(st) || st == Stage::StaleFrame { 0 } else { frames };
+                let expected = if st == left_out || !st.applies_to(kind) || st == Stage::StaleFrame { 0 } else { frames };
                 assert_eq!(counts.get(st), expected, "{kind}: {st} ({counts})");
             }
         }
@@ -48,7 +49,7 @@ fn a_scene_with_one_stage_runs_only_that_stage() {
             let s = sim(kind, &[only]);
             s.render(&pressed(256, 256, PX_PER_MM / 2.0), &moving(), 1);
             let counts = s.stage_counts();
-            let expected = u64::from(kind.supports(only));
+            let expected = u64::from(only.applies_to(kind));
             assert_eq!(counts.get(only), expected, "{kind}: {only}");
             assert_eq!(counts.total(), expected, "{kind}: only {only} should run ({counts})");
         }

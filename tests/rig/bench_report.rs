@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use rig::bench::{BenchConfig, Knob, run, sensor::render_stages, write_report};
-use rig::sim::sensor::SensorKind;
+use rig::sensor::SensorKind;
 use rig::synth::SchedulerKind;
 
 fn tiny_config() -> BenchConfig {

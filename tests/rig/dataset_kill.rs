@@ -34,7 +34,7 @@ fn spec() -> PlanSpec {
 }
 
 fn manifest() -> Manifest {
-    Manifest::new("tactip", ObjectInfo::named("edge"), Some(spec()))
+    Manifest::new(rig::sensor::SensorKind::TacTip, ObjectInfo::named("edge"), Some(spec()))
 }
 
 /// The image of a pose: content derived from the id, so a mix-up is visible.

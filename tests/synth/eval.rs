@@ -13,7 +13,8 @@ use rig::eval::{EvalOptions, EvalReport, Figure, Method, MethodRow, PairRecord, 
 use rig::geometry::objects::load_object;
 use rig::geometry::raster::render_depth;
 use rig::pose::Pose;
-use rig::sim::sensor::{MotionState, Scene, SensorKind, SensorSim};
+use rig::sensor::SensorKind;
+use rig::sim::sensor::{MotionState, Scene, SensorSim};
 
 /// Image size of the simulated datasets, px (rendered larger than they are measured, as the
 /// rig's 512 px frames are, so the resize averages the sensor noise down a little).
@@ -37,7 +38,7 @@ fn render(sim: &SensorSim, object: &str, pose: Pose, key: u64) -> RgbImage {
 
 /// Writes a dataset of `images` (pose id, pose, image) with rows of `source`.
 fn write(dir: &Path, object: &str, kind: SensorKind, reference: &RgbImage, images: &[(u32, Pose, RgbImage)], source: Source) {
-    let mut manifest = Manifest::new(&kind.to_string(), ObjectInfo::named(object), None);
+    let mut manifest = Manifest::new(kind, ObjectInfo::named(object), None);
     manifest.calibration = Some("default".into());
     let mut w = DatasetWriter::create(dir, manifest).expect("create dataset");
     w.write_reference(reference).expect("reference");
@@ -414,7 +415,7 @@ fn synth_poses_of_twins_exactly_the_real_poses_and_resumes() {
     assert_eq!(image::image_dimensions(twin_source.join(&rows_source[0].image)).expect("image"), (SIZE, SIZE));
     assert_eq!(image::image_dimensions(twin_source.join("reference.png")).expect("reference"), (SIZE, SIZE));
     let m = Manifest::load(&twin).expect("manifest");
-    assert_eq!((m.object.name.as_str(), m.sensor.as_str()), ("sphere", "vitac"));
+    assert_eq!((m.object.name.as_str(), m.sensor.name()), ("sphere", "vitac"));
     assert!(twin.join("reference.png").is_file());
     let (code, text) = synth(&[]);
     assert_eq!(code, 0, "{text}");

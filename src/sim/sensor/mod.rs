@@ -27,7 +27,6 @@ pub mod stages;
 
 use std::borrow::Cow;
 use std::fmt;
-use std::str::FromStr;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use image::RgbImage;
@@ -36,64 +35,18 @@ pub use camera::{DepthSource, SimCamera};
 pub use scene::{Scene, SceneError, SceneLoadError, Stage};
 
 use crate::geometry::DepthMap;
+use crate::sensor::SensorKind;
 use look::{Look, StaticLook};
 use stages::CellField;
 
-/// The three sensor kinds of the rig.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-pub enum SensorKind {
-    /// White pins on an opaque black skin.
-    TacTip,
-    /// Transparent skin: the pressed object is seen directly.
-    ViTac,
-    /// Transparent skin with dark markers.
-    ViTacTip,
-}
-
-impl SensorKind {
-    /// All kinds, in the order the rig collects them.
-    pub const ALL: [SensorKind; 3] = [SensorKind::TacTip, SensorKind::ViTac, SensorKind::ViTacTip];
-
-    /// The name as the papers and the real dataset spell it (`TacTip`, `ViTac`, `ViTacTip`).
-    pub fn label(&self) -> &'static str {
+impl Stage {
+    /// True when this stage has any effect on `kind` (TacTip's skin is opaque: nothing is seen
+    /// through it; ViTac has no markers to displace).
+    pub fn applies_to(self, kind: SensorKind) -> bool {
         match self {
-            SensorKind::TacTip => "TacTip",
-            SensorKind::ViTac => "ViTac",
-            SensorKind::ViTacTip => "ViTacTip",
-        }
-    }
-
-    /// True when `stage` has any effect on this kind.
-    pub fn supports(&self, stage: Stage) -> bool {
-        match stage {
-            Stage::SeeThrough => *self != SensorKind::TacTip,
-            Stage::MarkerDisplacement => *self != SensorKind::ViTac,
+            Stage::SeeThrough => kind != SensorKind::TacTip,
+            Stage::MarkerDisplacement => kind != SensorKind::ViTac,
             _ => true,
-        }
-    }
-}
-
-impl fmt::Display for SensorKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.label().to_ascii_lowercase())
-    }
-}
-
-/// Error parsing a sensor kind.
-#[derive(Debug, thiserror::Error, PartialEq)]
-#[error("unknown sensor {text:?} (expected tactip, vitac or vitactip)")]
-pub struct SensorKindParseError {
-    pub text: String,
-}
-
-impl FromStr for SensorKind {
-    type Err = SensorKindParseError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "tactip" => Ok(SensorKind::TacTip),
-            "vitac" => Ok(SensorKind::ViTac),
-            "vitactip" => Ok(SensorKind::ViTacTip),
-            _ => Err(SensorKindParseError { text: s.to_string() }),
         }
     }
 }
@@ -237,7 +190,7 @@ impl SensorSim {
         let fixed = StaticLook::build(&look, width, height, seed);
         let mut active = [false; Stage::COUNT];
         for s in &scene.stages {
-            active[s.index()] = kind.supports(*s);
+            active[s.index()] = s.applies_to(kind);
         }
         Self {
             kind,
