@@ -18,7 +18,7 @@ fn main() {
     let seeds: &[u64] = if full { &[0, 1, 2] } else { &[0] };
     let profile = FirmwareProfile::default_mg400();
     let work_frame = WorkFrame::default();
-    let cost = move |a: &Pose, b: &Pose| rig::rigs::pose_cost_s(&profile, &work_frame, a, b);
+    let cost = move |a: &Pose, b: &Pose| profile.pose_cost_s(&work_frame, a, b);
     println!("{:<8} {:>5} {:>6} {:>14} {:>14} {:>7} {:>10}", "sampling", "n", "seed", "random [s]", "rig [s]", "ratio", "order [ms]");
     let mut worst: f64 = 0.0;
     for sampling in [Sampling::Random, Sampling::Lhs] {

@@ -32,7 +32,10 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
                 C::Dataset(_) => {}
             }
         }
-        if cause.downcast_ref::<crate::config::ConfigError>().is_some() {
+        if cause.downcast_ref::<crate::config::ConfigError>().is_some()
+            || cause.downcast_ref::<crate::geometry::objects::ObjectResolveError>().is_some()
+            || cause.downcast_ref::<crate::arm::profile::ProfileLookupError>().is_some()
+        {
             return 2;
         }
         if let Some(e) = cause.downcast_ref::<crate::synth::SynthError>() {
@@ -43,7 +46,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         }
         if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
             use crate::rigs::RigError as R;
-            if matches!(e, R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. }) {
+            if matches!(e, R::UnknownSensor(_) | R::Object(_) | R::Profile(_) | R::Calibration { .. }) {
                 return 2;
             }
             if let R::Modbus(m) = e {

@@ -15,16 +15,14 @@
 //! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
 //! so the job and the client see exactly what a flaky bench would show them.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
-
-use sha2::{Digest, Sha256};
 
 use std::time::Duration;
 
 use crate::arm::dobot::client::{Mg400Client, Mg400Config};
 use crate::arm::magician::{MagicianArm, MagicianProfile};
-use crate::arm::profile::FirmwareProfile;
+use crate::arm::profile::{FirmwareProfile, ProfileLookupError};
 use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
 use crate::calibration::Calibration;
 use crate::camera::nokhwa_backend::NokhwaCamera;
@@ -33,10 +31,9 @@ use crate::camera::v4l2::V4l2Camera;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
-use crate::geometry::objects::{load_object, object_path};
-use crate::geometry::stl::Mesh;
+use crate::geometry::objects::{ObjectChoice, ObjectResolveError};
 use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
-use crate::pose::{Pose, WorkFrame};
+use crate::pose::Pose;
 use crate::sensor::{SensorKind, SensorKindParseError, SensorSet};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
 use crate::sim::modbus::{ArmContact, SimModbusServer};
@@ -47,10 +44,10 @@ use crate::sim::sensor::{Scene, SensorSim, SimCamera};
 pub enum RigError {
     #[error(transparent)]
     UnknownSensor(#[from] SensorKindParseError),
-    #[error("object {name:?}: {reason}")]
-    Object { name: String, reason: String },
-    #[error("firmware profile {name}: {reason}")]
-    Profile { name: String, reason: String },
+    #[error(transparent)]
+    Object(#[from] ObjectResolveError),
+    #[error(transparent)]
+    Profile(#[from] ProfileLookupError),
     #[error("calibration {path}: {reason}")]
     Calibration { path: PathBuf, reason: String },
     #[error("starting the simulated MG400: {0}")]
@@ -70,69 +67,9 @@ pub enum RigError {
     Modbus(#[from] ModbusError),
 }
 
-/// The object being pressed: its mesh and provenance.
-#[derive(Debug, Clone)]
-pub struct ObjectChoice {
-    pub name: String,
-    /// The STL file; `None` for a built-in procedural mesh.
-    pub path: Option<PathBuf>,
-    /// sha256 of the STL bytes (of the generated binary STL for a built-in mesh).
-    pub sha256: String,
-    pub mesh: Arc<Mesh>,
-}
-
-impl ObjectChoice {
-    /// A library object by name, or an STL file (whose stem becomes the name).
-    pub fn resolve(name: &str, stl: Option<&Path>) -> Result<Self, RigError> {
-        let (name, path) = match stl {
-            Some(p) => (p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()), Some(p.to_path_buf())),
-            None => {
-                let found = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))]
-                    .into_iter()
-                    .map(|root| object_path(root, name))
-                    .find(|p| p.is_file());
-                (name.to_string(), found)
-            }
-        };
-        // Named after the resolved object (an STL's stem), not the --object default.
-        let err = |reason: String| RigError::Object { name: name.clone(), reason };
-        match path {
-            Some(path) => {
-                let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
-                let mesh = Mesh::from_bytes(&bytes).map_err(|e| err(format!("{}: {e}", path.display())))?;
-                let sha256 = hex::encode(Sha256::digest(&bytes));
-                Ok(Self { name, path: Some(path), sha256, mesh: Arc::new(mesh) })
-            }
-            None => {
-                // No file: the library's procedural mesh (or a clear "unknown object" error).
-                let mesh = load_object(&name).map_err(|e| err(e.to_string()))?;
-                let sha256 = hex::encode(Sha256::digest(mesh.to_binary_bytes(&name)));
-                Ok(Self { name, path: None, sha256, mesh: Arc::new(mesh) })
-            }
-        }
-    }
-}
-
 /// The firmware profile the configuration names (the embedded MG400 V1.6 profile by default).
 pub fn profile_for(config: &RigConfig) -> Result<FirmwareProfile, RigError> {
-    match &config.arm.profile {
-        None => Ok(FirmwareProfile::default_mg400()),
-        Some(name) => {
-            let as_path = Path::new(name);
-            let found = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
-                FirmwareProfile::load(as_path)
-            } else {
-                let local = Path::new("firmware-profiles");
-                let dir = if local.join(format!("{name}.toml")).is_file() {
-                    local.to_path_buf()
-                } else {
-                    Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles")
-                };
-                FirmwareProfile::by_name(dir, name)
-            };
-            found.map_err(|e| RigError::Profile { name: name.clone(), reason: e.to_string() })
-        }
-    }
+    Ok(FirmwareProfile::named(config.arm.profile.as_deref())?)
 }
 
 /// The rig clock: real time on real hardware, sped up on the simulated rig.
@@ -141,12 +78,6 @@ pub fn clock_for(config: &RigConfig) -> Arc<dyn Clock> {
         ArmBackend::Simulated { time_scale } => Arc::new(MonotonicClock::scaled(time_scale)),
         ArmBackend::Mg400 { .. } | ArmBackend::Magician { .. } => Arc::new(MonotonicClock::new()),
     }
-}
-
-/// Motion time between two consecutive plan poses, s: the travel at the approach height
-/// (retract and descent are the same for every pair, so they do not change the order).
-pub fn pose_cost_s(profile: &FirmwareProfile, work_frame: &WorkFrame, a: &Pose, b: &Pose) -> f64 {
-    profile.motion_time_s(&work_frame.approach_pose(a), &work_frame.approach_pose(b))
 }
 
 /// A camera of any backend this build supports.
@@ -277,19 +208,6 @@ impl Arm for RigArm {
     }
 }
 
-/// The Magician profile the configuration names (`arm.profile`), or the embedded one.
-pub fn magician_profile_for(config: &RigConfig) -> Result<MagicianProfile, RigError> {
-    let Some(name) = &config.arm.profile else { return Ok(MagicianProfile::default_magician()) };
-    let as_path = Path::new(name);
-    let path = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
-        as_path.to_path_buf()
-    } else {
-        let local = Path::new("firmware-profiles").join(format!("{name}.toml"));
-        if local.is_file() { local } else { Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles").join(format!("{name}.toml")) }
-    };
-    MagicianProfile::load(&path).map_err(|e| RigError::Profile { name: name.clone(), reason: e.to_string() })
-}
-
 /// An opened rig: the arm client, the cameras, and the simulator when one runs in-process.
 pub struct Rig {
     pub arm: RigArm,
@@ -361,7 +279,7 @@ impl Rig {
                     ArmBackend::Magician { serial_port } => serial_port.clone(),
                     _ => PathBuf::new(),
                 };
-                let magician_profile = magician_profile_for(config)?;
+                let magician_profile = MagicianProfile::named(config.arm.profile.as_deref())?;
                 RigArm::Magician(MagicianArm::open(&serial_port, magician_profile, Arc::clone(&clock))?)
             }
         };

@@ -123,6 +123,22 @@ pub enum ReachError {
     LowElbow { j2_deg: f64, min_deg: f64 },
 }
 
+/// A profile named in a rig configuration that could not be found or read.
+#[derive(Debug, thiserror::Error)]
+#[error("firmware profile {name}: {reason}")]
+pub struct ProfileLookupError {
+    pub name: String,
+    pub reason: String,
+}
+
+/// `firmware-profiles/<name>.toml` in the working folder when it is there, else in rig's own
+/// folder of profiles.
+pub fn profile_path(name: &str) -> PathBuf {
+    let file = format!("{name}.toml");
+    let local = Path::new("firmware-profiles").join(&file);
+    if local.is_file() { local } else { Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles").join(file) }
+}
+
 impl FirmwareProfile {
     /// The embedded `mg400-v1.6` profile (the default).
     pub fn default_mg400() -> FirmwareProfile {
@@ -136,6 +152,28 @@ impl FirmwareProfile {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|source| ProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
+    }
+
+    /// The profile a rig configuration names (`[arm] profile`): none is the embedded MG400
+    /// V1.6 profile; a name ending in `.toml` or naming an existing file is that file; any
+    /// other name is `firmware-profiles/<name>.toml` in the working folder, else in rig's own.
+    pub fn named(name: Option<&str>) -> Result<FirmwareProfile, ProfileLookupError> {
+        let Some(name) = name else { return Ok(Self::default_mg400()) };
+        let as_path = Path::new(name);
+        let found = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
+            FirmwareProfile::load(as_path)
+        } else {
+            let dir = profile_path(name).parent().map(Path::to_path_buf).unwrap_or_default();
+            FirmwareProfile::by_name(dir, name)
+        };
+        found.map_err(|e| ProfileLookupError { name: name.to_string(), reason: e.to_string() })
+    }
+
+    /// Motion time between two consecutive plan poses, s: the travel at the approach height
+    /// of `work_frame` (retract and descent are the same for every pair, so they do not change
+    /// the order of a plan).
+    pub fn pose_cost_s(&self, work_frame: &crate::pose::WorkFrame, a: &Pose, b: &Pose) -> f64 {
+        self.motion_time_s(&work_frame.approach_pose(a), &work_frame.approach_pose(b))
     }
 
     /// Loads `firmware-profiles/<name>.toml` under `dir`, or the embedded default when `name`

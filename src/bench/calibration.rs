@@ -22,8 +22,9 @@ use crate::calibration::fit::FitOptions;
 use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern};
 use crate::camera::v4l2::CameraSettings;
 use crate::config::{ArmBackend, RigConfig, SensorBackend, SensorConfig};
+use crate::geometry::objects::ObjectChoice;
 use crate::pose::{Pose, WorkFrame};
-use crate::rigs::{ObjectChoice, Rig};
+use crate::rigs::Rig;
 use crate::sensor::SensorKind;
 use crate::sensor::SensorSet;
 

@@ -27,10 +27,11 @@ use crate::camera::v4l2::CameraSettings;
 use crate::collect::{CollectJob, SensorStream};
 use crate::config::{ArmBackend, CollectConfig, RigConfig, SensorBackend, SensorConfig};
 use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, image_rel_path};
+use crate::geometry::objects::ObjectChoice;
 use crate::metrics::MetricsError;
 use crate::plan::PlannedPose;
 use crate::pose::{Pose, WorkFrame};
-use crate::rigs::{ObjectChoice, Rig};
+use crate::rigs::Rig;
 use crate::sensor::SensorKind;
 use crate::sensor::SensorSet;
 
@@ -69,7 +70,7 @@ pub fn modelled_s_per_pose(profile: &FirmwareProfile, work_frame: &WorkFrame, po
     let mut total = 0.0;
     for p in poses {
         let (above, contact) = (work_frame.approach_pose(p), work_frame.contact_pose(p));
-        total += crate::rigs::pose_cost_s(profile, work_frame, &previous, p)
+        total += profile.pose_cost_s(work_frame, &previous, p)
             + profile.motion_time_s(&above, &contact)
             + profile.motion_time_s(&contact, &above)
             + settle_s
@@ -113,7 +114,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
     let profile = crate::rigs::profile_for(&rig_config)?;
     let modelled = modelled_s_per_pose(&profile, &rig_config.work_frame, &visited, settle_s, frames);
 
-    let object = ObjectChoice::resolve("pacman", None)?;
+    let object = ObjectChoice::resolve("pacman", None).map_err(crate::rigs::RigError::from)?;
     let clock = crate::rigs::clock_for(&rig_config);
     let mut rig = Rig::open(&rig_config, &object, &SensorSet::one(kind), 0, Arc::clone(&clock)).await?;
     // A fresh dataset per run: the scratch folder of an earlier run would make this a resume.

@@ -17,7 +17,7 @@ use crate::pose::{Pose, WorkFrame};
 pub fn measure(config: &BenchConfig) -> Result<KnobReport, BenchError> {
     let profile = FirmwareProfile::default_mg400();
     let work_frame = WorkFrame::default();
-    let cost = |a: &Pose, b: &Pose| crate::rigs::pose_cost_s(&profile, &work_frame, a, b);
+    let cost = |a: &Pose, b: &Pose| profile.pose_cost_s(&work_frame, a, b);
     let mut rows = Vec::new();
     let (mut random_pts, mut rig_pts) =
         (Series { name: "random order".into(), ..Default::default() }, Series { name: "rig's order".into(), ..Default::default() });

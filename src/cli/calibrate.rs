@@ -34,8 +34,9 @@ use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_m
 use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
 use crate::calibration::{Calibration, FitPoint, saved_path};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
+use crate::geometry::objects::ObjectChoice;
 use crate::pose::Pose;
-use crate::rigs::{ObjectChoice, Rig};
+use crate::rigs::Rig;
 use crate::sensor::SensorKind;
 use crate::sensor::SensorSet;
 

@@ -105,10 +105,10 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     }
     spec.validate().context("checking the plan")?;
     let sensors: SensorSet = args.sensor.parse()?;
-    let object = crate::rigs::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
+    let object = crate::geometry::objects::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
 
     let profile = crate::rigs::profile_for(&config)?;
-    let plan = spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b)).context("building the plan")?;
+    let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b)).context("building the plan")?;
     println!(
         "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
         plan.poses.len(),

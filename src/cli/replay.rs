@@ -11,10 +11,11 @@ use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
 use crate::config::RigConfig;
 use crate::dataset::ObjectInfo;
+use crate::geometry::objects::ObjectChoice;
 use crate::plan::{PlanSpec, PlannedPose};
 use crate::record::replay::{ReplayError, replay_collection};
 use crate::record::{RecordedSensor, Recording, RecordingHeader};
-use crate::rigs::{ObjectChoice, RigCamera};
+use crate::rigs::RigCamera;
 
 /// Arguments of `rig replay`.
 #[derive(Debug, clap::Args)]

@@ -26,8 +26,9 @@ use crate::clock::Clock;
 use crate::collect::{CollectError, CollectJob, SensorStream, check_plan};
 use crate::config::RigConfig;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, ObjectInfo};
+use crate::geometry::objects::ObjectChoice;
 use crate::plan::{PlanError, PlanSpec};
-use crate::rigs::{ObjectChoice, Rig, RigError};
+use crate::rigs::{Rig, RigError};
 use crate::sensor::SensorKind;
 use crate::sensor::SensorSet;
 use crate::synth::fill::{FillError, FillOptions, Shard, fill_missing_observed};
@@ -235,9 +236,9 @@ async fn run_collect(spec: &CollectSpec, ctx: RigContext<'_>) -> Result<JobEnd, 
     }
     plan_spec.validate()?;
     let sensors: SensorSet = spec.sensor.parse().map_err(RigError::from)?;
-    let object = ObjectChoice::resolve(&spec.object, spec.stl.as_deref())?;
+    let object = ObjectChoice::resolve(&spec.object, spec.stl.as_deref()).map_err(RigError::from)?;
     let profile = crate::rigs::profile_for(config)?;
-    let plan = plan_spec.build(&|a, b| crate::rigs::pose_cost_s(&profile, &config.work_frame, a, b))?;
+    let plan = plan_spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b))?;
     check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
     let opened = sensor_names(rig);
     for kind in &sensors.0 {

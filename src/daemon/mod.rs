@@ -37,7 +37,8 @@ pub use jobs::{CalibrateSpec, CollectSpec, JobSpec, SynthSpec};
 pub use state::{DaemonState, JobState, JobView, StatusView};
 
 use crate::config::RigConfig;
-use crate::rigs::{ObjectChoice, Rig, RigError};
+use crate::geometry::objects::ObjectChoice;
+use crate::rigs::{Rig, RigError};
 use crate::sensor::SensorSet;
 
 /// Errors starting or stopping the daemon.
@@ -114,7 +115,7 @@ impl Daemon {
         let addr = listener.local_addr().map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
 
         let config = options.config;
-        let object = ObjectChoice::resolve(&options.object, None)?;
+        let object = ObjectChoice::resolve(&options.object, None).map_err(RigError::from)?;
         let clock = crate::rigs::clock_for(&config);
         let rig = Rig::open(&config, &object, &options.sensors, options.seed, Arc::clone(&clock)).await?;
         let describe = format!(

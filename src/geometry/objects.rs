@@ -6,6 +6,9 @@
 //! when no file exists (so `sphere` and the others render in any working directory).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use sha2::{Digest, Sha256};
 
 use super::shapes;
 use super::stl::{Mesh, StlError};
@@ -20,6 +23,63 @@ pub enum ObjectError {
     Unknown { name: String, known: &'static [&'static str] },
     #[error(transparent)]
     Stl(#[from] StlError),
+}
+
+/// An object a command named that could not be resolved.
+#[derive(Debug, thiserror::Error)]
+#[error("object {name:?}: {reason}")]
+pub struct ObjectResolveError {
+    pub name: String,
+    pub reason: String,
+}
+
+/// The object being pressed: its mesh and provenance.
+#[derive(Debug, Clone)]
+pub struct ObjectChoice {
+    pub name: String,
+    /// The STL file; `None` for a built-in procedural mesh.
+    pub path: Option<PathBuf>,
+    /// sha256 of the STL bytes (of the generated binary STL for a built-in mesh).
+    pub sha256: String,
+    pub mesh: Arc<Mesh>,
+}
+
+impl ObjectChoice {
+    /// A library object by name, or an STL file (whose stem becomes the name).
+    pub fn resolve(name: &str, stl: Option<&Path>) -> Result<Self, ObjectResolveError> {
+        let (name, path) = match stl {
+            Some(p) => (p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| name.to_string()), Some(p.to_path_buf())),
+            None => {
+                let found = [PathBuf::from("."), PathBuf::from(env!("CARGO_MANIFEST_DIR"))]
+                    .into_iter()
+                    .map(|root| object_path(root, name))
+                    .find(|p| p.is_file());
+                (name.to_string(), found)
+            }
+        };
+        // Named after the resolved object (an STL's stem), not the --object default.
+        let err = |reason: String| ObjectResolveError { name: name.clone(), reason };
+        match path {
+            Some(path) => {
+                let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
+                let mesh = Mesh::from_bytes(&bytes).map_err(|e| err(format!("{}: {e}", path.display())))?;
+                let sha256 = hex::encode(Sha256::digest(&bytes));
+                Ok(Self { name, path: Some(path), sha256, mesh: Arc::new(mesh) })
+            }
+            None => {
+                // No file: the library's procedural mesh (or a clear "unknown object" error).
+                let mesh = load_object(&name).map_err(|e| err(e.to_string()))?;
+                Ok(Self::built_in(&name, mesh))
+            }
+        }
+    }
+
+    /// A mesh built in code (the calibration indenter, a procedural library object), named
+    /// `name`; its hash is that of its binary STL.
+    pub fn built_in(name: &str, mesh: Mesh) -> Self {
+        let sha256 = hex::encode(Sha256::digest(mesh.to_binary_bytes(name)));
+        Self { name: name.to_string(), path: None, sha256, mesh: Arc::new(mesh) }
+    }
 }
 
 /// Names of the library objects.

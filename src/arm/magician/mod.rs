@@ -106,6 +106,20 @@ impl MagicianProfile {
             .unwrap_or_else(|e| panic!("embedded magician profile: {e}"))
     }
 
+    /// The profile a rig configuration names (`[arm] profile`), as
+    /// [`FirmwareProfile::named`](crate::arm::profile::FirmwareProfile::named) finds an MG400
+    /// profile; none is the embedded one.
+    pub fn named(name: Option<&str>) -> Result<Self, crate::arm::profile::ProfileLookupError> {
+        let Some(name) = name else { return Ok(Self::default_magician()) };
+        let as_path = Path::new(name);
+        let path = if as_path.extension().is_some_and(|e| e == "toml") || as_path.is_file() {
+            as_path.to_path_buf()
+        } else {
+            crate::arm::profile::profile_path(name)
+        };
+        Self::load(&path).map_err(|e| crate::arm::profile::ProfileLookupError { name: name.to_string(), reason: e.to_string() })
+    }
+
     pub fn load(path: &Path) -> Result<Self, MagicianProfileError> {
         let text = std::fs::read_to_string(path).map_err(|source| MagicianProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
