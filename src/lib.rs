@@ -19,6 +19,7 @@ pub mod dataset;
 pub mod eval;
 pub mod geometry;
 pub mod io;
+pub mod jobs;
 pub mod metrics;
 pub mod plan;
 pub mod pose;

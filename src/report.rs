@@ -32,6 +32,11 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
                 C::Dataset(_) => {}
             }
         }
+        if let Some(e) = cause.downcast_ref::<crate::jobs::JobError>()
+            && matches!(e, crate::jobs::JobError::BadOption { .. } | crate::jobs::JobError::SensorNotOpen { .. })
+        {
+            return 2;
+        }
         if cause.downcast_ref::<crate::config::ConfigError>().is_some()
             || cause.downcast_ref::<crate::geometry::objects::ObjectResolveError>().is_some()
             || cause.downcast_ref::<crate::arm::profile::ProfileLookupError>().is_some()

@@ -17,12 +17,12 @@ use super::plot::{Plot, Series};
 use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row};
 use crate::arm::profile::FirmwareProfile;
 use crate::calibration::Calibration;
-use crate::calibration::detect::ContactDetector;
-use crate::calibration::fit::FitOptions;
-use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern};
+use crate::calibration::press::{Press, PressError, PressPattern, indenter_mesh};
 use crate::camera::v4l2::CameraSettings;
 use crate::config::{ArmBackend, RigConfig, SensorBackend, SensorConfig};
 use crate::geometry::objects::ObjectChoice;
+use crate::jobs::calibrate::{PressOutcome, press_and_fit};
+use crate::jobs::{JobError, Observer};
 use crate::pose::{Pose, WorkFrame};
 use crate::rigs::Rig;
 use crate::sensor::SensorKind;
@@ -123,37 +123,24 @@ pub async fn run_once(config: &BenchConfig, pattern: &PressPattern, work_dir: &P
     }];
     let profile = crate::rigs::profile_for(&rig_config)?;
     let modelled = modelled_arm_s(&profile, &rig_config.work_frame, pattern, rig_config.collect.settle_s);
-    let mesh = indenter_mesh();
-    let object = ObjectChoice { name: "indenter".into(), path: None, sha256: String::new(), mesh: Arc::new(mesh) };
+    let object = ObjectChoice::built_in("indenter", indenter_mesh());
     let clock = crate::rigs::clock_for(&rig_config);
     let mut rig = Rig::open(&rig_config, &object, &SensorSet::one(kind), 0, Arc::clone(&clock)).await?;
     let camera = rig.cameras.pop().ok_or(BenchError::Empty { knob: Knob::Calibration, reason: "the simulated rig opened no camera" })?;
-    let mut station = ArmStation {
-        arm: &mut rig.arm,
-        camera,
-        work_frame: rig_config.work_frame,
-        options: rig_config.collect.clone(),
-        detector: ContactDetector::for_sensor(kind, px),
-        reference: None,
-    };
-    let options = FitOptions { image_size: [px, px], ..FitOptions::default() };
     let mut detected = 0;
+    let mut count = |_: usize, press: &Press| detected += usize::from(press.contact.is_ok());
     let t_wall = std::time::Instant::now();
-    let result = run_pattern(&mut station, pattern, &options, |_, press| {
-        detected += usize::from(press.contact.is_ok());
-        std::ops::ControlFlow::Continue(())
-    })
-    .await;
+    let result = press_and_fit(&mut rig.arm, camera, kind, &rig_config, pattern, &Observer::hidden(), &mut count).await;
     let wall_s = t_wall.elapsed().as_secs_f64();
-    drop(station);
     rig.shutdown().await;
     let (mean_px, max_px, rms_px) = match result {
-        Ok(run) => {
-            let (mean_px, max_px) = map_error_px(&run.fit.calibration, &truth, HALF_SPAN_MM);
-            (mean_px, max_px, run.fit.rms_px)
+        Ok(PressOutcome::Fitted { fit, .. }) => {
+            let (mean_px, max_px) = map_error_px(&fit.calibration, &truth, HALF_SPAN_MM);
+            (mean_px, max_px, fit.rms_px)
         }
         // Too few or degenerate points is a result of this knob, not a failure of the bench.
-        Err(PressError::Fit(_)) => (f64::NAN, f64::NAN, f64::NAN),
+        Err(JobError::Press(PressError::Fit(_))) => (f64::NAN, f64::NAN, f64::NAN),
+        Ok(PressOutcome::Cancelled { .. }) => return Err(BenchError::Empty { knob: Knob::Calibration, reason: "the run was cancelled" }),
         Err(e) => return Err(e.into()),
     };
     Ok(CalibrationRun {

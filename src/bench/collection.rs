@@ -24,12 +24,14 @@ use super::plot::{Plot, Series};
 use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, mean};
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::v4l2::CameraSettings;
-use crate::collect::{CollectJob, SensorStream};
 use crate::config::{ArmBackend, CollectConfig, RigConfig, SensorBackend, SensorConfig};
-use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, image_rel_path};
+use crate::dataset::{ObjectInfo, image_rel_path};
 use crate::geometry::objects::ObjectChoice;
+use crate::io::modbus::NoPeripherals;
+use crate::jobs::Observer;
+use crate::jobs::collect::{CollectSetup, SensorFeed};
 use crate::metrics::MetricsError;
-use crate::plan::PlannedPose;
+use crate::plan::{PlanSpec, PlannedPose};
 use crate::pose::{Pose, WorkFrame};
 use crate::rigs::Rig;
 use crate::sensor::SensorKind;
@@ -119,29 +121,29 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
     let mut rig = Rig::open(&rig_config, &object, &SensorSet::one(kind), 0, Arc::clone(&clock)).await?;
     // A fresh dataset per run: the scratch folder of an earlier run would make this a resume.
     let _ = std::fs::remove_dir_all(dir);
-    let info = ObjectInfo { name: object.name.clone(), stl_path: None, stl_sha256: Some(object.sha256.clone()) };
-    let writer = DatasetWriter::create(dir, Manifest::new(kind, info, None))?;
     let camera = rig.cameras.pop().ok_or(BenchError::Empty { knob: Knob::Collection, reason: "the simulated rig opened no camera" })?;
-    let (_cancel_tx, cancel) = tokio::sync::watch::channel(false);
-    let job = CollectJob {
-        arm: &mut rig.arm,
-        sensors: vec![SensorStream { camera, writer }],
+    // The collection job itself, writing `<dir>/pacman/vitactip`.
+    let setup = CollectSetup {
+        object: ObjectInfo { name: object.name.clone(), stl_path: None, stl_sha256: Some(object.sha256.clone()) },
+        plan_spec: PlanSpec::default(),
+        poses: plan.clone(),
+        profile_name: profile.name.clone(),
         work_frame: rig_config.work_frame,
         options: rig_config.collect.clone(),
-        clock: Arc::clone(&clock),
-        cancel,
-        stop_after: None,
-        progress: indicatif::ProgressBar::hidden(),
-        peripherals: crate::io::modbus::NoPeripherals,
+        out: dir.to_path_buf(),
+        resume: false,
+        disk_budget_bytes: None,
     };
+    let feeds = vec![SensorFeed { camera, sensor: kind, calibration: "default".into() }];
     let t_wall = Instant::now();
-    let result = job.run(&plan).await;
+    let result = crate::jobs::collect::run(&setup, &mut rig.arm, feeds, NoPeripherals, Arc::clone(&clock), Observer::hidden(), None).await;
     let wall_s = t_wall.elapsed().as_secs_f64();
     rig.shutdown().await;
     result?;
 
+    let dataset = setup.dataset_dir(kind);
     let load = |id: u32| -> Result<RgbImage, BenchError> {
-        let path = dir.join(image_rel_path(id));
+        let path = dataset.join(image_rel_path(id));
         image::open(&path).map(|i| i.to_rgb8()).map_err(|e| BenchError::Io { path: path.clone(), source: std::io::Error::other(e) })
     };
     let mut noise = Vec::new();

@@ -254,6 +254,8 @@ pub enum BenchError {
     #[error(transparent)]
     Collect(#[from] crate::collect::CollectError),
     #[error(transparent)]
+    Job(#[from] crate::jobs::JobError),
+    #[error(transparent)]
     Dataset(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
     Press(#[from] crate::calibration::press::PressError),

@@ -21,20 +21,20 @@
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 use image::RgbImage;
-use sha2::{Digest, Sha256};
 
 use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit, fit_points};
-use crate::calibration::press::{ArmStation, PressError, PressPattern, indenter_mesh, run_pattern, sensor_point_mm};
+use crate::calibration::press::{ArmStation, Press, PressPattern, indenter_mesh, sensor_point_mm};
 use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard};
-use crate::calibration::{Calibration, FitPoint, saved_path};
+use crate::calibration::{Calibration, FitPoint};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
 use crate::geometry::objects::ObjectChoice;
+use crate::jobs::calibrate::{CalibrateRequest, PressOutcome};
+use crate::jobs::{JobRequest, Observer};
 use crate::pose::Pose;
 use crate::rigs::Rig;
 use crate::sensor::SensorKind;
@@ -87,11 +87,11 @@ pub struct Args {
 }
 
 impl Args {
-    /// The same automatic calibration as a daemon job.
-    pub fn job_spec(&self) -> crate::daemon::CalibrateSpec {
-        crate::daemon::CalibrateSpec {
-            sensor: self.sensor.to_string(),
-            out: self.out.as_deref().map(crate::cli::collect::absolute),
+    /// The automatic calibration these arguments ask for.
+    pub fn request(&self) -> CalibrateRequest {
+        CalibrateRequest {
+            sensor: self.sensor,
+            out: self.out.clone(),
             grid: self.grid,
             span_mm: self.span_mm,
             depths_mm: self.depths_mm.clone(),
@@ -107,9 +107,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "--daemon runs the automatic presses on the daemon's rig: --interactive, --from-dataset, --sim-truth, --config and --dry-run apply to a standalone run only"
             ));
         }
-        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Calibrate(args.job_spec()));
+        let mut request = args.request();
+        request.out = request.out.as_deref().map(crate::cli::collect::absolute);
+        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Calibrate(request));
     }
-    let out = args.out.clone().unwrap_or_else(|| saved_path(&args.sensor.to_string()));
+    let request = args.request();
+    let out = request.out_path();
     if let Some(dir) = &args.from_dataset {
         return from_dataset(&args, dir, &out);
     }
@@ -121,18 +124,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         set_sim_truth(&mut config, args.sensor, truth)?;
     }
     println!("{}", config.describe());
-    let pattern = PressPattern::grid(args.grid, args.span_mm, &args.depths_mm);
-    let profile = crate::rigs::profile_for(&config)?;
-    let plan: Vec<_> = pattern.offsets.iter().enumerate().map(|(k, p)| crate::plan::PlannedPose { pose_id: k as u32, pose: *p }).collect();
-    crate::collect::check_plan(&plan, &config.work_frame, |p| profile.check_reachable(p))?;
-    println!(
-        "pattern: {} presses, {}x{} grid over ±{} mm, extra depths {:?} mm",
-        pattern.offsets.len(),
-        args.grid.max(2),
-        args.grid.max(2),
-        args.span_mm,
-        args.depths_mm
-    );
+    let pattern = request.prepare(&config)?;
+    println!("{}", request.pattern_line(&pattern));
     if args.dry_run {
         println!("dry run: pattern checked against the workspace, nothing moved");
         return Ok(());
@@ -166,80 +159,67 @@ fn set_sim_truth(config: &mut RigConfig, kind: SensorKind, truth: &Path) -> anyh
 }
 
 async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, out: &Path) -> anyhow::Result<()> {
-    let mesh = indenter_mesh();
-    let object = ObjectChoice {
-        name: "indenter".into(),
-        path: None,
-        sha256: hex::encode(Sha256::digest(mesh.to_binary_bytes("indenter"))),
-        mesh: Arc::new(mesh),
-    };
+    let object = ObjectChoice::built_in("indenter", indenter_mesh());
     let clock = crate::rigs::clock_for(&config);
     let mut rig = Rig::open(&config, &object, &SensorSet::one(args.sensor), args.seed, clock).await?;
     let camera = rig.cameras.pop().context("the rig opened no camera")?;
-    let sensor_name = args.sensor.to_string();
-    let mut station = ArmStation {
-        arm: &mut rig.arm,
-        camera,
-        work_frame: config.work_frame,
-        options: config.collect.clone(),
-        detector: ContactDetector::for_sensor(args.sensor, config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width)),
-        reference: None,
-    };
-    let sensor = args.sensor.to_string();
-    let fit = if args.interactive {
+    if args.interactive {
+        let sensor_name = args.sensor.to_string();
+        let mut station = ArmStation {
+            arm: &mut rig.arm,
+            camera,
+            work_frame: config.work_frame,
+            options: config.collect.clone(),
+            detector: ContactDetector::for_sensor(
+                args.sensor,
+                config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width),
+            ),
+            reference: None,
+        };
         // Ctrl-C: the answer being waited for (or the next one, after the current press) reads
         // as a quit, so the wizard retracts the arm; nothing is saved.
         let cancel = super::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;
         let mut io = LineIo { input: std::io::BufReader::new(CancellableStdin::new(cancel.clone())), output: std::io::stdout() };
-        let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor, &out.display().to_string()).await?;
+        let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor_name, &out.display().to_string()).await?;
+        let size = station.reference.as_ref().map(|r| [r.width(), r.height()]);
+        drop(station);
+        rig.shutdown().await;
         if *cancel.borrow() {
-            drop(station);
-            rig.shutdown().await;
             println!("interrupted; the arm is retracted and {} was not written", out.display());
             bail!(crate::cli::ExitStatus(4));
         }
-        match outcome {
-            WizardOutcome::Save(fit) => Some(*fit),
-            _ => None,
+        let WizardOutcome::Save(fit) = outcome else { return Ok(()) };
+        let mut fit = *fit;
+        if let Some(size) = size {
+            fit.calibration.image_size = size;
         }
-    } else {
-        let total = pattern.offsets.len();
-        // Ctrl-C: finish the current press, retract, disable, save nothing (as `rig collect`).
-        let cancel = super::cancel_on_interrupt("finishing the current press, then retracting and disabling the arm")?;
-        let run = run_pattern(&mut station, &pattern, &FitOptions::default(), |k, press| {
-            match &press.contact {
-                Ok(c) => println!(
-                    "press {:>2}/{total} at ({:+.2}, {:+.2}) mm depth {:+.2}: {c}",
-                    k + 1,
-                    press.offset.x_mm,
-                    press.offset.y_mm,
-                    press.offset.z_mm
-                ),
-                Err(e) => {
-                    println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm)
-                }
-            }
-            if *cancel.borrow() { std::ops::ControlFlow::Break(()) } else { std::ops::ControlFlow::Continue(()) }
-        })
-        .await;
-        match run {
-            Err(PressError::Cancelled { done, total }) => {
-                drop(station);
-                rig.shutdown().await;
-                println!("interrupted after {done} of {total} presses; the arm is retracted and {} was not written", out.display());
-                bail!(crate::cli::ExitStatus(4));
-            }
-            run => Some(run?.fit),
-        }
-    };
-    let size = station.reference.as_ref().map(|r| [r.width(), r.height()]);
-    drop(station);
-    rig.shutdown().await;
-    let Some(mut fit) = fit else { return Ok(()) };
-    if let Some(size) = size {
-        fit.calibration.image_size = size;
+        return save_and_report(&fit, out, args.sim_truth.as_deref(), false);
     }
-    save_and_report(&fit, out, args.sim_truth.as_deref(), !args.interactive)
+    let total = pattern.offsets.len();
+    // Ctrl-C: finish the current press, retract, disable, save nothing (as `rig collect`).
+    let cancel = super::cancel_on_interrupt("finishing the current press, then retracting and disabling the arm")?;
+    let observer = Observer { progress: indicatif::ProgressBar::hidden(), cancel };
+    let mut print = |k: usize, press: &Press| match &press.contact {
+        Ok(c) => {
+            println!(
+                "press {:>2}/{total} at ({:+.2}, {:+.2}) mm depth {:+.2}: {c}",
+                k + 1,
+                press.offset.x_mm,
+                press.offset.y_mm,
+                press.offset.z_mm
+            )
+        }
+        Err(e) => println!("press {:>2}/{total} at ({:+.2}, {:+.2}) mm: no detection: {e}", k + 1, press.offset.x_mm, press.offset.y_mm),
+    };
+    let run = crate::jobs::calibrate::press_and_fit(&mut rig.arm, camera, args.sensor, &config, &pattern, &observer, &mut print).await;
+    rig.shutdown().await;
+    match run? {
+        PressOutcome::Cancelled { done, total } => {
+            println!("interrupted after {done} of {total} presses; the arm is retracted and {} was not written", out.display());
+            bail!(crate::cli::ExitStatus(4));
+        }
+        PressOutcome::Fitted { fit, .. } => save_and_report(&fit, out, args.sim_truth.as_deref(), true),
+    }
 }
 
 /// Stdin for the wizard, read on a thread of its own so that a Ctrl-C ends a wait for an
@@ -292,10 +272,7 @@ impl std::io::Read for CancellableStdin {
 /// Saves the calibration and prints the mapping (only the residual when the wizard has shown
 /// it already); the residual is the last line.
 fn save_and_report(fit: &PointFit, out: &Path, truth: Option<&Path>, mapping: bool) -> anyhow::Result<()> {
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    fit.calibration.save(out)?;
+    crate::jobs::calibrate::save(fit, out)?;
     println!("saved {}", out.display());
     if let Some(truth) = truth {
         let t = Calibration::load(truth)?;

@@ -7,10 +7,9 @@ use std::sync::Arc;
 use anyhow::{Context, bail};
 use clap::Args;
 
-use crate::collect::{CollectJob, SensorStream, check_plan};
 use crate::config::RigConfig;
-use crate::dataset::{DatasetWriter, Manifest, ObjectInfo};
-use crate::plan::PlanSpec;
+use crate::jobs::collect::{CollectRequest, SensorFeed};
+use crate::jobs::{JobRequest, Observer};
 use crate::rigs::Rig;
 use crate::sensor::SensorSet;
 
@@ -23,9 +22,9 @@ pub struct CollectArgs {
     /// Object STL file instead of a library name.
     #[arg(long)]
     pub stl: Option<PathBuf>,
-    /// Sensor(s) to capture: tactip, vitac, vitactip or all.
+    /// Sensor(s) to capture: tactip, vitac, vitactip, a comma-separated list, or all.
     #[arg(long, default_value = "all")]
-    pub sensor: String,
+    pub sensor: SensorSet,
     /// Plan file (TOML); flags below override its fields.
     #[arg(long)]
     pub plan: Option<PathBuf>,
@@ -56,16 +55,16 @@ pub struct CollectArgs {
 }
 
 impl CollectArgs {
-    /// The same collection as a daemon job.
-    pub fn job_spec(&self) -> crate::daemon::CollectSpec {
-        crate::daemon::CollectSpec {
+    /// The collection these arguments ask for.
+    pub fn request(&self) -> CollectRequest {
+        CollectRequest {
             object: self.object.clone(),
-            stl: self.stl.as_deref().map(absolute),
+            stl: self.stl.clone(),
             sensor: self.sensor.clone(),
-            plan: self.plan.as_deref().map(absolute),
+            plan: self.plan.clone(),
             poses: self.poses,
             seed: self.seed,
-            out: absolute(&self.out),
+            out: self.out.clone(),
             resume: self.resume,
         }
     }
@@ -84,7 +83,11 @@ pub fn run(args: CollectArgs) -> anyhow::Result<()> {
                 "--daemon runs the job on the daemon's rig: --dry-run, --record and --config apply to a standalone run only"
             ));
         }
-        return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Collect(args.job_spec()));
+        let mut request = args.request();
+        request.stl = request.stl.as_deref().map(absolute);
+        request.plan = request.plan.as_deref().map(absolute);
+        request.out = absolute(&request.out);
+        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Collect(request));
     }
     let config = RigConfig::discover(args.config.as_deref())?;
     println!("{}", config.describe());
@@ -93,30 +96,11 @@ pub fn run(args: CollectArgs) -> anyhow::Result<()> {
 }
 
 async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
-    let mut spec = match &args.plan {
-        Some(p) => PlanSpec::load(p).with_context(|| format!("reading plan {}", p.display()))?,
-        None => PlanSpec::default(),
-    };
-    if let Some(n) = args.poses {
-        spec.n_poses = Some(n);
+    if args.record.is_some() && args.resume {
+        bail!(crate::cli::usage("--record starts a new dataset; it cannot be combined with --resume"));
     }
-    if let Some(s) = args.seed {
-        spec.seed = s;
-    }
-    spec.validate().context("checking the plan")?;
-    let sensors: SensorSet = args.sensor.parse()?;
-    let object = crate::geometry::objects::ObjectChoice::resolve(&args.object, args.stl.as_deref())?;
-
-    let profile = crate::rigs::profile_for(&config)?;
-    let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b)).context("building the plan")?;
-    println!(
-        "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
-        plan.poses.len(),
-        spec.grid_len(),
-        plan.motion_time_before_s,
-        plan.motion_time_after_s
-    );
-    check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
+    let prepared = args.request().prepare(&config)?;
+    println!("{}", prepared.plan_line());
     if args.dry_run {
         println!("dry run: plan checked against the workspace, nothing moved");
         return Ok(());
@@ -124,78 +108,56 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
 
     let clock = crate::rigs::clock_for(&config);
     let recorder = match &args.record {
-        Some(_) if args.resume => {
-            bail!(crate::cli::usage("--record starts a new dataset; it cannot be combined with --resume"))
-        }
         Some(path) => {
             Some(crate::record::Recorder::create(path, clock.clone()).with_context(|| format!("creating recording {}", path.display()))?)
         }
         None => None,
     };
-    let mut rig = Rig::open_with(&config, &object, &sensors, spec.seed, clock.clone(), recorder.clone()).await?;
+    let setup = &prepared.setup;
+    let mut rig =
+        Rig::open_with(&config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, clock.clone(), recorder.clone()).await?;
     if let Some(recorder) = &recorder {
-        recorder.begin(&crate::cli::replay::recording_header(&config, &object, &rig.cameras, &spec, &plan.poses, &profile))?;
+        recorder.begin(&crate::cli::replay::recording_header(
+            &config,
+            &prepared.object,
+            &rig.cameras,
+            &setup.plan_spec,
+            &setup.poses,
+            &prepared.profile,
+        ))?;
     }
-    let mut streams = Vec::new();
+    let mut feeds = Vec::new();
     for (index, camera) in rig.cameras.drain(..).enumerate() {
-        let dir = args.out.join(&object.name).join(camera.sensor_dir());
-        let object_info = ObjectInfo {
-            name: object.name.clone(),
-            stl_path: object.path.as_ref().map(|p| p.display().to_string()),
-            stl_sha256: Some(object.sha256.clone()),
-        };
-        let mut manifest = Manifest::new(camera.kind(), object_info, Some(spec.clone()));
-        manifest.calibration = Some(camera.calibration_name());
-        manifest.firmware_profile = Some(profile.name.clone());
-        manifest.work_frame = Some(config.work_frame);
-        let writer = if args.resume { DatasetWriter::resume(&dir, manifest) } else { DatasetWriter::create(&dir, manifest) }
-            .with_context(|| format!("opening dataset {}", dir.display()))?
-            .with_byte_budget(config.faults.disk_budget_bytes);
         let index = u8::try_from(index).context("more than 256 sensors")?;
-        streams.push(SensorStream { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), writer });
+        let (sensor, calibration) = (camera.kind(), camera.calibration_name());
+        feeds.push(SensorFeed { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), sensor, calibration });
     }
 
-    let cancel_rx = super::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
-    let progress = indicatif::ProgressBar::new(plan.poses.len() as u64);
+    let cancel = super::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
+    let progress = indicatif::ProgressBar::new(setup.poses.len() as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let job = CollectJob {
-        arm: &mut rig.arm,
-        sensors: streams,
-        work_frame: config.work_frame,
-        options: config.collect.clone(),
-        clock: Arc::clone(&clock),
-        cancel: cancel_rx,
-        stop_after: None,
-        progress,
-        peripherals: crate::record::RecordingPeripherals::new(std::mem::take(&mut rig.peripherals), recorder.clone()),
-    };
-    let summary = job.run(&plan.poses).await;
+    let peripherals = crate::record::RecordingPeripherals::new(std::mem::take(&mut rig.peripherals), recorder.clone());
+    let outcome =
+        crate::jobs::collect::run(setup, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), Observer { progress, cancel }, None).await;
     // Close the recording even when the run failed: its replay reproduces the failure. An
     // interrupt is recorded as where the job stopped, for the replay to stop there too.
-    if let (Some(recorder), Ok(s)) = (&recorder, &summary)
-        && s.interrupted
+    if let (Some(recorder), Ok(o)) = (&recorder, &outcome)
+        && o.summary.interrupted
     {
-        recorder.log_interrupt(s.captured as u64);
+        recorder.log_interrupt(o.summary.captured as u64);
     }
     if let (Some(recorder), Some(path)) = (&recorder, &args.record) {
         let records = recorder.finish()?;
         println!("recorded {records} events into {}", path.display());
     }
-    let summary = summary?;
+    let outcome = outcome?;
     rig.shutdown().await;
-    if summary.interrupted {
-        println!("interrupted: {} poses captured, {} left; continue with --resume", summary.captured, summary.remaining);
+    println!("{}", outcome.line("--resume"));
+    if outcome.summary.interrupted {
         bail!(crate::cli::ExitStatus(4));
     }
-    println!(
-        "collected {} poses ({} already present, {} arm or camera faults recovered) into {}",
-        summary.captured,
-        summary.skipped,
-        summary.recovered_faults,
-        args.out.join(&object.name).display()
-    );
     Ok(())
 }

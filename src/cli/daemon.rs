@@ -104,7 +104,7 @@ const FOLLOW_PERIOD: Duration = Duration::from_millis(500);
 /// Submits `spec` to the daemon at `url`, prints the job id, and (unless `detach`) follows its
 /// progress to the end; the exit status is the one the standalone command would give. Ctrl-C
 /// while following cancels the job on the daemon (it stops at its next safe point).
-pub fn submit_and_follow(target: &DaemonTarget, spec: crate::daemon::JobSpec) -> anyhow::Result<()> {
+pub fn submit_and_follow(target: &DaemonTarget, spec: crate::jobs::JobRequest) -> anyhow::Result<()> {
     let url = target.daemon.as_deref().context("--daemon URL is required here")?;
     // Read here, not through clap's `env`: `rig synth` rejects flags beside its subcommands,
     // and an environment value would count as one.
@@ -114,7 +114,7 @@ pub fn submit_and_follow(target: &DaemonTarget, spec: crate::daemon::JobSpec) ->
     runtime.block_on(follow(client, url, spec, target.detach))
 }
 
-async fn follow(client: crate::daemon::client::DaemonClient, url: &str, spec: crate::daemon::JobSpec, detach: bool) -> anyhow::Result<()> {
+async fn follow(client: crate::daemon::client::DaemonClient, url: &str, spec: crate::jobs::JobRequest, detach: bool) -> anyhow::Result<()> {
     use crate::daemon::{JobState, JobView};
     let body = serde_json::to_value(&spec).context("encoding the job")?;
     let job: JobView = client.post_json("/api/jobs", &body).await.with_context(|| format!("submitting the job to {url}"))?;

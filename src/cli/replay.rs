@@ -12,8 +12,9 @@ use crate::camera::Camera;
 use crate::config::RigConfig;
 use crate::dataset::ObjectInfo;
 use crate::geometry::objects::ObjectChoice;
+use crate::jobs::JobError;
 use crate::plan::{PlanSpec, PlannedPose};
-use crate::record::replay::{ReplayError, replay_collection};
+use crate::record::replay::ReplayError;
 use crate::record::{RecordedSensor, Recording, RecordingHeader};
 use crate::rigs::RigCamera;
 
@@ -61,7 +62,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // One thread: the client's feedback reader and the job interleave only where the
     // recording says (see `record::replay`).
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the async runtime")?;
-    let outcome = runtime.block_on(replay_collection(&recording, &args.out, Duration::from_secs_f64(args.stall_s)));
+    let outcome = runtime.block_on(crate::jobs::replay::run(&recording, &args.out, Duration::from_secs_f64(args.stall_s)));
     match outcome {
         Ok(o) => {
             println!(
@@ -78,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Err(e @ (ReplayError::Diverged(_) | ReplayError::PeripheralsDiverged(_))) => {
+        Err(JobError::Replay(e @ (ReplayError::Diverged(_) | ReplayError::PeripheralsDiverged(_)))) => {
             eprintln!("error: {e}");
             bail!(crate::cli::ExitStatus(3))
         }

@@ -35,6 +35,30 @@ pub enum SynthCommand {
     Info(InfoArgs),
 }
 
+/// Sampling settings, the same flags in every synth mode. Each one left out takes the model
+/// package's own (`model.toml`), else rig's fallback: 20 steps unguided for a fill, 50 steps
+/// at guidance 9 (MultiDiffSense's paper) for `synth one`.
+#[derive(Debug, Clone, ClapArgs)]
+pub struct SamplingArgs {
+    /// Sampling steps [default: the package's `sampling_steps`, else 20 (fill) or 50 (one)].
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Classifier-free guidance scale (1: unguided, half the work, as MultiDiffSense's scripts
+    /// save) [default: the package's `guidance`, else 1 (fill) or 9 (one)].
+    #[arg(long)]
+    pub guidance: Option<f32>,
+    /// DDIM eta (0: deterministic).
+    #[arg(long, default_value_t = 0.0)]
+    pub eta: f32,
+    /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
+    #[arg(long, alias = "scheduler")]
+    pub sampler: Option<SchedulerKind>,
+    /// ControlNet conditioning scale: how strongly the depth-map hint steers the image (1: as
+    /// the model was trained).
+    #[arg(long, default_value_t = 1.0)]
+    pub conditioning_scale: f32,
+}
+
 /// Where ONNX Runtime comes from and where it runs.
 #[derive(Debug, Clone, ClapArgs)]
 pub struct RuntimeArgs {
@@ -77,25 +101,11 @@ pub struct OneArgs {
     /// Text for the unconditional half of classifier-free guidance.
     #[arg(long, default_value = "")]
     pub negative_prompt: String,
-    /// Sampling steps [default: the package's `sampling_steps`, else 50].
-    #[arg(long)]
-    pub steps: Option<usize>,
-    /// Classifier-free guidance scale (1: no guidance, half the work) [default: the package's
-    /// `guidance`, else 9 as in MultiDiffSense's paper].
-    #[arg(long)]
-    pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    #[arg(long, default_value_t = 0.0)]
-    pub eta: f32,
+    #[command(flatten)]
+    pub sampling: SamplingArgs,
     /// Seed of the initial noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
-    #[arg(long)]
-    pub scheduler: Option<SchedulerKind>,
-    /// ControlNet conditioning scale.
-    #[arg(long, default_value_t = 1.0)]
-    pub conditioning_scale: f32,
     /// Initial latents, float32 .npy of shape [1, C, H/8, W/8] (e.g. saved from a Python run).
     #[arg(long, value_name = "FILE.npy")]
     pub init_latents: Option<PathBuf>,
@@ -157,18 +167,18 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let mut pipeline = load(&args.model, &args.runtime)?;
     let load_s = t0.elapsed().as_secs_f64();
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
-    let Sampling { steps, guidance, sampler: scheduler } =
-        pipeline.package().config.sampling(args.steps, args.guidance, args.scheduler, (50, 9.0));
+    let s = &args.sampling;
+    let Sampling { steps, guidance, sampler: scheduler } = pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, (50, 9.0));
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
         negative_prompt: &args.negative_prompt,
         steps,
         guidance,
-        eta: args.eta,
+        eta: s.eta,
         seed: args.seed,
         scheduler,
-        conditioning_scale: args.conditioning_scale,
+        conditioning_scale: s.conditioning_scale,
         init_latents: init.as_ref().map(|a| a.data.as_slice()),
         size: args.size,
         keep_step_latents: false,
@@ -188,7 +198,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         steps,
         scheduler,
         guidance,
-        args.eta,
+        s.eta,
         args.seed
     );
     if let Some(path) = &args.dump_raw {
@@ -248,7 +258,8 @@ mod tests {
     #[test]
     fn one_parses_with_prompt_or_pose() {
         let one = parse_one(&["--prompt", "p", "--steps", "4", "--scheduler", "dpm++2m", "--size", "64x64"]).unwrap();
-        assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
+        let s = &one.sampling;
+        assert_eq!((s.steps, s.guidance, s.sampler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
         let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
         assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");

@@ -5,7 +5,7 @@
 //! | `GET /` | the live page (HTML; it polls the API below) |
 //! | `GET /api/status` | [`StatusView`](super::state::StatusView) |
 //! | `GET /api/jobs` | every [`JobView`](super::state::JobView), oldest first |
-//! | `POST /api/jobs` | queue a [`JobSpec`] (JSON body); 201 with the job |
+//! | `POST /api/jobs` | queue a [`JobRequest`] (JSON body); 201 with the job |
 //! | `GET /api/jobs/{id}` | one job |
 //! | `POST /api/jobs/{id}/cancel`, `DELETE /api/jobs/{id}` | cancel it (a running job stops at its next safe point) |
 //! | `GET /api/frames/{sensor}` | the sensor's latest frame (JPEG) |
@@ -28,8 +28,8 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::json;
 
-use super::jobs::JobSpec;
 use super::state::{CancelError, DaemonState};
+use crate::jobs::JobRequest;
 
 /// The page, one self-contained file.
 pub const PAGE_HTML: &str = include_str!("page.html");
@@ -117,7 +117,7 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
     if !json_type {
         return error(StatusCode::BAD_REQUEST, "the body must be JSON (Content-Type: application/json)");
     }
-    let spec: JobSpec = match serde_json::from_slice(&body) {
+    let spec: JobRequest = match serde_json::from_slice(&body) {
         Ok(spec) => spec,
         Err(e) => {
             return error(

@@ -10,7 +10,7 @@
 //! ```
 //!
 //! [`Daemon::start`] opens the rig once (the configured one, or the built-in simulated rig),
-//! binds the listener and spawns the worker, which runs queued [`JobSpec`]s one at a time
+//! binds the listener and spawns the worker, which runs queued [`JobRequest`](crate::jobs::JobRequest)s one at a time
 //! through the same library jobs the standalone commands use. A job's failure is recorded
 //! with its error and exit code and the queue goes on. [`Daemon::shutdown`] (SIGTERM/SIGINT
 //! in `rig daemon`) stops accepting jobs, cancels the queued ones, asks the running one to
@@ -33,7 +33,6 @@ use std::time::Duration;
 
 use tokio::sync::watch;
 
-pub use jobs::{CalibrateSpec, CollectSpec, JobSpec, SynthSpec};
 pub use state::{DaemonState, JobState, JobView, StatusView};
 
 use crate::config::RigConfig;

@@ -15,7 +15,7 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, watch};
 
-use super::jobs::JobSpec;
+use crate::jobs::JobRequest;
 use crate::pose::Pose;
 
 /// Finished jobs kept for `GET /api/jobs` (older ones are forgotten).
@@ -54,7 +54,7 @@ pub struct Progress {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct JobView {
     pub id: u64,
-    pub spec: JobSpec,
+    pub spec: JobRequest,
     pub state: JobState,
     pub progress: Progress,
     /// Unix times, s.
@@ -208,7 +208,7 @@ pub struct DaemonState {
 /// A job handed to the worker.
 pub struct StartedJob {
     pub id: u64,
-    pub spec: JobSpec,
+    pub spec: JobRequest,
     pub cancel: watch::Receiver<bool>,
     pub progress: indicatif::ProgressBar,
 }
@@ -259,7 +259,7 @@ impl DaemonState {
     }
 
     /// Queues a job; `None` once the daemon is stopping.
-    pub fn submit(&self, spec: JobSpec) -> Option<JobView> {
+    pub fn submit(&self, spec: JobRequest) -> Option<JobView> {
         let mut inner = self.lock();
         if !inner.accepting {
             return None;
@@ -508,10 +508,9 @@ fn push_error(inner: &mut Inner, job_id: Option<u64>, message: String) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::daemon::jobs::CollectSpec;
 
-    fn spec() -> JobSpec {
-        JobSpec::Collect(CollectSpec::default())
+    fn spec() -> JobRequest {
+        JobRequest::Collect(Default::default())
     }
 
     #[test]

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use tracing::{info, warn};
 
-use super::jobs::{JobError, RigContext, run_job};
+use super::jobs::{DaemonJobError, RigContext, run_job};
 use super::live::{publish_frame, reported_mode};
 use super::state::{DaemonState, JobOutcome};
 use crate::arm::{Arm, MoveKind};
@@ -77,18 +77,8 @@ pub(crate) async fn run_worker(
 }
 
 /// The failure's message (with its causes) and the exit code the standalone command gives it.
-fn describe_failure(e: JobError) -> (String, u8) {
-    // The standalone commands' exit-code table looks for the library errors themselves in the
-    // chain, so hand it the inner error rather than the wrapper.
-    let err: anyhow::Error = match e {
-        JobError::BadOption { .. } | JobError::SensorNotOpen { .. } => return (e.to_string(), 2),
-        JobError::Rig(e) => e.into(),
-        JobError::Plan(e) => e.into(),
-        JobError::Collect(e) => e.into(),
-        JobError::Fill(e) => e.into(),
-        JobError::Press(e) => e.into(),
-        other => other.into(),
-    };
+fn describe_failure(e: DaemonJobError) -> (String, u8) {
+    let err = anyhow::Error::new(e);
     (crate::report::error_report(&err), crate::report::exit_code(&err))
 }
 

@@ -11,7 +11,7 @@
 //! So is each decision the client makes on the feedback, with the frame it went by (the
 //! client's [`Witness`]).
 //!
-//! Replay (`rig replay FILE`): [`replay::replay_collection`] runs the real [`Mg400Client`] on
+//! Replay (`rig replay FILE`): `jobs::replay::run` runs the real [`Mg400Client`] on
 //! [`replay::ReplayStream`]s (reopened where the recording reconnected) and gives the job
 //! [`replay::ReplayCamera`]s,
 //! all fed from one [`replay::ReplaySession`] that serves the recorded events in recorded

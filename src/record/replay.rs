@@ -2,7 +2,7 @@
 //!
 //! A [`ReplaySession`] holds the recorded events and a cursor. The client's three sockets are
 //! [`ReplayStream`]s and the job's cameras are [`ReplayCamera`]s over that one session, so the
-//! real [`Mg400Client`] and the real [`CollectJob`] run unchanged.
+//! real [`Mg400Client`] and the real collection job run unchanged ([`ReplayRig`]).
 //!
 //! Ordering, and why the replay does not depend on wall-clock timing: two tasks touch the
 //! hardware. The job's task (commands, replies, frames) is sequential, so its events must come
@@ -41,7 +41,6 @@
 //! runtime, where the two tasks interleave only at these points.
 
 use std::future::poll_fn;
-use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::task::{Context, Poll, Waker};
@@ -55,8 +54,8 @@ use crate::arm::ArmError;
 use crate::arm::dobot::client::{Ask, ByteStream, Decision, Mg400Client, Mg400Config, Reopen, Witness};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MockClock};
-use crate::collect::{CollectError, CollectJob, CollectSummary, SensorStream};
-use crate::dataset::{DatasetError, DatasetWriter, Manifest};
+use crate::collect::CollectError;
+use crate::dataset::DatasetError;
 use crate::io::modbus::{ModbusError, ModbusReading, Peripherals, parse_readings};
 
 /// Where the replayed run left the recording.
@@ -696,110 +695,90 @@ impl Peripherals for ReplayPeripherals {
     }
 }
 
-/// What a replay did.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReplayOutcome {
-    pub summary: CollectSummary,
-    /// Events served and in all.
-    pub replayed: usize,
-    pub recorded: usize,
-    /// The datasets written, one per sensor.
-    pub datasets: Vec<PathBuf>,
+/// The hardware of a replayed collection: the real MG400 client over the recording's sockets,
+/// the recorded cameras and peripherals, on the recorded clock, with a watchdog that turns a
+/// replay that stops moving into a divergence. The job runs on it like on a live rig
+/// (`jobs::replay`), then [`verdict`](Self::verdict) and [`finished`](Self::finished) judge
+/// the run against the recording.
+pub struct ReplayRig {
+    session: ReplaySession,
+    pub arm: Mg400Client,
+    /// One camera per recorded sensor, in the header's order.
+    pub cameras: Vec<ReplayCamera>,
+    pub peripherals: ReplayPeripherals,
+    pub clock: Arc<dyn Clock>,
+    /// Poses after which the recorded run was interrupted: the replay stops there too.
+    pub stop_after: Option<usize>,
+    watchdog: tokio::task::JoinHandle<()>,
 }
 
-/// Re-runs the recorded collection into `out` (`<out>/<object>/<sensor>/`), with the real
-/// client and job over the recording. `stall_after` is the watchdog's patience.
-pub async fn replay_collection(recording: &Recording, out: &Path, stall_after: Duration) -> Result<ReplayOutcome, ReplayError> {
-    let h = &recording.header;
-    // An interrupt is not I/O to serve: it says where the job stopped.
-    let stop_after = recording.events.iter().find_map(|e| match e {
-        Event::Interrupt { captured, .. } => Some(usize::try_from(*captured).unwrap_or(usize::MAX)),
-        _ => None,
-    });
-    // Peripheral calls are served apart from the socket and camera events (see ReplayPeripherals).
-    let peripherals = ReplayPeripherals::from_events(&recording.events);
-    let events: Vec<Event> =
-        recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. } | Event::Peripherals { .. })).cloned().collect();
-    let session = ReplaySession::new(events, h.sensors.iter().map(|s| s.camera.clone()).collect());
-    let clock = session.clock();
-    let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
-    let result = run_job(recording, out, &session, clock, stop_after, peripherals.clone()).await;
-    watchdog.abort();
-    // The first divergence explains whatever the job made of it afterwards.
-    if let Some(d) = session.divergence() {
-        return Err(ReplayError::Diverged(d));
-    }
-    if let Some(m) = peripherals.mismatch() {
-        return Err(ReplayError::PeripheralsDiverged(m));
-    }
-    let (summary, datasets) = result?;
-    session.check_finished()?;
-    if peripherals.left() > 0 {
-        return Err(ReplayError::Leftover { remaining: peripherals.left(), next: "a recorded peripherals call".into() });
-    }
-    let (replayed, recorded) = session.position();
-    Ok(ReplayOutcome { summary, replayed, recorded, datasets })
-}
-
-async fn run_job(
-    recording: &Recording,
-    out: &Path,
-    session: &ReplaySession,
-    clock: MockClock,
-    stop_after: Option<usize>,
-    peripherals: ReplayPeripherals,
-) -> Result<(CollectSummary, Vec<PathBuf>), ReplayError> {
-    let h = &recording.header;
-    let mut cfg = Mg400Config::new("replay", h.profile.clone());
-    cfg.speed_factor_pct = h.speed_factor_pct;
-    cfg.connect_timeout = REPLAY_CLIENT_TIMEOUT;
-    cfg.reply_timeout = REPLAY_CLIENT_TIMEOUT;
-    cfg.enable_timeout = REPLAY_CLIENT_TIMEOUT;
-    cfg.drain_timeout = REPLAY_CLIENT_TIMEOUT;
-    let clock: Arc<dyn Clock> = Arc::new(clock);
-    let replayed = |socket| (Box::new(session.stream(socket)) as Box<dyn ByteStream>, session.reopen(socket));
-    let mut arm = Mg400Client::with_reopen(
-        cfg,
-        Arc::clone(&clock),
-        [replayed(SocketId::Dashboard), replayed(SocketId::Motion), replayed(SocketId::Feedback)],
-    );
-    // Before version 5 the decisions on the feedback were not recorded: the client makes them
-    // on the frames it holds, which is a matter of scheduling (the module docs).
-    if recording.version >= 5 {
-        arm.set_witness(session.witness());
-    }
-    // As the recorded run's connect did.
-    arm.wait_first_feedback().await.map_err(CollectError::from)?;
-
-    let mut sensors = Vec::new();
-    let mut datasets = Vec::new();
-    for (index, s) in h.sensors.iter().enumerate() {
-        let dir = out.join(&h.object.name).join(s.sensor_dir.name());
-        let mut manifest = Manifest::new(s.sensor_dir, h.object.clone(), Some(h.plan_spec.clone()));
-        manifest.calibration = Some(s.calibration.clone());
-        manifest.firmware_profile = Some(h.profile.name.clone());
-        manifest.work_frame = Some(h.work_frame);
-        let writer = DatasetWriter::create(&dir, manifest)?;
+impl ReplayRig {
+    /// Opens the replayed hardware of `recording`: connects the client and waits for its first
+    /// feedback, as the recorded run's connect did. `stall_after` is the watchdog's patience.
+    pub async fn open(recording: &Recording, stall_after: Duration) -> Result<ReplayRig, ReplayError> {
+        let h = &recording.header;
+        // An interrupt is not I/O to serve: it says where the job stopped.
+        let stop_after = recording.events.iter().find_map(|e| match e {
+            Event::Interrupt { captured, .. } => Some(usize::try_from(*captured).unwrap_or(usize::MAX)),
+            _ => None,
+        });
+        // Peripheral calls are served apart from the socket and camera events (see ReplayPeripherals).
+        let peripherals = ReplayPeripherals::from_events(&recording.events);
+        let events: Vec<Event> =
+            recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. } | Event::Peripherals { .. })).cloned().collect();
+        let session = ReplaySession::new(events, h.sensors.iter().map(|s| s.camera.clone()).collect());
+        let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
+        let mut cfg = Mg400Config::new("replay", h.profile.clone());
+        cfg.speed_factor_pct = h.speed_factor_pct;
+        cfg.connect_timeout = REPLAY_CLIENT_TIMEOUT;
+        cfg.reply_timeout = REPLAY_CLIENT_TIMEOUT;
+        cfg.enable_timeout = REPLAY_CLIENT_TIMEOUT;
+        cfg.drain_timeout = REPLAY_CLIENT_TIMEOUT;
+        let clock: Arc<dyn Clock> = Arc::new(session.clock());
+        let replayed = |socket| (Box::new(session.stream(socket)) as Box<dyn ByteStream>, session.reopen(socket));
+        let mut arm = Mg400Client::with_reopen(
+            cfg,
+            Arc::clone(&clock),
+            [replayed(SocketId::Dashboard), replayed(SocketId::Motion), replayed(SocketId::Feedback)],
+        );
+        // Before version 5 the decisions on the feedback were not recorded: the client makes them
+        // on the frames it holds, which is a matter of scheduling (the module docs).
+        if recording.version >= 5 {
+            arm.set_witness(session.witness());
+        }
         // The header has at most 256 sensors: frame records name them with one byte.
-        let index = u8::try_from(index).unwrap_or(u8::MAX);
-        sensors.push(SensorStream { camera: session.camera(index), writer });
-        datasets.push(dir);
+        let cameras = (0..h.sensors.len()).map(|index| session.camera(u8::try_from(index).unwrap_or(u8::MAX))).collect();
+        let mut rig = ReplayRig { session, arm, cameras, peripherals, clock, stop_after, watchdog };
+        // As the recorded run's connect did.
+        if let Err(e) = rig.arm.wait_first_feedback().await {
+            rig.watchdog.abort();
+            return Err(rig.verdict().err().unwrap_or(ReplayError::Collect(CollectError::from(e))));
+        }
+        Ok(rig)
     }
-    let (_cancel_tx, cancel) = tokio::sync::watch::channel(false);
-    let job = CollectJob {
-        arm: &mut arm,
-        sensors,
-        work_frame: h.work_frame,
-        options: h.collect.clone(),
-        clock,
-        cancel,
-        stop_after,
-        progress: indicatif::ProgressBar::hidden(),
-        // What the recorded peripherals gave, call by call: the same `modbus` column.
-        peripherals,
-    };
-    let summary = job.run(&h.plan).await?;
-    Ok((summary, datasets))
+
+    /// After the job: the first divergence from the recording (it explains whatever the job
+    /// made of it afterwards), else a peripherals call the recording does not have.
+    pub fn verdict(&self) -> Result<(), ReplayError> {
+        self.watchdog.abort();
+        if let Some(d) = self.session.divergence() {
+            return Err(ReplayError::Diverged(d));
+        }
+        if let Some(m) = self.peripherals.mismatch() {
+            return Err(ReplayError::PeripheralsDiverged(m));
+        }
+        Ok(())
+    }
+
+    /// After a job that succeeded: every recorded event was served; returns the events served
+    /// and in all.
+    pub fn finished(&self) -> Result<(usize, usize), ReplayError> {
+        self.session.check_finished()?;
+        if self.peripherals.left() > 0 {
+            return Err(ReplayError::Leftover { remaining: self.peripherals.left(), next: "a recorded peripherals call".into() });
+        }
+        Ok(self.session.position())
+    }
 }
 
 #[cfg(test)]

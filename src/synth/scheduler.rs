@@ -302,6 +302,19 @@ impl std::str::FromStr for SchedulerKind {
     }
 }
 
+impl serde::Serialize for SchedulerKind {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for SchedulerKind {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 /// One image's sampler state for a fixed number of steps.
 #[derive(Debug, Clone)]
 pub struct Scheduler {

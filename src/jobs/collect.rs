@@ -1,0 +1,256 @@
+//! The collection job: [`CollectRequest`] (what `rig collect` and a daemon `collect` job are
+//! asked), [`PreparedCollect`] (the request resolved and checked against the rig's
+//! configuration before anything moves), and [`run`], the one place a [`CollectJob`] is built.
+//!
+//! ```text
+//! CollectRequest ──prepare(config)──► PreparedCollect ──► the front end opens (or already has)
+//!   (clap / JSON)   plan, object,      .setup: CollectSetup    the arm and the cameras
+//!                   workspace check                         │
+//!                                                           ▼
+//!   recording header ──────────────────────────────► run(setup, arm, cameras, peripherals)
+//!   (rig replay builds the setup it recorded)          datasets opened, CollectJob run
+//! ```
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use super::{JobError, Observer};
+use crate::arm::Arm;
+use crate::arm::profile::FirmwareProfile;
+use crate::camera::Camera;
+use crate::clock::Clock;
+use crate::collect::{CollectJob, CollectSummary, SensorStream, check_plan};
+use crate::config::{CollectConfig, RigConfig};
+use crate::dataset::{DatasetWriter, Manifest, ObjectInfo};
+use crate::geometry::objects::ObjectChoice;
+use crate::io::modbus::Peripherals;
+use crate::plan::{Plan, PlanSpec, PlannedPose};
+use crate::pose::WorkFrame;
+use crate::sensor::{SensorKind, SensorSet};
+
+/// A collection: the options of `rig collect` (see its `--help`), the body of a daemon
+/// `collect` job. Fields left out take these defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CollectRequest {
+    /// Object name from the object library (`datasets/objects/<name>.stl`).
+    pub object: String,
+    /// Object STL file instead of a library name (its stem names the object).
+    pub stl: Option<PathBuf>,
+    /// The sensors to capture.
+    pub sensor: SensorSet,
+    /// Plan file (TOML); `poses` and `seed` override its fields.
+    pub plan: Option<PathBuf>,
+    /// Number of poses to sample from the grid.
+    pub poses: Option<usize>,
+    /// Seed of the sampling (and of the simulated sensors' noise).
+    pub seed: Option<u64>,
+    /// Output root; datasets go to `<out>/<object>/<sensor>/`.
+    pub out: PathBuf,
+    /// Continue a killed run (or start one when none exists).
+    pub resume: bool,
+}
+
+impl Default for CollectRequest {
+    fn default() -> Self {
+        Self {
+            object: "sphere".into(),
+            stl: None,
+            sensor: SensorSet::all(),
+            plan: None,
+            poses: None,
+            seed: None,
+            out: PathBuf::from("datasets"),
+            resume: false,
+        }
+    }
+}
+
+/// A collection resolved against a rig configuration: the plan built and checked against the
+/// workspace (nothing moves for a pose outside it), the object loaded.
+#[derive(Debug, Clone)]
+pub struct PreparedCollect {
+    /// What the runner needs.
+    pub setup: CollectSetup,
+    /// The object's mesh, for the simulated sensors.
+    pub object: ObjectChoice,
+    /// The sensors asked for.
+    pub sensors: SensorSet,
+    /// The plan with its motion times (as sampled, and in rig's order).
+    pub plan: Plan,
+    /// Grid points of the plan.
+    pub grid_len: u64,
+    /// The firmware profile the plan was checked against.
+    pub profile: FirmwareProfile,
+}
+
+impl CollectRequest {
+    /// The plan spec this request names: the plan file (or the default plan) with `poses` and
+    /// `seed` applied, validated.
+    pub fn plan_spec(&self) -> Result<PlanSpec, JobError> {
+        let mut spec = match &self.plan {
+            Some(p) => PlanSpec::load(p)?,
+            None => PlanSpec::default(),
+        };
+        if let Some(n) = self.poses {
+            spec.n_poses = Some(n);
+        }
+        if let Some(s) = self.seed {
+            spec.seed = s;
+        }
+        spec.validate()?;
+        Ok(spec)
+    }
+
+    /// Resolves and checks the request against `config`: plan, object, firmware profile, and
+    /// every pose (contact, approach, the reference above the origin) inside the workspace.
+    pub fn prepare(&self, config: &RigConfig) -> Result<PreparedCollect, JobError> {
+        let spec = self.plan_spec()?;
+        let object = ObjectChoice::resolve(&self.object, self.stl.as_deref())?;
+        let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
+        let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b))?;
+        check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
+        let setup = CollectSetup {
+            object: ObjectInfo {
+                name: object.name.clone(),
+                stl_path: object.path.as_ref().map(|p| p.display().to_string()),
+                stl_sha256: Some(object.sha256.clone()),
+            },
+            plan_spec: spec.clone(),
+            poses: plan.poses.clone(),
+            profile_name: profile.name.clone(),
+            work_frame: config.work_frame,
+            options: config.collect.clone(),
+            out: self.out.clone(),
+            resume: self.resume,
+            disk_budget_bytes: config.faults.disk_budget_bytes,
+        };
+        Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, grid_len: spec.grid_len(), profile })
+    }
+}
+
+impl PreparedCollect {
+    /// `plan: N poses of a M-point grid; motion time ...`, as `rig collect` prints it.
+    pub fn plan_line(&self) -> String {
+        format!(
+            "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
+            self.plan.poses.len(),
+            self.grid_len,
+            self.plan.motion_time_before_s,
+            self.plan.motion_time_after_s
+        )
+    }
+}
+
+/// Everything a collection run needs besides the hardware: what its manifests say, the poses,
+/// where the datasets go. [`CollectRequest::prepare`] makes one; `rig replay` rebuilds the one
+/// it recorded.
+#[derive(Debug, Clone)]
+pub struct CollectSetup {
+    pub object: ObjectInfo,
+    pub plan_spec: PlanSpec,
+    /// The poses, in the order they are visited.
+    pub poses: Vec<PlannedPose>,
+    pub profile_name: String,
+    pub work_frame: WorkFrame,
+    pub options: CollectConfig,
+    /// Output root; datasets go to `<out>/<object>/<sensor>/`.
+    pub out: PathBuf,
+    pub resume: bool,
+    /// Injected disk-full fault (`[sim.faults] disk_budget_bytes`).
+    pub disk_budget_bytes: Option<u64>,
+}
+
+impl CollectSetup {
+    /// The dataset folder of `sensor`.
+    pub fn dataset_dir(&self, sensor: SensorKind) -> PathBuf {
+        self.out.join(&self.object.name).join(sensor.name())
+    }
+
+    /// The manifest a new dataset of `sensor` starts with.
+    fn manifest(&self, sensor: SensorKind, calibration: &str) -> Manifest {
+        let mut manifest = Manifest::new(sensor, self.object.clone(), Some(self.plan_spec.clone()));
+        manifest.calibration = Some(calibration.to_string());
+        manifest.firmware_profile = Some(self.profile_name.clone());
+        manifest.work_frame = Some(self.work_frame);
+        manifest
+    }
+}
+
+/// One camera of a collection and the sensor whose dataset it fills.
+pub struct SensorFeed<C> {
+    pub camera: C,
+    pub sensor: SensorKind,
+    /// The calibration it renders or was fitted with (named in the manifest).
+    pub calibration: String,
+}
+
+/// How a collection ended when it did not fail.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollectOutcome {
+    pub summary: CollectSummary,
+    /// Where the datasets are (`<out>/<object>`).
+    pub root: PathBuf,
+    /// One dataset per sensor.
+    pub datasets: Vec<PathBuf>,
+}
+
+impl CollectOutcome {
+    /// The last line `rig collect` prints (and a daemon job's message); `resume` is how the
+    /// front end spells the option that continues an interrupted run.
+    pub fn line(&self, resume: &str) -> String {
+        let s = &self.summary;
+        if s.interrupted {
+            format!("interrupted: {} poses captured, {} left; continue with {resume}", s.captured, s.remaining)
+        } else {
+            format!(
+                "collected {} poses ({} already present, {} arm or camera faults recovered) into {}",
+                s.captured,
+                s.skipped,
+                s.recovered_faults,
+                self.root.display()
+            )
+        }
+    }
+}
+
+/// Runs a collection: opens (or resumes) one dataset per camera and drives the arm through
+/// `setup.poses`. The one place a [`CollectJob`] is built: `rig collect`, the daemon, `rig
+/// replay` and `rig bench` all come here. `stop_after` stops as if cancelled after that many
+/// poses (a replay stops where its recording was interrupted).
+pub async fn run<A: Arm, C: Camera, P: Peripherals>(
+    setup: &CollectSetup,
+    arm: &mut A,
+    cameras: Vec<SensorFeed<C>>,
+    peripherals: P,
+    clock: Arc<dyn Clock>,
+    observer: Observer,
+    stop_after: Option<usize>,
+) -> Result<CollectOutcome, JobError> {
+    let mut sensors = Vec::new();
+    let mut datasets = Vec::new();
+    for feed in cameras {
+        let dir = setup.dataset_dir(feed.sensor);
+        let manifest = setup.manifest(feed.sensor, &feed.calibration);
+        let writer = DatasetWriter::start(&dir, manifest, setup.resume)
+            .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
+            .with_byte_budget(setup.disk_budget_bytes);
+        sensors.push(SensorStream { camera: feed.camera, writer });
+        datasets.push(dir);
+    }
+    let job = CollectJob {
+        arm,
+        sensors,
+        work_frame: setup.work_frame,
+        options: setup.options.clone(),
+        clock,
+        cancel: observer.cancel,
+        stop_after,
+        progress: observer.progress,
+        peripherals,
+    };
+    let summary = job.run(&setup.poses).await?;
+    Ok(CollectOutcome { summary, root: setup.out.join(&setup.object.name), datasets })
+}

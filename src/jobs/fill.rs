@@ -1,0 +1,282 @@
+//! The synthesis job: [`FillRequest`] (what `rig synth --fill-missing` / `--poses-of` and a
+//! daemon `synth` job are asked) and [`run`], its one runner.
+//!
+//! Two modes share the request: **fill** (every planned pose a dataset lacks, into the dataset
+//! or a shard's own `out`) and **twins** (`poses_of`: exactly the real poses of a test set,
+//! into `out`, for `rig eval`). [`FillRequest::targets`] checks the request and lists the
+//! datasets before a model is loaded; [`run`] works through them with a loaded
+//! [`Pipeline`], reporting each pose to the caller and stopping at the observer's cancel.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::{JobError, Observer};
+use crate::synth::fill::{
+    FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, TwinSize, fill_missing_observed, find_datasets, missing_poses,
+    synthesise_poses_of,
+};
+use crate::synth::{Pipeline, SchedulerKind};
+
+/// A synthesis: the options of `rig synth --fill-missing` and `--poses-of` (see their
+/// `--help`), the body of a daemon `synth` job. Fields left out take these defaults; sampling
+/// settings left out take the model package's own (`model.toml`), else rig's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FillRequest {
+    /// A dataset (`.../<object>/<sensor>`) or a folder holding several (two levels deep).
+    pub dataset: PathBuf,
+    /// Twins mode: synthesise exactly the real poses of this dataset (or of every dataset
+    /// under this folder) into `out`, mirroring `<object>/<sensor>`.
+    pub poses_of: Option<PathBuf>,
+    /// Model package directory (default: `models/default`, else the tiny test package).
+    pub model: Option<PathBuf>,
+    /// Only part i of n of the poses (`"i/n"`), written to `out`.
+    pub shard: Option<Shard>,
+    /// Where the synthetic rows go (required with `shard` and `poses_of`; default: into the
+    /// dataset itself).
+    pub out: Option<PathBuf>,
+    /// Sampling steps.
+    pub steps: Option<usize>,
+    /// Classifier-free guidance scale (1: unguided).
+    pub guidance: Option<f32>,
+    /// DDIM eta (0: deterministic).
+    pub eta: f32,
+    /// `ddim` or `dpm++2m`.
+    pub sampler: Option<SchedulerKind>,
+    /// ControlNet conditioning scale (1: as trained).
+    pub conditioning_scale: f32,
+    /// Poses per model call.
+    pub batch: usize,
+    /// Supersampling factor of the control image's depth map.
+    pub supersample: u32,
+    /// At most this many poses per dataset (after sharding).
+    pub limit: Option<usize>,
+    /// Twins mode: the twins' image size.
+    pub twin_size: TwinSize,
+}
+
+impl Default for FillRequest {
+    fn default() -> Self {
+        let d = FillOptions::default();
+        Self {
+            dataset: PathBuf::from("datasets"),
+            poses_of: None,
+            model: None,
+            shard: None,
+            out: None,
+            steps: None,
+            guidance: None,
+            eta: d.eta,
+            sampler: None,
+            conditioning_scale: d.conditioning_scale,
+            batch: d.batch,
+            supersample: d.supersample,
+            limit: None,
+            twin_size: TwinSize::default(),
+        }
+    }
+}
+
+/// One dataset of a synthesis and where its rows go.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FillTarget {
+    /// The dataset whose poses are synthesised (the source of twins).
+    pub dataset: PathBuf,
+    /// Where the rows go; `None`: into `dataset`.
+    pub out: Option<PathBuf>,
+}
+
+impl FillTarget {
+    /// The dataset the rows are written to.
+    pub fn written(&self) -> &Path {
+        self.out.as_deref().unwrap_or(&self.dataset)
+    }
+}
+
+impl FillRequest {
+    /// The model package this request uses.
+    pub fn model_dir(&self) -> PathBuf {
+        self.model.clone().unwrap_or_else(crate::synth::fill::default_model)
+    }
+
+    /// True in twins mode (`poses_of`).
+    pub fn twins(&self) -> bool {
+        self.poses_of.is_some()
+    }
+
+    /// Checks the request and lists the datasets it works on, before any model is loaded.
+    pub fn targets(&self) -> Result<Vec<FillTarget>, JobError> {
+        let bad = |field, reason: String| JobError::BadOption { field, reason };
+        let no_dataset = |root: &Path| {
+            bad("dataset", format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()))
+        };
+        if let Some(source) = &self.poses_of {
+            let Some(out) = &self.out else {
+                return Err(bad("out", "twins (--poses-of) need an output folder (--out): where the synthetic twin datasets go".into()));
+            };
+            let datasets = find_datasets(source);
+            if datasets.is_empty() {
+                return Err(no_dataset(source));
+            }
+            return Ok(datasets
+                .into_iter()
+                .map(|d| {
+                    let rel = d.strip_prefix(source).map(Path::to_path_buf).unwrap_or_default();
+                    let twin = if rel.as_os_str().is_empty() { out.clone() } else { out.join(rel) };
+                    FillTarget { dataset: d, out: Some(twin) }
+                })
+                .collect());
+        }
+        if self.shard.is_some() && self.out.is_none() {
+            return Err(bad("shard", "a shard needs its own output dataset (--out): shards are joined by `rig dataset merge`".into()));
+        }
+        let datasets = find_datasets(&self.dataset);
+        if datasets.is_empty() {
+            return Err(no_dataset(&self.dataset));
+        }
+        if self.out.is_some() && datasets.len() > 1 {
+            return Err(bad("out", "an output dataset (--out) takes one dataset: name it with --dataset .../<object>/<sensor>".into()));
+        }
+        Ok(datasets.into_iter().map(|d| FillTarget { dataset: d, out: self.out.clone() }).collect())
+    }
+
+    /// What would be synthesised, one line per dataset; loads no model.
+    pub fn dry_run(&self) -> Result<Vec<String>, JobError> {
+        let shard = self.shard.unwrap_or(Shard::ALL);
+        let mut lines = Vec::new();
+        for t in self.targets()? {
+            if self.twins() {
+                let rows = crate::dataset::read_rows(&t.dataset).map_err(|source| JobError::Dataset { dir: t.dataset.clone(), source })?;
+                let real = rows.iter().filter(|r| r.source == crate::dataset::Source::Real).count();
+                lines.push(format!("{}: {real} real poses to synthesise into {}", t.dataset.display(), t.written().display()));
+            } else {
+                let work = missing_poses(&t.dataset, t.out.as_deref(), shard).map_err(JobError::fill("reading", &t.dataset))?;
+                lines.push(format!(
+                    "{}: {} of {} grid poses present, {} to synthesise in shard {shard}",
+                    t.dataset.display(),
+                    work.present,
+                    work.grid,
+                    work.todo.len()
+                ));
+            }
+        }
+        Ok(lines)
+    }
+
+    /// The fill options for `pipeline`: each sampling setting asked for, else the package's
+    /// own, else rig's default.
+    pub fn options(&self, pipeline: &Pipeline) -> FillOptions {
+        let defaults = FillOptions::default();
+        let sampling = pipeline.package().config.sampling(self.steps, self.guidance, self.sampler, (defaults.steps, defaults.guidance));
+        FillOptions {
+            steps: sampling.steps,
+            guidance: sampling.guidance,
+            eta: self.eta,
+            scheduler: sampling.sampler,
+            conditioning_scale: self.conditioning_scale,
+            shard: self.shard.unwrap_or(Shard::ALL),
+            batch: self.batch,
+            supersample: self.supersample,
+            limit: self.limit,
+        }
+    }
+}
+
+/// What a synthesis did to one dataset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FillReport {
+    pub target: FillTarget,
+    pub done: FillDone,
+    /// Wall time, s.
+    pub elapsed_s: f64,
+}
+
+/// The counts of one dataset's synthesis, by mode.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum FillDone {
+    Missing(FillSummary),
+    Twins(PosesOfSummary),
+}
+
+impl FillReport {
+    /// The line `rig synth` prints for this dataset (and a daemon job's message holds).
+    pub fn line(&self) -> String {
+        let left = |n: usize| if n > 0 { format!(", {n} left to other shards or --limit") } else { String::new() };
+        match &self.done {
+            FillDone::Missing(s) => format!(
+                "{}: synthesised {} poses in {:.1} s ({} of {} grid poses were present{})",
+                self.target.written().display(),
+                s.synthesised,
+                self.elapsed_s,
+                s.present,
+                s.grid,
+                left(s.left)
+            ),
+            FillDone::Twins(s) => format!(
+                "{}: synthesised {} poses in {:.1} s ({} real poses in {}, {} were present{})",
+                self.target.written().display(),
+                s.synthesised,
+                self.elapsed_s,
+                s.real,
+                self.target.dataset.display(),
+                s.present,
+                left(s.left)
+            ),
+        }
+    }
+}
+
+/// How a synthesis ended when it did not fail.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FillOutcome {
+    /// One report per dataset done (or begun, when cancelled).
+    pub reports: Vec<FillReport>,
+    pub cancelled: bool,
+}
+
+/// Runs the synthesis `request` describes on `targets` (from [`FillRequest::targets`]) with a
+/// loaded `pipeline`. `on_pose` sees every pose as it is written (fill mode); `on_dataset` each
+/// dataset's report as it ends. The observer's progress bar counts poses per dataset; its
+/// cancel stops after the current batch (fill) or dataset (twins): what was written stays and
+/// resumes.
+pub fn run(
+    request: &FillRequest,
+    targets: &[FillTarget],
+    pipeline: &mut Pipeline,
+    observer: &Observer,
+    on_pose: &mut dyn FnMut(&FilledPose<'_>),
+    on_dataset: &mut dyn FnMut(&FillReport),
+) -> Result<FillOutcome, JobError> {
+    let options = request.options(pipeline);
+    let mut reports = Vec::new();
+    for target in targets {
+        if observer.cancelled() {
+            return Ok(FillOutcome { reports, cancelled: true });
+        }
+        observer.progress.reset();
+        let t0 = Instant::now();
+        let done = match &target.out {
+            Some(out) if request.twins() => FillDone::Twins(
+                synthesise_poses_of(&target.dataset, out, pipeline, &options, request.twin_size, &observer.progress)
+                    .map_err(JobError::fill("synthesising the poses of", &target.dataset))?,
+            ),
+            _ => {
+                let mut observe = |filled: &FilledPose<'_>| {
+                    on_pose(filled);
+                    if observer.cancelled() { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+                };
+                FillDone::Missing(
+                    fill_missing_observed(&target.dataset, target.out.as_deref(), pipeline, &options, &observer.progress, &mut observe)
+                        .map_err(JobError::fill("filling", &target.dataset))?,
+                )
+            }
+        };
+        let report = FillReport { target: target.clone(), done, elapsed_s: t0.elapsed().as_secs_f64() };
+        on_dataset(&report);
+        reports.push(report);
+    }
+    Ok(FillOutcome { cancelled: observer.cancelled(), reports })
+}
