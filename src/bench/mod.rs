@@ -254,7 +254,7 @@ pub enum BenchError {
     #[error(transparent)]
     Collect(#[from] crate::collect::CollectError),
     #[error(transparent)]
-    Job(#[from] crate::jobs::JobError),
+    Job(Box<crate::jobs::JobError>),
     #[error(transparent)]
     Dataset(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
@@ -269,6 +269,12 @@ pub enum BenchError {
     Object(#[from] crate::geometry::objects::ObjectError),
     #[error("{knob}: nothing to measure ({reason})")]
     Empty { knob: Knob, reason: &'static str },
+}
+
+impl From<crate::jobs::JobError> for BenchError {
+    fn from(e: crate::jobs::JobError) -> Self {
+        BenchError::Job(Box::new(e))
+    }
 }
 
 impl BenchError {

@@ -95,6 +95,9 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         ));
     }
     let request = args.request();
+    if args.daemon.daemon.is_some() && request.twins() {
+        bail!(crate::cli::usage("--daemon runs only --fill-missing jobs: run --poses-of without --daemon"));
+    }
     if args.daemon.daemon.is_some() {
         if args.dry_run || args.runtime.ort_lib.is_some() {
             bail!(crate::cli::usage(

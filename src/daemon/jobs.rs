@@ -104,6 +104,14 @@ async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<Jo
 async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
     let observer = ctx.observer();
     let RigContext { state, job_id, pipeline, .. } = ctx;
+    if request.twins() {
+        // Twins are for evaluating a model offline; the daemon's synth jobs fill datasets.
+        return Err(JobError::BadOption {
+            field: "poses_of",
+            reason: "the daemon runs fills only: run `rig synth --poses-of` locally".into(),
+        }
+        .into());
+    }
     let targets = request.targets()?;
     let model = request.model_dir();
     let runtime = RuntimeOptions::default();

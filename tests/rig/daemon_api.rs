@@ -327,9 +327,12 @@ async fn a_calibrate_job_presses_fits_and_saves() {
     assert!(done.message.as_deref().is_some_and(|m| m.contains("residual")), "{done:?}");
     let saved = rig::calibration::Calibration::load(&out).expect("a saved calibration");
     assert!(saved.scale_px_per_mm[0] > 0.0);
-    let bad = submit(&client, json!({"kind": "calibrate", "sensor": "thermometer"})).await;
-    let failed = poll_until(&client, bad.id, final_state).await.pop().expect("view");
-    assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
+    // An unknown sensor is bad input, refused when the job is submitted (the request is typed).
+    let bad = client.request("POST", "/api/jobs", Some(json!({"kind": "calibrate", "sensor": "thermometer"}).to_string().as_bytes())).await;
+    let bad = bad.expect("POST /api/jobs");
+    let text = String::from_utf8_lossy(&bad.body);
+    assert_eq!(bad.status, 400, "{text}");
+    assert!(text.contains("unknown sensor") && text.contains("thermometer"), "{text}");
 
     // A cancel stops the pattern between presses: the arm retracts, nothing is saved.
     let other = tmp.path().join("cancelled.toml");

@@ -70,8 +70,11 @@ fn child_writer() {
 }
 
 fn spawn_child(dir: &Path) -> std::process::Child {
+    // The test's name in this binary: its module path without the crate, then the function.
+    let module = module_path!().split_once("::").map_or(module_path!(), |(_, m)| m);
+    let child_test = format!("{module}::child_writer");
     Command::new(std::env::current_exe().expect("test binary path"))
-        .args(["--ignored", "--exact", "child_writer", "--test-threads=1", "--quiet"])
+        .args(["--ignored", "--exact", &child_test, "--test-threads=1", "--quiet"])
         .env(CHILD_ENV, dir)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
