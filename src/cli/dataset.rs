@@ -31,8 +31,10 @@ pub enum Format {
 pub enum DatasetCommand {
     /// Report missing images, orphan images, duplicated or malformed rows and leftovers of a
     /// killed run; exits 1 when the dataset is not clean. Changes nothing.
+    #[command(after_help = crate::cli::examples::DATASET_VERIFY)]
     Verify { dir: PathBuf },
     /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect.
+    #[command(after_help = crate::cli::examples::DATASET_EXPORT)]
     Export {
         dir: PathBuf,
         #[arg(long, value_enum)]
@@ -51,6 +53,7 @@ pub enum DatasetCommand {
     /// Read an MDS CSV. With --out, write a rig dataset of the rows whose image is found in
     /// --images (as <image_name> or <obj_id>_<sensor>_<i>.png); the MDS pose_id becomes the
     /// dataset's pose_id. Without --out, print the poses.
+    #[command(after_help = crate::cli::examples::DATASET_IMPORT)]
     Import {
         csv: PathBuf,
         #[arg(long)]
@@ -73,6 +76,7 @@ pub enum DatasetCommand {
         resume: bool,
     },
     /// Join datasets (e.g. synth shards) into OUT, refusing conflicting rows.
+    #[command(after_help = crate::cli::examples::DATASET_MERGE)]
     Merge {
         /// Output dataset (created when absent).
         #[arg(long)]

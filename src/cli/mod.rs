@@ -13,7 +13,9 @@ pub mod daemon;
 pub mod dataset;
 pub mod devices;
 pub mod eval;
+pub mod examples;
 pub mod fill;
+pub mod generate;
 pub mod objects;
 pub mod plan;
 pub mod render;
@@ -38,38 +40,57 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Print the version and the configuration rig would use.
+    #[command(after_help = examples::INFO)]
     Info,
     /// Drive the arm through a pose plan, capture every sensor, write the datasets.
+    #[command(after_help = examples::COLLECT)]
     Collect(collect::CollectArgs),
     /// Keep the rig open and run queued jobs; HTTP status API and live page (until SIGTERM).
+    #[command(after_help = examples::DAEMON)]
     Daemon(daemon::Args),
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
+    #[command(after_help = examples::SIM)]
     Sim(sim::Args),
     /// Pose plans: show a plan's grid, sampled poses and motion time.
+    #[command(after_help = examples::PLAN)]
     Plan(plan::Args),
     /// Datasets: verify, export, import, merge.
+    #[command(after_help = examples::DATASET)]
     Dataset(dataset::Args),
     /// Simulated tactile sensors: render frames for checking their look.
+    #[command(after_help = examples::SENSOR)]
     Sensor(sensor::Args),
     /// Synthesise tactile images with a diffusion model package (ONNX Runtime).
+    #[command(after_help = examples::SYNTH)]
     Synth(synth::Args),
     /// Render one image of an object under a sensor at a pose (depth, control or a sensor).
+    #[command(after_help = examples::RENDER)]
     Render(render::Args),
     /// The STL object library: regenerate it, or draw a contact sheet.
+    #[command(after_help = examples::OBJECTS)]
     Objects(objects::Args),
     /// Calibrate a sensor's pixel-to-mm mapping (automatic presses, wizard, or from a dataset).
+    #[command(after_help = examples::CALIBRATE)]
     Calibrate(calibrate::Args),
     /// Compare the simulator with the real MultiDiffSense example frames (SSIM, baseline).
+    #[command(after_help = examples::COMPARE_REAL)]
     CompareReal(compare::Args),
     /// Judge synthetic images against real ones (SSIM, PSNR, MSE, pose recoverability) beside
     /// pose-blind and nearest-neighbour baselines.
+    #[command(after_help = examples::EVAL)]
     Eval(eval::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
+    #[command(after_help = examples::REPLAY)]
     Replay(replay::Args),
     /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
+    #[command(after_help = examples::DEVICES)]
     Devices(devices::Args),
     /// Measure what accuracy costs in time, knob by knob; write a Markdown report with SVG plots.
+    #[command(after_help = examples::BENCH)]
     Bench(bench::Args),
+    /// Write the man pages or shell completions (made from these command-line definitions).
+    #[command(after_help = examples::GENERATE)]
+    Generate(generate::Args),
 }
 
 /// Parses the command line, runs the command, maps errors to an exit code.
@@ -98,6 +119,7 @@ pub fn main() -> ExitCode {
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Generate(args) => generate::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -29,12 +29,14 @@ pub struct Args {
 #[derive(Debug, Subcommand)]
 pub enum ObjectsCommand {
     /// Write every library object as binary STL.
+    #[command(after_help = crate::cli::examples::OBJECTS_GENERATE)]
     Generate {
         /// Output folder.
         #[arg(long, default_value = OBJECTS_DIR)]
         out: PathBuf,
     },
     /// One PNG grid: a row per object; columns depth, control, TacTip, ViTac, ViTacTip.
+    #[command(after_help = crate::cli::examples::OBJECTS_CONTACT_SHEET)]
     ContactSheet {
         /// Output PNG.
         #[arg(long)]

@@ -93,6 +93,7 @@ pub struct Args {
 pub enum PlanCommand {
     /// Print the grid size, the sampled poses in visiting order and the motion time before
     /// and after ordering (stand-in trapezoid model: 100 mm/s, 180 deg/s, 0.4 s per pose).
+    #[command(after_help = crate::cli::examples::PLAN_SHOW)]
     Show {
         #[command(flatten)]
         plan: PlanFlags,

@@ -20,6 +20,7 @@ pub struct Args {
 #[derive(Debug, Subcommand)]
 pub enum SensorCommand {
     /// Render one frame of a simulated sensor pressed on an analytic object.
+    #[command(after_help = crate::cli::examples::SENSOR_RENDER)]
     Render(RenderArgs),
 }
 

@@ -30,8 +30,10 @@ pub struct Args {
 #[derive(Debug, Subcommand)]
 pub enum SynthCommand {
     /// Synthesise one image from a control image and a prompt.
+    #[command(after_help = crate::cli::examples::SYNTH_ONE)]
     One(Box<OneArgs>),
     /// Show a model package: config, tensors, hash.
+    #[command(after_help = crate::cli::examples::SYNTH_INFO)]
     Info(InfoArgs),
 }
 
