@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The test command: installs what the tests need, runs the whole suite, checks that the API
-# docs build without warnings, then smoke-runs every fuzz target for a few seconds
-# (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
+# The test command: installs what the tests need, checks the guide's links, runs the whole
+# suite, checks that the API docs build without warnings, then smoke-runs every fuzz target for
+# a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
@@ -10,6 +10,15 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
 export RIG_SHARED="${RIG_SHARED:-$(cd .. && pwd)/shared}"
+# The guide (docs/): the checker must catch planted faults, then every relative link and anchor
+# of README.md, CHANGELOG.md, TESTING.md and docs/src must resolve. mdBook is optional.
+python3 scripts/check-docs.py --self-test
+python3 scripts/check-docs.py
+if command -v mdbook >/dev/null 2>&1; then
+  book_dir=$(mktemp -d)
+  mdbook build docs --dest-dir "$book_dir"
+  rm -rf "$book_dir"
+fi
 # A fresh clone builds once: incremental caches would only double target/ on a small disk.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')

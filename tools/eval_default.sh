@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The evaluation behind the README's `rig eval` table (issue #7): test sets for all 8 objects
+# The evaluation behind the `rig eval` tables of docs/src/evaluation.md: test sets for all 8 objects
 # collected on the simulated rig with plans/test.toml, their synthetic twins made by MODEL, and
 # `rig eval` twice, appending both tables to out/eval.md (JSON and per-pose CSV beside it):
 #

@@ -1,5 +1,5 @@
 """Shared export code: wrap diffusers models so their ONNX inputs and outputs carry the names
-of rig's model-package contract (docs/synth.md, ARCHITECTURE.md "Model package"), and write
+of rig's model-package contract (docs/src/synthesis.md, "The model package"), and write
 the package layout.
 
     model.toml

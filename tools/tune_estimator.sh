@@ -6,7 +6,7 @@
 # many images gave an estimate). No model's image is ever looked at, so the choice cannot
 # favour a method; run it on training data, never on a test set.
 #
-# This is how eval::ContactEstimator::{TACTIP, VITAC, VITACTIP} were chosen (README,
+# This is how eval::ContactEstimator::{TACTIP, VITAC, VITACTIP} were chosen (docs/src/evaluation.md,
 # "Choosing the estimator"): out/train-data, object edge (the one whose contact has a yaw).
 #
 # Usage: tools/tune_estimator.sh [DATA]        (default out/train-data)

@@ -1,7 +1,7 @@
 """A picture of how a checkpoint draws one sensor's contact on its own training poses.
 
     python tools/train/contact_panel.py --ckpt out/train-3/ema-002145.pt --train-dir out/train-3 \\
-        --object edge --sensor tactip --rows 4 --out docs/tactip-model-vs-true.png
+        --object edge --sensor tactip --rows 4 --out docs/src/images/tactip-model-vs-true.png
 
 One row per training row of out/train/data.npz (the first ROWS of that object and sensor), six
 tiles at the data's size: the true image, the model's image (quick_eval.py's PyTorch DDIM, 20 steps, seed 0),

@@ -5,7 +5,7 @@
 
 Takes the exponential-moving-average weights of the checkpoint (diffusion.pt, or one of the
 ema-NNNNNN.pt snapshots), the tokenizer and the autoencoder statistics from --train-dir, and
-writes the package layout rig reads (docs/synth.md): model.toml (the resolution the run trained
+writes the package layout rig reads (docs/src/synthesis.md): model.toml (the resolution the run trained
 at, from vae.pt's `size`: 128 x 128 for models/default; vae_scale_factor 4; the latent scale of
 the training latents), tokenizer/, text_encoder/, controlnet/, unet/, vae_decoder/ (ONNX) and
 scheduler/scheduler_config.json (DDIM, prediction_type "sample"). Then it checks each ONNX model
@@ -109,14 +109,14 @@ def main():
     # The exporter writes one file per model; external-data files would appear beside them.
     write_model_toml(out, name, size, size, round(vae.config.scaling_factor, 6),
                      vae_scale_factor=4, sampling_steps=20, guidance=1.0,  # see train.py: INFERENCE_TIMESTEPS
-                     sampler="dpm++2m")  # README "Evaluating synthesis": beats DDIM on ViTac contact SSIM
+                     sampler="dpm++2m")  # docs/src/evaluation.md: beats DDIM on ViTac contact SSIM
     write_scheduler_config(out, SCHEDULER_CONFIG)
     with open(os.path.join(out, "TRAINING.txt"), "w") as f:
         targs = json.load(open(os.path.join(args.train_dir, "args.json")))
         f.write(f"Trained by tools/train/train.py: EMA weights of {os.path.basename(ckpt)} (step {step} of this run"
                 + (f", started from the EMA weights of {targs['init']}" if targs.get("init") else "") + ").\n"
                 "This run's arguments:\n" + json.dumps(targs, indent=2) + "\n"
-                "README \"Training the default synthesis model\" (tools/train/train_default.sh) retrains it.\n")
+                "docs/src/training.md describes the recipe; tools/train/train_default.sh retrains it.\n")
     check_onnx(out, text_encoder, controlnet, unet, vae, tok, size)
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
     print(f"exported step {step} of {ckpt} to {out} ({total / 1e6:.1f} MB)")

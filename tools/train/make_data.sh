@@ -8,14 +8,14 @@
 # (<pose_id>.png at 128x128 + prompts.csv) and out/train/data.npz (the packed arrays train.py
 # reads). SIZE=256 (say) renders the hints and packs the data at that size instead, into
 # out/train-controls-256/ and out/train-256/data.npz. To train on a real rig's data, collect with your rig.toml instead (same command) or
-# point prepare.py at your own datasets (see README, "Retraining on your own data").
+# point prepare.py at your own datasets (see docs/src/training.md, "Retraining on your own data").
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RIG=${1:-target/release/rig}
 PY=${PYTHON:-.venv/bin/python}
 OBJECTS=${OBJECTS:-"edge cuboid sphere pacman cross"}
 SIZE=${SIZE:-128}
-# 128 px (the default model's size) keeps the historical paths; other sizes get their own, so
+# 128 px (the default model's size) uses the plain paths; other sizes get their own, so
 # the 128 px data is not overwritten: out/train-controls-<SIZE>, out/train-<SIZE>/data.npz.
 if [ "$SIZE" = 128 ]; then SUFFIX=""; else SUFFIX="-$SIZE"; fi
 # One collection per object, all at once: each starts its own simulated rig on free loopback

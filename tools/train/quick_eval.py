@@ -28,7 +28,7 @@ collected for training. Everything is compared at the run's size, 128 x 128 for 
   through the default calibration, 2.125 px/mm at 128 px; yaw mod 180 deg, only where the true
   image's contact is not near-isotropic, eigenvalue ratio below 0.5).
 
-This is a quick proxy for `rig eval`, whose numbers are the ones the README reports.
+This is a quick proxy for `rig eval`, whose tables are the reference (docs/src/evaluation.md).
 """
 
 import argparse

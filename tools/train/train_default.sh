@@ -1,7 +1,6 @@
 #!/usr/bin/env bash
 # Retrains models/default exactly as it was made: three stages of tools/train/train.py on one
-# CUDA GPU (about 17 min of an H100), then export.py. See README "Training the default
-# synthesis model".
+# CUDA GPU (about 17 min on an H100), then export.py. See docs/src/training.md.
 #
 #   tools/train/train_default.sh [OUT_PACKAGE]        (default: models/default)
 #   SIZE=256 tools/train/train_default.sh [OUT_PACKAGE] (default: out/default-256)
@@ -15,9 +14,9 @@
 # The stages are the runs that produced the shipped package. They were run with
 # `--minutes 5 / 6 / 6.3` (the step count set from the measured speed); the step counts below
 # are the ones those runs chose, so the schedules match after their first 60 steps.
-#   1. from scratch, batch 128, lr 1e-3, 2184 steps. This run predates --pure-noise-from, so it
-#      is disabled here (1000: no timestep reaches it): its model read the sensor from the noise
-#      leak at the sampler's first step and drew every TacTip image as a ViTac one.
+#   1. from scratch, batch 128, lr 1e-3, 2184 steps, without --pure-noise-from (1000: no timestep
+#      reaches it), as the shipped stage 1 was trained: its model reads the sensor from the noise
+#      leak at the sampler's first step and draws every TacTip image as a ViTac one.
 #   2. from stage 1's EMA weights, batch 256, lr 5e-4, 1929 steps, the first sampler step
 #      (t >= 951) trained on pure noise: the prompt now decides the sensor.
 #   3. from stage 2's EMA weights, batch 256, lr 3e-4, 2145 steps. Its EMA weights are exported.
