@@ -1,7 +1,8 @@
 //! Calibration: number of press points against the error of the fitted map against seconds
 //! of arm time.
 //!
-//! Each grid runs the automatic calibration ([`run_pattern`] over an [`ArmStation`], what
+//! Each grid runs the automatic calibration ([`crate::jobs::calibrate::press_and_fit`] over an
+//! [`ArmStation`](crate::calibration::press::ArmStation), what
 //! `rig calibrate` runs) on the built-in simulated rig, whose TacTip renders through a known
 //! ground-truth calibration (anisotropic, rotated, off-centre). The fitted map is compared
 //! with the truth over the pressed area ([`map_error_px`]); the fit's own RMS residual is

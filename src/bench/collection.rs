@@ -1,6 +1,6 @@
 //! Collection: settle time and frames averaged against image noise against seconds per pose.
 //!
-//! Each setting runs the real collection job ([`CollectJob`]) on the built-in simulated rig
+//! Each setting runs the real collection job ([`crate::jobs::collect::run`]) on the built-in simulated rig
 //! (simulated MG400 over loopback TCP with a scaled clock, one simulated ViTacTip, full
 //! scene) over a plan that visits every pose twice in a row (retract, re-approach), so
 //!

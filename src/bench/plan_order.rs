@@ -2,7 +2,7 @@
 //! motion time from the firmware profile's joint-space model
 //! ([`FirmwareProfile::motion_time_s`](crate::arm::profile::FirmwareProfile::motion_time_s))
 //! between consecutive approach poses, as `rig collect` orders them
-//! ([`crate::rigs::pose_cost_s`]). Accuracy does not change: the poses are the same.
+//! ([`FirmwareProfile::pose_cost_s`](crate::arm::profile::FirmwareProfile::pose_cost_s)). Accuracy does not change: the poses are the same.
 
 use std::time::Instant;
 
