@@ -375,20 +375,11 @@ pub async fn capture<C: Camera>(camera: &mut C, not_before_s: f64, options: &Col
     }
 }
 
-/// Pixel-wise mean of frames of equal size (frames of another size than the first are skipped).
+/// Pixel-wise mean of frames (frames of another size than the first are skipped), each
+/// channel rounded half up.
 pub fn average(frames: &[Frame]) -> RgbImage {
-    let Some(first) = frames.first() else { return RgbImage::new(0, 0) };
-    let (w, h) = first.image.dimensions();
-    let mut acc = vec![0u32; (w * h * 3) as usize];
-    let mut n = 0u32;
-    for f in frames.iter().filter(|f| f.image.dimensions() == (w, h)) {
-        for (a, &p) in acc.iter_mut().zip(f.image.as_raw()) {
-            *a += p as u32;
-        }
-        n += 1;
-    }
-    let data = acc.iter().map(|&a| ((a + n / 2) / n) as u8).collect();
-    RgbImage::from_raw(w, h, data).unwrap_or_else(|| first.image.clone())
+    let images: Vec<&RgbImage> = frames.iter().map(|f| &f.image).collect();
+    crate::imaging::mean_image(&images)
 }
 
 #[cfg(test)]

@@ -55,6 +55,7 @@ use crate::calibration::Calibration;
 use crate::dataset::{DatasetError, Manifest, PoseRow, REFERENCE_FILE, Source, read_rows};
 use crate::geometry::DepthMap;
 use crate::geometry::stl::Mesh;
+use crate::imaging::{BoxBorder, MeanImage, box_blur, box_blur_repeated, dilate_mask, flood_fill, max_channel_difference};
 use crate::metrics;
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
@@ -384,16 +385,6 @@ fn mesh_of(manifest: &Manifest) -> Option<Mesh> {
     crate::geometry::objects::load_object(&manifest.object.name).ok()
 }
 
-/// Per-pixel change of `image` from `reference`: the largest of the three channel differences.
-fn change_map(image: &RgbImage, reference: &RgbImage) -> Vec<f32> {
-    image
-        .as_raw()
-        .chunks_exact(3)
-        .zip(reference.as_raw().chunks_exact(3))
-        .map(|(a, b)| (0..3).map(|k| (a[k] as i32 - b[k] as i32).unsigned_abs()).max().unwrap_or(0) as f32)
-        .collect()
-}
-
 /// The contact region of a true image: pixels whose change from the reference (3 x 3 box
 /// mean) exceeds `threshold` levels, dilated by `dilate_px` (square). Row-major, one entry per
 /// pixel; sizes must match (else all false).
@@ -402,29 +393,13 @@ pub fn contact_mask(truth: &RgbImage, reference: &RgbImage, threshold: f64, dila
     if truth.dimensions() != reference.dimensions() || w == 0 || h == 0 {
         return vec![false; w * h];
     }
-    let mut change = change_map(truth, reference);
-    crate::calibration::detect::box_blur(&mut change, w, h, 1);
+    let mut change = max_channel_difference(truth, reference);
+    box_blur(&mut change, w, h, 1, BoxBorder::Shrink);
     let core: Vec<bool> = change.iter().map(|&c| c as f64 > threshold).collect();
     if dilate_px == 0 {
         return core;
     }
-    let r = dilate_px as usize;
-    // Separable square dilation: rows, then columns.
-    let mut rows = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
-            rows[y * w + x] = (lo..=hi).any(|i| core[y * w + i]);
-        }
-    }
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
-            out[y * w + x] = (lo..=hi).any(|j| rows[j * w + x]);
-        }
-    }
-    out
+    dilate_mask(&core, w, h, dilate_px as usize)
 }
 
 /// A contact region's weighted centroid and second central moments, in pixels (pixel (i, j)
@@ -600,9 +575,7 @@ pub struct EstimatorParseError {
 /// The change map blurred three times by a box of `radius` px.
 fn smoothed_change(change: &[f32], w: usize, h: usize, radius: usize) -> Vec<f32> {
     let mut out = change.to_vec();
-    for _ in 0..3 {
-        crate::calibration::detect::box_blur(&mut out, w, h, radius);
-    }
+    box_blur_repeated(&mut out, w, h, radius, 3, BoxBorder::Shrink);
     out
 }
 
@@ -634,7 +607,7 @@ pub fn estimate_contact_with(image: &RgbImage, reference: &RgbImage, estimator: 
     if image.dimensions() != reference.dimensions() || w == 0 || h == 0 {
         return None;
     }
-    let raw = change_map(image, reference);
+    let raw = max_channel_difference(image, reference);
     let gate_radius = (w / 64).max(1);
     let gate = smoothed_change(&raw, w, h, gate_radius);
     let gate_peak = gate.iter().fold(f32::MIN, |b, &v| b.max(v)) as f64;
@@ -647,21 +620,7 @@ pub fn estimate_contact_with(image: &RgbImage, reference: &RgbImage, estimator: 
     let (peak_i, peak) = change.iter().enumerate().fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
     let peak = peak as f64;
     let threshold = floor + estimator.region_fraction * (peak - floor);
-    let mut seen = vec![false; w * h];
-    let mut region = Vec::new();
-    let mut stack = vec![peak_i];
-    seen[peak_i] = true;
-    while let Some(i) = stack.pop() {
-        region.push(i);
-        let (x, y) = (i % w, i / w);
-        let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
-        for j in neighbours.into_iter().flatten() {
-            if !seen[j] && change[j] as f64 > threshold {
-                seen[j] = true;
-                stack.push(j);
-            }
-        }
-    }
+    let region = flood_fill(&change, w, h, peak_i, threshold, &mut vec![false; w * h]);
     let est = ContactEstimate::from_weights(region.iter().map(|&i| (i, change[i] as f64 - threshold)), w);
     // A flat top exactly at the threshold: the peak pixel alone.
     est.or_else(|| ContactEstimate::from_weights(std::iter::once((peak_i, 1.0)), w))
@@ -758,19 +717,12 @@ impl Collected {
         }
         let mut images = 0;
         for sensor in by_sensor.values_mut() {
-            let mut sum = vec![0.0f64; (size * size * 3) as usize];
+            let mut mean = MeanImage::new(size, size);
             for p in &sensor.poses {
-                let img = load_at(&p.path, size)?;
-                for (s, &v) in sum.iter_mut().zip(img.as_raw()) {
-                    *s += v as f64;
-                }
+                mean.add(&load_at(&p.path, size)?);
             }
             images += sensor.poses.len();
-            if !sensor.poses.is_empty() {
-                let n = sensor.poses.len() as f64;
-                let raw: Vec<u8> = sum.iter().map(|s| (s / n).round().clamp(0.0, 255.0) as u8).collect();
-                sensor.mean = RgbImage::from_raw(size, size, raw);
-            }
+            sensor.mean = mean.image();
         }
         Ok(Self { by_sensor, references, images })
     }

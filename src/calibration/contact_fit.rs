@@ -30,6 +30,7 @@ use image::{GrayImage, RgbImage, imageops};
 use super::{Calibration, FitRecord};
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
+use crate::imaging::{self, BoxBorder, summed_channel_difference};
 use crate::pose::Pose;
 
 /// Largest residual counted per outline pixel, px (full-size image).
@@ -337,11 +338,8 @@ fn build_features(frames: &[FitFrame], target: &FitTarget, size: u32) -> Feature
                 .iter()
                 .map(|f| {
                     let small = imageops::resize(&f.image, size, size, imageops::FilterType::Triangle);
-                    let d: Vec<f32> = small
-                        .pixels()
-                        .zip(small_ref.pixels())
-                        .map(|(a, b)| (0..3).map(|k| (a.0[k] as f32 - b.0[k] as f32).abs()).sum::<f32>())
-                        .collect();
+                    // Sums of three 8-bit differences: exact in f32.
+                    let d: Vec<f32> = summed_channel_difference(&small, &small_ref).into_iter().map(|v| v as f32).collect();
                     box_blur(&d, n, 3)
                 })
                 .collect();
@@ -369,11 +367,10 @@ fn standardise(m: Vec<f32>) -> Vec<f32> {
     m.into_iter().map(|v| ((v as f64 - mean) / sd) as f32).collect()
 }
 
-/// [`super::detect::box_blur`] (clamped-mean window `2r + 1`, rows then columns) of an `n` x `n`
-/// map, as a new map.
+/// The shrinking-window box blur ([`BoxBorder::Shrink`]) of an `n` x `n` map, as a new map.
 fn box_blur(src: &[f32], n: usize, r: usize) -> Vec<f32> {
     let mut out = src.to_vec();
-    super::detect::box_blur(&mut out, n, n, r);
+    imaging::box_blur(&mut out, n, n, r, BoxBorder::Shrink);
     out
 }
 

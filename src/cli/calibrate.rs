@@ -385,7 +385,7 @@ fn multidiffsense_frames(dir: &Path, kind: SensorKind) -> anyhow::Result<KnownFr
     if images.is_empty() {
         bail!("{}: no {} frames", dir.display(), kind.label());
     }
-    let reference = crate::cli::compare::median_image(&images);
+    let reference = crate::imaging::median_image(&images);
     let mut frames = Vec::new();
     for (i, img) in list {
         let pose = sample.poses.get(i).copied().with_context(|| format!("no pose row for frame {i}"))?;

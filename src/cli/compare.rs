@@ -38,6 +38,7 @@ use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
+use crate::imaging::{difference_mask, dilate_mask, iou, mean_image, median_image, median_image_excluding};
 use crate::metrics::{ssim, ssim_masked};
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
@@ -156,85 +157,6 @@ fn pose_of(sample: &RealSample, index: usize) -> anyhow::Result<Pose> {
     sample.poses.get(&index).copied().with_context(|| format!("no pose row for frame {index}"))
 }
 
-/// Per-pixel median of `frames` (upper median for even counts).
-pub fn median_image(frames: &[&RgbImage]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    RgbImage::from_fn(w, h, |x, y| median_pixel(frames.iter().copied(), x, y))
-}
-
-/// Channel-wise upper median of the pixel (x, y) over `frames` (black for none).
-fn median_pixel<'a>(frames: impl Iterator<Item = &'a RgbImage> + Clone, x: u32, y: u32) -> Rgb<u8> {
-    let mut px = [0u8; 3];
-    for (k, out) in px.iter_mut().enumerate() {
-        let mut v: Vec<u8> = frames.clone().map(|f| f.get_pixel(x, y).0[k]).collect();
-        v.sort_unstable();
-        *out = v.get(v.len() / 2).copied().unwrap_or(0);
-    }
-    Rgb(px)
-}
-
-/// Per-pixel mean of `frames`.
-pub fn mean_image(frames: &[&RgbImage]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    let n = frames.len().max(1) as f64;
-    RgbImage::from_fn(w, h, |x, y| {
-        let mut px = [0u8; 3];
-        for (k, out) in px.iter_mut().enumerate() {
-            *out = (frames.iter().map(|f| f.get_pixel(x, y).0[k] as f64).sum::<f64>() / n).round() as u8;
-        }
-        Rgb(px)
-    })
-}
-
-/// No-contact look: per pixel the median over frames whose footprint does not cover it
-/// (over all frames where every footprint covers it).
-pub fn no_contact_estimate(frames: &[&RgbImage], covered: &[Vec<bool>]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    RgbImage::from_fn(w, h, |x, y| {
-        let i = (y * w + x) as usize;
-        let free = frames.iter().zip(covered).filter(|(_, c)| !c[i]).map(|(f, _)| *f);
-        if free.clone().next().is_some() { median_pixel(free, x, y) } else { median_pixel(frames.iter().copied(), x, y) }
-    })
-}
-
-/// Pixels whose summed |RGB| difference from `reference` exceeds `threshold`.
-pub fn difference_mask(frame: &RgbImage, reference: &RgbImage, threshold: u32) -> Vec<bool> {
-    frame
-        .pixels()
-        .zip(reference.pixels())
-        .map(|(a, b)| (0..3).map(|k| (a.0[k] as i32 - b.0[k] as i32).unsigned_abs()).sum::<u32>() > threshold)
-        .collect()
-}
-
-/// Square dilation of a mask by `r` pixels.
-pub fn dilate(mask: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
-    let (w, h, r) = (w as usize, h as usize, r as usize);
-    let mut rows = vec![false; mask.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let lo = x.saturating_sub(r);
-            let hi = (x + r).min(w - 1);
-            rows[y * w + x] = mask[y * w + lo..=y * w + hi].iter().any(|&m| m);
-        }
-    }
-    let mut out = vec![false; mask.len()];
-    for y in 0..h {
-        let lo = y.saturating_sub(r);
-        let hi = (y + r).min(h - 1);
-        for x in 0..w {
-            out[y * w + x] = (lo..=hi).any(|yy| rows[yy * w + x]);
-        }
-    }
-    out
-}
-
-/// Intersection over union of two masks (0 when both are empty).
-pub fn iou(a: &[bool], b: &[bool]) -> f64 {
-    let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count();
-    let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count();
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
-}
-
 /// Fit target per sensor: outlines for see-through skins, marker displacement for TacTip.
 pub fn fit_target(sensor: SensorKind, frames: &[&RgbImage]) -> FitTarget {
     match sensor {
@@ -297,7 +219,7 @@ pub fn comparison_scene() -> Scene {
 /// *other* real frames of the sensor only (leave one out: the simulator never sees the frame it
 /// is scored on, and has the same information as the baseline). One median over the same
 /// frames everywhere keeps the pins whole (they shift a little between frames; switching frame
-/// sets per pixel, as the footprint-aware `no_contact_estimate` does, tears them).
+/// sets per pixel, as the footprint-aware `median_image_excluding` does, tears them).
 pub fn simulator_reference(others: &[&RgbImage]) -> RgbImage {
     median_image(others)
 }
@@ -338,9 +260,9 @@ pub fn compare_sensor(
         footprints.push(d.height_mm.iter().map(|&v| v > 0.0).collect::<Vec<bool>>());
         depths.push(d);
     }
-    let covered: Vec<Vec<bool>> = footprints.iter().map(|f| dilate(f, w, h, FOOTPRINT_MARGIN_PX)).collect();
+    let covered: Vec<Vec<bool>> = footprints.iter().map(|f| dilate_mask(f, w as usize, h as usize, FOOTPRINT_MARGIN_PX as usize)).collect();
     let all: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
-    let no_contact = no_contact_estimate(&all, &covered);
+    let no_contact = median_image_excluding(&all, &covered);
     let mut scores = Vec::new();
     for (k, (index, real)) in list.iter().enumerate() {
         let others: Vec<&RgbImage> = all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, f)| *f).collect();
