@@ -51,7 +51,7 @@ use glam::DVec2;
 use image::RgbImage;
 use serde::Serialize;
 
-use crate::calibration::Calibration;
+use crate::calibration::model::Calibration;
 use crate::dataset::{DatasetError, Manifest, PoseRow, REFERENCE_FILE, Source, read_rows};
 use crate::geometry::DepthMap;
 use crate::geometry::stl::Mesh;
