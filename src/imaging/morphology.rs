@@ -84,7 +84,7 @@ mod tests {
         mask[3 * 7 + 3] = true;
         let out = dilate_mask(&mask, 7, 7, 2);
         assert_eq!(out.iter().filter(|&&m| m).count(), 25);
-        assert!(out[1 * 7 + 1] && out[5 * 7 + 5] && !out[0]);
+        assert!(out[7 + 1] && out[5 * 7 + 5] && !out[0]);
         assert_eq!(dilate_mask(&mask, 7, 7, 0), mask);
         assert_eq!(dilate_mask(&mask[..5], 7, 7, 1), mask[..5].to_vec());
     }
