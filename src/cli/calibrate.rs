@@ -377,21 +377,16 @@ fn rig_dataset_frames(dir: &Path) -> anyhow::Result<KnownFrames> {
     Ok((frames, reference))
 }
 
-/// The MultiDiffSense example: its logged poses and frames; reference = per-pixel median.
+/// The MultiDiffSense example: its frames with their logged poses (work frame, like a rig
+/// dataset's); reference = per-pixel median.
 fn multidiffsense_frames(dir: &Path, kind: SensorKind) -> anyhow::Result<KnownFrames> {
-    let sample = crate::cli::compare::load_real_sample(dir)?;
-    let list = sample.frames.get(kind.label()).with_context(|| format!("{}: no {} frames", dir.display(), kind.label()))?;
-    let images: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
+    let sample = crate::eval::compare_real::RealSample::load(dir)?;
+    let images: Vec<&RgbImage> = sample.frames_of(kind).iter().map(|(_, img)| img).collect();
     if images.is_empty() {
         bail!("{}: no {} frames", dir.display(), kind.label());
     }
     let reference = crate::imaging::median_image(&images);
-    let mut frames = Vec::new();
-    for (i, img) in list {
-        let pose = sample.poses.get(i).copied().with_context(|| format!("no pose row for frame {i}"))?;
-        frames.push((format!("1_{}_{i}.png", kind.label()), pose, img.clone()));
-    }
-    Ok((frames, reference))
+    Ok((sample.posed_frames(kind, crate::eval::compare_real::RealSample::work_pose)?, reference))
 }
 
 fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {

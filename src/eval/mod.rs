@@ -55,8 +55,11 @@
 //! - [`judge`] judges one pair: every method's figures and pose errors.
 //! - [`report`] writes [`EvalReport`] as Markdown, JSON and CSV.
 //! - [`run`] is the run, [`evaluate()`] with its [`EvalOptions`].
+//! - [`compare_real`] scores rendered frames against real frames of logged poses, beside the
+//!   pose-blind baseline (`rig compare-real`).
 
 pub mod baselines;
+pub mod compare_real;
 pub mod contact;
 pub mod error;
 pub mod judge;
