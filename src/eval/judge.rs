@@ -1,6 +1,6 @@
 //! Judging one pair: each method's image against the true one (SSIM, PSNR, MSE over the whole
 //! frame and the contact region) and the pose errors of the contact estimated from it, with
-//! what one real dataset's pairs share ([`DatasetJudge`]).
+//! what one real dataset's pairs share (`DatasetJudge`).
 
 use image::RgbImage;
 

@@ -8,7 +8,7 @@ use super::contact::ContactEstimator;
 use super::records::{EvalCounts, Method, PairRecord};
 use super::statistics::{MIN_PAIRS_FOR_VERDICT, MethodRow, PairedComparison, Verdict, comparison_summary};
 
-/// The result of [`evaluate`].
+/// The result of [`super::evaluate`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EvalReport {
     pub label: String,
@@ -19,7 +19,7 @@ pub struct EvalReport {
     pub rows: Vec<MethodRow>,
     /// The contact estimator each sensor's images were judged by.
     pub estimators: BTreeMap<String, ContactEstimator>,
-    /// The model against each baseline, pair by pair ([`paired_comparisons`]).
+    /// The model against each baseline, pair by pair ([`super::paired_comparisons`]).
     pub comparisons: Vec<PairedComparison>,
     /// Every method on every pair, in the order judged (not in the JSON: see [`Self::write_pairs_csv`]).
     #[serde(skip)]

@@ -10,11 +10,16 @@
 //! - a motion task that advances the [`Controller`] state machine every feedback period on
 //!   the passed [`Clock`] (so `MonotonicClock::scaled(10.0)` runs ten times faster than real
 //!   time) and publishes [`ArmTruth`] for the simulated sensors;
-//! - per connection on the dashboard and motion ports: requests framed with
-//!   [`RequestFramer`], answered `ErrorID,{values},Echo;` as the real controller does, `Sync()`
-//!   held back until the motion queue has drained;
+//! - per connection on the dashboard and motion ports: a [`CommandSession`] (requests framed
+//!   with [`RequestFramer`]), answered `ErrorID,{values},Echo;` as the real controller does,
+//!   `Sync()` held back until the motion queue has drained;
 //! - per connection on the feedback port: a valid 1440-byte [`FeedbackFrame`] every 8 ms of
 //!   simulated time.
+//!
+//! [`Clock`]: crate::clock::Clock
+//! [`ArmTruth`]: crate::sim::ArmTruth
+//! [`RequestFramer`]: crate::arm::dobot::proto::RequestFramer
+//! [`FeedbackFrame`]: crate::arm::dobot::proto::FeedbackFrame
 //!
 //! The controller starts DISABLED (mode 4). Moves run in queue order with trapezoidal
 //! profiles scaled by SpeedFactor (MovJ in joint space, MovL in a straight line) and end
