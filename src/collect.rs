@@ -23,12 +23,11 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use image::RgbImage;
 use tokio::sync::watch;
 use tracing::{info, warn};
 
-use crate::arm::{Arm, ArmError, MoveKind};
-use crate::camera::{Camera, CameraError, Frame};
+use crate::arm::{Arm, ArmError, Arrival, MoveKind, move_and_wait};
+use crate::camera::{Camera, CameraError, capture_settled};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
 use crate::dataset::{DatasetError, DatasetWriter, PoseRow};
@@ -160,9 +159,9 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
     }
 
     /// Moves to `target` and waits for arrival.
-    async fn go(&mut self, target: Pose, kind: MoveKind) -> Result<crate::arm::Arrival, ArmError> {
+    async fn go(&mut self, target: Pose, kind: MoveKind) -> Result<Arrival, ArmError> {
         let timeout = self.move_timeout();
-        go(&mut *self.arm, target, kind, timeout).await
+        move_and_wait(&mut *self.arm, target, kind, timeout).await
     }
 
     /// Runs the plan. Poses already present in every sensor's dataset are skipped.
@@ -277,7 +276,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         let not_before = self.prepare_capture(arrival.t_s).await?;
         let mut images = Vec::new();
         for (k, s) in self.sensors.iter_mut().enumerate().filter(|(_, s)| !has_reference(&s.writer)) {
-            images.push((k, capture(&mut s.camera, not_before, &self.options).await?.0));
+            images.push((k, capture_settled(&mut s.camera, not_before, self.options.capture_settings()).await?.0));
         }
         let readings = self.peripherals.after_capture().await?;
         if !readings.is_empty() {
@@ -330,7 +329,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         let measured = self.work_frame.plan_pose(&arrival.measured);
         let mut captured = Vec::new();
         for (k, s) in self.sensors.iter_mut().enumerate().filter(|(_, s)| !s.writer.done_ids().contains(&planned.pose_id)) {
-            let (image, t_capture_s) = capture(&mut s.camera, not_before, &self.options).await?;
+            let (image, t_capture_s) = capture_settled(&mut s.camera, not_before, self.options.capture_settings()).await?;
             captured.push((k, image, t_capture_s));
         }
         // Read while still pressed; only then are rows written, so a peripheral fault leaves
@@ -345,65 +344,17 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
     }
 }
 
-/// Moves `arm` to `target` and waits for arrival (the step every job repeats).
-pub async fn go<A: Arm>(arm: &mut A, target: Pose, kind: MoveKind, timeout: Duration) -> Result<crate::arm::Arrival, ArmError> {
-    arm.move_to(target, kind).await?;
-    arm.wait_arrived(target, timeout).await
-}
+/// The move-and-wait step, [`crate::arm::move_and_wait`] (here for the callers that still
+/// name it so).
+pub use crate::arm::move_and_wait as go;
 
 fn has_reference(writer: &DatasetWriter) -> bool {
     writer.dir().join("reference.png").is_file()
 }
 
-/// Captures `frames_per_pose` frames exposed after `not_before_s`; returns the last frame (or the
-/// pixel mean when averaging) and the mean capture time.
-pub async fn capture<C: Camera>(camera: &mut C, not_before_s: f64, options: &CollectConfig) -> Result<(RgbImage, f64), CameraError> {
-    let n = options.frames_per_pose.max(1);
-    let mut frames: Vec<Frame> = Vec::with_capacity(n as usize);
-    let mut after = not_before_s;
-    for _ in 0..n {
-        let f = camera.frame_after(after).await?;
-        after = f.t_capture_s;
-        frames.push(f);
-    }
-    let t_mean = frames.iter().map(|f| f.t_capture_s).sum::<f64>() / frames.len() as f64;
-    if options.average_frames && frames.len() > 1 {
-        Ok((average(&frames), t_mean))
-    } else {
-        let last = frames.pop().map(|f| f.image).unwrap_or_default();
-        Ok((last, t_mean))
-    }
-}
-
-/// Pixel-wise mean of frames of equal size (frames of another size than the first are skipped).
-pub fn average(frames: &[Frame]) -> RgbImage {
-    let Some(first) = frames.first() else { return RgbImage::new(0, 0) };
-    let (w, h) = first.image.dimensions();
-    let mut acc = vec![0u32; (w * h * 3) as usize];
-    let mut n = 0u32;
-    for f in frames.iter().filter(|f| f.image.dimensions() == (w, h)) {
-        for (a, &p) in acc.iter_mut().zip(f.image.as_raw()) {
-            *a += p as u32;
-        }
-        n += 1;
-    }
-    let data = acc.iter().map(|&a| ((a + n / 2) / n) as u8).collect();
-    RgbImage::from_raw(w, h, data).unwrap_or_else(|| first.image.clone())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn frame(v: u8) -> Frame {
-        Frame { image: RgbImage::from_pixel(2, 2, image::Rgb([v, v, v])), t_capture_s: 0.0, seq: 0 }
-    }
-
-    #[test]
-    fn average_rounds_the_mean() {
-        let a = average(&[frame(10), frame(21)]);
-        assert_eq!(a.get_pixel(1, 1).0, [16, 16, 16]);
-    }
 
     #[test]
     fn plan_check_names_the_pose() {

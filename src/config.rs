@@ -190,6 +190,13 @@ impl Default for CollectConfig {
     }
 }
 
+impl CollectConfig {
+    /// How each pose's image is captured: `frames_per_pose` frames, averaged or the last.
+    pub fn capture_settings(&self) -> crate::camera::CaptureSettings {
+        crate::camera::CaptureSettings { frames: self.frames_per_pose, average: self.average_frames }
+    }
+}
+
 /// The validated `[sensors.<name>]` section.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensorConfig {

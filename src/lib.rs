@@ -18,6 +18,7 @@ pub mod daemon;
 pub mod dataset;
 pub mod eval;
 pub mod geometry;
+pub mod imaging;
 pub mod io;
 pub mod jobs;
 pub mod metrics;

@@ -4,6 +4,8 @@
 //! client in [`dobot`] (which also drives the simulated MG400 in `sim`), later the Magician.
 //! Poses passed to an `Arm` are in the robot base frame.
 //!
+//! [`move_and_wait`] is the move-then-wait-for-arrival step the jobs are built of.
+//!
 //! Errors keep what the robot reported ([`ArmError::Fault`], [`ArmError::Refused`]) apart from
 //! transport trouble ([`ArmError::Io`], [`ArmError::Timeout`]) and from targets rig refuses
 //! itself before sending ([`ArmError::Unreachable`]).
@@ -84,6 +86,13 @@ fn describe_alarms(alarms: &[Alarm]) -> String {
         return "no alarm id reported".into();
     }
     alarms.iter().map(|a| format!("{} ({})", a.id, a.description)).collect::<Vec<_>>().join(", ")
+}
+
+/// Moves `arm` to `target` and waits for arrival: the step every job repeats (each pose of a
+/// collection, each press of a calibration, the retract after a fault).
+pub async fn move_and_wait<A: Arm>(arm: &mut A, target: Pose, kind: MoveKind, timeout: Duration) -> Result<Arrival, ArmError> {
+    arm.move_to(target, kind).await?;
+    arm.wait_arrived(target, timeout).await
 }
 
 /// A robot arm as the collection job sees it. Poses are in the base frame.

@@ -24,13 +24,18 @@
 //! The residual reported per frame is the mean distance, in pixels of the full-size image, from
 //! the rendered outline to the nearest strong feature pixel (top 5 % of the feature map),
 //! capped at [`RESIDUAL_CAP_PX`].
+//!
+//! [`fit_sensor`] fits one sensor of a rig with the target its skin calls for
+//! ([`target_for`]), seeded with the fits of the rig's other sensors ([`FIT_ORDER`]).
 
 use image::{GrayImage, RgbImage, imageops};
 
 use super::{Calibration, FitRecord};
 use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
+use crate::imaging::{self, BoxBorder, median_image, summed_channel_difference};
 use crate::pose::Pose;
+use crate::sensor::SensorKind;
 
 /// Largest residual counted per outline pixel, px (full-size image).
 pub const RESIDUAL_CAP_PX: f64 = 40.0;
@@ -172,6 +177,50 @@ struct Features {
     /// Top-5 % pixels per frame (for residuals).
     strong: Vec<Vec<bool>>,
     outline: bool,
+}
+
+/// The order the sensors of one rig are fitted in: the sharpest outlines first, so their
+/// result seeds the others ([`fit_sensor`]).
+pub const FIT_ORDER: [SensorKind; 3] = [SensorKind::ViTacTip, SensorKind::ViTac, SensorKind::TacTip];
+
+/// What a sensor's frames are fitted against: the outlines for the see-through skins, the
+/// difference from the frames' per-pixel median for TacTip (whose object is hidden).
+pub fn target_for(sensor: SensorKind, frames: &[&RgbImage]) -> FitTarget {
+    match sensor {
+        SensorKind::TacTip => FitTarget::Difference { reference: median_image(frames) },
+        SensorKind::ViTac | SensorKind::ViTacTip => FitTarget::Edges,
+    }
+}
+
+/// Fits a calibration to one sensor's `frames` (render poses, all one size; the result is at
+/// that size), also starting from `seeds`: the fits of the same rig's other sensors. With
+/// seeds, TacTip keeps their mean pose correction: markers alone barely constrain it, and it
+/// belongs to the pose log (shared by all sensors), not to the camera.
+pub fn fit_sensor(mesh: &Mesh, sensor: SensorKind, frames: &[FitFrame], seeds: &[Calibration]) -> Result<ContactFit, ContactFitError> {
+    let first = frames.first().ok_or(ContactFitError::NoFrames)?;
+    let images: Vec<&RgbImage> = frames.iter().map(|f| &f.image).collect();
+    let target = target_for(sensor, &images);
+    let mut opts =
+        ContactFitOptions { extra_starts: seeds.to_vec(), final_size: Some(first.image.width()), ..ContactFitOptions::default() };
+    if sensor == SensorKind::TacTip && !seeds.is_empty() {
+        opts.fit_pose_correction = false;
+        opts.fixed_pose_correction = Some(mean_correction(seeds));
+    }
+    fit_contact(mesh, frames, &target, &opts)
+}
+
+/// Element-wise mean of the seeds' pose corrections (identity where a seed has none).
+fn mean_correction(seeds: &[Calibration]) -> [[f64; 2]; 2] {
+    let mut m = [[0.0; 2]; 2];
+    for c in seeds {
+        let s = c.pose_xy_correction.unwrap_or([[1.0, 0.0], [0.0, 1.0]]);
+        for r in 0..2 {
+            for k in 0..2 {
+                m[r][k] += s[r][k] / seeds.len() as f64;
+            }
+        }
+    }
+    m
 }
 
 /// Fits a calibration for `frames` of `mesh` (all the same size; the result is for that size).
@@ -337,11 +386,8 @@ fn build_features(frames: &[FitFrame], target: &FitTarget, size: u32) -> Feature
                 .iter()
                 .map(|f| {
                     let small = imageops::resize(&f.image, size, size, imageops::FilterType::Triangle);
-                    let d: Vec<f32> = small
-                        .pixels()
-                        .zip(small_ref.pixels())
-                        .map(|(a, b)| (0..3).map(|k| (a.0[k] as f32 - b.0[k] as f32).abs()).sum::<f32>())
-                        .collect();
+                    // Sums of three 8-bit differences: exact in f32.
+                    let d: Vec<f32> = summed_channel_difference(&small, &small_ref).into_iter().map(|v| v as f32).collect();
                     box_blur(&d, n, 3)
                 })
                 .collect();
@@ -369,11 +415,10 @@ fn standardise(m: Vec<f32>) -> Vec<f32> {
     m.into_iter().map(|v| ((v as f64 - mean) / sd) as f32).collect()
 }
 
-/// [`super::detect::box_blur`] (clamped-mean window `2r + 1`, rows then columns) of an `n` x `n`
-/// map, as a new map.
+/// The shrinking-window box blur ([`BoxBorder::Shrink`]) of an `n` x `n` map, as a new map.
 fn box_blur(src: &[f32], n: usize, r: usize) -> Vec<f32> {
     let mut out = src.to_vec();
-    super::detect::box_blur(&mut out, n, n, r);
+    imaging::box_blur(&mut out, n, n, r, BoxBorder::Shrink);
     out
 }
 

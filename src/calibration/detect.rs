@@ -29,6 +29,8 @@
 
 use image::RgbImage;
 
+use crate::imaging::{BoxBorder, box_blur_repeated, close_values, flood_fill, luma, luma_f64, max_channel_difference};
+
 /// Why no contact was found.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DetectError {
@@ -182,8 +184,7 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> 
         return Vec::new();
     }
     let sign = if options.bright { 1.0 } else { -1.0 };
-    let g: Vec<f32> =
-        image.as_raw().chunks_exact(3).map(|p| sign * (p[0] as f32 * 0.299 + p[1] as f32 * 0.587 + p[2] as f32 * 0.114)).collect();
+    let g: Vec<f32> = image.as_raw().chunks_exact(3).map(|p| sign * luma(&[p[0] as f32, p[1] as f32, p[2] as f32])).collect();
     let mut sorted = g.clone();
     sorted.sort_by(f32::total_cmp);
     let median = sorted[sorted.len() / 2];
@@ -194,29 +195,20 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> 
     }
     let mut seen = vec![false; w * h];
     let mut markers = Vec::new();
-    let mut stack = Vec::new();
     for start in 0..w * h {
         if seen[start] || g[start] <= threshold {
             continue;
         }
-        seen[start] = true;
-        stack.push(start);
-        let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
-        while let Some(i) = stack.pop() {
+        let blob = flood_fill(&g, w, h, start, threshold as f64, &mut seen);
+        let (mut su, mut sv, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+        for &i in &blob {
             let (x, y) = (i % w, i / w);
             let wt = (g[i] - threshold) as f64;
             su += wt * (x as f64 + 0.5);
             sv += wt * (y as f64 + 0.5);
             sw += wt;
-            area += 1;
-            let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
-            for j in neighbours.into_iter().flatten() {
-                if !seen[j] && g[j] > threshold {
-                    seen[j] = true;
-                    stack.push(j);
-                }
-            }
         }
+        let area = blob.len();
         if (options.min_area_px..=options.max_area_px).contains(&area) && sw > 0.0 {
             markers.push([su / sw, sv / sw]);
         }
@@ -301,16 +293,8 @@ fn checked_size(frame: &RgbImage, reference: &RgbImage) -> Result<(usize, usize)
 /// Locates the contact in `frame` against the no-contact `reference`.
 pub fn detect_contact(frame: &RgbImage, reference: &RgbImage, options: &DetectOptions) -> Result<Contact, DetectError> {
     let (w, h) = checked_size(frame, reference)?;
-    let mut change: Vec<f32> = frame
-        .as_raw()
-        .chunks_exact(3)
-        .zip(reference.as_raw().chunks_exact(3))
-        .map(|(a, b)| (0..3).map(|k| (a[k] as i32 - b[k] as i32).unsigned_abs()).max().unwrap_or(0) as f32)
-        .collect();
-    let r = options.blur_px as usize;
-    for _ in 0..3 {
-        box_blur(&mut change, w, h, r);
-    }
+    let mut change = max_channel_difference(frame, reference);
+    box_blur_repeated(&mut change, w, h, options.blur_px as usize, 3, BoxBorder::Shrink);
     let mut sorted = change.clone();
     sorted.sort_by(f32::total_cmp);
     let median = sorted[sorted.len() / 2] as f64;
@@ -387,22 +371,17 @@ fn scaled(px_at_512: u32, width: u32) -> u32 {
 /// `fraction * peak`, weighted by how far each pixel passes it.
 pub fn detect_imprint(frame: &RgbImage, reference: &RgbImage, options: &ImprintOptions) -> Result<Contact, DetectError> {
     let (w, h) = checked_size(frame, reference)?;
-    let luma = |p: &[u8]| p[0] as f64 * 0.299 + p[1] as f64 * 0.587 + p[2] as f64 * 0.114;
     let mut blend: Vec<f32> = frame
         .as_raw()
         .chunks_exact(3)
         .zip(reference.as_raw().chunks_exact(3))
         .map(|(f, r)| {
-            let (lf, lr) = (luma(f), luma(r));
+            let (lf, lr) = (luma_f64(f), luma_f64(r));
             ((lf - lr) / (options.white_level - lr).max(8.0)).clamp(-1.0, 1.5) as f32
         })
         .collect();
-    let c = options.close_px as usize;
-    running_extreme(&mut blend, w, h, c, true);
-    running_extreme(&mut blend, w, h, c, false);
-    for _ in 0..2 {
-        box_blur(&mut blend, w, h, options.blur_px as usize);
-    }
+    close_values(&mut blend, w, h, options.close_px as usize);
+    box_blur_repeated(&mut blend, w, h, options.blur_px as usize, 2, BoxBorder::Shrink);
     let (peak_i, peak) = blend.iter().enumerate().fold((0, f32::MIN), |best, (i, &v)| if v > best.1 { (i, v) } else { best });
     let peak = peak as f64;
     if !(peak >= options.min_blend) {
@@ -530,77 +509,16 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
 /// by how far it passes the threshold; the start pixel's centre when the region is flat.
 fn region_centroid(values: &[f32], w: usize, h: usize, start: usize, threshold: f64) -> ([f64; 2], usize) {
     let mut seen = vec![false; w * h];
-    let mut stack = vec![start];
-    seen[start] = true;
-    let (mut su, mut sv, mut sw, mut area) = (0.0f64, 0.0f64, 0.0f64, 0usize);
-    while let Some(i) = stack.pop() {
+    let region = flood_fill(values, w, h, start, threshold, &mut seen);
+    let (mut su, mut sv, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+    for &i in &region {
         let (x, y) = (i % w, i / w);
         let weight = values[i] as f64 - threshold;
         su += weight * (x as f64 + 0.5);
         sv += weight * (y as f64 + 0.5);
         sw += weight;
-        area += 1;
-        let neighbours = [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)];
-        for j in neighbours.into_iter().flatten() {
-            if !seen[j] && values[j] as f64 > threshold {
-                seen[j] = true;
-                stack.push(j);
-            }
-        }
     }
-    if sw > 0.0 { ([su / sw, sv / sw], area) } else { ([(start % w) as f64 + 0.5, (start / w) as f64 + 0.5], area) }
-}
-
-/// In-place running maximum (`max = true`) or minimum over a `(2r + 1)` square window
-/// (clamped at the borders), rows then columns.
-fn running_extreme(buf: &mut [f32], w: usize, h: usize, r: usize, max: bool) {
-    if r == 0 {
-        return;
-    }
-    let pick = |a: f32, b: f32| if max { a.max(b) } else { a.min(b) };
-    let mut line = Vec::new();
-    let mut pass = |buf: &mut [f32], n: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
-        for k in 0..count {
-            line.clear();
-            line.extend((0..n).map(|i| buf[index(k, i)]));
-            for i in 0..n {
-                let (lo, hi) = (i.saturating_sub(r), (i + r + 1).min(n));
-                buf[index(k, i)] = line[lo..hi].iter().copied().fold(line[i], pick);
-            }
-        }
-    };
-    pass(buf, w, h, &|row, i| row * w + i);
-    pass(buf, h, w, &|col, i| i * w + col);
-}
-
-/// In-place box blur of radius `r` (window `2r + 1`, clamped at the borders: the mean over the
-/// part of the window inside the image), rows then columns.
-pub(crate) fn box_blur(buf: &mut [f32], w: usize, h: usize, r: usize) {
-    if r == 0 {
-        return;
-    }
-    let mut line = Vec::new();
-    let mut prefix = Vec::new();
-    let mut pass = |buf: &mut [f32], n: usize, count: usize, index: &dyn Fn(usize, usize) -> usize| {
-        for k in 0..count {
-            line.clear();
-            line.extend((0..n).map(|i| buf[index(k, i)] as f64));
-            prefix.clear();
-            prefix.push(0.0);
-            let mut acc = 0.0;
-            for v in &line {
-                acc += v;
-                prefix.push(acc);
-            }
-            for i in 0..n {
-                let lo = i.saturating_sub(r);
-                let hi = (i + r + 1).min(n);
-                buf[index(k, i)] = ((prefix[hi] - prefix[lo]) / (hi - lo) as f64) as f32;
-            }
-        }
-    };
-    pass(buf, w, h, &|row, i| row * w + i);
-    pass(buf, h, w, &|col, i| i * w + col);
+    if sw > 0.0 { ([su / sw, sv / sw], region.len()) } else { ([(start % w) as f64 + 0.5, (start / w) as f64 + 0.5], region.len()) }
 }
 
 #[cfg(test)]

@@ -3,8 +3,8 @@
 //! A [`PressStation`] is what the run (and the interactive [`super::wizard`]) needs from the
 //! rig: a no-contact reference frame, and a press at a work-frame offset that returns what the
 //! camera saw. [`ArmStation`] implements it over the [`Arm`] and [`Camera`] seams with the
-//! collection job's own steps ([`crate::collect::go`], [`crate::collect::capture`]): move
-//! above, descend, wait for arrival, settle, capture, retract. So the same run calibrates the
+//! steps the collection job is built of ([`move_and_wait`], [`capture_settled`]): move above,
+//! descend, wait for arrival, settle, capture, retract. So the same run calibrates the
 //! simulated rig and a real bench.
 //!
 //! Each detected press gives one [`FitPoint`]: the indenter's position in the sensor frame
@@ -24,8 +24,8 @@ use image::RgbImage;
 use super::FitPoint;
 use super::detect::{Contact, ContactDetector, DetectError};
 use super::fit::{FitError, FitOptions, PointFit, fit_points};
-use crate::arm::{Arm, ArmError, MoveKind};
-use crate::camera::{Camera, CameraError};
+use crate::arm::{Arm, ArmError, MoveKind, move_and_wait};
+use crate::camera::{Camera, CameraError, capture_settled};
 use crate::config::CollectConfig;
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
@@ -182,8 +182,8 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
         self.arm.enable().await?;
         let above = self.work_frame.approach_pose(&Pose::default());
         let timeout = self.timeout();
-        let arrival = crate::collect::go(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
-        let (image, _) = crate::collect::capture(&mut self.camera, arrival.t_s + self.options.settle_s, &self.options).await?;
+        let arrival = move_and_wait(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
+        let (image, _) = capture_settled(&mut self.camera, arrival.t_s + self.options.settle_s, self.options.capture_settings()).await?;
         self.reference = Some(image);
         Ok(())
     }
@@ -192,10 +192,10 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
         let timeout = self.timeout();
         let above = self.work_frame.approach_pose(&offset);
         let contact_pose = self.work_frame.contact_pose(&offset);
-        crate::collect::go(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
-        let arrival = crate::collect::go(&mut *self.arm, contact_pose, MoveKind::Linear, timeout).await?;
-        let (image, _) = crate::collect::capture(&mut self.camera, arrival.t_s + self.options.settle_s, &self.options).await?;
-        crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
+        move_and_wait(&mut *self.arm, above, MoveKind::Joint, timeout).await?;
+        let arrival = move_and_wait(&mut *self.arm, contact_pose, MoveKind::Linear, timeout).await?;
+        let (image, _) = capture_settled(&mut self.camera, arrival.t_s + self.options.settle_s, self.options.capture_settings()).await?;
+        move_and_wait(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
         let reference = self.reference.as_ref().ok_or(PressError::NoReference)?;
         let contact = self.detector.detect(&image, reference);
         let measured = self.work_frame.plan_pose(&arrival.measured);
@@ -206,7 +206,7 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
     async fn finish(&mut self) -> Result<(), PressError> {
         let above = self.work_frame.approach_pose(&Pose::default());
         let timeout = self.timeout();
-        crate::collect::go(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
+        move_and_wait(&mut *self.arm, above, MoveKind::Linear, timeout).await?;
         self.arm.disable().await?;
         Ok(())
     }

@@ -3,6 +3,9 @@
 //! [`Camera`] is the only way the collection job reads a sensor. A [`Frame`] carries the time
 //! it was captured on the rig's clock, so the job can throw away frames exposed before the arm
 //! arrived. Backends: simulated sensors (`sim::sensor`), V4L2, nokhwa.
+//!
+//! [`capture_settled`] is the capture step the jobs are built of: a number of frames exposed
+//! after the arm settled, the last one or their mean.
 
 pub mod convert;
 pub mod nokhwa_backend;
@@ -10,6 +13,8 @@ pub mod usb;
 pub mod v4l2;
 
 use std::future::Future;
+
+use image::RgbImage;
 
 /// One RGB frame with its capture time.
 #[derive(Debug, Clone)]
@@ -45,4 +50,60 @@ pub trait Camera: Send {
     /// The next frame whose exposure started no earlier than `not_before_s` (rig clock);
     /// older buffered frames are dropped.
     fn frame_after(&mut self, not_before_s: f64) -> impl Future<Output = Result<Frame, CameraError>> + Send;
+}
+
+/// How [`capture_settled`] takes a pose's image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CaptureSettings {
+    /// Frames captured (at least one is).
+    pub frames: u32,
+    /// Keep their pixel mean rather than the last frame.
+    pub average: bool,
+}
+
+/// Captures `settings.frames` frames exposed after `not_before_s` (rig clock), each after the
+/// one before; returns the last frame (or the pixel mean when averaging) and the mean capture
+/// time.
+pub async fn capture_settled<C: Camera>(
+    camera: &mut C,
+    not_before_s: f64,
+    settings: CaptureSettings,
+) -> Result<(RgbImage, f64), CameraError> {
+    let n = settings.frames.max(1);
+    let mut frames: Vec<Frame> = Vec::with_capacity(n as usize);
+    let mut after = not_before_s;
+    for _ in 0..n {
+        let f = camera.frame_after(after).await?;
+        after = f.t_capture_s;
+        frames.push(f);
+    }
+    let t_mean = frames.iter().map(|f| f.t_capture_s).sum::<f64>() / frames.len() as f64;
+    if settings.average && frames.len() > 1 {
+        Ok((average(&frames), t_mean))
+    } else {
+        let last = frames.pop().map(|f| f.image).unwrap_or_default();
+        Ok((last, t_mean))
+    }
+}
+
+/// Pixel-wise mean of frames (frames of another size than the first are skipped), each
+/// channel rounded half up ([`crate::imaging::MeanImage`]).
+pub fn average(frames: &[Frame]) -> RgbImage {
+    let images: Vec<&RgbImage> = frames.iter().map(|f| &f.image).collect();
+    crate::imaging::mean_image(&images)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(v: u8) -> Frame {
+        Frame { image: RgbImage::from_pixel(2, 2, image::Rgb([v, v, v])), t_capture_s: 0.0, seq: 0 }
+    }
+
+    #[test]
+    fn average_rounds_the_mean() {
+        let a = average(&[frame(10), frame(21)]);
+        assert_eq!(a.get_pixel(1, 1).0, [16, 16, 16]);
+    }
 }

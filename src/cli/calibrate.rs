@@ -108,7 +108,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ));
         }
         let mut request = args.request();
-        request.out = request.out.as_deref().map(crate::cli::collect::absolute);
+        request.out = request.out.as_deref().map(super::shared::absolute);
         return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Calibrate(request));
     }
     let request = args.request();
@@ -178,7 +178,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
         };
         // Ctrl-C: the answer being waited for (or the next one, after the current press) reads
         // as a quit, so the wizard retracts the arm; nothing is saved.
-        let cancel = super::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;
+        let cancel = super::shared::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;
         let mut io = LineIo { input: std::io::BufReader::new(CancellableStdin::new(cancel.clone())), output: std::io::stdout() };
         let outcome = run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), &sensor_name, &out.display().to_string()).await?;
         let size = station.reference.as_ref().map(|r| [r.width(), r.height()]);
@@ -197,7 +197,7 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     }
     let total = pattern.offsets.len();
     // Ctrl-C: finish the current press, retract, disable, save nothing (as `rig collect`).
-    let cancel = super::cancel_on_interrupt("finishing the current press, then retracting and disabling the arm")?;
+    let cancel = super::shared::cancel_on_interrupt("finishing the current press, then retracting and disabling the arm")?;
     let observer = Observer { progress: indicatif::ProgressBar::hidden(), cancel };
     let mut print = |k: usize, press: &Press| match &press.contact {
         Ok(c) => {
@@ -355,21 +355,16 @@ fn rig_dataset_frames(dir: &Path) -> anyhow::Result<KnownFrames> {
     Ok((frames, reference))
 }
 
-/// The MultiDiffSense example: its logged poses and frames; reference = per-pixel median.
+/// The MultiDiffSense example: its frames with their logged poses (work frame, like a rig
+/// dataset's); reference = per-pixel median.
 fn multidiffsense_frames(dir: &Path, kind: SensorKind) -> anyhow::Result<KnownFrames> {
-    let sample = crate::cli::compare::load_real_sample(dir)?;
-    let list = sample.frames.get(kind.label()).with_context(|| format!("{}: no {} frames", dir.display(), kind.label()))?;
-    let images: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
+    let sample = crate::eval::compare_real::RealSample::load(dir)?;
+    let images: Vec<&RgbImage> = sample.frames_of(kind).iter().map(|(_, img)| img).collect();
     if images.is_empty() {
         bail!("{}: no {} frames", dir.display(), kind.label());
     }
-    let reference = crate::cli::compare::median_image(&images);
-    let mut frames = Vec::new();
-    for (i, img) in list {
-        let pose = sample.poses.get(i).copied().with_context(|| format!("no pose row for frame {i}"))?;
-        frames.push((format!("1_{}_{i}.png", kind.label()), pose, img.clone()));
-    }
-    Ok((frames, reference))
+    let reference = crate::imaging::median_image(&images);
+    Ok((sample.posed_frames(kind, crate::eval::compare_real::RealSample::work_pose)?, reference))
 }
 
 fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {

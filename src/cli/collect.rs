@@ -7,6 +7,7 @@ use std::sync::Arc;
 use anyhow::{Context, bail};
 use clap::Args;
 
+use super::shared::absolute;
 use crate::config::RigConfig;
 use crate::jobs::collect::{CollectRequest, SensorFeed};
 use crate::jobs::{JobRequest, Observer};
@@ -70,11 +71,6 @@ impl CollectArgs {
     }
 }
 
-/// `path` from this directory, for a daemon that may run in another.
-pub fn absolute(path: &std::path::Path) -> PathBuf {
-    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
-}
-
 /// Runs `rig collect`.
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
     if args.daemon.daemon.is_some() {
@@ -133,7 +129,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         feeds.push(SensorFeed { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), sensor, calibration });
     }
 
-    let cancel = super::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
+    let cancel = super::shared::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
     let progress = indicatif::ProgressBar::new(setup.poses.len() as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")

@@ -6,55 +6,29 @@
 //!
 //! For each sensor (TacTip, ViTac, ViTacTip) and each real frame 0-5 of the sample it renders
 //! the straight edge (`stl/1.stl`) at the logged pose through `calibration/mds-example-<sensor>.toml`
-//! and prints SSIM against the real frame over the whole frame and over the contact region,
-//! next to the pose-blind baseline (the mean of the other real frames of that sensor).
+//! with the sensor simulator and prints SSIM against the real frame over the whole frame and
+//! over the contact region, next to the pose-blind baseline (the mean of the other real frames
+//! of that sensor). The comparison is [`crate::eval::compare_real`]; the logged pose's depth
+//! convention is [`crate::dataset::export`]'s. This command parses, wires the simulator in as
+//! the renderer and prints.
 //!
-//! - Logged pose to render pose: x, y, yaw as logged; indentation = 1.5 mm (the contact depth
-//!   of the collection, `WorkFrame::contact_depth_mm`) - the logged z. The sign is read off the
-//!   frames: the two frames with the lowest z (2 and 3, z = -0.77 and -0.93 mm) show the
-//!   largest contact regions on all three sensors and the largest TacTip pin shifts (3-5 px,
-//!   against 0-1 px for frames 4 and 5), and rendering with `+ z` lowers the TacTip
-//!   contact-region SSIM from 0.420 to 0.381 with everything else equal.
-//! - The simulator starts from the median of the sensor's *other* real frames
-//!   ([`simulator_reference`], leave one out) and renders the scene of [`comparison_scene`]
-//!   (no noise); `--procedural` uses its modelled look instead, `--scene` another scene.
-//! - No-contact look: per pixel, the median of the sensor's real frames whose rendered
-//!   footprint (dilated by [`FOOTPRINT_MARGIN_PX`]) does not cover that pixel (all frames where
-//!   every frame covers it). There is no real no-contact frame in the sample.
-//! - Contact region of a frame: pixels whose summed absolute RGB difference from the
-//!   no-contact look exceeds [`CONTACT_THRESHOLD`]. Footprint IoU: overlap of that region with
-//!   the rendered footprint, a check of the calibration independent of the simulator.
-//! - `--fit` first refits the calibrations (see `calibration::contact_fit`) and writes them.
+//! - The simulator starts from the median of the sensor's *other* real frames (leave one out)
+//!   and renders the scene of [`comparison_scene`] (no noise); `--procedural` uses its
+//!   modelled look instead, `--scene` another scene.
+//! - `--fit` first refits the calibrations (`calibration::contact_fit::fit_sensor`, in
+//!   `FIT_ORDER`, each seeded with the ones before) and writes them.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::Args as ClapArgs;
-use image::{Rgb, RgbImage, imageops};
 
 use super::sensor_bridge::{render_tactile_with, simulator_available};
 use crate::calibration::Calibration;
-use crate::calibration::contact_fit::{ContactFitOptions, FitFrame, FitTarget, fit_contact};
-use crate::geometry::raster::render_depth;
-use crate::geometry::stl::Mesh;
-use crate::metrics::{ssim, ssim_masked};
-use crate::pose::Pose;
+use crate::calibration::contact_fit::{FIT_ORDER, FitFrame, fit_sensor};
+use crate::eval::compare_real::{CompareOptions, FrameScores, RealSample, compare_sensor};
 use crate::sensor::SensorKind;
 use crate::sim::sensor::{Scene, Stage};
-
-/// Indentation at logged z = 0, mm (MultiDiffSense collects at about 1.5 mm); the indentation
-/// of a frame is this minus its logged z.
-pub const CONTACT_DEPTH_MM: f64 = 1.5;
-/// Margin around a rendered footprint that counts as "touched" for the no-contact estimate, px.
-pub const FOOTPRINT_MARGIN_PX: u32 = 16;
-/// Summed |RGB| difference from the no-contact look that makes a pixel part of the contact region.
-pub const CONTACT_THRESHOLD: u32 = 60;
-/// Frames compared (the sample holds 0-5; 6-10 are held back upstream).
-pub const FRAMES: std::ops::RangeInclusive<usize> = 0..=5;
-
-/// Fit order: the sharpest outlines first, so their result seeds the others.
-pub const FIT_ORDER: [SensorKind; 3] = [SensorKind::ViTacTip, SensorKind::ViTac, SensorKind::TacTip];
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -80,208 +54,11 @@ pub struct Args {
     pub out: Option<PathBuf>,
 }
 
-/// The real sample: the object, the logged poses (render convention) and the frames.
-pub struct RealSample {
-    pub mesh: Mesh,
-    /// Render pose per image index.
-    pub poses: BTreeMap<usize, Pose>,
-    /// Frames per sensor, (image index, image), in index order.
-    pub frames: BTreeMap<&'static str, Vec<(usize, RgbImage)>>,
-}
-
 /// Default sample folder: `$RIG_SHARED/real-sample/multidiffsense-example` (RIG_SHARED
 /// defaults to `../shared`).
 pub fn default_sample_dir() -> PathBuf {
     let shared = std::env::var("RIG_SHARED").unwrap_or_else(|_| "../shared".to_string());
     Path::new(&shared).join("real-sample/multidiffsense-example")
-}
-
-/// Reads the Lepora/MultiDiffSense pose CSV: image index -> render pose. Rows with an empty
-/// pose (the unfilled template rows) are skipped.
-pub fn read_lepora_poses(path: &Path) -> anyhow::Result<BTreeMap<usize, Pose>> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut poses = BTreeMap::new();
-    for row in crate::dataset::export::parse_mds(&bytes, path)? {
-        // image_name is frame_<i>_0.png.
-        let index = row
-            .image_name
-            .strip_prefix("frame_")
-            .and_then(|s| s.split('_').next())
-            .and_then(|s| s.parse::<usize>().ok())
-            .with_context(|| format!("{}: image_name {:?} is not frame_<i>_0.png", path.display(), row.image_name))?;
-        // Logged z grows away from the object (see the module docs): a lower z presses deeper.
-        poses.insert(index, Pose::new(row.pose[0], row.pose[1], CONTACT_DEPTH_MM - row.pose[2], row.pose[5]));
-    }
-    Ok(poses)
-}
-
-/// Loads the sample folder (object 1).
-pub fn load_real_sample(dir: &Path) -> anyhow::Result<RealSample> {
-    let mesh = Mesh::load(dir.join("stl/1.stl"))?;
-    let poses = read_lepora_poses(&dir.join("csv/1.csv"))?;
-    let mut frames = BTreeMap::new();
-    for sensor in SensorKind::ALL {
-        let name = sensor.label();
-        let mut list: Vec<(usize, RgbImage)> = Vec::new();
-        for i in FRAMES {
-            let p = dir.join(format!("tactile/1/{name}/target/1_{name}_{i}.png"));
-            if !p.is_file() {
-                continue;
-            }
-            let img = image::open(&p).with_context(|| format!("reading {}", p.display()))?.to_rgb8();
-            // The per-pixel statistics below need one size per sensor.
-            if let Some((_, first)) = list.first()
-                && first.dimensions() != img.dimensions()
-            {
-                bail!(
-                    "{}: {}x{} differs from the sensor's other frames ({}x{})",
-                    p.display(),
-                    img.width(),
-                    img.height(),
-                    first.width(),
-                    first.height()
-                );
-            }
-            if img.width() < 16 || img.height() < 16 {
-                bail!("{}: {}x{} is too small to compare", p.display(), img.width(), img.height());
-            }
-            list.push((i, img));
-        }
-        frames.insert(name, list);
-    }
-    Ok(RealSample { mesh, poses, frames })
-}
-
-fn pose_of(sample: &RealSample, index: usize) -> anyhow::Result<Pose> {
-    sample.poses.get(&index).copied().with_context(|| format!("no pose row for frame {index}"))
-}
-
-/// Per-pixel median of `frames` (upper median for even counts).
-pub fn median_image(frames: &[&RgbImage]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    RgbImage::from_fn(w, h, |x, y| median_pixel(frames.iter().copied(), x, y))
-}
-
-/// Channel-wise upper median of the pixel (x, y) over `frames` (black for none).
-fn median_pixel<'a>(frames: impl Iterator<Item = &'a RgbImage> + Clone, x: u32, y: u32) -> Rgb<u8> {
-    let mut px = [0u8; 3];
-    for (k, out) in px.iter_mut().enumerate() {
-        let mut v: Vec<u8> = frames.clone().map(|f| f.get_pixel(x, y).0[k]).collect();
-        v.sort_unstable();
-        *out = v.get(v.len() / 2).copied().unwrap_or(0);
-    }
-    Rgb(px)
-}
-
-/// Per-pixel mean of `frames`.
-pub fn mean_image(frames: &[&RgbImage]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    let n = frames.len().max(1) as f64;
-    RgbImage::from_fn(w, h, |x, y| {
-        let mut px = [0u8; 3];
-        for (k, out) in px.iter_mut().enumerate() {
-            *out = (frames.iter().map(|f| f.get_pixel(x, y).0[k] as f64).sum::<f64>() / n).round() as u8;
-        }
-        Rgb(px)
-    })
-}
-
-/// No-contact look: per pixel the median over frames whose footprint does not cover it
-/// (over all frames where every footprint covers it).
-pub fn no_contact_estimate(frames: &[&RgbImage], covered: &[Vec<bool>]) -> RgbImage {
-    let (w, h) = frames.first().map(|f| f.dimensions()).unwrap_or((0, 0));
-    RgbImage::from_fn(w, h, |x, y| {
-        let i = (y * w + x) as usize;
-        let free = frames.iter().zip(covered).filter(|(_, c)| !c[i]).map(|(f, _)| *f);
-        if free.clone().next().is_some() { median_pixel(free, x, y) } else { median_pixel(frames.iter().copied(), x, y) }
-    })
-}
-
-/// Pixels whose summed |RGB| difference from `reference` exceeds `threshold`.
-pub fn difference_mask(frame: &RgbImage, reference: &RgbImage, threshold: u32) -> Vec<bool> {
-    frame
-        .pixels()
-        .zip(reference.pixels())
-        .map(|(a, b)| (0..3).map(|k| (a.0[k] as i32 - b.0[k] as i32).unsigned_abs()).sum::<u32>() > threshold)
-        .collect()
-}
-
-/// Square dilation of a mask by `r` pixels.
-pub fn dilate(mask: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
-    let (w, h, r) = (w as usize, h as usize, r as usize);
-    let mut rows = vec![false; mask.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let lo = x.saturating_sub(r);
-            let hi = (x + r).min(w - 1);
-            rows[y * w + x] = mask[y * w + lo..=y * w + hi].iter().any(|&m| m);
-        }
-    }
-    let mut out = vec![false; mask.len()];
-    for y in 0..h {
-        let lo = y.saturating_sub(r);
-        let hi = (y + r).min(h - 1);
-        for x in 0..w {
-            out[y * w + x] = (lo..=hi).any(|yy| rows[yy * w + x]);
-        }
-    }
-    out
-}
-
-/// Intersection over union of two masks (0 when both are empty).
-pub fn iou(a: &[bool], b: &[bool]) -> f64 {
-    let inter = a.iter().zip(b).filter(|(x, y)| **x && **y).count();
-    let union = a.iter().zip(b).filter(|(x, y)| **x || **y).count();
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
-}
-
-/// Fit target per sensor: outlines for see-through skins, marker displacement for TacTip.
-pub fn fit_target(sensor: SensorKind, frames: &[&RgbImage]) -> FitTarget {
-    match sensor {
-        SensorKind::TacTip => FitTarget::Difference { reference: median_image(frames) },
-        SensorKind::ViTac | SensorKind::ViTacTip => FitTarget::Edges,
-    }
-}
-
-/// Fits `calibration/mds-example-<sensor>.toml` for one sensor of the sample.
-pub fn fit_sensor(
-    sample: &RealSample,
-    sensor: SensorKind,
-    seeds: &[Calibration],
-) -> anyhow::Result<crate::calibration::contact_fit::ContactFit> {
-    let list = sample.frames.get(sensor.label()).map(Vec::as_slice).unwrap_or(&[]);
-    if list.is_empty() {
-        bail!("no {} frames in the sample", sensor.label());
-    }
-    let frames: Vec<FitFrame> = list
-        .iter()
-        .map(|(i, img)| Ok(FitFrame { name: format!("1_{}_{i}.png", sensor.label()), pose: pose_of(sample, *i)?, image: img.clone() }))
-        .collect::<anyhow::Result<_>>()?;
-    let refs: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
-    let target = fit_target(sensor, &refs);
-    let full = list[0].1.width();
-    let mut opts = ContactFitOptions { extra_starts: seeds.to_vec(), final_size: Some(full), ..ContactFitOptions::default() };
-    if sensor == SensorKind::TacTip && !seeds.is_empty() {
-        // Markers alone barely constrain the pose correction, which belongs to the pose log
-        // (shared by all three sensors), not to the camera: take the see-through sensors' mean.
-        opts.fit_pose_correction = false;
-        opts.fixed_pose_correction = Some(mean_correction(seeds));
-    }
-    Ok(fit_contact(&sample.mesh, &frames, &target, &opts)?)
-}
-
-/// Element-wise mean of the seeds' pose corrections (identity where a seed has none).
-fn mean_correction(seeds: &[Calibration]) -> [[f64; 2]; 2] {
-    let mut m = [[0.0; 2]; 2];
-    for c in seeds {
-        let s = c.pose_xy_correction.unwrap_or([[1.0, 0.0], [0.0, 1.0]]);
-        for r in 0..2 {
-            for k in 0..2 {
-                m[r][k] += s[r][k] / seeds.len() as f64;
-            }
-        }
-    }
-    m
 }
 
 /// The scene the comparison renders by default: every stage except `noise` and
@@ -293,145 +70,47 @@ pub fn comparison_scene() -> Scene {
     Scene::with_stages("compare", &stages)
 }
 
-/// The measured no-contact look the simulator starts from: the per-pixel median of the
-/// *other* real frames of the sensor only (leave one out: the simulator never sees the frame it
-/// is scored on, and has the same information as the baseline). One median over the same
-/// frames everywhere keeps the pins whole (they shift a little between frames; switching frame
-/// sets per pixel, as the footprint-aware `no_contact_estimate` does, tears them).
-pub fn simulator_reference(others: &[&RgbImage]) -> RgbImage {
-    median_image(others)
-}
-
-/// Scores of one frame.
-#[derive(Debug, Clone, Copy)]
-pub struct FrameScores {
-    pub index: usize,
-    pub contact_fraction: f64,
-    pub footprint_iou: f64,
-    pub baseline_whole: f64,
-    pub baseline_contact: f64,
-    pub sim_whole: Option<f64>,
-    pub sim_contact: Option<f64>,
-}
-
-/// Compares one sensor; writes panels into `out` if given.
-/// `procedural`: render the simulator's own modelled look instead of starting from the
-/// measured (leave-one-out) no-contact look.
-pub fn compare_sensor(
-    sample: &RealSample,
-    sensor: SensorKind,
-    calib: &Calibration,
-    out: Option<&Path>,
-    procedural: bool,
-    scene: &Scene,
-) -> anyhow::Result<Vec<FrameScores>> {
-    let list = sample.frames.get(sensor.label()).map(Vec::as_slice).unwrap_or(&[]);
-    if list.len() < 2 {
-        bail!("{}: need at least two real frames, have {}", sensor.label(), list.len());
-    }
-    let (w, h) = list[0].1.dimensions();
-    let calib = calib.scaled_to(w, h);
-    let mut depths = Vec::new();
-    let mut footprints = Vec::new();
-    for (i, _) in list {
-        let d = render_depth(&sample.mesh, &pose_of(sample, *i)?, &calib, w, h, 2);
-        footprints.push(d.height_mm.iter().map(|&v| v > 0.0).collect::<Vec<bool>>());
-        depths.push(d);
-    }
-    let covered: Vec<Vec<bool>> = footprints.iter().map(|f| dilate(f, w, h, FOOTPRINT_MARGIN_PX)).collect();
-    let all: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
-    let no_contact = no_contact_estimate(&all, &covered);
-    let mut scores = Vec::new();
-    for (k, (index, real)) in list.iter().enumerate() {
-        let others: Vec<&RgbImage> = all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, f)| *f).collect();
-        let baseline = mean_image(&others);
-        let mask = difference_mask(real, &no_contact, CONTACT_THRESHOLD);
-        let contact_fraction = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
-        // The simulator's static look: the no-contact look measured on the *other* frames
-        // (leave one out), the same information the baseline has; the simulator adds the contact.
-        let reference = (!procedural).then(|| simulator_reference(&others));
-        let sim = render_tactile_with(sensor, &depths[k], &calib, *index as u64, scene, reference.as_ref()).ok();
-        let masked = |img: &RgbImage| ssim_masked(real, img, &mask).ok();
-        let s = FrameScores {
-            index: *index,
-            contact_fraction,
-            footprint_iou: iou(&footprints[k], &mask),
-            baseline_whole: ssim(real, &baseline)?,
-            baseline_contact: masked(&baseline).unwrap_or(f64::NAN),
-            sim_whole: sim.as_ref().map(|s| ssim(real, s)).transpose()?,
-            sim_contact: sim.as_ref().and_then(masked),
-        };
-        if let Some(dir) = out {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-            let panel = panel(real, &baseline, &footprints[k], &mask, sim.as_ref());
-            let p = dir.join(format!("{sensor}_{index}.png"));
-            panel.save(&p).with_context(|| format!("writing {}", p.display()))?;
+/// Fits `calibration/mds-example-<sensor>.toml` for each sensor of the sample, in
+/// [`FIT_ORDER`], each fit seeded with the ones before (same rig, same pose log).
+fn fit_all(sample: &RealSample, calibration_dir: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(calibration_dir).with_context(|| format!("creating {}", calibration_dir.display()))?;
+    let mut seeds: Vec<Calibration> = Vec::new();
+    for sensor in FIT_ORDER {
+        let frames: Vec<FitFrame> = sample
+            .posed_frames(sensor, RealSample::render_pose)?
+            .into_iter()
+            .map(|(name, pose, image)| FitFrame { name, pose, image })
+            .collect();
+        if frames.is_empty() {
+            anyhow::bail!("no {} frames in the sample", sensor.label());
         }
-        scores.push(s);
+        let fit = fit_sensor(&sample.mesh, sensor, &frames, &seeds)?;
+        seeds.push(fit.calibration.clone());
+        let path = calibration_dir.join(format!("mds-example-{sensor}.toml"));
+        fit.calibration.save(&path)?;
+        let c = &fit.calibration;
+        println!(
+            "fitted {}: centre ({:.1}, {:.1}) px, scale ({:.2}, {:.2}) px/mm, rotation {:.1} deg, correlation {:.3}, residual per frame [{}] px -> {}",
+            sensor.label(),
+            c.centre_px[0],
+            c.centre_px[1],
+            c.scale_px_per_mm[0],
+            c.scale_px_per_mm[1],
+            c.rotation_deg,
+            fit.score,
+            fit.residuals_px.iter().map(|r| format!("{r:.1}")).collect::<Vec<_>>().join(", "),
+            path.display()
+        );
     }
-    if let Some(dir) = out {
-        let p = dir.join(format!("{sensor}_no_contact.png"));
-        no_contact.save(&p).with_context(|| format!("writing {}", p.display()))?;
-    }
-    Ok(scores)
-}
-
-/// real | baseline | real with footprint outline | contact region | simulator (if any).
-fn panel(real: &RgbImage, baseline: &RgbImage, footprint: &[bool], mask: &[bool], sim: Option<&RgbImage>) -> RgbImage {
-    let (w, h) = real.dimensions();
-    let mut overlay = real.clone();
-    for (i, px) in overlay.pixels_mut().enumerate() {
-        if footprint[i] {
-            px.0 = [px.0[0] / 2 + 127, px.0[1] / 2, px.0[2] / 2];
-        }
-    }
-    let region = RgbImage::from_fn(w, h, |x, y| {
-        let i = (y * w + x) as usize;
-        match (mask[i], footprint[i]) {
-            (true, true) => Rgb([255, 255, 255]),
-            (true, false) => Rgb([0, 160, 255]),
-            (false, true) => Rgb([255, 60, 0]),
-            (false, false) => Rgb([0, 0, 0]),
-        }
-    });
-    let mut tiles = vec![real.clone(), baseline.clone(), overlay, region];
-    if let Some(s) = sim {
-        tiles.push(s.clone());
-    }
-    let mut out = RgbImage::new(w * tiles.len() as u32, h);
-    for (k, t) in tiles.iter().enumerate() {
-        imageops::replace(&mut out, t, (k as u32 * w) as i64, 0);
-    }
-    out
+    Ok(())
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = args.sample.clone().unwrap_or_else(default_sample_dir);
     let sample =
-        load_real_sample(&dir).with_context(|| format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display()))?;
+        RealSample::load(&dir).with_context(|| format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display()))?;
     if args.fit {
-        std::fs::create_dir_all(&args.calibration_dir).with_context(|| format!("creating {}", args.calibration_dir.display()))?;
-        // Same rig and pose log for all three: each fit also starts from the ones before it.
-        let mut seeds: Vec<Calibration> = Vec::new();
-        for sensor in FIT_ORDER {
-            let fit = fit_sensor(&sample, sensor, &seeds)?;
-            seeds.push(fit.calibration.clone());
-            let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
-            fit.calibration.save(&path)?;
-            let c = &fit.calibration;
-            println!(
-                "fitted {}: centre ({:.1}, {:.1}) px, scale ({:.2}, {:.2}) px/mm, rotation {:.1} deg, correlation {:.3}, residual per frame [{}] px -> {}",
-                sensor.label(),
-                c.centre_px[0],
-                c.centre_px[1],
-                c.scale_px_per_mm[0],
-                c.scale_px_per_mm[1],
-                c.rotation_deg,
-                fit.score,
-                fit.residuals_px.iter().map(|r| format!("{r:.1}")).collect::<Vec<_>>().join(", "),
-                path.display()
-            );
-        }
+        fit_all(&sample, &args.calibration_dir)?;
     }
     println!("SSIM against the real frames (mean over frames; contact = pixels differing from the no-contact look)");
     println!(
@@ -442,11 +121,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(spec) => Scene::preset_or_file(spec)?,
         None => comparison_scene(),
     };
+    let options = CompareOptions { measured_reference: !args.procedural, panels: args.out.clone() };
     let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
     for sensor in SensorKind::ALL {
         let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
         let calib = Calibration::load(&path).with_context(|| format!("{}: run with --fit to create {}", sensor.label(), path.display()))?;
-        let scores = compare_sensor(&sample, sensor, &calib, args.out.as_deref(), args.procedural, &scene)?;
+        let render =
+            |depth: &_, calib: &_, seed, reference: Option<&_>| render_tactile_with(sensor, depth, calib, seed, &scene, reference).ok();
+        let scores = compare_sensor(&sample, sensor, &calib, &render, &options)?;
         for s in &scores {
             println!(
                 "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",

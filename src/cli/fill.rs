@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 
-use super::synth::{RuntimeArgs, SamplingArgs};
+use super::shared::{RuntimeArgs, SamplingArgs};
 use crate::jobs::fill::{FillReport, FillRequest};
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::synth::Pipeline;
@@ -104,7 +104,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
                 "--daemon runs the job on the daemon with its own ONNX Runtime: drop --dry-run and --ort-lib, or run it standalone"
             ));
         }
-        use crate::cli::collect::absolute;
+        use super::shared::absolute;
         let request = FillRequest {
             dataset: absolute(&request.dataset),
             poses_of: request.poses_of.as_deref().map(absolute),

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use clap::{CommandFactory, Subcommand};
+use clap::Subcommand;
 
 /// Arguments of `rig generate`.
 #[derive(Debug, clap::Args)]
@@ -35,32 +35,33 @@ pub enum What {
     },
 }
 
-/// Runs `rig generate`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// Runs `rig generate` for `command`, the whole command-line interface (`Cli::command()`; the
+/// dispatcher passes it in so this module does not import it).
+pub fn run(args: Args, mut command: clap::Command) -> anyhow::Result<()> {
     match args.what {
         What::Man { out } => {
-            let pages = write_man_pages(&out)?;
+            let pages = write_man_pages(command, &out)?;
             println!("wrote {} man pages into {}", pages.len(), out.display());
             Ok(())
         }
         What::Completions { shell, out: Some(out) } => {
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            let path = clap_complete::generate_to(shell, &mut crate::cli::Cli::command(), "rig", &out)
+            let path = clap_complete::generate_to(shell, &mut command, "rig", &out)
                 .with_context(|| format!("writing {shell} completions into {}", out.display()))?;
             println!("wrote {}", path.display());
             Ok(())
         }
         What::Completions { shell, out: None } => {
-            clap_complete::generate(shell, &mut crate::cli::Cli::command(), "rig", &mut std::io::stdout());
+            clap_complete::generate(shell, &mut command, "rig", &mut std::io::stdout());
             Ok(())
         }
     }
 }
 
-/// Writes `rig.1` and a page per (nested) subcommand into `out`; returns their paths.
-pub fn write_man_pages(out: &Path) -> anyhow::Result<Vec<PathBuf>> {
+/// Writes `rig.1` and a page per (nested) subcommand of `command` into `out`; returns their paths.
+pub fn write_man_pages(command: clap::Command, out: &Path) -> anyhow::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    clap_mangen::generate_to(crate::cli::Cli::command(), out).with_context(|| format!("writing man pages into {}", out.display()))?;
+    clap_mangen::generate_to(command, out).with_context(|| format!("writing man pages into {}", out.display()))?;
     let mut pages: Vec<PathBuf> = std::fs::read_dir(out)
         .with_context(|| format!("listing {}", out.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -73,7 +74,7 @@ pub fn write_man_pages(out: &Path) -> anyhow::Result<Vec<PathBuf>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
+    use clap::{CommandFactory, Parser};
 
     /// Every command and subcommand, by its path of names (`["synth", "one"]`).
     fn all_commands(cmd: &clap::Command, path: Vec<String>, into: &mut Vec<(Vec<String>, clap::Command)>) {
@@ -119,7 +120,7 @@ mod tests {
     #[test]
     fn man_pages_cover_every_subcommand_and_show_the_examples() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let pages = write_man_pages(dir.path()).expect("man pages");
+        let pages = write_man_pages(crate::cli::Cli::command(), dir.path()).expect("man pages");
         let names: Vec<String> = pages.iter().filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).collect();
         for expected in ["rig.1", "rig-collect.1", "rig-synth-one.1", "rig-dataset-verify.1", "rig-generate-completions.1"] {
             assert!(names.iter().any(|n| n == expected), "{expected} missing from {names:?}");

@@ -3,7 +3,7 @@
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 pub mod bench;
 pub mod calibrate;
@@ -16,6 +16,7 @@ pub mod eval;
 pub mod examples;
 pub mod fill;
 pub mod generate;
+pub mod shared;
 pub mod objects;
 pub mod plan;
 pub mod render;
@@ -119,7 +120,7 @@ pub fn main() -> ExitCode {
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Bench(args) => bench::run(args),
-        Command::Generate(args) => generate::run(args),
+        Command::Generate(args) => generate::run(args, Cli::command()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -143,23 +144,6 @@ fn end_quietly_when_stdout_closes() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-}
-
-/// A cancel flag for a job that stops at its next safe point: it turns true at the first Ctrl-C
-/// (SIGINT), which is then announced on stderr with `what` (e.g. "finishing the current pose,
-/// then retracting and disabling the arm"). The listener is in place when this returns, so no
-/// interrupt after it is missed; from then on Ctrl-C no longer kills rig. Needs a Tokio runtime.
-pub(crate) fn cancel_on_interrupt(what: &'static str) -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
-    use anyhow::Context;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt()).context("listening for Ctrl-C")?;
-    let (tx, rx) = tokio::sync::watch::channel(false);
-    tokio::spawn(async move {
-        if sigint.recv().await.is_some() {
-            eprintln!("interrupt: {what}");
-            let _ = tx.send(true);
-        }
-    });
-    Ok(rx)
 }
 
 pub use crate::report::{ExitStatus, UsageError, error_report, exit_code, usage};

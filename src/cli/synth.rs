@@ -14,7 +14,8 @@ use clap::{Args as ClapArgs, Subcommand};
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
 use crate::synth::package::Sampling;
-use crate::synth::{ExecutionProviderKind, GenerateRequest, Pipeline, RuntimeOptions, SchedulerKind};
+use super::shared::{RuntimeArgs, SamplingArgs};
+use crate::synth::{GenerateRequest, Pipeline};
 
 /// `rig synth` arguments.
 #[derive(Debug, ClapArgs)]
@@ -35,51 +36,6 @@ pub enum SynthCommand {
     /// Show a model package: config, tensors, hash.
     #[command(after_help = crate::cli::examples::SYNTH_INFO)]
     Info(InfoArgs),
-}
-
-/// Sampling settings, the same flags in every synth mode. Each one left out takes the model
-/// package's own (`model.toml`), else rig's fallback: 20 steps unguided for a fill, 50 steps
-/// at guidance 9 (MultiDiffSense's paper) for `synth one`.
-#[derive(Debug, Clone, ClapArgs)]
-pub struct SamplingArgs {
-    /// Sampling steps [default: the package's `sampling_steps`, else 20 (fill) or 50 (one)].
-    #[arg(long)]
-    pub steps: Option<usize>,
-    /// Classifier-free guidance scale (1: unguided, half the work, as MultiDiffSense's scripts
-    /// save) [default: the package's `guidance`, else 1 (fill) or 9 (one)].
-    #[arg(long)]
-    pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    #[arg(long, default_value_t = 0.0)]
-    pub eta: f32,
-    /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
-    #[arg(long, alias = "scheduler")]
-    pub sampler: Option<SchedulerKind>,
-    /// ControlNet conditioning scale: how strongly the depth-map hint steers the image (1: as
-    /// the model was trained).
-    #[arg(long, default_value_t = 1.0)]
-    pub conditioning_scale: f32,
-}
-
-/// Where ONNX Runtime comes from and where it runs.
-#[derive(Debug, Clone, ClapArgs)]
-pub struct RuntimeArgs {
-    /// ONNX Runtime library (libonnxruntime.so) or its folder. Default: $RIG_ORT_LIB,
-    /// $ORT_DYLIB_PATH, then .rig/onnxruntime/ (filled by scripts/setup.sh).
-    #[arg(long, value_name = "PATH")]
-    pub ort_lib: Option<PathBuf>,
-    /// Execution provider: cpu, cuda or tensorrt (the latter two need a GPU build of ONNX Runtime).
-    #[arg(long, default_value = "cpu")]
-    pub provider: ExecutionProviderKind,
-    /// CPU threads per model (default: ONNX Runtime's choice).
-    #[arg(long)]
-    pub threads: Option<usize>,
-}
-
-impl RuntimeArgs {
-    pub fn options(&self) -> RuntimeOptions {
-        RuntimeOptions { ort_lib: self.ort_lib.clone(), provider: self.provider, intra_threads: self.threads }
-    }
 }
 
 /// `rig synth one`.
@@ -261,7 +217,7 @@ mod tests {
     fn one_parses_with_prompt_or_pose() {
         let one = parse_one(&["--prompt", "p", "--steps", "4", "--scheduler", "dpm++2m", "--size", "64x64"]).unwrap();
         let s = &one.sampling;
-        assert_eq!((s.steps, s.guidance, s.sampler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
+        assert_eq!((s.steps, s.guidance, s.sampler, one.size), (Some(4), None, Some(crate::synth::SchedulerKind::DpmSolverPp2m), Some((64, 64))));
         let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
         assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");

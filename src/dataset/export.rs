@@ -9,7 +9,7 @@
 //! | `data_name` | `frame_<i>` |
 //! | `obj_id` | object id |
 //! | `pose_id` | 1-based row index (not rig's grid id) |
-//! | `pose_1`, `pose_2`, `pose_3` | x mm, y mm, z mm (indentation) |
+//! | `pose_1`, `pose_2`, `pose_3` | x mm, y mm, z mm (the tool's height offset, see below) |
 //! | `pose_4`, `pose_5` | unused, 0 |
 //! | `pose_6` | yaw deg |
 //! | `move_1..move_6` | per-pose perturbation, 0 in rig's exports |
@@ -17,6 +17,23 @@
 //! Upstream files are 500-row templates whose unfilled rows are all empty (`,,,`);
 //! [`import_mds`] skips those. Numbers are written in Rust's shortest round-trip form, so an
 //! import-export-import cycle keeps every value bit for bit.
+//!
+//! **Depth convention.** `pose_3` is the tool's logged z offset from the nominal contact
+//! height, positive *up*, away from the object: a lower `pose_3` presses deeper. The skin
+//! indentation (the `z_mm` of a render pose, [`crate::geometry::raster`]) is
+//! [`MDS_CONTACT_DEPTH_MM`] `- pose_3`, and rig's work-frame z (the extra indentation beyond
+//! the contact depth, positive deeper, [`crate::pose::WorkFrame`]) is `-pose_3`: that is what
+//! [`MdsRow::work_pose`] returns and [`mds_rows_from`] writes back. Read off the real sample
+//! (`../shared/real-sample/multidiffsense-example`): frames 0 and 2 press the edge at the same
+//! place and yaw (x, y, yaw = -3.06, -2.04, -89.8 and -3.22, -2.01, -89.0) at `pose_3` = +0.80
+//! and -0.77 mm, and frame 2 shows the deeper press on every sensor that has both: the TacTip's
+//! 20 largest pin shifts average 5.2 px against 3.8 px (100 pins move more than 1 px against
+//! 73), the ViTac imprint's outline is larger (radius 35.8 against 32.5 px) and its contact
+//! region covers 4.7 % of the frame against 3.0 %. Over all six frames the two lowest `pose_3`
+//! (frames 2 and 3) move the TacTip's pins most. The nominal depth itself is not in the file:
+//! 1.5 mm is rig's default contact depth, and every logged frame touches (the shallowest,
+//! `pose_3` = +0.80, still shows a contact), so it is at least 0.8 mm. MultiDiffSense's prompt
+//! carries `pose_3` as logged (`'z': 0.8` for frame 0), i.e. minus rig's work-frame z.
 //!
 //! **tactile-bench**: `sensor_image,object_label,pose_x,pose_y,pose_z,pose_Rx,pose_Ry,pose_Rz`
 //! (mm and degrees; rig writes Rx = Ry = 0 and Rz = yaw), followed by rig's `pose_id` and
@@ -50,6 +67,11 @@ pub const MDS_COLUMNS: [&str; 16] = [
     "move_6",
 ];
 
+/// The skin indentation at `pose_3 = 0`, mm: rig's default contact depth
+/// ([`crate::pose::WorkFrame`]), which the MultiDiffSense example is consistent with (see the
+/// module docs, "Depth convention").
+pub const MDS_CONTACT_DEPTH_MM: f64 = 1.5;
+
 /// The tactile-bench header, in order.
 pub const TACTILE_BENCH_COLUMNS: [&str; 10] =
     ["sensor_image", "object_label", "pose_x", "pose_y", "pose_z", "pose_Rx", "pose_Ry", "pose_Rz", "pose_id", "source"];
@@ -62,16 +84,28 @@ pub struct MdsRow {
     pub obj_id: String,
     /// The file's own 1-based pose counter.
     pub pose_id: u32,
-    /// `pose_1..pose_6`: x mm, y mm, z mm, unused, unused, yaw deg.
+    /// `pose_1..pose_6` as logged: x mm, y mm, z mm (positive up: see the module docs), unused,
+    /// unused, yaw deg.
     pub pose: [f64; 6],
     /// `move_1..move_6`.
     pub moves: [f64; 6],
 }
 
 impl MdsRow {
-    /// The work-frame pose (`pose_1`, `pose_2`, `pose_3`, `pose_6`).
+    /// The work-frame pose in rig's convention: x = `pose_1`, y = `pose_2`, yaw = `pose_6`, and
+    /// z = `-pose_3`, the indentation beyond the contact depth (positive deeper; see the module
+    /// docs, "Depth convention").
     pub fn work_pose(&self) -> Pose {
-        Pose::new(self.pose[0], self.pose[1], self.pose[2], self.pose[5])
+        // `0.0 - z` rather than `-z`: a logged 0 stays 0, not -0.
+        Pose::new(self.pose[0], self.pose[1], 0.0 - self.pose[2], self.pose[5])
+    }
+
+    /// The render pose ([`crate::geometry::raster`]): the work pose with z = the skin
+    /// indentation, `contact_depth_mm - pose_3` ([`MDS_CONTACT_DEPTH_MM`] for the
+    /// MultiDiffSense collections).
+    pub fn render_pose(&self, contact_depth_mm: f64) -> Pose {
+        let work = self.work_pose();
+        Pose { z_mm: contact_depth_mm + work.z_mm, ..work }
     }
 
     /// The row index `i` of `frame_<i>_0.png` (which names the image `<obj>_<Sensor>_<i>.png`
@@ -135,7 +169,8 @@ pub fn pose_row_from_mds(row: &MdsRow) -> PoseRow {
 }
 
 /// MDS rows for dataset rows, in the given order: row `i` becomes `frame_<i>_0.png` with MDS
-/// pose id `i + 1`.
+/// pose id `i + 1`, and `pose_3` is minus the row's work-frame z (the inverse of
+/// [`MdsRow::work_pose`]).
 pub fn mds_rows_from(rows: &[PoseRow], obj_id: &str) -> Vec<MdsRow> {
     rows.iter()
         .enumerate()
@@ -144,7 +179,7 @@ pub fn mds_rows_from(rows: &[PoseRow], obj_id: &str) -> Vec<MdsRow> {
             data_name: format!("frame_{i}"),
             obj_id: obj_id.to_string(),
             pose_id: i as u32 + 1,
-            pose: [r.x_mm, r.y_mm, r.z_mm, 0.0, 0.0, r.yaw_deg],
+            pose: [r.x_mm, r.y_mm, 0.0 - r.z_mm, 0.0, 0.0, r.yaw_deg],
             moves: [0.0; 6],
         })
         .collect()
@@ -198,7 +233,12 @@ mod tests {
         );
         let rows = parse_mds(text.as_bytes(), Path::new("t.csv")).unwrap();
         assert_eq!(rows.len(), 1);
-        assert_eq!(rows[0].work_pose(), Pose::new(-3.06193989, -2.038885835, 0.7995462253753978, -89.79246118));
+        assert_eq!(rows[0].pose[2], 0.7995462253753978);
+        // Logged z is positive up: rig's work-frame z (positive deeper) is its negation, and
+        // the indentation is the contact depth minus it.
+        assert_eq!(rows[0].work_pose(), Pose::new(-3.06193989, -2.038885835, -0.7995462253753978, -89.79246118));
+        assert_eq!(rows[0].render_pose(MDS_CONTACT_DEPTH_MM).z_mm, 1.5 - 0.7995462253753978);
+        assert_eq!(mds_rows_from(&[pose_row_from_mds(&rows[0])], "1")[0].pose, rows[0].pose);
         assert_eq!(rows[0].frame_index(), Some(0));
         let partial = format!("{}\nframe_0_0.png,frame_0,1,1,,,,,,,,,,,,\n", MDS_COLUMNS.join(","));
         let err = parse_mds(partial.as_bytes(), Path::new("t.csv")).unwrap_err();

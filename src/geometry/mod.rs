@@ -6,7 +6,7 @@
 //!
 //! Flow: [`stl`] loads a [`stl::Mesh`] (or [`objects`] finds a library object, built by
 //! [`shapes`]); [`raster::render_depth`] projects it under the sensor at a pose through a
-//! [`crate::calibration::Calibration`] into a [`DepthMap`]; [`control`] turns that into the
+//! [`crate::calibration::model::Calibration`] into a [`DepthMap`]; [`control`] turns that into the
 //! diffusion model's control image or a 16-bit depth PNG.
 
 pub mod control;

@@ -23,7 +23,7 @@ use glam::{DAffine2, DMat2, DVec2};
 
 use super::DepthMap;
 use super::stl::Mesh;
-use crate::calibration::Calibration;
+use crate::calibration::model::Calibration;
 use crate::pose::Pose;
 
 /// Image size and supersampling of a depth render.

@@ -16,7 +16,7 @@ use std::str::FromStr;
 use image::RgbImage;
 
 use super::{GenerateRequest, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
-use crate::calibration::Calibration;
+use crate::calibration::model::Calibration;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
 use crate::geometry::objects::load_object;
 use crate::geometry::stl::Mesh;
@@ -446,7 +446,7 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
     match manifest.calibration.as_deref() {
         // An uncalibrated collection: the calibration `rig calibrate` saved since, if any.
         None | Some("default") => {
-            let saved = crate::calibration::saved_path(manifest.sensor.name());
+            let saved = crate::calibration::model::saved_path(manifest.sensor.name());
             if saved.is_file() {
                 return calibration_of(
                     dir,

@@ -7,4 +7,5 @@ mod dataset_mds;
 mod dataset_verify;
 mod decoders_never_panic;
 mod geometry_stl;
+mod layers;
 mod plan_toml;

@@ -27,8 +27,13 @@ async fn start_sim(faults: SimFaults) -> (SimMg400, Arc<dyn Clock>) {
     (sim, clock)
 }
 
+/// What the simulator's addresses and profile make of the client settings.
+fn sim_client_config(sim: &SimMg400) -> Mg400Config {
+    Mg400Config::at_addresses(sim.dashboard_addr(), sim.motion_addr(), sim.feedback_addr(), sim.profile())
+}
+
 fn client_config(sim: &SimMg400) -> Mg400Config {
-    let mut cfg = sim.client_config();
+    let mut cfg = sim_client_config(sim);
     assert_eq!(cfg.profile, FirmwareProfile::default_mg400());
     assert_eq!(cfg.motion_port, sim.motion_addr().port());
     cfg.arrival_tolerance_mm = TOL_MM;
@@ -264,7 +269,7 @@ async fn starts_where_configured_or_refuses_to_start() {
     let sim = SimMg400::start(cfg, clock.clone()).await.unwrap();
     let expected = FirmwareProfile::default_mg400().kinematics.forward(&joints);
     assert_eq!(sim.pose(), expected);
-    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    let mut client = Mg400Client::connect(sim_client_config(&sim), clock.clone()).await.unwrap();
     assert!(client.pose().await.unwrap().distance_mm(&expected) < 1e-9);
     let bad = SimMg400Config { start_pose: Pose::new(900.0, 0.0, 0.0, 0.0), ..Default::default() };
     let err = SimMg400::start(bad, clock).await.err().expect("unreachable start refused");
@@ -312,7 +317,7 @@ async fn simulated_motion_follows_a_mock_clock() {
     let mock = MockClock::new();
     let clock: Arc<dyn Clock> = Arc::new(mock.clone());
     let sim = SimMg400::start(SimMg400Config::default(), clock.clone()).await.unwrap();
-    let mut client = Mg400Client::connect(sim.client_config(), clock.clone()).await.unwrap();
+    let mut client = Mg400Client::connect(sim_client_config(&sim), clock.clone()).await.unwrap();
     client.enable().await.unwrap();
     let target = Pose::new(320.0, 40.0, -10.0, 0.0);
     client.move_to(target, MoveKind::Joint).await.unwrap();

@@ -203,7 +203,7 @@ fn a_client_that_sends_something_else_is_a_divergence_naming_both_sides() {
 /// An in-process arm session on the simulator, recorded, and its replay (the alarm and the
 /// reordering tests below).
 mod session {
-    use rig::arm::dobot::client::{ByteStream, Mg400Client};
+    use rig::arm::dobot::client::{ByteStream, Mg400Client, Mg400Config};
     use rig::arm::{Arm, MoveKind};
     use rig::clock::{Clock, MonotonicClock};
     use rig::pose::Pose;
@@ -247,7 +247,7 @@ mod session {
             let clock: Arc<dyn Clock> = Arc::new(MonotonicClock::scaled(20.0));
             let sim = SimMg400::start(SimMg400Config { faults, ..Default::default() }, clock.clone()).await.expect("simulator");
             let recorder = Recorder::create(path, clock.clone()).expect("recording file");
-            let mut cfg = sim.client_config();
+            let mut cfg = Mg400Config::at_addresses(sim.dashboard_addr(), sim.motion_addr(), sim.feedback_addr(), sim.profile());
             cfg.speed_factor_pct = 100;
             let mut arm = connect_recorded(cfg, clock, recorder.clone()).await.expect("connects");
             let header = serde_json::from_str(&format!(
@@ -288,7 +288,7 @@ mod session {
         runtime.block_on(async {
             let replay = ReplaySession::new(events, vec![]);
             let watchdog = tokio::spawn(replay.clone().watchdog(stall));
-            let mut cfg = rig::arm::dobot::client::Mg400Config::new("replay", recording.header.profile.clone());
+            let mut cfg = Mg400Config::new("replay", recording.header.profile.clone());
             cfg.speed_factor_pct = 100;
             let clock: Arc<dyn Clock> = Arc::new(replay.clock());
             // As rig replay builds it: a lost socket is reopened where the recording reopened it.

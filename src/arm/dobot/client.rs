@@ -42,6 +42,7 @@
 
 use std::collections::VecDeque;
 use std::future::Future;
+use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
@@ -124,6 +125,12 @@ impl Mg400Config {
         self.motion_port = motion;
         self.feedback_port = feedback;
         self
+    }
+
+    /// Settings for a controller whose three ports listen at these addresses (a simulator on
+    /// ephemeral ports), moving under `profile`; the host is the dashboard's.
+    pub fn at_addresses(dashboard: SocketAddr, motion: SocketAddr, feedback: SocketAddr, profile: FirmwareProfile) -> Self {
+        Self::new(dashboard.ip().to_string(), profile).with_ports(dashboard.port(), motion.port(), feedback.port())
     }
 }
 

@@ -309,7 +309,7 @@ impl StaticLook {
             w: width as usize,
             h: height as usize,
             cell_px: 1,
-            v: out.background.chunks_exact(3).map(super::stages::luma).collect(),
+            v: out.background.chunks_exact(3).map(crate::imaging::luma).collect(),
         };
         lum.blur((RING_PITCH_PX * s).round().max(1.0) as usize, 3);
         out.skin_lum = Some(lum.v);

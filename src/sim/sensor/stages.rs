@@ -6,6 +6,7 @@
 //! blurs cheap.
 
 use crate::geometry::DepthMap;
+use crate::imaging::{BoxBorder, box_blur_repeated, luma};
 
 /// A coarse scalar field over the image, one value per square cell of `cell_px` pixels.
 #[derive(Debug, Clone)]
@@ -64,16 +65,10 @@ impl CellField {
         ]
     }
 
-    /// Approximately Gaussian blur: `passes` separable box blurs of radius `radius_cells`.
+    /// Approximately Gaussian blur: `passes` separable box blurs of radius `radius_cells`,
+    /// the edge cells repeated ([`BoxBorder::Replicate`]).
     pub fn blur(&mut self, radius_cells: usize, passes: usize) {
-        if radius_cells == 0 {
-            return;
-        }
-        let mut tmp = vec![0.0f32; self.v.len()];
-        for _ in 0..passes {
-            box_blur_1d(&self.v, &mut tmp, self.w, self.h, radius_cells, true);
-            box_blur_1d(&tmp, &mut self.v, self.w, self.h, radius_cells, false);
-        }
+        box_blur_repeated(&mut self.v, self.w, self.h, radius_cells, passes, BoxBorder::Replicate);
     }
 
     /// Calls `f(x, y, value)` for every pixel of a `width` x `height` image with the field
@@ -101,26 +96,6 @@ impl CellField {
                 let b = r1[x0] + (r1[x1] - r1[x0]) * tx;
                 f(y * width + x, a + (b - a) * ty);
             }
-        }
-    }
-}
-
-fn box_blur_1d(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize, horizontal: bool) {
-    let (n, lines) = if horizontal { (w, h) } else { (h, w) };
-    let at = |line: usize, i: usize| if horizontal { line * w + i } else { i * w + line };
-    let norm = 1.0 / (2 * r + 1) as f32;
-    for line in 0..lines {
-        // Running sum with clamped edges.
-        let mut acc = 0.0f32;
-        for k in 0..=2 * r {
-            let i = (k as isize - r as isize).clamp(0, n as isize - 1) as usize;
-            acc += src[at(line, i)];
-        }
-        for i in 0..n {
-            dst[at(line, i)] = acc * norm;
-            let out = (i as isize - r as isize).clamp(0, n as isize - 1) as usize;
-            let inn = (i + r + 1).min(n - 1);
-            acc += src[at(line, inn)] - src[at(line, out)];
         }
     }
 }
@@ -316,11 +291,6 @@ pub fn see_through(
             *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
         }
     }
-}
-
-/// Luminance of an RGB pixel (Rec. 601 weights), 8-bit scale.
-pub fn luma(p: &[f32]) -> f32 {
-    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
 }
 
 /// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,

@@ -1,0 +1,174 @@
+//! Pairing: the datasets of each side by object and sensor, their rows by commanded pose, and
+//! the images at the measuring size.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+
+use super::error::EvalError;
+use crate::calibration::model::Calibration;
+use crate::dataset::{Manifest, PoseRow, Source, read_rows};
+use crate::geometry::stl::Mesh;
+use crate::pose::Pose;
+
+/// Two poses are the same pose when x, y, z (mm) and yaw (deg) each differ by at most this.
+pub const POSE_TOLERANCE: f64 = 1e-6;
+
+/// Whether two poses are the same within [`POSE_TOLERANCE`].
+pub fn same_pose(a: &Pose, b: &Pose) -> bool {
+    (a.x_mm - b.x_mm).abs() <= POSE_TOLERANCE
+        && (a.y_mm - b.y_mm).abs() <= POSE_TOLERANCE
+        && (a.z_mm - b.z_mm).abs() <= POSE_TOLERANCE
+        && (a.yaw_deg - b.yaw_deg).abs() <= POSE_TOLERANCE
+}
+
+/// One dataset read from disk.
+#[derive(Clone)]
+pub(super) struct DatasetInfo {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub rows: Vec<PoseRow>,
+}
+
+impl DatasetInfo {
+    pub fn load(dir: &Path) -> Result<Self, EvalError> {
+        let wrap = |source| EvalError::Dataset { dir: dir.to_path_buf(), source };
+        let manifest = Manifest::load(dir).map_err(wrap)?;
+        let rows = read_rows(dir).map_err(wrap)?;
+        Ok(Self { dir: dir.to_path_buf(), manifest, rows })
+    }
+
+    pub fn key(&self) -> (String, String) {
+        (self.manifest.object.name.clone(), self.manifest.sensor.to_string())
+    }
+
+    pub fn rows_of(&self, source: Source) -> impl Iterator<Item = &PoseRow> {
+        self.rows.iter().filter(move |r| r.source == source)
+    }
+}
+
+/// Datasets under `root` keyed by (object, sensor); a key twice is an error.
+fn load_side(root: &Path, side: &'static str) -> Result<BTreeMap<(String, String), DatasetInfo>, EvalError> {
+    let dirs = crate::dataset::find_datasets(root);
+    if dirs.is_empty() {
+        return Err(EvalError::NoDatasets { side, dir: root.to_path_buf() });
+    }
+    let mut out = BTreeMap::new();
+    for d in dirs {
+        let info = DatasetInfo::load(&d)?;
+        let key = info.key();
+        if let Some(first) = out.get(&key) {
+            let first: &DatasetInfo = first;
+            return Err(EvalError::DuplicateDataset { side, object: key.0, sensor: key.1, first: first.dir.clone(), second: d });
+        }
+        out.insert(key, info);
+    }
+    Ok(out)
+}
+
+/// The three sides of an evaluation, read from disk: real and synthetic datasets keyed by
+/// (object, sensor), and the collected (training) datasets the baselines draw on.
+pub(super) struct Sides {
+    pub real: BTreeMap<(String, String), DatasetInfo>,
+    pub synthetic: BTreeMap<(String, String), DatasetInfo>,
+    pub collected: Vec<DatasetInfo>,
+}
+
+impl Sides {
+    /// Reads the datasets under each root. `collected` empty: the synthetic datasets (their
+    /// real rows) are the collected set. `objects` non-empty keeps only those objects on the
+    /// real and synthetic sides (after the collected set is taken: baselines may use any
+    /// object of the sensor); an object with no real dataset is an error.
+    pub fn load(real_root: &Path, synthetic_root: &Path, collected: &[PathBuf], objects: &[String]) -> Result<Self, EvalError> {
+        let mut real = load_side(real_root, "real")?;
+        let mut synthetic = load_side(synthetic_root, "synthetic")?;
+        let collected_sets: Vec<DatasetInfo> = if collected.is_empty() {
+            synthetic.values().cloned().collect()
+        } else {
+            let mut v = Vec::new();
+            for root in collected {
+                let dirs = crate::dataset::find_datasets(root);
+                if dirs.is_empty() {
+                    return Err(EvalError::NoDatasets { side: "collected", dir: root.clone() });
+                }
+                for d in dirs {
+                    v.push(DatasetInfo::load(&d)?);
+                }
+            }
+            v
+        };
+        if !objects.is_empty() {
+            if let Some(object) = objects.iter().find(|o| !real.keys().any(|(name, _)| name == *o)) {
+                return Err(EvalError::UnknownObject { object: object.clone(), dir: real_root.to_path_buf() });
+            }
+            real.retain(|(name, _), _| objects.contains(name));
+            synthetic.retain(|(name, _), _| objects.contains(name));
+        }
+        Ok(Self { real, synthetic, collected: collected_sets })
+    }
+}
+
+/// The rows of a real and a synthetic dataset of one object and sensor, paired by commanded
+/// pose ([`same_pose`]): each real row takes the first synthetic row of its pose not taken
+/// yet, in row order.
+pub(super) struct RowPairs<'a> {
+    /// (real, synthetic) twins, in real-row order.
+    pub twins: Vec<(&'a PoseRow, &'a PoseRow)>,
+    /// Real rows without a twin, in row order.
+    pub unpaired_real: Vec<&'a PoseRow>,
+    /// Synthetic rows left over, in row order.
+    pub unpaired_synthetic: Vec<&'a PoseRow>,
+}
+
+/// Pairs the `source=real` rows of `real` with the `source=synthetic` rows of `synthetic`.
+pub(super) fn pair_rows<'a>(real: &'a DatasetInfo, synthetic: &'a DatasetInfo) -> RowPairs<'a> {
+    let synthetic_rows: Vec<&PoseRow> = synthetic.rows_of(Source::Synthetic).collect();
+    let mut used = vec![false; synthetic_rows.len()];
+    let (mut twins, mut unpaired_real) = (Vec::new(), Vec::new());
+    for row in real.rows_of(Source::Real) {
+        let pose = row.commanded();
+        match synthetic_rows.iter().enumerate().find(|(i, t)| !used[*i] && same_pose(&t.commanded(), &pose)) {
+            Some((i, twin)) => {
+                used[i] = true;
+                twins.push((row, *twin));
+            }
+            None => unpaired_real.push(row),
+        }
+    }
+    let unpaired_synthetic = synthetic_rows.iter().zip(&used).filter(|(_, u)| !**u).map(|(r, _)| *r).collect();
+    RowPairs { twins, unpaired_real, unpaired_synthetic }
+}
+/// Reads a PNG and resizes it to `size` x `size` (bilinear) when it is not already.
+pub(super) fn load_at(path: &Path, size: u32) -> Result<RgbImage, EvalError> {
+    let img = image::open(path).map_err(|source| EvalError::Image { path: path.to_path_buf(), source })?.to_rgb8();
+    Ok(resize_square(img, size))
+}
+
+fn resize_square(img: RgbImage, size: u32) -> RgbImage {
+    if img.dimensions() == (size, size) { img } else { image::imageops::resize(&img, size, size, image::imageops::FilterType::Triangle) }
+}
+
+/// The dataset's calibration at `size` x `size`: the file its manifest names, else (none or
+/// `default`) the default for its image size, which is what `rig collect` renders with then.
+pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) -> Option<Calibration> {
+    let calib = match info.manifest.calibration.as_deref() {
+        None | Some("default") | Some("none") => Calibration::default_for(native.0, native.1),
+        Some(path) => Calibration::load(Path::new(path)).ok()?,
+    };
+    Some(calib.scaled_to(size, size))
+}
+
+/// The object's mesh: its STL when the file is there, else the library object of that name.
+pub(super) fn mesh_of(manifest: &Manifest) -> Option<Mesh> {
+    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file())
+        && let Ok(mesh) = Mesh::load(&path)
+    {
+        return Some(mesh);
+    }
+    crate::geometry::objects::load_object(&manifest.object.name).ok()
+}
+
+pub(super) fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {
+    format!("{side} {object}/{sensor} pose_id {} ({}, {}, {}, {})", row.pose_id, row.x_mm, row.y_mm, row.z_mm, row.yaw_deg)
+}
