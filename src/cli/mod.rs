@@ -16,13 +16,13 @@ pub mod eval;
 pub mod examples;
 pub mod fill;
 pub mod generate;
-pub mod shared;
 pub mod objects;
 pub mod plan;
 pub mod render;
 pub mod replay;
 pub mod sensor;
 pub mod sensor_bridge;
+pub mod shared;
 pub mod sim;
 pub mod synth;
 

@@ -11,10 +11,10 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::{Args as ClapArgs, Subcommand};
 
+use super::shared::{RuntimeArgs, SamplingArgs};
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
 use crate::synth::package::Sampling;
-use super::shared::{RuntimeArgs, SamplingArgs};
 use crate::synth::{GenerateRequest, Pipeline};
 
 /// `rig synth` arguments.
@@ -217,7 +217,10 @@ mod tests {
     fn one_parses_with_prompt_or_pose() {
         let one = parse_one(&["--prompt", "p", "--steps", "4", "--scheduler", "dpm++2m", "--size", "64x64"]).unwrap();
         let s = &one.sampling;
-        assert_eq!((s.steps, s.guidance, s.sampler, one.size), (Some(4), None, Some(crate::synth::SchedulerKind::DpmSolverPp2m), Some((64, 64))));
+        assert_eq!(
+            (s.steps, s.guidance, s.sampler, one.size),
+            (Some(4), None, Some(crate::synth::SchedulerKind::DpmSolverPp2m), Some((64, 64)))
+        );
         let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
         assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");
