@@ -25,6 +25,7 @@ pub mod pose;
 pub mod record;
 pub mod report;
 pub mod rigs;
+pub mod roots;
 pub mod sensor;
 pub mod sim;
 pub mod synth;
