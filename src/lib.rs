@@ -29,6 +29,7 @@ pub mod roots;
 pub mod sensor;
 pub mod sim;
 pub mod synth;
+pub mod untrusted;
 
 /// rig's version, written into manifests.
 pub fn version() -> &'static str {
