@@ -20,6 +20,7 @@
 //! anything; [`export`] writes the MultiDiffSense (MDS) and tactile-bench CSV dialects and
 //! reads the MDS one; [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
 
+pub mod durable;
 pub mod export;
 pub mod manifest;
 pub mod merge;
@@ -249,7 +250,7 @@ pub enum RowProblem {
     NonFinitePose,
     #[error("measured pose or capture time is not finite")]
     NonFiniteMeasurement,
-    #[error("image column is {found:?}, expected {expected:?}")]
+    #[error("image column is not {expected:?}")]
     ImagePath { expected: String, found: String },
     #[error("a text field contains a line break")]
     Multiline,
@@ -273,7 +274,8 @@ pub enum DatasetError {
     /// The disk (or the injected byte budget) is full. Nothing durable was lost: the writer
     /// only ever lands whole images before their rows.
     #[error(
-        "disk full while {op} {path} (everything written before is intact: free some space, then run the same command again with --resume)"
+        "disk full while {op} {path} (everything written before is intact: free some space, then run the same command again; \
+         `rig collect` and `rig dataset import` continue with --resume, `rig synth` and `rig dataset merge` continue by themselves)"
     )]
     DiskFull {
         op: &'static str,
@@ -291,14 +293,21 @@ pub enum DatasetError {
     ManifestParse {
         path: PathBuf,
         #[source]
-        source: Box<toml::de::Error>,
+        source: crate::untrusted::SyntaxError,
+    },
+    #[error("manifest {path}: its plan is not valid: {source}")]
+    ManifestPlan {
+        path: PathBuf,
+        #[source]
+        source: crate::plan::PlanError,
     },
     #[error("cannot write manifest: {source}")]
     ManifestWrite {
         #[source]
         source: toml::ser::Error,
     },
-    #[error("{path} has an unexpected header {found:?}; expected {expected:?}")]
+    /// `found` is kept for callers but never printed: it is the file's first line.
+    #[error("{path}: line 1 is not a header rig knows; expected {expected:?}")]
     BadHeader { path: PathBuf, found: String, expected: String },
     #[error("{path} line {line}: malformed row: {reason}")]
     MalformedRow { path: PathBuf, line: u64, reason: String },
@@ -316,8 +325,18 @@ pub enum DatasetError {
         #[source]
         source: image::ImageError,
     },
-    #[error("{path} is being written by another process (lock held)")]
+    #[error("dataset {path} is held by another process (another rig is writing it); wait for it to finish, or stop it")]
     Locked { path: PathBuf },
+    #[error("{path} is a symlink; rig does not follow symlinks inside a dataset")]
+    Symlink { path: PathBuf },
+    #[error("{path} is not {expected}")]
+    NotRegular { path: PathBuf, expected: &'static str },
+    #[error("{path} is larger than the {max_bytes} bytes rig reads from it")]
+    TooLarge { path: PathBuf, max_bytes: u64 },
+    #[error("{path} is not a readable image: {reason}")]
+    BadImage { path: PathBuf, reason: String },
+    #[error("{path} line {line}: {field} {value_problem}")]
+    UnsafeName { path: PathBuf, line: u64, field: &'static str, value_problem: &'static str },
     #[error("{path} line {line}: malformed MDS row: {reason}")]
     MalformedMds { path: PathBuf, line: u64, reason: String },
     #[error("cannot write CSV: {source}")]
@@ -372,7 +391,7 @@ pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
 /// line is ignored, as resume would truncate it). Rows come in file order.
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
     let path = dir.join(POSES_FILE);
-    let bytes = std::fs::read(&path).map_err(DatasetError::io("reading", &path))?;
+    let bytes = durable::read_regular(&path, durable::MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
     if parsed.layout.is_none() {
         return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected: COLUMNS.join(",") });
@@ -447,6 +466,13 @@ pub(crate) fn parse_csv(bytes: &[u8]) -> ParsedCsv {
         if raw.is_empty() {
             continue; // the split after the final newline, or a blank line
         }
+        if raw.len() > durable::MAX_CSV_LINE_BYTES {
+            lines.push(ParsedLine {
+                line,
+                row: Err(format!("line of {} bytes, longer than the {} a row may be", raw.len(), durable::MAX_CSV_LINE_BYTES)),
+            });
+            continue;
+        }
         lines.push(ParsedLine { line, row: parse_row(raw, layout.unwrap_or(CsvLayout::Current)) });
     }
     ParsedCsv { header, layout, lines, complete_len: complete_len as u64, torn_bytes }
@@ -458,14 +484,14 @@ fn parse_row(raw: &[u8], layout: CsvLayout) -> Result<PoseRow, String> {
     match rdr.read_record(&mut record) {
         Ok(true) => {}
         Ok(false) => return Err("empty line".to_string()),
-        Err(e) => return Err(e.to_string()),
+        Err(e) => return Err(crate::untrusted::sanitise(&e.to_string())),
     }
     let columns = layout.columns();
     if record.len() != columns.len() {
         return Err(format!("{} fields, expected {}", record.len(), columns.len()));
     }
     let headers = csv::StringRecord::from(columns.to_vec());
-    let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| e.to_string())?;
+    let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| crate::untrusted::sanitise(&e.to_string()))?;
     if let Some(p) = row.problem() {
         return Err(p.to_string());
     }
