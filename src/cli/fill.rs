@@ -119,6 +119,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         }
         return crate::cli::daemon::submit_and_follow(&args.daemon, crate::daemon::JobSpec::Synth(args.job_spec()));
     }
+    crate::synth::fill::check_fill_settings(args.steps, args.guidance, args.eta, args.conditioning_scale, args.batch, args.supersample)?;
     let shard = args.shard.unwrap_or(Shard::ALL);
     if args.shard.is_some() && args.out.is_none() {
         bail!(crate::cli::usage("--shard needs --out DIR: each shard writes its own dataset, joined by `rig dataset merge`"));
@@ -219,6 +220,7 @@ fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
             source.display()
         )));
     }
+    crate::synth::fill::check_fill_settings(args.steps, args.guidance, args.eta, args.conditioning_scale, args.batch, args.supersample)?;
     let shard = args.shard.unwrap_or(Shard::ALL);
     let pairs: Vec<(PathBuf, PathBuf)> = datasets
         .iter()
