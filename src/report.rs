@@ -199,8 +199,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }
-            | D::BadImage { .. }
-            | D::UnsafeName { .. } => Exit::BadInput,
+            | D::BadImage { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }
             | D::ManifestWrite { .. }

@@ -335,8 +335,6 @@ pub enum DatasetError {
     TooLarge { path: PathBuf, max_bytes: u64 },
     #[error("{path} is not a readable image: {reason}")]
     BadImage { path: PathBuf, reason: String },
-    #[error("{path} line {line}: {field} {value_problem}")]
-    UnsafeName { path: PathBuf, line: u64, field: &'static str, value_problem: &'static str },
     #[error("{path} line {line}: malformed MDS row: {reason}")]
     MalformedMds { path: PathBuf, line: u64, reason: String },
     #[error("cannot write CSV: {source}")]
