@@ -27,9 +27,11 @@ pub mod pose;
 pub mod record;
 pub mod report;
 pub mod rigs;
+pub mod roots;
 pub mod sensor;
 pub mod sim;
 pub mod synth;
+pub mod untrusted;
 
 /// rig's version, written into manifests.
 pub fn version() -> &'static str {

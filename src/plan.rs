@@ -38,8 +38,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::pose::Pose;
 
-/// Largest grid rig enumerates (ids are `u32`; the sampler keeps a flag per point).
-pub const MAX_GRID_POINTS: u64 = 20_000_000;
+/// Largest grid rig enumerates. Filling a dataset and sampling a plan hold a list of grid
+/// poses (40 bytes each), so this bounds what a plan, or a dataset's manifest, can make rig
+/// allocate: 1 000 000 points is 40 MB, and over a hundred times the default grid (7865).
+pub const MAX_GRID_POINTS: u64 = 1_000_000;
 
 /// One axis of the grid: values `min, min + step, ...` up to and including `max`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -224,7 +226,7 @@ pub enum PlanError {
     Parse {
         path: PathBuf,
         #[source]
-        source: Box<toml::de::Error>,
+        source: crate::untrusted::SyntaxError,
     },
 }
 
@@ -247,8 +249,10 @@ pub struct Plan {
 impl PlanSpec {
     /// Reads and validates a TOML plan file.
     pub fn load(path: &Path) -> Result<Self, PlanError> {
-        let text = std::fs::read_to_string(path).map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
-        let spec = Self::from_toml_str(&text).map_err(|source| PlanError::Parse { path: path.to_path_buf(), source: Box::new(source) })?;
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
+        let spec = Self::from_toml_str(&text)
+            .map_err(|e| PlanError::Parse { path: path.to_path_buf(), source: crate::untrusted::SyntaxError::from_toml(&e, &text) })?;
         spec.validate()?;
         Ok(spec)
     }
@@ -711,6 +715,12 @@ mod tests {
         let mut s = PlanSpec::default();
         s.x_mm.step = 1e-9;
         assert!(matches!(s.validate(), Err(PlanError::GridTooLarge { .. })));
+        // The cap is on the product of the axes, and says what it is.
+        let mut s = PlanSpec { sampling: Sampling::Full, n_poses: None, ..PlanSpec::default() };
+        (s.x_mm.step, s.y_mm.step) = (0.01, 0.01);
+        let e = s.validate().expect_err("over the cap");
+        assert!(matches!(e, PlanError::GridTooLarge { max: MAX_GRID_POINTS, .. }), "{e}");
+        assert!(e.to_string().contains("1000000"), "{e}");
     }
 
     #[test]

@@ -1,82 +1,394 @@
-//! How a failed command reports itself: the exit code of an error (shared by the CLI and the
-//! daemon's job records) and its one-line message.
+//! How a failed command reports itself: the one exit-code table ([`Exit`]), the mapping from
+//! every library error to it (shared by the CLI and the daemon's job records), and the error's
+//! one-line message.
+//!
+//! The mapping matches each error type's variants exhaustively ([`Classify`]), so a new
+//! variant does not compile until someone decides its exit code. Errors that wrap another
+//! (`RigError::Arm`, `FillError::Dataset`, ...) take the code of what they wrap, because a
+//! `#[error(transparent)]` wrapper hides its inner error from `source()` chains. The docs'
+//! table is [`Exit::markdown_table`]; a test checks the README holds it verbatim.
 
-/// Exit codes: 1 general failure (including a full disk), 2 bad input (usage, config, plan,
-/// object, calibration, profile, model package and dataset files; a plan outside the
-/// workspace), 3 hardware or protocol fault (arm alarms and lost connections once retries are
-/// spent, camera failures), 4 interrupted. the README's "Bad input" table lists each bad input.
+use std::fmt;
+
+/// What rig's exit status means. The daemon records the same number for each job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[repr(u8)]
+pub enum Exit {
+    Success = 0,
+    Failure = 1,
+    BadInput = 2,
+    HardwareFault = 3,
+    Interrupted = 4,
+}
+
+impl Exit {
+    /// Every code, in order.
+    pub const ALL: [Exit; 5] = [Exit::Success, Exit::Failure, Exit::BadInput, Exit::HardwareFault, Exit::Interrupted];
+
+    /// The number the process exits with.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The code of a number, if it is one of the table's.
+    pub fn from_code(code: u8) -> Option<Exit> {
+        Exit::ALL.into_iter().find(|e| e.code() == code)
+    }
+
+    /// What the code means, as the docs say it.
+    pub fn meaning(self) -> &'static str {
+        match self {
+            Exit::Success => "success",
+            Exit::Failure => {
+                "general failure: a full disk, a dataset held by another process, an internal error, `rig dataset verify` \
+                 finding a dataset not clean"
+            }
+            Exit::BadInput => {
+                "bad input: command line, rig config, plan, object/STL, calibration, firmware profile, model package \
+                 (model.toml, tokenizer, ONNX files), dataset files (manifest, CSV header and rows, images, symlinks), a recording file, \
+                 sampling settings and sizes out of range, a plan outside the workspace, a path outside the daemon's \
+                 data roots"
+            }
+            Exit::HardwareFault => {
+                "hardware fault: arm alarms, refused or lost connections once retries are spent (also when opening the \
+                 rig), camera failures, a required Modbus peripheral; `rig replay`: a divergence from the recording"
+            }
+            Exit::Interrupted => {
+                "interrupted: Ctrl-C or a cancelled daemon job (`rig collect` continues with `--resume`; `rig calibrate` \
+                 saved nothing)"
+            }
+        }
+    }
+
+    /// The exit code of an error (its own code when it is an [`ExitStatus`]).
+    pub fn of(e: &anyhow::Error) -> Exit {
+        if let Some(status) = e.downcast_ref::<ExitStatus>() {
+            return Exit::from_code(status.0).unwrap_or(Exit::Failure);
+        }
+        e.chain().find_map(classify).unwrap_or(Exit::Failure)
+    }
+
+    /// The table the docs hold (README "Bad input"), generated from this enum.
+    pub fn markdown_table() -> String {
+        let mut table = String::from("| exit | meaning |\n|---|---|\n");
+        for e in Exit::ALL {
+            table.push_str(&format!("| {} | {} |\n", e.code(), e.meaning()));
+        }
+        table
+    }
+}
+
+impl fmt::Display for Exit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.code())
+    }
+}
+
+/// The exit code (0 success, 1 general failure, 2 bad input, 3 hardware or protocol fault,
+/// 4 interrupted) of an error: [`Exit::of`] as a number.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
-    if let Some(code) = e.downcast_ref::<ExitStatus>() {
-        return code.0;
+    Exit::of(e).code()
+}
+
+/// An error that knows its exit code.
+pub trait Classify {
+    fn exit(&self) -> Exit;
+}
+
+/// The exit code of one error of the chain, if its type is one rig knows.
+fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
+    macro_rules! try_types {
+        ($($t:ty),* $(,)?) => {
+            $(if let Some(e) = cause.downcast_ref::<$t>() { return Some(e.exit()); })*
+        };
     }
-    if e.downcast_ref::<UsageError>().is_some()
-        || matches!(e.downcast_ref::<crate::collect::CollectError>(), Some(crate::collect::CollectError::Unreachable { .. }))
-    {
-        return 2;
+    try_types!(
+        UsageError,
+        crate::arm::ArmError,
+        crate::camera::CameraError,
+        crate::collect::CollectError,
+        crate::config::ConfigError,
+        crate::plan::PlanError,
+        crate::dataset::DatasetError,
+        crate::synth::SynthError,
+        crate::synth::scheduler::SchedulerError,
+        crate::synth::fill::FillError,
+        crate::rigs::RigError,
+        crate::io::modbus::ModbusError,
+        crate::calibration::press::PressError,
+        crate::calibration::CalibrationError,
+        crate::arm::profile::ProfileError,
+        crate::geometry::stl::StlError,
+        crate::geometry::objects::ObjectError,
+        crate::sensor::SensorKindParseError,
+        crate::roots::PathError,
+        crate::roots::RootsError,
+        crate::jobs::JobError,
+        crate::geometry::objects::ObjectResolveError,
+        crate::arm::profile::ProfileLookupError,
+        crate::record::replay::ReplayError,
+    );
+    None
+}
+
+impl Classify for UsageError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
     }
-    for cause in e.chain() {
-        if cause.downcast_ref::<crate::arm::ArmError>().is_some() || cause.downcast_ref::<crate::camera::CameraError>().is_some() {
-            return 3;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::collect::CollectError>() {
-            use crate::collect::CollectError as C;
-            match e {
-                C::RetriesExhausted { .. }
-                | C::CameraRetriesExhausted { .. }
-                | C::PeripheralRetriesExhausted { .. }
-                | C::Arm(_)
-                | C::Camera(_) => return 3,
-                C::Peripheral(e) if e.is_recoverable() => return 3,
-                C::Peripheral(_) => return 2,
-                C::Unreachable { .. } | C::Mismatch { .. } => return 2,
-                C::Dataset(_) => {}
-            }
-        }
-        if let Some(e) = cause.downcast_ref::<crate::jobs::JobError>()
-            && matches!(e, crate::jobs::JobError::BadOption { .. } | crate::jobs::JobError::SensorNotOpen { .. })
-        {
-            return 2;
-        }
-        if cause.downcast_ref::<crate::config::ConfigError>().is_some()
-            || cause.downcast_ref::<crate::geometry::objects::ObjectResolveError>().is_some()
-            || cause.downcast_ref::<crate::arm::profile::ProfileLookupError>().is_some()
-        {
-            return 2;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::synth::SynthError>() {
-            use crate::synth::SynthError as S;
-            if matches!(e, S::MissingFiles { .. } | S::ModelToml { .. } | S::BadModelConfig { .. } | S::BadRequest { .. }) {
-                return 2;
-            }
-        }
-        if let Some(e) = cause.downcast_ref::<crate::rigs::RigError>() {
-            use crate::rigs::RigError as R;
-            if matches!(e, R::UnknownSensor(_) | R::Object(_) | R::Profile(_) | R::Calibration { .. }) {
-                return 2;
-            }
-            if let R::Modbus(m) = e {
-                return if m.is_recoverable() { 3 } else { 2 };
-            }
-        }
-        if cause.downcast_ref::<crate::plan::PlanError>().is_some() {
-            return 2;
-        }
-        if let Some(e) = cause.downcast_ref::<crate::dataset::DatasetError>() {
-            use crate::dataset::DatasetError as D;
-            if matches!(
-                e,
-                D::NotEmpty { .. }
-                    | D::NotADataset { .. }
-                    | D::ManifestMismatch { .. }
-                    | D::MalformedMds { .. }
-                    | D::BadHeader { .. }
-                    | D::ManifestParse { .. }
-            ) {
-                return 2;
-            }
+}
+
+impl Classify for crate::arm::ArmError {
+    fn exit(&self) -> Exit {
+        use crate::arm::ArmError as A;
+        match self {
+            // rig refused to send a target outside the profile's workspace: the plan asked for it.
+            A::Unreachable { .. } => Exit::BadInput,
+            A::Io { .. } | A::Timeout { .. } | A::Fault { .. } | A::Refused { .. } | A::Protocol(_) => Exit::HardwareFault,
         }
     }
-    1
+}
+
+impl Classify for crate::camera::CameraError {
+    fn exit(&self) -> Exit {
+        Exit::HardwareFault
+    }
+}
+
+impl Classify for crate::io::modbus::ModbusError {
+    fn exit(&self) -> Exit {
+        if self.is_recoverable() { Exit::HardwareFault } else { Exit::BadInput }
+    }
+}
+
+impl Classify for crate::collect::CollectError {
+    fn exit(&self) -> Exit {
+        use crate::collect::CollectError as C;
+        match self {
+            C::Arm(e) => e.exit(),
+            C::Camera(e) => e.exit(),
+            C::Dataset(e) => e.exit(),
+            C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::PeripheralRetriesExhausted { .. } => Exit::HardwareFault,
+            C::Peripheral(e) => e.exit(),
+            C::Unreachable { .. } | C::Mismatch { .. } => Exit::BadInput,
+        }
+    }
+}
+
+impl Classify for crate::config::ConfigError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::plan::PlanError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::dataset::DatasetError {
+    fn exit(&self) -> Exit {
+        use crate::dataset::DatasetError as D;
+        match self {
+            D::NotEmpty { .. }
+            | D::NotADataset { .. }
+            | D::ManifestMismatch { .. }
+            | D::ManifestParse { .. }
+            | D::ManifestPlan { .. }
+            | D::BadHeader { .. }
+            | D::MalformedRow { .. }
+            | D::DuplicateRow { .. }
+            | D::MissingImage { .. }
+            | D::MalformedMds { .. }
+            | D::Unclean { .. }
+            | D::MergeConflict { .. }
+            | D::Symlink { .. }
+            | D::NotRegular { .. }
+            | D::TooLarge { .. }
+            | D::BadImage { .. } => Exit::BadInput,
+            D::Io { .. }
+            | D::DiskFull { .. }
+            | D::ManifestWrite { .. }
+            | D::DuplicatePose { .. }
+            | D::InvalidRow { .. }
+            | D::Encode { .. }
+            | D::Locked { .. }
+            | D::CsvWrite { .. } => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::synth::scheduler::SchedulerError {
+    fn exit(&self) -> Exit {
+        use crate::synth::scheduler::SchedulerError as S;
+        match self {
+            S::Io { .. } => Exit::Failure,
+            S::Json { .. } | S::Unsupported { .. } | S::BadStepCount { .. } | S::OutOfRange { .. } => Exit::BadInput,
+        }
+    }
+}
+
+impl Classify for crate::synth::SynthError {
+    fn exit(&self) -> Exit {
+        use crate::synth::SynthError as S;
+        match self {
+            // The package, the request or a path the user gave.
+            S::MissingFiles { .. }
+            | S::ModelToml { .. }
+            | S::BadModelConfig { .. }
+            | S::BadRequest { .. }
+            | S::BadModelFile { .. }
+            | S::Tokenizer { .. }
+            | S::NoEndToken { .. }
+            | S::MissingTensor { .. }
+            | S::WrongElementType { .. }
+            | S::WrongShape { .. }
+            | S::UnexpectedInput { .. }
+            | S::ResidualCountMismatch { .. }
+            | S::OrtLibraryMissing { .. }
+            | S::OrtLibraryUntrusted { .. }
+            | S::OrtLoad { .. }
+            | S::Npy(_) => Exit::BadInput,
+            S::Scheduler { source, .. } => source.exit(),
+            // Set-up (scripts/setup.sh not run), or a failure while running a loaded model.
+            S::OrtLibraryNotFound { .. }
+            | S::ProviderUnavailable { .. }
+            | S::Ort { .. }
+            | S::Io { .. }
+            | S::UnexpectedOutputShape { .. }
+            | S::Image { .. } => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::synth::fill::FillError {
+    fn exit(&self) -> Exit {
+        use crate::synth::fill::FillError as F;
+        match self {
+            F::Dataset(e) => e.exit(),
+            F::Synth(e) => e.exit(),
+            F::NoPlan { .. } | F::Object { .. } | F::Calibration { .. } | F::BadShard { .. } => Exit::BadInput,
+        }
+    }
+}
+
+impl Classify for crate::rigs::RigError {
+    fn exit(&self) -> Exit {
+        use crate::rigs::RigError as R;
+        match self {
+            R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. } | R::BackendUnavailable { .. } => {
+                Exit::BadInput
+            }
+            // A refused or lost arm connection, also when the rig is opened.
+            R::Arm(e) => e.exit(),
+            R::Camera { source, .. } => source.exit(),
+            R::Modbus(e) => e.exit(),
+            R::Sim(_) => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::calibration::press::PressError {
+    fn exit(&self) -> Exit {
+        use crate::calibration::press::PressError as P;
+        match self {
+            P::Arm(e) => e.exit(),
+            P::Camera(e) => e.exit(),
+            P::Cancelled { .. } => Exit::Interrupted,
+            P::NoReference | P::Fit(_) => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::calibration::CalibrationError {
+    fn exit(&self) -> Exit {
+        use crate::calibration::CalibrationError as C;
+        match self {
+            C::Read { .. } | C::Parse { .. } | C::Invalid { .. } => Exit::BadInput,
+            C::Write { .. } | C::Encode { .. } => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::arm::profile::ProfileError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::geometry::stl::StlError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::geometry::objects::ObjectError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::sensor::SensorKindParseError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::roots::PathError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::roots::RootsError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::jobs::JobError {
+    fn exit(&self) -> Exit {
+        use crate::jobs::JobError as J;
+        match self {
+            J::Plan(e) => e.exit(),
+            J::Object(e) => e.exit(),
+            J::Profile(e) => e.exit(),
+            J::Collect(e) => e.exit(),
+            J::Dataset { source, .. } => source.exit(),
+            J::Fill { source, .. } => source.exit(),
+            J::Model { source, .. } => source.exit(),
+            J::Press(e) => e.exit(),
+            J::Path(e) => e.exit(),
+            J::Settings(e) => e.exit(),
+            J::Replay(e) => e.exit(),
+            J::BadOption { .. } | J::SensorNotOpen { .. } => Exit::BadInput,
+            J::SaveCalibration { .. } | J::Worker { .. } => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::geometry::objects::ObjectResolveError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::arm::profile::ProfileLookupError {
+    fn exit(&self) -> Exit {
+        Exit::BadInput
+    }
+}
+
+impl Classify for crate::record::replay::ReplayError {
+    fn exit(&self) -> Exit {
+        use crate::record::replay::ReplayError as R;
+        match self {
+            R::Collect(e) => e.exit(),
+            R::Dataset(e) => e.exit(),
+            // The replay no longer follows the recording.
+            R::Diverged(_) | R::Leftover { .. } | R::PeripheralsDiverged(_) => Exit::HardwareFault,
+        }
+    }
 }
 
 /// Bad input on the command line (exit code 2).
@@ -93,6 +405,12 @@ pub fn usage(message: &str) -> UsageError {
 #[derive(Debug, thiserror::Error)]
 #[error("exit status {0}")]
 pub struct ExitStatus(pub u8);
+
+impl From<Exit> for ExitStatus {
+    fn from(e: Exit) -> Self {
+        ExitStatus(e.code())
+    }
+}
 
 /// The error and its causes on one line, `outer: cause: root`, leaving out a cause whose text
 /// the line already holds (many errors here name their source in their own message, as
@@ -139,5 +457,46 @@ mod tests {
         assert_eq!(exit_code(&e), 1);
         assert_eq!(exit_code(&anyhow::Error::new(usage("bad flag"))), 2);
         assert_eq!(exit_code(&anyhow::Error::new(ExitStatus(4))), 4);
+    }
+
+    #[test]
+    fn wrapped_errors_take_the_code_of_what_they_wrap() {
+        use crate::arm::ArmError;
+        use crate::dataset::DatasetError;
+        // Item 10 of the trust issue: a refused arm connection when the rig opens is a
+        // hardware fault, though `RigError::Arm` is transparent and hides it from the chain.
+        let refused = ArmError::Io {
+            context: "connecting to the MG400 dashboard port at 127.0.0.1:1".into(),
+            source: std::io::Error::from(std::io::ErrorKind::ConnectionRefused),
+        };
+        let e = anyhow::Error::new(crate::rigs::RigError::Arm(refused)).context("opening the rig");
+        assert_eq!(Exit::of(&e), Exit::HardwareFault);
+        // A bad CSV row is bad input, like a bad header.
+        let row = DatasetError::MalformedRow { path: "p".into(), line: 3, reason: "x".into() };
+        assert_eq!(Exit::of(&anyhow::Error::new(crate::synth::fill::FillError::Dataset(row))), Exit::BadInput);
+        let header = DatasetError::BadHeader { path: "p".into(), found: String::new(), expected: String::new() };
+        assert_eq!(Exit::of(&anyhow::Error::new(header)), Exit::BadInput);
+        // A corrupt model file or tokenizer is bad input; a full disk is not.
+        let onnx = crate::synth::SynthError::BadModelFile { file: "unet/model.onnx".into(), reason: "protobuf".into() };
+        assert_eq!(Exit::of(&anyhow::Error::new(onnx).context("loading")), Exit::BadInput);
+        let tok = crate::synth::SynthError::Tokenizer { path: "t.json".into(), reason: "x".into() };
+        assert_eq!(Exit::of(&anyhow::Error::new(tok)), Exit::BadInput);
+        let full = DatasetError::io("writing", "x")(std::io::Error::from_raw_os_error(libc::ENOSPC));
+        assert_eq!(Exit::of(&anyhow::Error::new(full)), Exit::Failure);
+        assert_eq!(Exit::from_code(3), Some(Exit::HardwareFault));
+        assert_eq!(Exit::from_code(9), None);
+    }
+
+    /// The guide's Faults page (`docs/src/faults.md`, "Exit codes") holds the table generated
+    /// from [`Exit`], verbatim.
+    #[test]
+    fn the_docs_table_is_the_enum() {
+        let table = Exit::markdown_table();
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let faults = std::fs::read_to_string(root.join("docs/src/faults.md")).expect("docs/src/faults.md");
+        assert!(faults.contains(&table), "docs/src/faults.md must hold this exit-code table verbatim:\n{table}");
+        for e in Exit::ALL {
+            assert_eq!(Exit::from_code(e.code()), Some(e));
+        }
     }
 }

@@ -7,6 +7,8 @@
 mod pose;
 #[path = "../../src/plan.rs"]
 mod plan;
+#[path = "../../src/untrusted.rs"]
+mod untrusted;
 
 use libfuzzer_sys::fuzz_target;
 

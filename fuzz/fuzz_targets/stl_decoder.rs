@@ -5,6 +5,8 @@
 
 #[path = "../../src/geometry/stl.rs"]
 mod stl;
+#[path = "../../src/untrusted.rs"]
+mod untrusted;
 
 use libfuzzer_sys::fuzz_target;
 

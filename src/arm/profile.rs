@@ -97,7 +97,7 @@ pub enum ProfileError {
     Parse {
         path: PathBuf,
         #[source]
-        source: toml::de::Error,
+        source: crate::untrusted::SyntaxError,
     },
     #[error("firmware profile {name}: {field} is invalid: {problem}")]
     Invalid { name: String, field: &'static str, problem: String },
@@ -150,7 +150,8 @@ impl FirmwareProfile {
     /// Loads and validates a profile file.
     pub fn load(path: impl AsRef<Path>) -> Result<FirmwareProfile, ProfileError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| ProfileError::Read { path: path.to_path_buf(), source })?;
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| ProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
@@ -188,7 +189,8 @@ impl FirmwareProfile {
 
     /// Parses and validates profile text; `path` is only used in errors.
     pub fn parse(text: &str, path: &Path) -> Result<FirmwareProfile, ProfileError> {
-        let profile: FirmwareProfile = toml::from_str(text).map_err(|source| ProfileError::Parse { path: path.to_path_buf(), source })?;
+        let profile: FirmwareProfile = toml::from_str(text)
+            .map_err(|e| ProfileError::Parse { path: path.to_path_buf(), source: crate::untrusted::SyntaxError::from_toml(&e, text) })?;
         profile.validate()?;
         Ok(profile)
     }

@@ -56,7 +56,7 @@ pub enum CalibrationError {
     Parse {
         path: String,
         #[source]
-        source: toml::de::Error,
+        source: crate::untrusted::SyntaxError,
     },
     #[error("calibration: cannot encode as TOML: {source}")]
     Encode {
@@ -160,13 +160,15 @@ impl Calibration {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, CalibrationError> {
         let path = path.as_ref();
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Read { path: name.clone(), source })?;
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| CalibrationError::Read { path: name.clone(), source })?;
         Self::from_toml(&text, &name)
     }
 
     /// Parses and validates calibration TOML; `name` is used in errors.
     pub fn from_toml(text: &str, name: &str) -> Result<Self, CalibrationError> {
-        let calib: Calibration = toml::from_str(text).map_err(|source| CalibrationError::Parse { path: name.to_string(), source })?;
+        let calib: Calibration = toml::from_str(text)
+            .map_err(|e| CalibrationError::Parse { path: name.to_string(), source: crate::untrusted::SyntaxError::from_toml(&e, text) })?;
         calib.validate(name)?;
         Ok(calib)
     }

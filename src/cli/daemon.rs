@@ -37,12 +37,26 @@ pub struct Args {
     /// Between jobs, refresh every sensor's frame and the arm pose this often, ms (0: never).
     #[arg(long, default_value_t = 1000)]
     pub idle_refresh_ms: u64,
+    /// A folder jobs may read and write (repeatable); every path a job names must resolve
+    /// inside one, symlinks included. Default: the daemon's working folder.
+    #[arg(long = "root", value_name = "DIR")]
+    pub roots: Vec<PathBuf>,
+    /// ONNX Runtime library (or its folder) for synth jobs, fixed for the daemon's life
+    /// (default: $RIG_ORT_LIB, $ORT_DYLIB_PATH, then the checkout's .rig/onnxruntime/).
+    #[arg(long, value_name = "PATH")]
+    pub ort_lib: Option<PathBuf>,
+    /// A host name the daemon also answers to in the Host header (repeatable), e.g. the
+    /// machine's name on the lab network; loopback names and the listen IP always work.
+    #[arg(long = "allow-host", value_name = "NAME")]
+    pub allowed_hosts: Vec<String>,
 }
 
 /// Runs `rig daemon`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let config = RigConfig::discover(args.config.as_deref())?;
     println!("{}", config.describe());
+    let roots = crate::roots::DataRoots::from_working_folder(&args.roots)?;
+    println!("data roots: {roots}");
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     runtime.block_on(async move {
         let options = DaemonOptions {
@@ -53,12 +67,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             object: args.object,
             seed: args.seed,
             idle_refresh: (args.idle_refresh_ms > 0).then(|| Duration::from_millis(args.idle_refresh_ms)),
+            roots: Some(roots),
+            ort_lib: args.ort_lib,
+            allowed_hosts: args.allowed_hosts,
         };
         let token_set = options.token.as_deref().is_some_and(|t| !t.is_empty());
         let daemon = Daemon::start(options).await.map_err(|e| match e {
             e @ crate::daemon::DaemonError::TokenRequired { .. } => anyhow::Error::new(crate::cli::usage(&e.to_string())),
             e => anyhow::Error::new(e),
         })?;
+        match daemon.ort_lib() {
+            Some(lib) => println!("ONNX Runtime for synth jobs: {}", lib.display()),
+            None => println!("ONNX Runtime for synth jobs: none found (synth jobs will fail; pass --ort-lib or run scripts/setup.sh)"),
+        }
         println!(
             "rig daemon listening on http://{} (page: http://{}/{}); SIGTERM or Ctrl-C stops it",
             daemon.addr(),

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
+use crate::dataset::durable;
 use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
 use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, merge, read_rows, verify};
 use crate::sensor::SensorKind;
@@ -127,10 +128,20 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
         Format::Mds => {
             export_mds(&mds_rows_from(&rows, obj_id), &mut buf)?;
             if let Some(img_dir) = images_out {
+                if !durable::is_plain_file_name(obj_id) {
+                    bail!(crate::cli::usage(&format!(
+                        "--obj-id {obj_id:?} becomes part of file names: give a plain name (no `/`, no `..`)"
+                    )));
+                }
                 std::fs::create_dir_all(img_dir).with_context(|| format!("creating {}", img_dir.display()))?;
+                // Images are read as regular files inside the dataset (never through a symlink)
+                // and written atomically, so a symlink in --images-out is replaced, not followed.
+                durable::entry_exists(&dir.join(crate::dataset::IMAGES_DIR), durable::Kind::Folder)?;
                 for (i, r) in rows.iter().enumerate() {
-                    let dest = img_dir.join(format!("{obj_id}_{}_{i}.png", manifest.sensor.label()));
-                    std::fs::copy(dir.join(&r.image), &dest).with_context(|| format!("copying to {}", dest.display()))?;
+                    let name = format!("{obj_id}_{}_{i}.png", manifest.sensor.label());
+                    let bytes = durable::read_regular(&dir.join(&r.image), durable::MAX_IMAGE_BYTES)?;
+                    durable::write_atomic(img_dir, &name, &bytes)
+                        .with_context(|| format!("copying to {}", img_dir.join(&name).display()))?;
                 }
             }
         }
@@ -182,11 +193,12 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
         if let Some(i) = r.frame_index() {
             candidates.push(images.join(format!("{}_{}_{i}.png", r.obj_id, sensor.label())));
         }
-        let Some(path) = candidates.into_iter().find(|p| p.is_file()) else {
+        let Some(path) = candidates.into_iter().find(|p| p.symlink_metadata().is_ok()) else {
             skipped.push(r.image_name.clone());
             continue;
         };
-        let image = image::open(&path).with_context(|| format!("decoding {}", path.display()))?.to_rgb8();
+        // A regular file (not a symlink), bounded, decoded with limits.
+        let image = durable::read_image(&path)?.to_rgb8();
         writer.append(pose_row_from_mds(r), &image)?;
         written += 1;
     }

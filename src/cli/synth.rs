@@ -116,7 +116,21 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         (None, Some(sensor), Some(pose)) => crate::synth::prompt::mds_prompt(sensor, pose),
         _ => bail!("give --prompt, or --sensor with --pose"),
     };
-    let control = image::open(&args.control).with_context(|| format!("reading control image {}", args.control.display()))?.to_rgb8();
+    // Bounds first: nothing is read, loaded or allocated for settings that mean nothing.
+    if let Some(g) = args.sampling.guidance {
+        crate::synth::limits::check_guidance(g)?;
+    }
+    crate::synth::limits::check_eta(args.sampling.eta)?;
+    crate::synth::limits::check_conditioning_scale(args.sampling.conditioning_scale)?;
+    if let Some(size) = args.size {
+        crate::synth::limits::check_size("size", size, 1)?;
+    }
+    let control = crate::dataset::durable::decode_image(
+        &crate::untrusted::read_bytes(&args.control, crate::dataset::durable::MAX_IMAGE_BYTES)
+            .with_context(|| format!("reading control image {}", args.control.display()))?,
+    )
+    .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?
+    .to_rgb8();
     let init = match &args.init_latents {
         Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
         None => None,
@@ -189,7 +203,8 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
         s.beta_schedule, s.beta_start, s.beta_end, s.num_train_timesteps, s.timestep_spacing, s.steps_offset, s.set_alpha_to_one
     );
     println!("sha256       {}", pipeline.package_hash());
-    println!("runtime      {} ({})", pipeline.library().display(), args.runtime.provider);
+    println!("runtime      {} (from {}; provider {})", pipeline.library().display(), pipeline.library_origin(), args.runtime.provider);
+    println!("sizes        multiples of {} px, at most {} px a side", pipeline.size_multiple(), crate::synth::limits::MAX_SIDE_PX);
     Ok(())
 }
 

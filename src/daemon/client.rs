@@ -1,6 +1,8 @@
 //! A small HTTP/1.1 client for talking to a daemon (`rig collect --daemon URL`, the tests):
 //! one request per connection (`Connection: close`), plain HTTP only, bodies framed by
-//! `Content-Length`, chunked encoding or the end of the connection.
+//! `Content-Length`, chunked encoding or the end of the connection. Every request that is not
+//! a `GET` or `HEAD` carries `X-Rig-Client: rig` (the daemon's CSRF rule), and a body goes as
+//! `Content-Type: application/json`.
 
 use std::time::Duration;
 
@@ -113,6 +115,9 @@ impl DaemonClient {
         let body = json_body.unwrap_or_default();
         if json_body.is_some() {
             head.push_str("Content-Type: application/json\r\n");
+        }
+        if !matches!(method, "GET" | "HEAD") {
+            head.push_str("X-Rig-Client: rig\r\n");
         }
         head.push_str(&format!("Content-Length: {}\r\n\r\n", body.len()));
         stream.write_all(head.as_bytes()).await.map_err(io)?;

@@ -35,6 +35,9 @@ pub struct RigContext<'r> {
     pub progress: indicatif::ProgressBar,
     /// The last model package loaded, kept for the next synth job.
     pub pipeline: &'r mut Option<(PathBuf, RuntimeOptions, Pipeline)>,
+    /// The ONNX Runtime library synth jobs load, fixed when the daemon started (`None`: none
+    /// was found, and synth jobs fail saying so).
+    pub ort_lib: Option<PathBuf>,
 }
 
 impl RigContext<'_> {
@@ -103,7 +106,7 @@ async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<Jo
 
 async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
     let observer = ctx.observer();
-    let RigContext { state, job_id, pipeline, .. } = ctx;
+    let RigContext { state, job_id, pipeline, ort_lib, .. } = ctx;
     if request.twins() {
         // Twins are for evaluating a model offline; the daemon's synth jobs fill datasets.
         return Err(JobError::BadOption {
@@ -114,7 +117,14 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
     }
     let targets = request.targets()?;
     let model = request.model_dir();
-    let runtime = RuntimeOptions::default();
+    let Some(ort_lib) = ort_lib else {
+        return Err(JobError::BadOption {
+            field: "synth",
+            reason: "the daemon found no ONNX Runtime library when it started: restart it with --ort-lib PATH".into(),
+        }
+        .into());
+    };
+    let runtime = RuntimeOptions { ort_lib: Some(ort_lib), ..RuntimeOptions::default() };
     // The model runs on a blocking thread; the loaded package comes back for the next job.
     let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
     let request = request.clone();

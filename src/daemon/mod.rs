@@ -18,26 +18,38 @@
 //! the HTTP server.
 //!
 //! Listening anywhere but loopback needs a token ([`DaemonError::TokenRequired`]); with a
-//! token every API call must carry `Authorization: Bearer <token>`.
+//! token every API call must carry `Authorization: Bearer <token>`. The `Host`, CSRF, body and
+//! timeout rules are in [`api`] and [`serve`]; the security chapter of the docs
+//! (`docs/src/security.md`) says what they protect.
+//!
+//! Trust fixed at start, never taken from a request: the data roots ([`DataRoots`], from
+//! `--root`; every path a job names must resolve inside one) and the ONNX Runtime library
+//! (`--ort-lib`, else the search of [`crate::synth::runtime`]). The worker hands both to the
+//! jobs in a [`WorkerContext`]. A job that fails or panics fails alone: the worker records it
+//! with its exit code and runs the next one.
 
 pub mod api;
 pub mod client;
 pub mod jobs;
 pub mod live;
+pub mod serve;
 pub mod state;
 mod worker;
 
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::watch;
 
 pub use state::{DaemonState, JobState, JobView, StatusView};
+pub use worker::WorkerContext;
 
 use crate::config::RigConfig;
 use crate::geometry::objects::ObjectChoice;
 use crate::rigs::{Rig, RigError};
+use crate::roots::{DataRoots, RootsError};
 use crate::sensor::SensorSet;
 
 /// Errors starting or stopping the daemon.
@@ -57,6 +69,10 @@ pub enum DaemonError {
     Serve(#[source] std::io::Error),
     #[error("the {task} task ended abnormally: {reason}")]
     Task { task: &'static str, reason: String },
+    #[error("data roots: {0}")]
+    Roots(#[source] RootsError),
+    #[error("ONNX Runtime for synth jobs: {0}")]
+    OrtLib(#[source] crate::synth::SynthError),
 }
 
 /// How to run a daemon.
@@ -75,6 +91,14 @@ pub struct DaemonOptions {
     pub seed: u64,
     /// How often to refresh the frames and the arm pose between jobs; `None`: never.
     pub idle_refresh: Option<Duration>,
+    /// The folders jobs may read and write (`--root`); `None`: the working folder.
+    pub roots: Option<DataRoots>,
+    /// The ONNX Runtime library (or its folder) synth jobs use (`--ort-lib`); `None`: the
+    /// search of [`crate::synth::runtime`], done once at start.
+    pub ort_lib: Option<PathBuf>,
+    /// Host names, besides loopback ones and the listen IP, the daemon answers to
+    /// (`--allow-host`).
+    pub allowed_hosts: Vec<String>,
 }
 
 impl DaemonOptions {
@@ -89,6 +113,9 @@ impl DaemonOptions {
             object: "sphere".into(),
             seed: 0,
             idle_refresh: Some(Duration::from_secs(1)),
+            roots: None,
+            ort_lib: None,
+            allowed_hosts: Vec::new(),
         }
     }
 }
@@ -97,6 +124,7 @@ impl DaemonOptions {
 pub struct Daemon {
     addr: SocketAddr,
     state: Arc<DaemonState>,
+    context: WorkerContext,
     stop_server: watch::Sender<bool>,
     server: tokio::task::JoinHandle<std::io::Result<()>>,
     worker: tokio::task::JoinHandle<()>,
@@ -109,6 +137,24 @@ impl Daemon {
         if token.is_none() && !options.listen.ip().is_loopback() {
             return Err(DaemonError::TokenRequired { addr: options.listen });
         }
+        let roots = match options.roots.clone() {
+            Some(roots) => roots,
+            None => DataRoots::from_working_folder(&[]).map_err(DaemonError::Roots)?,
+        };
+        // Resolved once: a library named at start must exist; one found by the search is kept,
+        // so no later change of the environment or the working folder changes what jobs load.
+        let ort_lib = match crate::synth::runtime::locate_ort_library(options.ort_lib.as_deref()) {
+            Ok((path, origin)) => {
+                tracing::info!(library = %path.display(), origin, "ONNX Runtime for synth jobs");
+                Some(path)
+            }
+            Err(e) if options.ort_lib.is_some() => return Err(DaemonError::OrtLib(e)),
+            Err(e) => {
+                tracing::warn!(error = %e, "no ONNX Runtime library: synth jobs will fail");
+                None
+            }
+        };
+        let context = WorkerContext { roots, ort_lib };
         let listener =
             tokio::net::TcpListener::bind(options.listen).await.map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
         let addr = listener.local_addr().map_err(|source| DaemonError::Bind { addr: options.listen, source })?;
@@ -124,17 +170,23 @@ impl Daemon {
         );
         let state = Arc::new(DaemonState::new(describe));
 
-        let worker = tokio::spawn(worker::run_worker(Arc::clone(&state), rig, config, clock, options.idle_refresh));
-        let (stop_server, mut stop_rx) = watch::channel(false);
-        let router = api::router(api::ApiState { state: Arc::clone(&state), token: token.map(Arc::from) });
-        let server = tokio::spawn(async move {
-            axum::serve(listener, router)
-                .with_graceful_shutdown(async move {
-                    let _ = stop_rx.wait_for(|stop| *stop).await;
-                })
-                .await
-        });
-        Ok(Daemon { addr, state, stop_server, server, worker })
+        let worker = tokio::spawn(worker::run_worker(Arc::clone(&state), rig, config, clock, options.idle_refresh, context.clone()));
+        let (stop_server, stop_rx) = watch::channel(false);
+        let hosts = Arc::new(api::HostRule::new(addr, &options.allowed_hosts));
+        let roots = Arc::new(context.roots.clone());
+        let router = api::router(api::ApiState { state: Arc::clone(&state), token: token.map(Arc::from), hosts, roots });
+        let server = tokio::spawn(serve::serve(listener, router, stop_rx));
+        Ok(Daemon { addr, state, context, stop_server, server, worker })
+    }
+
+    /// The data roots jobs are confined to.
+    pub fn roots(&self) -> &DataRoots {
+        &self.context.roots
+    }
+
+    /// The ONNX Runtime library synth jobs load (`None`: none was found at start).
+    pub fn ort_lib(&self) -> Option<&std::path::Path> {
+        self.context.ort_lib.as_deref()
     }
 
     /// Where it listens.

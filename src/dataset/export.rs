@@ -115,25 +115,31 @@ impl MdsRow {
     }
 }
 
-/// Reads an MDS file, skipping the empty template rows.
+/// Largest MDS CSV read (upstream files are 500-row templates of a few tens of kB).
+pub const MAX_MDS_BYTES: u64 = 64 << 20;
+
+/// Reads an MDS file (a regular file of at most [`MAX_MDS_BYTES`]), skipping the empty
+/// template rows.
 pub fn import_mds(path: &Path) -> Result<Vec<MdsRow>, DatasetError> {
-    let bytes = std::fs::read(path).map_err(DatasetError::io("reading", path))?;
+    let bytes = crate::untrusted::read_bytes(path, MAX_MDS_BYTES).map_err(DatasetError::io("reading", path))?;
     parse_mds(&bytes, path)
 }
 
 /// Parses MDS bytes (`path` names the source in errors). Columns are found by header name,
-/// so reordered or extra columns are accepted.
+/// so reordered or extra columns are accepted. `image_name` and `obj_id` become file names on
+/// import, so each must be a plain file name (no `/`, no `..`); errors name the line and the
+/// column, not the field's text.
 pub fn parse_mds(bytes: &[u8], path: &Path) -> Result<Vec<MdsRow>, DatasetError> {
     let bad = |line: u64, reason: String| DatasetError::MalformedMds { path: path.to_path_buf(), line, reason };
     let mut rdr = csv::ReaderBuilder::new().has_headers(true).flexible(true).from_reader(bytes);
-    let headers = rdr.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+    let headers = rdr.headers().map_err(|e| bad(1, crate::untrusted::sanitise(&e.to_string())))?.clone();
     let mut index = [0usize; 16];
     for (k, name) in MDS_COLUMNS.iter().enumerate() {
         index[k] = headers.iter().position(|h| h.trim() == *name).ok_or_else(|| bad(1, format!("missing column {name}")))?;
     }
     let mut rows = Vec::new();
     for record in rdr.records() {
-        let record = record.map_err(|e| bad(e.position().map(|p| p.line()).unwrap_or(0), e.to_string()))?;
+        let record = record.map_err(|e| bad(e.position().map(|p| p.line()).unwrap_or(0), crate::untrusted::sanitise(&e.to_string())))?;
         let line = record.position().map(|p| p.line()).unwrap_or(0);
         if record.iter().all(|f| f.trim().is_empty()) {
             continue; // template row
@@ -144,13 +150,18 @@ pub fn parse_mds(bytes: &[u8], path: &Path) -> Result<Vec<MdsRow>, DatasetError>
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| bad(line, format!("{} is not a finite number: {:?}", MDS_COLUMNS[k], field(k))))
+                .ok_or_else(|| bad(line, format!("{} is not a finite number", MDS_COLUMNS[k])))
         };
         let image_name = field(0).to_string();
         if image_name.is_empty() {
             return Err(bad(line, "image_name is empty".to_string()));
         }
-        let pose_id = field(3).parse::<u32>().map_err(|_| bad(line, format!("pose_id is not a non-negative integer: {:?}", field(3))))?;
+        for (k, name) in [(0, "image_name"), (2, "obj_id")] {
+            if !field(k).is_empty() && !super::durable::is_plain_file_name(field(k)) {
+                return Err(bad(line, format!("{name} is not a plain file name (no `/`, no `..`)")));
+            }
+        }
+        let pose_id = field(3).parse::<u32>().map_err(|_| bad(line, "pose_id is not a non-negative integer".to_string()))?;
         let mut pose = [0.0; 6];
         let mut moves = [0.0; 6];
         for j in 0..6 {
@@ -244,6 +255,18 @@ mod tests {
         let err = parse_mds(partial.as_bytes(), Path::new("t.csv")).unwrap_err();
         assert!(matches!(err, DatasetError::MalformedMds { line: 2, .. }), "{err}");
         assert!(parse_mds(b"a,b\n1,2\n", Path::new("t.csv")).is_err());
+        // Names that would leave the images folder, and values never echoed.
+        for (image, obj) in [("../../outside.png", "1"), ("a/b.png", "1"), ("f.png", "../x"), ("..", "1")] {
+            let text = format!("{}\n{image},frame_0,{obj},1,0,0,0,0,0,0,0,0,0,0,0,0\n", MDS_COLUMNS.join(","));
+            let err = parse_mds(text.as_bytes(), Path::new("t.csv")).unwrap_err();
+            assert!(
+                err.to_string().contains("plain file name") && !err.to_string().contains("outside") && !err.to_string().contains("../x"),
+                "{err}"
+            );
+        }
+        let text = format!("{}\nf.png,frame_0,1,1,secret-value,0,0,0,0,0,0,0,0,0,0,0\n", MDS_COLUMNS.join(","));
+        let err = parse_mds(text.as_bytes(), Path::new("t.csv")).unwrap_err();
+        assert!(err.to_string().contains("pose_1") && !err.to_string().contains("secret-value"), "{err}");
         assert!(parse_mds(b"\xff\x00,\"", Path::new("t.csv")).is_err());
     }
 

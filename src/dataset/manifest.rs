@@ -100,17 +100,28 @@ impl Manifest {
         }
     }
 
-    /// Reads `dir/manifest.toml`.
+    /// Reads `dir/manifest.toml` (a regular file, not a symlink, at most
+    /// [`MAX_MANIFEST_BYTES`](super::durable::MAX_MANIFEST_BYTES)) and validates its plan, so
+    /// no manifest can make a reader enumerate a grid beyond [`crate::plan::MAX_GRID_POINTS`].
     pub fn load(dir: &Path) -> Result<Self, DatasetError> {
         let path = dir.join(super::MANIFEST_FILE);
-        let text = std::fs::read_to_string(&path).map_err(DatasetError::io("reading", &path))?;
-        toml::from_str(&text).map_err(|source| DatasetError::ManifestParse { path, source: Box::new(source) })
+        let bytes = super::durable::read_regular(&path, super::durable::MAX_MANIFEST_BYTES)?;
+        let text = String::from_utf8(bytes).map_err(|_| DatasetError::ManifestParse {
+            path: path.clone(),
+            source: crate::untrusted::SyntaxError::at(0, 0, "not UTF-8 text"),
+        })?;
+        let manifest: Manifest = toml::from_str(&text)
+            .map_err(|e| DatasetError::ManifestParse { path: path.clone(), source: crate::untrusted::SyntaxError::from_toml(&e, &text) })?;
+        if let Some(plan) = &manifest.plan {
+            plan.validate().map_err(|source| DatasetError::ManifestPlan { path, source })?;
+        }
+        Ok(manifest)
     }
 
     /// Writes `dir/manifest.toml` atomically.
     pub fn store(&self, dir: &Path) -> Result<(), DatasetError> {
         let text = toml::to_string(self).map_err(|source| DatasetError::ManifestWrite { source })?;
-        super::writer::write_atomic(dir, super::MANIFEST_FILE, text.as_bytes())
+        super::durable::write_atomic(dir, super::MANIFEST_FILE, text.as_bytes())
     }
 
     /// The first field that makes `requested` a different dataset from `self` (plan, object,

@@ -2,12 +2,14 @@
 //! dataset directory) into one. Every input must verify clean and describe the same dataset
 //! (sensor, object, plan). A pose id present in several places must carry the same row and
 //! the same image bytes there, otherwise nothing is written and the conflict is reported.
-//! Merging again is harmless: rows already in the output are skipped.
+//! Merging again is harmless: rows already in the output are skipped. Every input verifies
+//! clean first, which decodes each image and refuses symlinks, so a merge copies only regular
+//! image files that belong to the datasets named.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::writer::write_atomic;
+use super::durable::{Kind, MAX_IMAGE_BYTES, entry_exists, read_regular, write_atomic};
 use super::{DatasetError, DatasetWriter, Manifest, PoseRow, REFERENCE_FILE, read_rows, verify};
 
 /// What [`merge`] did.
@@ -70,16 +72,22 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
             writer.append_png(row, &png)?;
         }
     }
-    let reference_src = inputs.iter().map(|d| d.join(REFERENCE_FILE)).find(|p| p.is_file());
+    let mut reference_src = None;
+    for dir in inputs {
+        if entry_exists(&dir.join(REFERENCE_FILE), Kind::File)? {
+            reference_src = Some(dir.join(REFERENCE_FILE));
+            break;
+        }
+    }
     if let Some(src) = reference_src.filter(|_| !out.join(REFERENCE_FILE).exists()) {
-        let bytes = std::fs::read(&src).map_err(DatasetError::io("reading", &src))?;
+        let bytes = read_regular(&src, MAX_IMAGE_BYTES)?;
         write_atomic(out, REFERENCE_FILE, &bytes)?;
     }
     writer.finish()?;
     Ok(MergeReport { inputs: inputs.len(), appended: new_ids.len(), already_present })
 }
 
+/// The bytes of a row's image: a regular file (never a symlink), bounded.
 fn read_image(dir: &Path, row: &PoseRow) -> Result<Vec<u8>, DatasetError> {
-    let path = dir.join(&row.image);
-    std::fs::read(&path).map_err(DatasetError::io("reading", path))
+    read_regular(&dir.join(&row.image), MAX_IMAGE_BYTES)
 }

@@ -20,6 +20,8 @@
 //! anything; [`export`] writes the MultiDiffSense (MDS) and tactile-bench CSV dialects and
 //! reads the MDS one; [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
 
+pub mod durable;
+mod error;
 pub mod export;
 pub mod manifest;
 pub mod merge;
@@ -32,6 +34,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::pose::Pose;
 
+pub use error::{DatasetError, RowProblem};
 pub use manifest::{Manifest, ObjectInfo};
 pub use merge::{MergeReport, merge};
 pub use verify::{VerifyIssue, VerifyReport, verify};
@@ -242,107 +245,9 @@ impl PoseRow {
     }
 }
 
-/// What is wrong with a row's content.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RowProblem {
-    #[error("commanded pose is not finite")]
-    NonFinitePose,
-    #[error("measured pose or capture time is not finite")]
-    NonFiniteMeasurement,
-    #[error("image column is {found:?}, expected {expected:?}")]
-    ImagePath { expected: String, found: String },
-    #[error("a text field contains a line break")]
-    Multiline,
-}
-
 /// The image path of a pose relative to the dataset directory.
 pub fn image_rel_path(pose_id: u32) -> String {
     format!("{IMAGES_DIR}/{pose_id}.png")
-}
-
-/// Errors of the dataset module.
-#[derive(Debug, thiserror::Error)]
-pub enum DatasetError {
-    #[error("{op} {path}: {source}")]
-    Io {
-        op: &'static str,
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    /// The disk (or the injected byte budget) is full. Nothing durable was lost: the writer
-    /// only ever lands whole images before their rows.
-    #[error(
-        "disk full while {op} {path} (everything written before is intact: free some space, then run the same command again with --resume)"
-    )]
-    DiskFull {
-        op: &'static str,
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{dir} already holds a dataset (or other files); refusing to overwrite it. Use --resume to continue it")]
-    NotEmpty { dir: PathBuf },
-    #[error("{dir} is not a dataset: {missing} is missing")]
-    NotADataset { dir: PathBuf, missing: &'static str },
-    #[error("dataset {dir} was written with a different {field}: it has {existing}, this run asks for {requested}")]
-    ManifestMismatch { dir: PathBuf, field: &'static str, existing: String, requested: String },
-    #[error("cannot read manifest {path}: {source}")]
-    ManifestParse {
-        path: PathBuf,
-        #[source]
-        source: Box<toml::de::Error>,
-    },
-    #[error("cannot write manifest: {source}")]
-    ManifestWrite {
-        #[source]
-        source: toml::ser::Error,
-    },
-    #[error("{path} has an unexpected header {found:?}; expected {expected:?}")]
-    BadHeader { path: PathBuf, found: String, expected: String },
-    #[error("{path} line {line}: malformed row: {reason}")]
-    MalformedRow { path: PathBuf, line: u64, reason: String },
-    #[error("{path} line {line}: pose_id {pose_id} already has a row (line {first_line})")]
-    DuplicateRow { path: PathBuf, line: u64, first_line: u64, pose_id: u32 },
-    #[error("pose_id {pose_id} already has a row in this dataset")]
-    DuplicatePose { pose_id: u32 },
-    #[error("row for pose_id {pose_id} is invalid: {problem}")]
-    InvalidRow { pose_id: u32, problem: RowProblem },
-    #[error("row for pose_id {pose_id} names {path} but the image is missing; run `rig dataset verify`")]
-    MissingImage { pose_id: u32, path: PathBuf },
-    #[error("cannot encode image for pose_id {pose_id}: {source}")]
-    Encode {
-        pose_id: u32,
-        #[source]
-        source: image::ImageError,
-    },
-    #[error("{path} is being written by another process (lock held)")]
-    Locked { path: PathBuf },
-    #[error("{path} line {line}: malformed MDS row: {reason}")]
-    MalformedMds { path: PathBuf, line: u64, reason: String },
-    #[error("cannot write CSV: {source}")]
-    CsvWrite {
-        #[source]
-        source: csv::Error,
-    },
-    #[error("{dir} does not verify clean ({issues} issues); run `rig dataset verify` on it")]
-    Unclean { dir: PathBuf, issues: usize },
-    #[error("merge conflict on pose_id {pose_id}: {first} and {second} disagree")]
-    MergeConflict { pose_id: u32, first: PathBuf, second: PathBuf },
-}
-
-impl DatasetError {
-    pub(crate) fn io(op: &'static str, path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
-        let path = path.into();
-        move |source| {
-            // ENOSPC and EDQUOT: say what to do, not only what failed.
-            if source.kind() == std::io::ErrorKind::StorageFull || source.kind() == std::io::ErrorKind::QuotaExceeded {
-                DatasetError::DiskFull { op, path, source }
-            } else {
-                DatasetError::Io { op, path, source }
-            }
-        }
-    }
 }
 
 /// Dataset directories under `root`: `root` itself when it holds a manifest, else its
@@ -372,7 +277,7 @@ pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
 /// line is ignored, as resume would truncate it). Rows come in file order.
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
     let path = dir.join(POSES_FILE);
-    let bytes = std::fs::read(&path).map_err(DatasetError::io("reading", &path))?;
+    let bytes = durable::read_regular(&path, durable::MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
     if parsed.layout.is_none() {
         return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected: COLUMNS.join(",") });
@@ -447,6 +352,13 @@ pub(crate) fn parse_csv(bytes: &[u8]) -> ParsedCsv {
         if raw.is_empty() {
             continue; // the split after the final newline, or a blank line
         }
+        if raw.len() > durable::MAX_CSV_LINE_BYTES {
+            lines.push(ParsedLine {
+                line,
+                row: Err(format!("line of {} bytes, longer than the {} a row may be", raw.len(), durable::MAX_CSV_LINE_BYTES)),
+            });
+            continue;
+        }
         lines.push(ParsedLine { line, row: parse_row(raw, layout.unwrap_or(CsvLayout::Current)) });
     }
     ParsedCsv { header, layout, lines, complete_len: complete_len as u64, torn_bytes }
@@ -458,14 +370,14 @@ fn parse_row(raw: &[u8], layout: CsvLayout) -> Result<PoseRow, String> {
     match rdr.read_record(&mut record) {
         Ok(true) => {}
         Ok(false) => return Err("empty line".to_string()),
-        Err(e) => return Err(e.to_string()),
+        Err(e) => return Err(crate::untrusted::sanitise(&e.to_string())),
     }
     let columns = layout.columns();
     if record.len() != columns.len() {
         return Err(format!("{} fields, expected {}", record.len(), columns.len()));
     }
     let headers = csv::StringRecord::from(columns.to_vec());
-    let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| e.to_string())?;
+    let row: PoseRow = record.deserialize(Some(&headers)).map_err(|e| crate::untrusted::sanitise(&e.to_string()))?;
     if let Some(p) = row.problem() {
         return Err(p.to_string());
     }

@@ -1,10 +1,13 @@
 //! Read-only check of a dataset directory: rows against images, duplicates, malformed lines,
-//! leftovers of a killed run. Nothing is modified; [`super::DatasetWriter::resume`] repairs.
+//! leftovers of a killed run, symlinks and other entries that are not regular files, and every
+//! image decoded and its size checked against the reference frame's (or, without one, the
+//! first image's). Nothing is modified; [`super::DatasetWriter::resume`] repairs what it can.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_regular};
 use super::writer::{image_file_pose_id, is_temp_name};
 use super::{DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, parse_csv};
 
@@ -27,6 +30,13 @@ pub enum VerifyIssue {
     BadHeader { found: String },
     /// The manifest is missing or unreadable.
     BadManifest { reason: String },
+    /// An entry that is a symlink (never followed) or not what the layout says (a folder
+    /// named like an image, a FIFO...).
+    NotRegular { path: PathBuf, reason: String },
+    /// An image (or `reference.png`) that does not decode: empty, truncated, not a PNG.
+    BadImage { path: PathBuf, reason: String },
+    /// An image whose size differs from the dataset's.
+    WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
 }
 
 impl fmt::Display for VerifyIssue {
@@ -44,8 +54,13 @@ impl fmt::Display for VerifyIssue {
                 write!(f, "torn last line: {bytes} bytes without a newline (an interrupted append)")
             }
             VerifyIssue::TempFile { path } => write!(f, "temporary file left behind: {}", path.display()),
-            VerifyIssue::BadHeader { found } => write!(f, "unexpected header {found:?}"),
+            VerifyIssue::BadHeader { .. } => write!(f, "line 1 of {POSES_FILE} is not a header rig knows"),
             VerifyIssue::BadManifest { reason } => write!(f, "manifest: {reason}"),
+            VerifyIssue::NotRegular { path, reason } => write!(f, "{}: {reason}", path.display()),
+            VerifyIssue::BadImage { path, reason } => write!(f, "unreadable image {}: {reason}", path.display()),
+            VerifyIssue::WrongSize { path, found, expected } => {
+                write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
+            }
         }
     }
 }
@@ -66,6 +81,10 @@ pub struct VerifyReport {
     /// Malformed lines, the torn last line included.
     pub malformed: usize,
     pub temp_files: usize,
+    /// Images (and the reference) that do not decode or have the wrong size.
+    pub bad_images: usize,
+    /// Symlinks and entries of the wrong kind.
+    pub not_regular: usize,
     pub has_reference: bool,
     pub issues: Vec<VerifyIssue>,
 }
@@ -91,8 +110,8 @@ impl fmt::Display for VerifyReport {
         )?;
         writeln!(
             f,
-            "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}",
-            self.missing, self.orphan, self.duplicated, self.malformed, self.temp_files
+            "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}, bad images {}, not regular files {}",
+            self.missing, self.orphan, self.duplicated, self.malformed, self.temp_files, self.bad_images, self.not_regular
         )?;
         for issue in &self.issues {
             writeln!(f, "  {issue}")?;
@@ -105,17 +124,32 @@ impl fmt::Display for VerifyReport {
 /// `poses.csv` or cannot be read.
 pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     let csv_path = dir.join(POSES_FILE);
-    if !csv_path.is_file() {
+    if !entry_exists(&csv_path, Kind::File)? {
         return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: POSES_FILE });
     }
-    let bytes = std::fs::read(&csv_path).map_err(DatasetError::io("reading", &csv_path))?;
+    let bytes = read_regular(&csv_path, MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
-    let mut report = VerifyReport { has_reference: dir.join(REFERENCE_FILE).is_file(), ..Default::default() };
+    let mut report = VerifyReport::default();
 
-    if !dir.join(MANIFEST_FILE).is_file() {
-        report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") });
-    } else if let Err(e) = Manifest::load(dir) {
-        report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() });
+    match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
+        Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
+        Ok(true) => {
+            if let Err(e) = Manifest::load(dir) {
+                report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() });
+            }
+        }
+        Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
+    }
+    // The dataset's image size: the reference frame's, else the first image's.
+    let mut expected_size = None;
+    let reference = dir.join(REFERENCE_FILE);
+    match entry_exists(&reference, Kind::File) {
+        Ok(true) => {
+            report.has_reference = true;
+            expected_size = check_image(&reference, None, &mut report);
+        }
+        Ok(false) => {}
+        Err(e) => not_regular(&mut report, &reference, &e),
     }
     // Both the current header and the one from before the `modbus` column are clean.
     if parsed.layout.is_none() {
@@ -157,19 +191,33 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     }
     let images_dir = dir.join(IMAGES_DIR);
     let mut present = BTreeSet::new();
-    if images_dir.is_dir() {
+    let images_ok = match entry_exists(&images_dir, Kind::Folder) {
+        Ok(is_dir) => is_dir,
+        Err(e) => {
+            not_regular(&mut report, &images_dir, &e);
+            false
+        }
+    };
+    if images_ok {
         for name in list_names(&images_dir)? {
             let path = images_dir.join(&name);
             if is_temp_name(&name) {
                 report.temp_files += 1;
                 report.issues.push(VerifyIssue::TempFile { path });
             } else if let Some(id) = image_file_pose_id(&name) {
+                if let Err(e) = entry_exists(&path, Kind::File) {
+                    // Not counted as present: a row naming it has no image rig will read.
+                    not_regular(&mut report, &path, &e);
+                    continue;
+                }
                 report.images += 1;
                 present.insert(id);
                 if !first_line.contains_key(&id) {
                     report.orphan += 1;
-                    report.issues.push(VerifyIssue::OrphanImage { path });
+                    report.issues.push(VerifyIssue::OrphanImage { path: path.clone() });
                 }
+                let size = check_image(&path, expected_size, &mut report);
+                expected_size = expected_size.or(size);
             } else {
                 report.orphan += 1;
                 report.issues.push(VerifyIssue::OrphanImage { path });
@@ -183,6 +231,37 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
         }
     }
     Ok(report)
+}
+
+fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
+    report.not_regular += 1;
+    let reason = match e {
+        DatasetError::Symlink { .. } => "a symlink (rig does not follow symlinks inside a dataset)".to_string(),
+        DatasetError::NotRegular { expected, .. } => format!("not {expected}"),
+        other => other.to_string(),
+    };
+    report.issues.push(VerifyIssue::NotRegular { path: path.to_path_buf(), reason });
+}
+
+/// Decodes one image; records an issue when it does not decode or is not `expected` in size.
+/// Returns its size when it decoded.
+fn check_image(path: &Path, expected: Option<(u32, u32)>, report: &mut VerifyReport) -> Option<(u32, u32)> {
+    let decoded = read_regular(path, MAX_IMAGE_BYTES).map_err(|e| e.to_string()).and_then(|bytes| decode_image(&bytes));
+    match decoded {
+        Ok(image) => {
+            let found = (image.width(), image.height());
+            if let Some(expected) = expected.filter(|e| *e != found) {
+                report.bad_images += 1;
+                report.issues.push(VerifyIssue::WrongSize { path: path.to_path_buf(), found, expected });
+            }
+            Some(found)
+        }
+        Err(reason) => {
+            report.bad_images += 1;
+            report.issues.push(VerifyIssue::BadImage { path: path.to_path_buf(), reason });
+            None
+        }
+    }
 }
 
 fn list_names(dir: &Path) -> Result<Vec<String>, DatasetError> {

@@ -12,18 +12,23 @@
 //! (truncated away, and its image becomes an orphan). The set of done pose ids is the set of
 //! complete CSV rows, each of which names an image that was durable before the row was.
 //!
-//! A writer holds an exclusive `flock` on `poses.csv`, so two processes never append to one
-//! dataset at once; the kernel drops the lock when the process dies, so a killed run never
-//! blocks its resume.
+//! A writer holds an exclusive `flock` on the dataset folder itself, taken before it looks at
+//! or creates anything there, so two processes never write one dataset at once (two runs
+//! racing into an empty folder: the second is told the dataset is held by another process);
+//! the kernel drops the lock when the process dies, so a killed run never blocks its resume.
+//!
+//! Nothing inside the dataset is followed through a symlink ([`super::durable`]): a symlinked
+//! `images/`, `poses.csv`, `manifest.toml` or image is an error, never a place to write.
 
 use std::collections::BTreeSet;
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 
 use image::RgbImage;
 
+use super::durable::{Kind, ensure_folder, entry_exists, fsync_dir, open_regular, write_atomic};
 use super::manifest::{Manifest, utc_now};
 use super::{
     COLUMNS, CsvLayout, DatasetError, IMAGES_DIR, MANIFEST_FILE, POSES_FILE, PoseRow, REFERENCE_FILE, RowProblem, header_line,
@@ -35,6 +40,8 @@ use super::{
 pub struct DatasetWriter {
     dir: PathBuf,
     manifest: Manifest,
+    /// The folder, open and `flock`ed for the writer's life.
+    _lock: File,
     csv: File,
     /// Length of `poses.csv` after the last complete line, to undo a failed partial append.
     csv_len: u64,
@@ -48,17 +55,21 @@ impl DatasetWriter {
     /// Starts a new dataset in `dir` (created if absent). Refuses a directory that holds
     /// anything, so an existing dataset is never overwritten.
     pub fn create(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
+        let lock = lock_dir(dir, true)?;
+        Self::create_locked(dir, manifest, lock)
+    }
+
+    fn create_locked(dir: &Path, manifest: Manifest, lock: File) -> Result<Self, DatasetError> {
         if !dir_is_empty(dir)? {
             return Err(DatasetError::NotEmpty { dir: dir.to_path_buf() });
         }
-        let images = dir.join(IMAGES_DIR);
-        std::fs::create_dir_all(&images).map_err(DatasetError::io("creating", &images))?;
+        ensure_folder(&dir.join(IMAGES_DIR))?;
         manifest.store(dir)?;
         write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             fsync_dir(parent)?;
         }
-        Self::open_existing(dir, manifest, false)
+        Self::open_existing(dir, manifest, false, lock)
     }
 
     /// Continues the dataset in `dir` exactly where a previous (possibly killed) run stopped,
@@ -67,15 +78,16 @@ impl DatasetWriter {
     /// manifest is kept (its start time included) and this run's start is added to
     /// `resumed_utc`.
     pub fn resume(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
+        let lock = lock_dir(dir, true)?;
         if dir_is_empty(dir)? {
-            return Self::create(dir, manifest);
+            return Self::create_locked(dir, manifest, lock);
         }
         if remove_creation_stub(dir)? {
-            return Self::create(dir, manifest);
+            return Self::create_locked(dir, manifest, lock);
         }
         let existing = Manifest::load(dir)?;
         existing.check_same_dataset(&manifest, dir)?;
-        Self::open_existing(dir, existing, true)
+        Self::open_existing(dir, existing, true, lock)
     }
 
     /// [`resume`](Self::resume) when `resume` is set (the `--resume` flag), else
@@ -87,21 +99,24 @@ impl DatasetWriter {
     /// Opens an existing dataset to append to it under its own manifest (what
     /// `rig synth --fill-missing` does), repairing it as [`resume`](Self::resume) does.
     pub fn open(dir: &Path) -> Result<Self, DatasetError> {
-        if !dir.join(MANIFEST_FILE).exists() {
+        if !entry_exists(&dir.join(MANIFEST_FILE), Kind::File)? {
             return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: MANIFEST_FILE });
         }
+        let lock = lock_dir(dir, false)?;
         let existing = Manifest::load(dir)?;
-        Self::open_existing(dir, existing, true)
+        Self::open_existing(dir, existing, true, lock)
     }
 
-    fn open_existing(dir: &Path, mut manifest: Manifest, resumed: bool) -> Result<Self, DatasetError> {
+    fn open_existing(dir: &Path, mut manifest: Manifest, resumed: bool, lock: File) -> Result<Self, DatasetError> {
         let csv_path = dir.join(POSES_FILE);
-        if !csv_path.exists() {
+        if !entry_exists(&csv_path, Kind::File)? {
             // Killed between the manifest and the header of a new dataset.
             write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
         }
-        let mut csv = OpenOptions::new().read(true).append(true).open(&csv_path).map_err(DatasetError::io("opening", &csv_path))?;
-        lock_exclusive(&csv, &csv_path)?;
+        let mut csv = open_regular(&csv_path, true)?;
+        if csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len() > super::durable::MAX_POSES_CSV_BYTES {
+            return Err(DatasetError::TooLarge { path: csv_path, max_bytes: super::durable::MAX_POSES_CSV_BYTES });
+        }
 
         let mut bytes = Vec::new();
         csv.read_to_end(&mut bytes).map_err(DatasetError::io("reading", &csv_path))?;
@@ -137,13 +152,16 @@ impl DatasetWriter {
         }
 
         remove_temp_files(dir)?;
+        entry_exists(&dir.join(REFERENCE_FILE), Kind::File)?;
         let images = dir.join(IMAGES_DIR);
-        std::fs::create_dir_all(&images).map_err(DatasetError::io("creating", &images))?;
+        ensure_folder(&images)?;
         remove_temp_files(&images)?;
         let mut present = BTreeSet::new();
         for entry in std::fs::read_dir(&images).map_err(DatasetError::io("listing", &images))? {
             let entry = entry.map_err(DatasetError::io("listing", &images))?;
             let Some(id) = image_file_pose_id(&entry.file_name().to_string_lossy()) else { continue };
+            // An image must be a regular file: a symlink here could name any file on the machine.
+            entry_exists(&entry.path(), Kind::File)?;
             if done.contains(&id) {
                 present.insert(id);
             } else {
@@ -162,7 +180,7 @@ impl DatasetWriter {
             manifest.store(dir)?;
         }
         let csv_len = csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len();
-        Ok(Self { dir: dir.to_path_buf(), manifest, csv, csv_len, done, budget_left_bytes: None })
+        Ok(Self { dir: dir.to_path_buf(), manifest, _lock: lock, csv, csv_len, done, budget_left_bytes: None })
     }
 
     /// Limits the bytes of images and rows this writer may write; past it every write fails
@@ -287,8 +305,7 @@ fn upgrade_legacy_csv(dir: &Path, legacy: &[u8], old: File) -> Result<File, Data
     }
     tracing::info!("adding the modbus column to {}", csv_path.display());
     write_atomic(dir, POSES_FILE, &upgraded)?;
-    let csv = OpenOptions::new().read(true).append(true).open(&csv_path).map_err(DatasetError::io("opening", &csv_path))?;
-    lock_exclusive(&csv, &csv_path)?;
+    let csv = open_regular(&csv_path, true)?;
     drop(old);
     Ok(csv)
 }
@@ -315,24 +332,6 @@ pub(crate) fn is_temp_name(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
 }
 
-/// Writes `dir/name` atomically: temp file in the same directory, fsync, rename, fsync dir.
-pub(crate) fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), DatasetError> {
-    let tmp = dir.join(format!(".{name}.tmp"));
-    let dest = dir.join(name);
-    {
-        let mut f = File::create(&tmp).map_err(DatasetError::io("creating", &tmp))?;
-        f.write_all(bytes).map_err(DatasetError::io("writing", &tmp))?;
-        f.sync_all().map_err(DatasetError::io("syncing", &tmp))?;
-    }
-    std::fs::rename(&tmp, &dest).map_err(DatasetError::io("renaming into place", &dest))?;
-    fsync_dir(dir)
-}
-
-/// Makes renames and removals in `dir` durable.
-pub(crate) fn fsync_dir(dir: &Path) -> Result<(), DatasetError> {
-    File::open(dir).and_then(|d| d.sync_all()).map_err(DatasetError::io("syncing directory", dir))
-}
-
 fn dir_is_empty(dir: &Path) -> Result<bool, DatasetError> {
     match std::fs::read_dir(dir) {
         Ok(mut entries) => Ok(entries.next().is_none()),
@@ -353,11 +352,12 @@ fn remove_creation_stub(dir: &Path) -> Result<bool, DatasetError> {
     };
     let top = listing(dir)?;
     let images = dir.join(IMAGES_DIR);
-    let stub_top = top.iter().all(|n| (n == IMAGES_DIR && images.is_dir()) || is_temp_name(n));
-    if !stub_top || (images.is_dir() && !listing(&images)?.iter().all(|n| is_temp_name(n))) {
+    let images_is_dir = entry_exists(&images, Kind::Folder)?;
+    let stub_top = top.iter().all(|n| (n == IMAGES_DIR && images_is_dir) || is_temp_name(n));
+    if !stub_top || (images_is_dir && !listing(&images)?.iter().all(|n| is_temp_name(n))) {
         return Ok(false);
     }
-    if images.is_dir() {
+    if images_is_dir {
         std::fs::remove_dir_all(&images).map_err(DatasetError::io("removing", &images))?;
     }
     remove_temp_files(dir)?;
@@ -368,7 +368,9 @@ fn remove_temp_files(dir: &Path) -> Result<(), DatasetError> {
     let mut removed = false;
     for entry in std::fs::read_dir(dir).map_err(DatasetError::io("listing", dir))? {
         let entry = entry.map_err(DatasetError::io("listing", dir))?;
-        if is_temp_name(&entry.file_name().to_string_lossy()) && entry.path().is_file() {
+        // `file_type` does not follow a symlink; removing a symlinked temp name removes the link.
+        let removable = entry.file_type().is_ok_and(|t| t.is_file() || t.is_symlink());
+        if is_temp_name(&entry.file_name().to_string_lossy()) && removable {
             std::fs::remove_file(entry.path()).map_err(DatasetError::io("removing", entry.path()))?;
             removed = true;
         }
@@ -377,6 +379,19 @@ fn remove_temp_files(dir: &Path) -> Result<(), DatasetError> {
         fsync_dir(dir)?;
     }
     Ok(())
+}
+
+/// Opens the dataset folder (created first when `create` and absent) and takes its lock.
+fn lock_dir(dir: &Path, create: bool) -> Result<File, DatasetError> {
+    if create {
+        std::fs::create_dir_all(dir).map_err(DatasetError::io("creating", dir))?;
+    }
+    let folder = File::open(dir).map_err(DatasetError::io("opening", dir))?;
+    if !folder.metadata().map_err(DatasetError::io("opening", dir))?.is_dir() {
+        return Err(DatasetError::NotRegular { path: dir.to_path_buf(), expected: "a folder" });
+    }
+    lock_exclusive(&folder, dir)?;
+    Ok(folder)
 }
 
 fn lock_exclusive(file: &File, path: &Path) -> Result<(), DatasetError> {
@@ -395,6 +410,8 @@ fn lock_exclusive(file: &File, path: &Path) -> Result<(), DatasetError> {
 
 #[cfg(test)]
 mod tests {
+    use std::fs::OpenOptions;
+
     use super::*;
     use crate::dataset::{ObjectInfo, Source};
     use crate::pose::Pose;
@@ -422,12 +439,78 @@ mod tests {
         w.append(row(2), &img(2)).unwrap();
         let e = w.append(row(3), &img(3)).unwrap_err();
         assert!(matches!(&e, DatasetError::DiskFull { source, .. } if source.raw_os_error() == Some(libc::ENOSPC)), "{e}");
-        assert!(e.to_string().contains("--resume"), "{e}");
+        // It suggests commands that exist: collect and import resume with --resume, a fill
+        // (`rig synth`) by itself; there is no `rig synth --resume`.
+        assert!(e.to_string().contains("--resume") && e.to_string().contains("`rig synth`"), "{e}");
+        assert!(!e.to_string().contains("synth --resume"), "{e}");
         drop(w);
         let mut w = DatasetWriter::resume(&dir, manifest()).unwrap();
         assert_eq!(w.done_ids().iter().copied().collect::<Vec<_>>(), vec![1, 2]);
         w.append(row(3), &img(3)).unwrap();
         assert_eq!(crate::dataset::read_rows(&dir).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn writers_racing_into_an_empty_folder_one_wins_and_the_others_hear_it_is_held() {
+        use std::sync::{Arc, Barrier};
+        for _ in 0..10 {
+            let tmp = tempfile::tempdir().unwrap();
+            let dir = tmp.path().join("ds");
+            let barrier = Arc::new(Barrier::new(4));
+            let attempts: Vec<_> = (0..4)
+                .map(|_| {
+                    let (barrier, dir) = (Arc::clone(&barrier), dir.clone());
+                    std::thread::spawn(move || {
+                        barrier.wait();
+                        let result = DatasetWriter::resume(&dir, manifest());
+                        // Every attempt is made while the winner still holds its writer.
+                        barrier.wait();
+                        result.map(|_| ())
+                    })
+                })
+                .collect();
+            let results: Vec<_> = attempts.into_iter().map(|t| t.join().unwrap()).collect();
+            assert_eq!(results.iter().filter(|r| r.is_ok()).count(), 1, "{results:?}");
+            for e in results.iter().filter_map(|r| r.as_ref().err()) {
+                assert!(matches!(e, DatasetError::Locked { .. }), "{e}");
+                assert!(e.to_string().contains("held by another process"), "{e}");
+            }
+            assert!(crate::dataset::verify(&dir).unwrap().is_clean());
+        }
+    }
+
+    #[test]
+    fn symlinks_inside_a_dataset_are_refused_not_followed() {
+        use std::os::unix::fs::symlink;
+        let tmp = tempfile::tempdir().unwrap();
+        let outside = tmp.path().join("outside");
+        std::fs::create_dir(&outside).unwrap();
+        std::fs::write(outside.join("secret"), "sentinel").unwrap();
+        let make = |name: &str| {
+            let dir = tmp.path().join(name);
+            let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+            w.append(row(1), &img(1)).unwrap();
+            drop(w);
+            dir
+        };
+        let dir = make("csv");
+        std::fs::rename(dir.join(POSES_FILE), tmp.path().join("moved.csv")).unwrap();
+        symlink(outside.join("secret"), dir.join(POSES_FILE)).unwrap();
+        assert!(matches!(DatasetWriter::resume(&dir, manifest()), Err(DatasetError::Symlink { .. })));
+        let dir = make("images");
+        std::fs::remove_dir_all(dir.join(IMAGES_DIR)).unwrap();
+        symlink(&outside, dir.join(IMAGES_DIR)).unwrap();
+        assert!(matches!(DatasetWriter::resume(&dir, manifest()), Err(DatasetError::Symlink { .. })));
+        let dir = make("image");
+        std::fs::remove_file(dir.join("images/1.png")).unwrap();
+        symlink(outside.join("secret"), dir.join("images/1.png")).unwrap();
+        assert!(matches!(DatasetWriter::open(&dir), Err(DatasetError::Symlink { .. })));
+        let dir = make("manifest");
+        std::fs::rename(dir.join(MANIFEST_FILE), tmp.path().join("moved.toml")).unwrap();
+        symlink(outside.join("secret"), dir.join(MANIFEST_FILE)).unwrap();
+        assert!(matches!(DatasetWriter::open(&dir), Err(DatasetError::Symlink { .. })));
+        assert_eq!(std::fs::read_to_string(outside.join("secret")).unwrap(), "sentinel");
+        assert_eq!(std::fs::read_dir(&outside).unwrap().count(), 1, "nothing was written outside");
     }
 
     #[test]

@@ -61,7 +61,8 @@ impl ObjectChoice {
         let err = |reason: String| ObjectResolveError { name: name.clone(), reason };
         match path {
             Some(path) => {
-                let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
+                let bytes = crate::untrusted::read_bytes(&path, crate::geometry::stl::MAX_STL_BYTES)
+                    .map_err(|e| err(format!("cannot read {}: {e}", path.display())))?;
                 let mesh = Mesh::from_bytes(&bytes).map_err(|e| err(format!("{}: {e}", path.display())))?;
                 let sha256 = hex::encode(Sha256::digest(&bytes));
                 Ok(Self { name, path: Some(path), sha256, mesh: Arc::new(mesh) })

@@ -26,6 +26,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec3};
 
+/// Largest STL file read (a finely tessellated object is a few MB).
+pub const MAX_STL_BYTES: u64 = 256 << 20;
 /// Name used in errors for meshes parsed from memory.
 const MEMORY_NAME: &str = "<memory>";
 /// Size of the binary header plus triangle count.
@@ -54,7 +56,8 @@ pub enum StlError {
     NoTriangles { file: String },
     #[error("STL {file}: triangle {triangle} vertex {vertex} is not finite ({value:?})")]
     NonFinite { file: String, triangle: usize, vertex: usize, value: [f32; 3] },
-    #[error("STL {file}: ASCII line {line}: expected {expected}, found {found:?}")]
+    /// `found` is kept for callers but not printed: it is the file's text.
+    #[error("STL {file}: ASCII line {line}: expected {expected}")]
     AsciiSyntax { file: String, line: usize, expected: &'static str, found: String },
     #[error("STL {file}: ASCII file is not valid UTF-8 at byte {offset}")]
     AsciiEncoding { file: String, offset: usize },
@@ -101,10 +104,11 @@ impl Mesh {
     }
 
     /// Loads and validates a binary or ASCII STL file.
+    /// Reads at most [`MAX_STL_BYTES`] of a regular file.
     pub fn load(path: impl AsRef<Path>) -> Result<Mesh, StlError> {
         let path = path.as_ref();
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| StlError::Io { file: name.clone(), source })?;
+        let bytes = crate::untrusted::read_bytes(path, MAX_STL_BYTES).map_err(|source| StlError::Io { file: name.clone(), source })?;
         parse(&bytes, &name)
     }
 

@@ -28,6 +28,7 @@ use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::Peripherals;
 use crate::plan::{Plan, PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
+use crate::roots::DataRoots;
 use crate::sensor::{SensorKind, SensorSet};
 
 /// A collection: the options of `rig collect` (see its `--help`), the body of a daemon
@@ -87,6 +88,23 @@ pub struct PreparedCollect {
 }
 
 impl CollectRequest {
+    /// Checks what needs no file: the object name is a plain name (it names the dataset's
+    /// folder). The pose count is checked against the plan's grid by [`Self::plan_spec`].
+    pub fn check(&self) -> Result<(), JobError> {
+        if self.stl.is_none() {
+            super::check_plain_name("object", &self.object)?;
+        }
+        Ok(())
+    }
+
+    /// Resolves `stl` and `plan` (read) and `out` (written) inside `roots`.
+    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
+        super::confine_opt(&mut self.stl, |p| roots.input("stl", p))?;
+        super::confine_opt(&mut self.plan, |p| roots.input("plan", p))?;
+        self.out = roots.output("out", &self.out)?;
+        Ok(())
+    }
+
     /// The plan spec this request names: the plan file (or the default plan) with `poses` and
     /// `seed` applied, validated.
     pub fn plan_spec(&self) -> Result<PlanSpec, JobError> {
@@ -107,8 +125,10 @@ impl CollectRequest {
     /// Resolves and checks the request against `config`: plan, object, firmware profile, and
     /// every pose (contact, approach, the reference above the origin) inside the workspace.
     pub fn prepare(&self, config: &RigConfig) -> Result<PreparedCollect, JobError> {
+        self.check()?;
         let spec = self.plan_spec()?;
         let object = ObjectChoice::resolve(&self.object, self.stl.as_deref())?;
+        super::check_plain_name("object", &object.name)?;
         let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
         let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b))?;
         check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;

@@ -14,6 +14,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{JobError, Observer};
+use crate::roots::DataRoots;
 use crate::synth::fill::{
     FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, TwinSize, fill_missing_observed, find_datasets, missing_poses,
     synthesise_poses_of,
@@ -97,6 +98,32 @@ impl FillTarget {
 }
 
 impl FillRequest {
+    /// Checks the sampling settings against [`crate::synth::limits`] before any model loads
+    /// (settings left to the package are checked when it is read).
+    pub fn check(&self) -> Result<(), JobError> {
+        crate::synth::fill::check_fill_settings(
+            self.steps,
+            self.guidance,
+            self.eta,
+            self.conditioning_scale,
+            self.batch,
+            self.supersample,
+        )?;
+        Ok(())
+    }
+
+    /// Resolves `dataset`, `poses_of` and `model` (read) and `out` (written) inside `roots`.
+    /// The default model (`model` left out) is rig's own package, not a path of the request.
+    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
+        if self.poses_of.is_none() {
+            self.dataset = roots.input("dataset", &self.dataset)?;
+        }
+        super::confine_opt(&mut self.poses_of, |p| roots.input("poses_of", p))?;
+        super::confine_opt(&mut self.model, |p| roots.input("model", p))?;
+        super::confine_opt(&mut self.out, |p| roots.output("out", p))?;
+        Ok(())
+    }
+
     /// The model package this request uses.
     pub fn model_dir(&self) -> PathBuf {
         self.model.clone().unwrap_or_else(crate::synth::fill::default_model)
@@ -109,6 +136,7 @@ impl FillRequest {
 
     /// Checks the request and lists the datasets it works on, before any model is loaded.
     pub fn targets(&self) -> Result<Vec<FillTarget>, JobError> {
+        self.check()?;
         let bad = |field, reason: String| JobError::BadOption { field, reason };
         let no_dataset = |root: &Path| {
             bad("dataset", format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()))

@@ -26,6 +26,8 @@ pub mod replay;
 
 use std::path::PathBuf;
 
+use crate::roots::DataRoots;
+
 use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
@@ -55,6 +57,60 @@ impl JobRequest {
             JobRequest::Synth(_) => "synth",
             JobRequest::Calibrate(_) => "calibrate",
         }
+    }
+
+    /// Checks every setting that needs no file: numbers within their bounds (so nothing is
+    /// allocated from an absurd size), names that become file names plain. The preparing
+    /// steps of each job call the same check, so the CLI refuses what the daemon refuses.
+    pub fn check(&self) -> Result<(), JobError> {
+        match self {
+            JobRequest::Collect(r) => r.check(),
+            JobRequest::Synth(r) => r.check(),
+            JobRequest::Calibrate(r) => r.check(),
+        }
+    }
+
+    /// The request with every path it names resolved inside `roots` (symlinks followed,
+    /// relative paths from the roots' base): paths it reads must exist there, paths it writes
+    /// may not exist yet but must land there. The daemon confines each job when it is
+    /// submitted and again when it starts; a refused path is named as the request gave it.
+    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
+        match self {
+            JobRequest::Collect(r) => r.confine(roots),
+            JobRequest::Synth(r) => r.confine(roots),
+            JobRequest::Calibrate(r) => r.confine(roots),
+        }
+    }
+}
+
+/// `Some(path)` resolved by `resolve`, `None` left alone.
+fn confine_opt(
+    path: &mut Option<PathBuf>,
+    resolve: impl FnOnce(&std::path::Path) -> Result<PathBuf, crate::roots::PathError>,
+) -> Result<(), JobError> {
+    if let Some(p) = path.as_mut() {
+        *p = resolve(p)?;
+    }
+    Ok(())
+}
+
+/// A name that becomes a folder or file name (an object name): not empty, at most 100 bytes,
+/// no path separator, no control character, not starting with a dot.
+pub fn check_plain_name(field: &'static str, name: &str) -> Result<(), JobError> {
+    let reason = if name.is_empty() {
+        Some("is empty")
+    } else if name.len() > 100 {
+        Some("is longer than 100 bytes")
+    } else if name.starts_with('.') {
+        Some("starts with a dot")
+    } else if name.chars().any(|c| c == '/' || c == '\\' || c.is_control()) {
+        Some("contains a path separator or a control character")
+    } else {
+        None
+    };
+    match reason {
+        Some(reason) => Err(JobError::BadOption { field, reason: format!("{reason}: it must be a plain name (it names a folder)") }),
+        None => Ok(()),
     }
 }
 
@@ -123,6 +179,12 @@ pub enum JobError {
     Press(#[from] crate::calibration::press::PressError),
     #[error("saving the calibration {path}: {reason}")]
     SaveCalibration { path: PathBuf, reason: String },
+    /// A path outside the daemon's data roots, or one that cannot be resolved there.
+    #[error("{0}")]
+    Path(#[from] crate::roots::PathError),
+    /// A sampling or size setting out of its bounds.
+    #[error("{0}")]
+    Settings(#[from] crate::synth::SynthError),
     /// An option the command would reject (exit code 2).
     #[error("{field}: {reason}")]
     BadOption { field: &'static str, reason: String },

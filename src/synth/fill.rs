@@ -123,6 +123,37 @@ impl Default for FillOptions {
     }
 }
 
+impl FillOptions {
+    /// Checks every setting against [`super::limits`] (steps against the sampler's limit are
+    /// checked once the package's schedule is known, before any image is made). Front ends call
+    /// this before loading a model; [`fill_missing_observed`] calls it again.
+    pub fn validate(&self) -> Result<(), SynthError> {
+        check_fill_settings(Some(self.steps), Some(self.guidance), self.eta, self.conditioning_scale, self.batch, self.supersample)
+    }
+}
+
+/// The checks of [`FillOptions::validate`] on settings a request may leave to the package
+/// (`None`: the package's value, checked when the package is read).
+pub fn check_fill_settings(
+    steps: Option<usize>,
+    guidance: Option<f32>,
+    eta: f32,
+    conditioning_scale: f32,
+    batch: usize,
+    supersample: u32,
+) -> Result<(), SynthError> {
+    if steps == Some(0) {
+        return Err(SynthError::BadRequest { field: "steps", value: "0".into(), reason: "must be at least 1".into() });
+    }
+    if let Some(g) = guidance {
+        super::limits::check_guidance(g)?;
+    }
+    super::limits::check_eta(eta)?;
+    super::limits::check_conditioning_scale(conditioning_scale)?;
+    super::limits::check_batch(batch)?;
+    super::limits::check_supersample(supersample)
+}
+
 /// What a fill did.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FillSummary {
@@ -212,6 +243,7 @@ pub fn fill_missing_observed(
     progress: &indicatif::ProgressBar,
     observe: &mut dyn FnMut(&FilledPose<'_>) -> ControlFlow<()>,
 ) -> Result<FillSummary, FillError> {
+    options.validate()?;
     let work = missing_poses(dataset, out, options.shard)?;
     let manifest = work.manifest.clone();
     let dir = dataset.to_path_buf();
@@ -219,7 +251,7 @@ pub fn fill_missing_observed(
     let kind = manifest.sensor;
     let (width, height) = pipeline.resolution();
     let renderer = ControlRenderer::for_dataset(&dir, &manifest, width, height, options.supersample)?;
-    let output_size = reference_size(dataset);
+    let output_size = reference_size(dataset)?;
 
     let mut todo = work.todo;
     let total_missing = todo.len();
@@ -233,9 +265,9 @@ pub fn fill_missing_observed(
     // A shard's own dataset gets the collection's reference frame (decoded only when missing).
     if let Some(out) = out
         && !out.join("reference.png").is_file()
-        && let Ok(reference) = image::open(dataset.join("reference.png"))
+        && let Some(reference) = read_reference(dataset)?
     {
-        writer.write_reference(&reference.to_rgb8())?;
+        writer.write_reference(&reference)?;
     }
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
@@ -314,11 +346,12 @@ pub fn synthesise_poses_of(
     size: TwinSize,
     progress: &indicatif::ProgressBar,
 ) -> Result<PosesOfSummary, FillError> {
+    options.validate()?;
     let source_manifest = Manifest::load(source)?;
     let (width, height) = pipeline.resolution();
     let output_size = match size {
         TwinSize::Model => Some((width, height)),
-        TwinSize::Source => reference_size(source),
+        TwinSize::Source => reference_size(source)?,
     };
     let dir = source.to_path_buf();
     let real: Vec<PlannedPose> = read_rows(source)?
@@ -342,9 +375,9 @@ pub fn synthesise_poses_of(
         todo.truncate(limit);
     }
     if !out.join(crate::dataset::REFERENCE_FILE).is_file()
-        && let Ok(reference) = image::open(source.join(crate::dataset::REFERENCE_FILE))
+        && let Some(reference) = read_reference(source)?
     {
-        writer.write_reference(&resized_to(reference.to_rgb8(), output_size))?;
+        writer.write_reference(&resized_to(reference, output_size))?;
     }
     let kind = source_manifest.sensor;
     let renderer = ControlRenderer::for_dataset(&dir, &source_manifest, width, height, options.supersample)?;
@@ -474,9 +507,20 @@ fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
     }
 }
 
+/// The dataset's reference frame, if it has one: a regular file (a symlink is an error, as
+/// everywhere in a dataset), decoded with bounds.
+fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
+    use crate::dataset::durable;
+    let path = dataset.join(crate::dataset::REFERENCE_FILE);
+    if !durable::entry_exists(&path, durable::Kind::File)? {
+        return Ok(None);
+    }
+    Ok(Some(durable::read_image(&path)?.to_rgb8()))
+}
+
 /// Size of the dataset's reference frame, so synthetic images match the captured ones.
-fn reference_size(dataset: &Path) -> Option<(u32, u32)> {
-    image::image_dimensions(dataset.join("reference.png")).ok()
+fn reference_size(dataset: &Path) -> Result<Option<(u32, u32)>, FillError> {
+    Ok(read_reference(dataset)?.map(|r| r.dimensions()))
 }
 
 #[cfg(test)]

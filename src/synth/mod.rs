@@ -19,10 +19,14 @@
 //! - [`prompt`] builds the MultiDiffSense prompt text;
 //! - [`scheduler`] holds DDIM (as diffusers) and DPM-Solver++ 2M;
 //! - [`pipeline`] runs the step loop with classifier-free guidance batched as [uncond, cond];
-//! - [`npy`] reads and writes float32 `.npy` files for comparing with Python runs.
+//! - [`npy`] reads and writes float32 `.npy` files for comparing with Python runs;
+//! - [`limits`] holds the ranges of sampling settings and sizes, checked before allocating;
+//! - [`onnx_graph`] counts the UNet's downsamples, which fix the sizes a package can make.
 
 pub mod fill;
+pub mod limits;
 pub mod npy;
+pub mod onnx_graph;
 pub mod package;
 pub mod pipeline;
 pub mod prompt;
@@ -47,6 +51,11 @@ pub enum SynthError {
     OrtLibraryNotFound { searched: Vec<PathBuf> },
     #[error("{path} does not exist (given by {origin}); point it at libonnxruntime.so or its folder")]
     OrtLibraryMissing { path: PathBuf, origin: &'static str },
+    #[error(
+        "refusing to load the ONNX Runtime library {path}: {reason}. Loading a library runs its code: make it and its folder \
+         yours and not writable by others (chmod go-w), or name a library you trust with --ort-lib / RIG_ORT_LIB"
+    )]
+    OrtLibraryUntrusted { path: PathBuf, reason: String },
     #[error("could not load the ONNX Runtime library {path}: {source}")]
     OrtLoad { path: PathBuf, source: ort::LoadDynamicError },
     #[error(
@@ -56,18 +65,22 @@ pub enum SynthError {
     ProviderUnavailable { provider: ExecutionProviderKind, library: PathBuf },
     #[error("ONNX Runtime: {context}: {source}")]
     Ort { context: String, source: ort::Error },
+    /// ONNX Runtime could not load a model file of the package: corrupt, truncated, or not a
+    /// model (bad input, unlike an [`Ort`](Self::Ort) failure while running one).
+    #[error("{file}: not a model ONNX Runtime can load: {reason}")]
+    BadModelFile { file: PathBuf, reason: String },
     #[error("not a complete model package: missing {}", missing.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))]
     MissingFiles { dir: PathBuf, missing: Vec<PathBuf> },
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: {source}")]
-    ModelToml { path: PathBuf, source: toml::de::Error },
+    ModelToml { path: PathBuf, source: crate::untrusted::SyntaxError },
     #[error("{path}: {field} = {value:?} is not valid: {reason}")]
     BadModelConfig { path: PathBuf, field: &'static str, value: String, reason: &'static str },
     #[error("{path}: {source}")]
     Scheduler { path: PathBuf, source: scheduler::SchedulerError },
-    #[error("{path}: cannot load the tokenizer: {source}")]
-    Tokenizer { path: PathBuf, source: tokenizers::Error },
+    #[error("{path}: cannot load the tokenizer: {reason}")]
+    Tokenizer { path: PathBuf, reason: String },
     #[error("{path}: the tokenizer has no end token ({token:?}) to pad with")]
     NoEndToken { path: PathBuf, token: String },
     #[error("{file}: the model has no {direction} named `{tensor}`; its {direction}s are: {}", available.join(", "))]

@@ -155,8 +155,10 @@ impl ModelConfig {
 
     /// Reads and validates `model.toml`.
     pub fn read(path: &Path) -> Result<Self, SynthError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
-        let raw: RawModelToml = toml::from_str(&text).map_err(|source| SynthError::ModelToml { path: path.to_path_buf(), source })?;
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
+        let raw: RawModelToml = toml::from_str(&text)
+            .map_err(|e| SynthError::ModelToml { path: path.to_path_buf(), source: crate::untrusted::SyntaxError::from_toml(&e, &text) })?;
         let bad = |field, value: String, reason| SynthError::BadModelConfig { path: path.to_path_buf(), field, value, reason };
         let hint_encoding = match raw.hint_encoding.as_str() {
             "rgb01" => HintEncoding::Rgb01,
@@ -174,6 +176,12 @@ impl ModelConfig {
             return Err(bad("vae_scale_factor", f.to_string(), "must be positive"));
         }
         let [w, h] = raw.resolution;
+        if w > super::limits::MAX_SIDE_PX || h > super::limits::MAX_SIDE_PX {
+            return Err(bad("resolution", format!("{:?}", raw.resolution), "width and height must be at most 2048 px"));
+        }
+        if f > super::limits::MAX_SIDE_PX {
+            return Err(bad("vae_scale_factor", f.to_string(), "must be at most 2048"));
+        }
         if w == 0 || h == 0 || !w.is_multiple_of(f) || !h.is_multiple_of(f) {
             return Err(bad(
                 "resolution",
@@ -184,8 +192,8 @@ impl ModelConfig {
         if raw.sampling_steps == Some(0) {
             return Err(bad("sampling_steps", "0".to_string(), "must be at least 1"));
         }
-        if let Some(g) = raw.guidance.filter(|g| !(g.is_finite() && *g >= 1.0)) {
-            return Err(bad("guidance", g.to_string(), "must be a number >= 1 (1: unguided)"));
+        if let Some(g) = raw.guidance.filter(|g| super::limits::check_guidance(*g).is_err()) {
+            return Err(bad("guidance", g.to_string(), "must be a number from 1 to 30 (1: unguided)"));
         }
         let sampler = match raw.sampler {
             None => None,
@@ -423,6 +431,12 @@ mod tests {
         assert!(matches!(e, SynthError::BadModelConfig { field: "hint_encoding", .. }), "{e}");
         let (_d, p) = write_toml("name = \"x\"\nresolution = [500, 512]\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "resolution", .. })));
+        // A size that would abort on allocation is refused when read.
+        let (_d, p) = write_toml("name = \"x\"\nresolution = [100000, 100000]\n");
+        let e = ModelConfig::read(&p).expect_err("huge resolution");
+        assert!(matches!(e, SynthError::BadModelConfig { field: "resolution", .. }) && e.to_string().contains("2048"), "{e}");
+        let (_d, p) = write_toml("name = \"x\"\nguidance = 1e30\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "guidance", .. })));
         let (_d, p) = write_toml("resolution = [512, 512]\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::ModelToml { .. })));
         assert_eq!((c.sampling_steps, c.guidance), (None, None));

@@ -121,6 +121,8 @@ pub struct Pipeline {
     unet_timestep: TensorSpec,
     conditioning_scale: TensorSpec,
     latent_channels: usize,
+    /// Width and height must be multiples of this many pixels (see [`Pipeline::size_multiple`]).
+    size_multiple: u32,
     hash: String,
 }
 
@@ -196,6 +198,25 @@ impl Pipeline {
         vae.io.only_inputs(&["latent_sample".to_string()])?;
         vae.io.expect("output", "sample", Accept::Float32, &[4])?;
 
+        // The UNet halves the latent once per downsample: sizes must divide by 2^downsamples.
+        let f = package.config.vae_scale_factor;
+        let size_multiple = match super::onnx_graph::count_stride2_convs(&unet.file) {
+            Ok(n) => f.saturating_mul(1u32.checked_shl(n.min(16) as u32).unwrap_or(1)),
+            Err(e) => {
+                tracing::warn!(file = %unet.file.display(), error = %e, "cannot count the UNet's downsamples; sizes are checked against the VAE factor only");
+                f
+            }
+        };
+        let resolution = (package.config.width_px, package.config.height_px);
+        if super::limits::check_size("resolution", resolution, size_multiple).is_err() {
+            return Err(SynthError::BadModelConfig {
+                path: package.file("model.toml"),
+                field: "resolution",
+                value: format!("[{}, {}]", resolution.0, resolution.1),
+                reason: "must be a multiple of the UNet's size multiple (VAE factor times 2 per downsample)",
+            });
+        }
+
         let hash = package.content_hash()?;
         Ok(Pipeline {
             package,
@@ -210,8 +231,23 @@ impl Pipeline {
             unet_timestep,
             conditioning_scale,
             latent_channels,
+            size_multiple,
             hash,
         })
+    }
+
+    /// Width and height of a synthesised image must be multiples of this many pixels: the VAE
+    /// factor times 2 per downsample of the UNet (16 for the tiny test package and for
+    /// `models/default`, 64 for Stable Diffusion 1.5).
+    pub fn size_multiple(&self) -> u32 {
+        self.size_multiple
+    }
+
+    /// Checks a request's settings against [`super::limits`] and this package: size, guidance,
+    /// eta, conditioning scale, steps for its sampler, initial latents. Nothing is allocated
+    /// before it passes.
+    pub fn check_request(&self, r: &GenerateRequest) -> Result<(), SynthError> {
+        self.validate(r, r.size.unwrap_or(self.resolution()))
     }
 
     /// SHA-256 (hex) over the package's files; see [`ModelPackage::content_hash`].
@@ -232,6 +268,11 @@ impl Pipeline {
     /// The ONNX Runtime library in use.
     pub fn library(&self) -> &Path {
         &self.runtime.library
+    }
+
+    /// How that library was chosen (`--ort-lib`, `RIG_ORT_LIB`, the checkout's `.rig/onnxruntime/`...).
+    pub fn library_origin(&self) -> &'static str {
+        self.runtime.origin
     }
 
     /// Token ids the tokenizer gives `prompt` (padded to the sequence length).
@@ -284,18 +325,17 @@ impl Pipeline {
     fn validate(&self, r: &GenerateRequest, size: (u32, u32)) -> Result<(), SynthError> {
         let bad = |field, value: String, reason: String| Err(SynthError::BadRequest { field, value, reason });
         let f = self.package.config.vae_scale_factor;
-        if size.0 == 0 || size.1 == 0 || !size.0.is_multiple_of(f) || !size.1.is_multiple_of(f) {
-            return bad("size", format!("{}x{}", size.0, size.1), format!("width and height must be positive multiples of {f}"));
-        }
+        super::limits::check_size("size", size, self.size_multiple)?;
         if r.control.width() == 0 || r.control.height() == 0 {
             return bad("control", "0 pixels".to_string(), "the control image is empty".into());
         }
-        if !r.guidance.is_finite() || r.guidance < 0.0 {
-            return bad("guidance", r.guidance.to_string(), "must be a finite number >= 0".into());
-        }
-        if !r.conditioning_scale.is_finite() {
-            return bad("conditioning_scale", r.conditioning_scale.to_string(), "must be finite".into());
-        }
+        super::limits::check_guidance(r.guidance)?;
+        super::limits::check_eta(r.eta)?;
+        super::limits::check_conditioning_scale(r.conditioning_scale)?;
+        self.package
+            .schedule
+            .check_steps(r.scheduler, r.steps)
+            .map_err(|source| SynthError::Scheduler { path: self.package.file("scheduler/scheduler_config.json"), source })?;
         if let Some(init) = r.init_latents {
             let want = self.latent_channels * (size.0 / f) as usize * (size.1 / f) as usize;
             if init.len() != want {

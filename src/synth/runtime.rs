@@ -1,16 +1,24 @@
 //! Finding and loading ONNX Runtime, and choosing the execution provider.
 //!
 //! rig links ONNX Runtime at run time (`ort`'s load-dynamic), so the library must be found
-//! before any session is made; without it `ort` would panic on first use. Search order:
+//! before any session is made; without it `ort` would panic on first use. Loading a library
+//! runs its code, so where it comes from is a trust decision. Search order:
 //!
-//! 1. the explicit path in [`RuntimeOptions::ort_lib`] (`--ort-lib`), a file or a folder;
+//! 1. the explicit path in [`RuntimeOptions::ort_lib`] (`--ort-lib`; for `rig daemon`, given
+//!    once at start, never by a request), a file or a folder;
 //! 2. the environment variables `RIG_ORT_LIB`, then `ORT_DYLIB_PATH`;
-//! 3. `.rig/onnxruntime/` under the current directory, then under the crate's source folder
-//!    (what `scripts/setup.sh` fills from the PyPI `onnxruntime` wheel).
+//! 3. `.rig/onnxruntime/` in the checkout rig was built from (what `scripts/setup.sh` fills
+//!    from the PyPI `onnxruntime` wheel), then `onnxruntime/` beside the executable.
 //!
-//! An explicit path or variable that does not exist is an error naming it (rather than quietly
-//! using another library). The library is loaded once per process; the environment is shared
-//! by every session.
+//! The current folder is never searched: a library planted in a dataset folder would run in
+//! whoever works there. A library found by the search (3) must be owned by the user running
+//! rig (or root), as must its folder, and neither may be writable by group or others;
+//! otherwise it is refused with [`SynthError::OrtLibraryUntrusted`]. Paths given explicitly
+//! (1, 2) are the operator's choice and are not second-guessed. An explicit path or variable
+//! that does not exist is an error naming it (rather than quietly using another library).
+//!
+//! The library is loaded once per process (a log line at `info` says which, and why);
+//! [`Runtime::library`] and [`Runtime::origin`] tell, and `rig synth info` prints them.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -72,6 +80,8 @@ pub struct RuntimeOptions {
 #[derive(Clone)]
 pub struct Runtime {
     pub library: PathBuf,
+    /// How the library was chosen (`--ort-lib`, `RIG_ORT_LIB`, `the checkout's .rig/onnxruntime`...).
+    pub origin: &'static str,
     environment: ort::environment::Environment,
 }
 
@@ -118,27 +128,58 @@ fn resolve_given(path: &Path, origin: &'static str) -> Result<PathBuf, SynthErro
 
 /// Finds the ONNX Runtime library (search order in the module docs).
 pub fn find_ort_library(explicit: Option<&Path>) -> Result<PathBuf, SynthError> {
+    locate_ort_library(explicit).map(|(path, _)| path)
+}
+
+/// [`find_ort_library`], with how the library was chosen.
+pub fn locate_ort_library(explicit: Option<&Path>) -> Result<(PathBuf, &'static str), SynthError> {
     if let Some(path) = explicit {
-        return resolve_given(path, "--ort-lib");
+        return Ok((resolve_given(path, "--ort-lib")?, "--ort-lib"));
     }
-    for (var, origin) in [("RIG_ORT_LIB", "RIG_ORT_LIB"), ("ORT_DYLIB_PATH", "ORT_DYLIB_PATH")] {
+    for var in ["RIG_ORT_LIB", "ORT_DYLIB_PATH"] {
         if let Some(value) = std::env::var_os(var).filter(|v| !v.is_empty()) {
-            return resolve_given(Path::new(&value), origin);
+            return Ok((resolve_given(Path::new(&value), var)?, var));
         }
     }
     let mut searched = Vec::new();
-    let mut dirs = Vec::new();
-    if let Ok(cwd) = std::env::current_dir() {
-        dirs.push(cwd.join(".rig/onnxruntime"));
-    }
-    dirs.push(Path::new(env!("CARGO_MANIFEST_DIR")).join(".rig/onnxruntime"));
-    for dir in dirs {
+    for (dir, origin) in search_dirs() {
         if let Some(lib) = library_in_dir(&dir) {
-            return Ok(lib);
+            check_trusted(&lib)?;
+            return Ok((lib, origin));
         }
         searched.push(dir);
     }
     Err(SynthError::OrtLibraryNotFound { searched })
+}
+
+/// The folders searched when no library is named, in order (never the current folder).
+pub fn search_dirs() -> Vec<(PathBuf, &'static str)> {
+    let mut dirs = vec![(Path::new(env!("CARGO_MANIFEST_DIR")).join(".rig/onnxruntime"), "the checkout's .rig/onnxruntime/")];
+    if let Some(exe_dir) = std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf)) {
+        dirs.push((exe_dir.join("onnxruntime"), "onnxruntime/ beside the executable"));
+    }
+    dirs
+}
+
+/// A searched-for library must belong to this user (or root), in a folder that does too,
+/// neither writable by group or others: nobody else could have put it there.
+fn check_trusted(library: &Path) -> Result<(), SynthError> {
+    use std::os::unix::fs::MetadataExt;
+    let refuse = |path: &Path, reason: String| SynthError::OrtLibraryUntrusted { path: path.to_path_buf(), reason };
+    let file = library.canonicalize().map_err(|e| refuse(library, format!("cannot be resolved: {e}")))?;
+    let folder = file.parent().map(Path::to_path_buf).unwrap_or_default();
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let me = unsafe { libc::geteuid() };
+    for path in [&file, &folder] {
+        let meta = std::fs::metadata(path).map_err(|e| refuse(library, format!("{}: {e}", path.display())))?;
+        if meta.uid() != me && meta.uid() != 0 {
+            return Err(refuse(library, format!("{} belongs to user id {}, not to you ({me}) or root", path.display(), meta.uid())));
+        }
+        if meta.mode() & 0o022 != 0 {
+            return Err(refuse(library, format!("{} is writable by group or others (mode {:o})", path.display(), meta.mode() & 0o777)));
+        }
+    }
+    Ok(())
 }
 
 /// Loads ONNX Runtime once per process and returns it. A later call with another library
@@ -147,11 +188,12 @@ pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
     if let Some(rt) = RUNTIME.get() {
         return Ok(rt.clone());
     }
-    let library = find_ort_library(opts.ort_lib.as_deref())?;
+    let (library, origin) = locate_ort_library(opts.ort_lib.as_deref())?;
     let builder = ort::init_from(&library).map_err(|source| SynthError::OrtLoad { path: library.clone(), source })?;
     let environment =
         builder.with_name("rig").build().map_err(|source| SynthError::Ort { context: "creating the environment".to_string(), source })?;
-    let rt = Runtime { library, environment };
+    tracing::info!(library = %library.display(), origin, "ONNX Runtime loaded");
+    let rt = Runtime { library, origin, environment };
     Ok(RUNTIME.get_or_init(|| rt).clone())
 }
 
@@ -189,7 +231,10 @@ impl Runtime {
             };
             builder = builder.with_execution_providers(providers).map_err(err("registering the provider for"))?;
         }
-        builder.commit_from_file(file).map_err(|source| SynthError::Ort { context: ctx("loading"), source })
+        builder.commit_from_file(file).map_err(|source| SynthError::BadModelFile {
+            file: file.to_path_buf(),
+            reason: crate::untrusted::sanitise(&source.to_string()),
+        })
     }
 }
 
@@ -285,6 +330,23 @@ mod tests {
         std::fs::write(dir.path().join("libonnxruntime.so.1.31.1"), b"").unwrap();
         let lib = find_ort_library(Some(dir.path())).unwrap();
         assert_eq!(lib.file_name().unwrap(), "libonnxruntime.so.1.31.1");
+    }
+
+    #[test]
+    fn searched_libraries_must_not_be_writable_by_others() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let lib = dir.path().join("libonnxruntime.so");
+        std::fs::write(&lib, b"").unwrap();
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        std::fs::set_permissions(&lib, std::fs::Permissions::from_mode(0o644)).unwrap();
+        check_trusted(&lib).expect("owned by us, not writable by others");
+        std::fs::set_permissions(&lib, std::fs::Permissions::from_mode(0o666)).unwrap();
+        let e = check_trusted(&lib).expect_err("world-writable library");
+        assert!(matches!(e, SynthError::OrtLibraryUntrusted { .. }) && e.to_string().contains("writable"), "{e}");
+        std::fs::set_permissions(&lib, std::fs::Permissions::from_mode(0o644)).unwrap();
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o775)).unwrap();
+        assert!(check_trusted(&lib).is_err(), "a group-writable folder");
     }
 
     #[test]

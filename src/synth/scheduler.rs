@@ -21,11 +21,11 @@ pub enum SchedulerError {
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: not a diffusers scheduler config: {source}")]
-    Json { path: PathBuf, source: serde_json::Error },
+    Json { path: PathBuf, source: crate::untrusted::SyntaxError },
     #[error("scheduler config: {field} = {value:?} is not supported ({supported})")]
     Unsupported { field: &'static str, value: String, supported: &'static str },
-    #[error("{steps} inference steps do not fit {train_steps} training timesteps (need 1..={train_steps})")]
-    BadStepCount { steps: usize, train_steps: usize },
+    #[error("{steps} inference steps do not fit {sampler} over {train_steps} training timesteps (it takes 1..={max})")]
+    BadStepCount { steps: usize, sampler: &'static str, train_steps: usize, max: usize },
     #[error("scheduler config: {field} = {value} is out of range")]
     OutOfRange { field: &'static str, value: f64 },
 }
@@ -77,8 +77,9 @@ impl Default for SchedulerConfig {
 impl SchedulerConfig {
     /// Reads `scheduler_config.json`.
     pub fn read(path: &Path) -> Result<Self, SchedulerError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SchedulerError::Io { path: path.to_path_buf(), source })?;
-        Self::from_json(&text).map_err(|source| SchedulerError::Json { path: path.to_path_buf(), source })
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| SchedulerError::Io { path: path.to_path_buf(), source })?;
+        Self::from_json(&text).map_err(|e| SchedulerError::Json { path: path.to_path_buf(), source: json_syntax(&e) })
     }
 
     /// Parses the JSON text of a scheduler config.
@@ -177,12 +178,29 @@ impl NoiseSchedule {
         Ok(Self { config, alphas_cumprod, final_alpha_cumprod })
     }
 
+    /// The most inference steps `kind` takes over this schedule: DDIM one per training
+    /// timestep; DPM-Solver++ one fewer (its grid has `steps + 1` points).
+    pub fn max_steps(&self, kind: SchedulerKind) -> usize {
+        let n = self.config.num_train_timesteps;
+        match kind {
+            SchedulerKind::Ddim => n,
+            SchedulerKind::DpmSolverPp2m => n.saturating_sub(1),
+        }
+    }
+
+    /// Whether `kind` can take `steps` steps over this schedule.
+    pub fn check_steps(&self, kind: SchedulerKind, steps: usize) -> Result<(), SchedulerError> {
+        let max = self.max_steps(kind);
+        if steps == 0 || steps > max {
+            return Err(SchedulerError::BadStepCount { steps, sampler: kind.name(), train_steps: self.config.num_train_timesteps, max });
+        }
+        Ok(())
+    }
+
     /// The inference timesteps for `steps` steps, as diffusers' `set_timesteps` makes them.
     pub fn timesteps(&self, steps: usize) -> Result<Vec<i64>, SchedulerError> {
         let n = self.config.num_train_timesteps;
-        if steps == 0 || steps > n {
-            return Err(SchedulerError::BadStepCount { steps, train_steps: n });
-        }
+        self.check_steps(SchedulerKind::Ddim, steps)?;
         let ts: Vec<i64> = match self.config.timestep_spacing.as_str() {
             "linspace" => {
                 // np.linspace(0, n - 1, steps).round()[::-1]
@@ -220,9 +238,7 @@ impl NoiseSchedule {
     /// differs from DDIM's (4 steps: 801, 601, 401, 201 rather than 751, 501, 251, 1).
     pub fn dpm_timesteps(&self, steps: usize) -> Result<Vec<i64>, SchedulerError> {
         let n = self.config.num_train_timesteps;
-        if steps == 0 || steps >= n {
-            return Err(SchedulerError::BadStepCount { steps, train_steps: n });
-        }
+        self.check_steps(SchedulerKind::DpmSolverPp2m, steps)?;
         let ts: Vec<i64> = match self.config.timestep_spacing.as_str() {
             "linspace" => {
                 let last = (n - 1) as f64;
@@ -282,13 +298,29 @@ pub enum SchedulerKind {
     DpmSolverPp2m,
 }
 
-impl std::fmt::Display for SchedulerKind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
+impl SchedulerKind {
+    /// `ddim` or `dpm++2m`.
+    pub fn name(self) -> &'static str {
+        match self {
             Self::Ddim => "ddim",
             Self::DpmSolverPp2m => "dpm++2m",
-        })
+        }
     }
+}
+
+impl std::fmt::Display for SchedulerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A JSON parse error as a [`SyntaxError`](crate::untrusted::SyntaxError): its line and column,
+/// its reason without the values it quotes from the file.
+pub(crate) fn json_syntax(e: &serde_json::Error) -> crate::untrusted::SyntaxError {
+    let text = e.to_string();
+    // serde_json appends " at line L column C"; the position is kept as numbers instead.
+    let reason = text.rsplit_once(" at line ").map_or(text.as_str(), |(r, _)| r);
+    crate::untrusted::SyntaxError::at(e.line(), e.column(), reason)
 }
 
 impl std::str::FromStr for SchedulerKind {
@@ -507,6 +539,22 @@ mod tests {
         c.timestep_spacing = "trailing".into();
         assert_eq!(NoiseSchedule::new(c).unwrap().timesteps(7).unwrap(), vec![999, 856, 713, 570, 428, 285, 142]);
         assert!(matches!(s.timesteps(0), Err(SchedulerError::BadStepCount { .. })));
+    }
+
+    #[test]
+    fn step_limits_are_the_ones_the_messages_name() {
+        let s = sd15();
+        assert_eq!(s.timesteps(1000).map(|t| t.len()).ok(), Some(1000));
+        assert!(s.dpm_timesteps(999).is_ok());
+        // DPM-Solver++ takes one step fewer than DDIM, and says so.
+        let e = s.dpm_timesteps(1000).expect_err("1000 dpm++2m steps");
+        assert!(e.to_string().contains("1..=999") && e.to_string().contains("dpm++2m"), "{e}");
+        let e = s.timesteps(1001).expect_err("1001 ddim steps");
+        assert!(e.to_string().contains("1..=1000") && e.to_string().contains("ddim"), "{e}");
+        for kind in [SchedulerKind::Ddim, SchedulerKind::DpmSolverPp2m] {
+            let max = s.max_steps(kind);
+            assert!(s.check_steps(kind, max).is_ok() && s.check_steps(kind, max + 1).is_err() && s.check_steps(kind, 0).is_err());
+        }
     }
 
     #[test]

@@ -27,6 +27,9 @@ pub const DEFAULT_SEQUENCE_LEN: usize = 77;
 /// How many distinct prompts the cache keeps.
 pub const CACHE_CAPACITY: usize = 512;
 
+/// Largest `tokenizer.json` read (CLIP's is about 2 MB).
+pub const MAX_TOKENIZER_BYTES: u64 = 64 << 20;
+
 /// CLIP tokenizer set up for the pipeline: fixed length, padded with the end token.
 #[derive(Debug, Clone)]
 pub struct PromptTokenizer {
@@ -39,7 +42,12 @@ pub struct PromptTokenizer {
 impl PromptTokenizer {
     /// Loads `tokenizer.json`; `end_token` is the padding token (CLIP: `<|endoftext|>`).
     pub fn load(path: &Path, end_token: &str, sequence_len: usize) -> Result<Self, SynthError> {
-        let mut tokenizer = Tokenizer::from_file(path).map_err(|source| SynthError::Tokenizer { path: path.to_path_buf(), source })?;
+        let bad = |e: &dyn std::fmt::Display| SynthError::Tokenizer {
+            path: path.to_path_buf(),
+            reason: crate::untrusted::sanitise(&e.to_string()),
+        };
+        let bytes = crate::untrusted::read_bytes(path, MAX_TOKENIZER_BYTES).map_err(|e| bad(&e))?;
+        let mut tokenizer = Tokenizer::from_bytes(&bytes).map_err(|e| bad(&e))?;
         let end_id = tokenizer
             .token_to_id(end_token)
             .ok_or_else(|| SynthError::NoEndToken { path: path.to_path_buf(), token: end_token.to_string() })?;
@@ -50,7 +58,7 @@ impl PromptTokenizer {
                 strategy: TruncationStrategy::LongestFirst,
                 stride: 0,
             }))
-            .map_err(|source| SynthError::Tokenizer { path: path.to_path_buf(), source })?;
+            .map_err(|e| bad(&e))?;
         tokenizer.with_padding(Some(PaddingParams {
             strategy: PaddingStrategy::Fixed(sequence_len),
             direction: PaddingDirection::Right,
@@ -64,7 +72,10 @@ impl PromptTokenizer {
 
     /// The ids of one prompt, exactly `sequence_len` long.
     pub fn ids(&self, prompt: &str) -> Result<Vec<u32>, SynthError> {
-        let enc = self.tokenizer.encode(prompt, true).map_err(|source| SynthError::Tokenizer { path: self.path.clone(), source })?;
+        let enc = self
+            .tokenizer
+            .encode(prompt, true)
+            .map_err(|e| SynthError::Tokenizer { path: self.path.clone(), reason: crate::untrusted::sanitise(&e.to_string()) })?;
         let mut ids = enc.get_ids().to_vec();
         // Fixed padding and truncation already give this length; keep the invariant explicit
         // for tokenizers whose post-processor adds more than truncation reserved.

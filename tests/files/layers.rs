@@ -40,6 +40,12 @@ struct Layer {
 /// up, with the modules it does not name placed and the places where rig differs from it
 /// marked "differs:" with the reason. Keep the two in step.
 const LAYERS: &[Layer] = &[
+    // Not in the table: the trust boundaries' helpers, under everything. `untrusted` (bounded
+    // reads of files a user or a request names, parse errors without file contents) is in
+    // [`FOUNDATION`]: every row reads files through it. `roots` (the folders a daemon job may
+    // touch) is used by the jobs that confine their paths.
+    Layer { name: "untrusted", prefixes: &["untrusted"], may_use: &[] },
+    Layer { name: "roots", prefixes: &["roots"], may_use: &[] },
     Layer { name: "pose", prefixes: &["pose"], may_use: &[] },
     // Time as a value (STYLE.md 5): the bottom row with `pose`.
     Layer { name: "clock", prefixes: &["clock"], may_use: &[] },
@@ -121,34 +127,26 @@ const EXCEPTIONS: &[Exception] = &[
     },
 ];
 
-/// Reason of the entries left to the jobs refactor (each goes as its part lands).
-const JOBS_REFACTOR: &str = "being rewritten in the jobs refactor";
-
 /// A circle of files the check excuses: the files (sorted) and the reason.
 struct KnownCircle {
     files: &'static [&'static str],
     reason: &'static str,
 }
 
-const KNOWN_CIRCLES: &[KnownCircle] = &[
-    KnownCircle {
-        files: &["src/dataset/manifest.rs", "src/dataset/writer.rs"],
-        reason: "left to the trust-boundary change: its dataset/durable.rs (ARCHITECTURE's one durable helper) takes write_atomic out of writer.rs",
-    },
-    KnownCircle {
-        files: &[
-            "src/bench/calibration.rs",
-            "src/bench/collection.rs",
-            "src/bench/control.rs",
-            "src/bench/mod.rs",
-            "src/bench/plan_order.rs",
-            "src/bench/plot.rs",
-            "src/bench/sensor.rs",
-            "src/bench/synthesis.rs",
-        ],
-        reason: JOBS_REFACTOR,
-    },
-];
+const KNOWN_CIRCLES: &[KnownCircle] = &[KnownCircle {
+    files: &[
+        "src/bench/calibration.rs",
+        "src/bench/collection.rs",
+        "src/bench/control.rs",
+        "src/bench/mod.rs",
+        "src/bench/plan_order.rs",
+        "src/bench/plot.rs",
+        "src/bench/sensor.rs",
+        "src/bench/synthesis.rs",
+    ],
+    reason: "bench/mod.rs holds the types every knob module shares (Knob, BenchConfig, KnobReport, BenchError) and runs the knobs; \
+                 splitting the shared types out needs BenchError apart from Plot and Knob, not done yet",
+}];
 
 // ---------------------------------------------------------------------------------------------
 // Reading the sources.
@@ -626,12 +624,16 @@ fn row_of(path: &[String]) -> Option<&'static Layer> {
         .map(|(l, _)| l)
 }
 
+/// Rows every row may use (below them all in [`LAYERS`]).
+const FOUNDATION: &[&str] = &["untrusted"];
+
 /// Row name -> every row it may use (transitively), itself included.
 fn allowed_rows() -> BTreeMap<&'static str, BTreeSet<&'static str>> {
     let index = |name: &str| LAYERS.iter().position(|l| l.name == name).unwrap_or_else(|| panic!("LAYERS names no row {name:?}"));
     let mut allowed: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
     for (i, layer) in LAYERS.iter().enumerate() {
         let mut set = BTreeSet::from([layer.name]);
+        set.extend(FOUNDATION.iter().copied().filter(|f| index(f) < i));
         for used in layer.may_use {
             if *used == EVERYTHING_BELOW {
                 set.extend(LAYERS[..i].iter().map(|l| l.name));

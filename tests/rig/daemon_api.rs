@@ -10,8 +10,12 @@ use rig::daemon::client::DaemonClient;
 use rig::daemon::{Daemon, DaemonError, DaemonOptions, JobState, JobView, StatusView};
 use serde_json::json;
 
-async fn start(token: Option<&str>) -> (Daemon, DaemonClient) {
+/// A daemon on the built-in simulated rig whose jobs may touch `roots` only (the first is the
+/// base of relative paths).
+async fn start(token: Option<&str>, roots: &[&Path]) -> (Daemon, DaemonClient) {
     let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    let dirs: Vec<std::path::PathBuf> = roots.iter().map(|r| r.to_path_buf()).collect();
+    options.roots = Some(rig::roots::DataRoots::new(&dirs, roots[0]).expect("data roots"));
     // Frames come from the jobs only: the tests see what the jobs publish.
     options.idle_refresh = None;
     options.token = token.map(str::to_string);
@@ -57,7 +61,7 @@ fn rows(dir: &Path) -> usize {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_collection_reports_progress_pose_and_frames() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let (daemon, client) = start(None).await;
+    let (daemon, client) = start(None, &[tmp.path()]).await;
     let j =
         submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip,vitac", "poses": 6, "seed": 4, "out": tmp.path()}))
             .await;
@@ -113,7 +117,7 @@ async fn a_collection_reports_progress_pose_and_frames() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_failing_job_is_recorded_a_cancel_works_and_the_queue_goes_on() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let (daemon, client) = start(None).await;
+    let (daemon, client) = start(None, &[tmp.path()]).await;
     let bad = submit(&client, json!({"kind": "collect", "object": "no_such_object", "poses": 2, "out": tmp.path().join("a")})).await;
     let long =
         submit(&client, json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 60, "out": tmp.path().join("b")})).await;
@@ -152,7 +156,8 @@ async fn a_failing_job_is_recorded_a_cancel_works_and_the_queue_goes_on() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_requests_get_400_with_a_message() {
-    let (daemon, client) = start(None).await;
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(None, &[tmp.path()]).await;
     for (body, expect) in [
         ("{\"kind\": \"dance\"}", "unknown variant"),
         ("{\"kind\": \"collect\", \"objekt\": \"edge\"}", "unknown field `objekt`"),
@@ -175,7 +180,8 @@ async fn bad_requests_get_400_with_a_message() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_token_is_enforced_and_required_off_loopback() {
-    let (daemon, client) = start(Some("s3cret")).await;
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client) = start(Some("s3cret"), &[tmp.path()]).await;
     let anonymous = DaemonClient::new(&format!("http://{}", daemon.addr()), None).expect("client");
     let wrong = DaemonClient::new(&format!("http://{}", daemon.addr()), Some("guess".into())).expect("client");
     for path in ["/api/status", "/api/jobs", "/api/jobs/1", "/api/frames/tactip", "/api/synth/latest/image"] {
@@ -205,7 +211,7 @@ async fn the_token_is_enforced_and_required_off_loopback() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_stops_the_running_job_and_leaves_the_arm_disabled() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let (daemon, client) = start(None).await;
+    let (daemon, client) = start(None, &[tmp.path()]).await;
     let long = submit(&client, json!({"kind": "collect", "sensor": "tactip", "poses": 60, "out": tmp.path()})).await;
     let queued = submit(&client, json!({"kind": "collect", "sensor": "tactip", "poses": 2, "out": tmp.path().join("q")})).await;
     poll_until(&client, long.id, |j| j.state == JobState::Running && j.progress.done >= 1).await;
@@ -240,7 +246,8 @@ async fn a_synth_job_publishes_the_control_and_synthetic_images() {
          [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -45.0\nmax = 45.0\nstep = 45.0\n",
     )
     .expect("plan");
-    let (daemon, client) = start(None).await;
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let (daemon, client) = start(None, &[tmp.path(), &data]).await;
     let collect = submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "vitac", "plan": plan, "out": tmp.path()})).await;
     let dataset = tmp.path().join("edge/vitac");
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
@@ -283,7 +290,7 @@ async fn rig_cli(args: Vec<String>) -> (i32, String) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let (daemon, client) = start(Some("cli-token")).await;
+    let (daemon, client) = start(Some("cli-token"), &[tmp.path()]).await;
     let url = format!("http://{}", daemon.addr());
     let out = tmp.path().display().to_string();
     let args = |extra: &[&str]| -> Vec<String> {
@@ -318,7 +325,7 @@ async fn the_cli_submits_to_a_daemon_and_exits_as_standalone() {
 async fn a_calibrate_job_presses_fits_and_saves() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let out = tmp.path().join("tactip.toml");
-    let (daemon, client) = start(None).await;
+    let (daemon, client) = start(None, &[tmp.path()]).await;
     let j = submit(&client, json!({"kind": "calibrate", "sensor": "tactip", "grid": 3, "out": out})).await;
     let done = poll_until(&client, j.id, final_state).await.pop().expect("view");
     assert_eq!(done.state, JobState::Done, "{done:?}");
@@ -350,5 +357,49 @@ async fn a_calibrate_job_presses_fits_and_saves() {
     let at = status.arm.pose.expect("arm pose");
     let above = RigConfig::builtin_sim().work_frame.approach_pose(&rig::pose::Pose::default());
     assert!(at.distance_mm(&above) < 0.5, "arm at {at:?}, approach pose {above:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// Every path a job names must lie inside the daemon's data roots, symlinks followed, and an
+/// object name must be a plain name: each bad job is refused when submitted (400, the path
+/// named as given), nothing is queued and nothing is written outside.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paths_outside_the_data_roots_are_refused_at_submission() {
+    let root = tempfile::tempdir().expect("tempdir");
+    let outside = tempfile::tempdir().expect("tempdir");
+    let sentinel = outside.path().join("sentinel.txt");
+    std::fs::write(&sentinel, "untouched").expect("sentinel");
+    std::os::unix::fs::symlink(outside.path(), root.path().join("escape")).expect("symlink");
+    std::fs::write(outside.path().join("plan.toml"), "n_poses = 1\n").expect("plan outside");
+    let (daemon, client) = start(None, &[root.path()]).await;
+    let cases = [
+        (json!({"kind": "collect", "object": "edge", "poses": 1, "out": outside.path()}), "outside the data roots"),
+        (json!({"kind": "collect", "object": "edge", "poses": 1, "out": "escape/ds"}), "outside the data roots"),
+        (json!({"kind": "collect", "object": "edge", "poses": 1, "out": "../ds"}), "outside the data roots"),
+        (json!({"kind": "collect", "object": "edge", "poses": 1, "plan": outside.path().join("plan.toml")}), "outside the data roots"),
+        (json!({"kind": "collect", "object": "../../x", "poses": 1}), "plain name"),
+        (json!({"kind": "synth", "dataset": outside.path()}), "outside the data roots"),
+        (json!({"kind": "synth", "dataset": ".", "model": outside.path()}), "outside the data roots"),
+        (json!({"kind": "calibrate", "sensor": "tactip", "out": sentinel}), "outside the data roots"),
+        (json!({"kind": "calibrate", "sensor": "tactip", "grid": 100000}), "grid"),
+    ];
+    for (job, expect) in cases {
+        let r = client.request("POST", "/api/jobs", Some(job.to_string().as_bytes())).await.expect("POST");
+        let body = String::from_utf8_lossy(&r.body).to_string();
+        assert_eq!(r.status, 400, "{job}: {body}");
+        assert!(body.contains(expect), "{job}: {body}");
+        // Named as given, never as resolved (the symlink's target is not told).
+        let outside_name = outside.path().display().to_string();
+        assert!(!body.contains(&outside_name) || job.to_string().contains(&outside_name), "{job}: {body}");
+    }
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert!(jobs.is_empty(), "a refused job was queued: {jobs:?}");
+    assert_eq!(std::fs::read_to_string(&sentinel).expect("sentinel"), "untouched");
+    assert_eq!(std::fs::read_dir(outside.path()).expect("outside").count(), 2, "something was written outside the roots");
+    // Inside the roots, through a relative path, the same job is taken and runs.
+    let ok = submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 1, "out": "ds"})).await;
+    let end = poll_until(&client, ok.id, final_state).await;
+    assert_eq!(end.last().map(|j| j.state), Some(JobState::Done), "{:?}", end.last());
+    assert_eq!(rows(&root.path().join("ds/edge/tactip")), 1);
     daemon.shutdown().await.expect("clean shutdown");
 }

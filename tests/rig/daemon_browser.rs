@@ -22,6 +22,22 @@ fn chromium() -> Option<PathBuf> {
     candidates.into_iter().flatten().find(|p| p.is_file())
 }
 
+/// Chromium, or `None` when it is missing and `RIG_SKIP_BROWSER=1` says to skip; missing
+/// without that, the test fails.
+fn chromium_or_skip() -> Option<PathBuf> {
+    if let Some(found) = chromium() {
+        return Some(found);
+    }
+    if std::env::var("RIG_SKIP_BROWSER").is_ok_and(|v| v == "1") {
+        eprintln!("RIG_SKIP_BROWSER=1: skipping the browser test (no chromium)");
+        return None;
+    }
+    panic!(
+        "chromium not found (/usr/bin/chromium; or set RIG_CHROMIUM): run scripts/setup.sh, which installs Debian's \
+         chromium package, or set RIG_SKIP_BROWSER=1 to skip this test explicitly"
+    );
+}
+
 /// What one load of the page showed.
 #[derive(Debug)]
 struct PageView {
@@ -94,18 +110,10 @@ async fn job(client: &DaemonClient, id: u64) -> JobView {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_shows_frames_and_progress_that_update() {
-    let Some(chromium) = chromium() else {
-        if std::env::var("RIG_SKIP_BROWSER").is_ok_and(|v| v == "1") {
-            eprintln!("RIG_SKIP_BROWSER=1: skipping the browser test (no chromium)");
-            return;
-        }
-        panic!(
-            "chromium not found (/usr/bin/chromium; or set RIG_CHROMIUM): run scripts/setup.sh, which installs Debian's \
-             chromium package, or set RIG_SKIP_BROWSER=1 to skip this test explicitly"
-        );
-    };
+    let Some(chromium) = chromium_or_skip() else { return };
     let tmp = tempfile::tempdir().expect("tempdir");
     let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.roots = Some(rig::roots::DataRoots::new(&[tmp.path().to_path_buf()], tmp.path()).expect("data roots"));
     options.token = Some(TOKEN.into());
     let daemon = Daemon::start(options).await.expect("daemon starts");
     let client = DaemonClient::new(&format!("http://{}", daemon.addr()), Some(TOKEN.into())).expect("client");
@@ -143,5 +151,95 @@ async fn the_page_shows_frames_and_progress_that_update() {
 
     let r = client.request("POST", "/api/jobs/1/cancel", None).await.expect("cancel");
     assert_eq!(r.status, 200);
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// A tiny HTTP server on 127.0.0.1:0 that answers every request with `page` (as HTML) and
+/// records each request's method and path.
+async fn page_server(page: String) -> (std::net::SocketAddr, std::sync::Arc<std::sync::Mutex<Vec<String>>>) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let log = std::sync::Arc::clone(&seen);
+    tokio::spawn(async move {
+        while let Ok((mut stream, _)) = listener.accept().await {
+            let log = std::sync::Arc::clone(&log);
+            let page = page.clone();
+            tokio::spawn(async move {
+                let mut buf = vec![0u8; 65536];
+                let mut got = Vec::new();
+                // The head is enough to record; a body, if any, is read as far as it came.
+                while !got.windows(4).any(|w| w == b"\r\n\r\n") {
+                    match tokio::time::timeout(Duration::from_secs(5), stream.read(&mut buf)).await {
+                        Ok(Ok(n)) if n > 0 => got.extend_from_slice(&buf[..n]),
+                        _ => break,
+                    }
+                }
+                let head = String::from_utf8_lossy(&got);
+                let first = head.lines().next().unwrap_or_default().to_string();
+                log.lock().expect("log").push(first);
+                let response = format!(
+                    "HTTP/1.1 200 OK\r\ncontent-type: text/html\r\ncontent-length: {}\r\nconnection: close\r\n\r\n{page}",
+                    page.len()
+                );
+                let _ = stream.write_all(response.as_bytes()).await;
+            });
+        }
+    });
+    (addr, seen)
+}
+
+/// CSRF: a page served from another loopback origin tries every request a page can make
+/// without the daemon's consent (no-cors fetches with a text/plain body and with an untyped
+/// Blob, a JSON form post, and a preflighted fetch) against a token-less daemon. Nothing may be
+/// queued. The same requests against a recording server prove the browser did send them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_on_another_origin_cannot_submit_a_job() {
+    let Some(chromium) = chromium_or_skip() else { return };
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.roots = Some(rig::roots::DataRoots::new(&[tmp.path().to_path_buf()], tmp.path()).expect("data roots"));
+    options.idle_refresh = None;
+    let daemon = Daemon::start(options).await.expect("daemon starts");
+    let target = format!("http://{}", daemon.addr());
+    let (recorder, recorded) = page_server("recorded".into()).await;
+    let recorder = format!("http://{recorder}");
+
+    let job = json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 1, "out": tmp.path()}).to_string();
+    let attack = format!(
+        r#"<!doctype html><html><body>
+<iframe name="sink1"></iframe><iframe name="sink2"></iframe>
+<form id="f1" method="POST" enctype="text/plain" target="sink1" action="{target}/api/jobs"><input name='{{"kind":"collect","poses":1,"x":"' value='"}}'></form>
+<form id="f2" method="POST" enctype="text/plain" target="sink2" action="{recorder}/form"><input name='{{"kind":"collect","poses":1,"x":"' value='"}}'></form>
+<script>
+const body = {job:?};
+for (const base of ["{target}", "{recorder}"]) {{
+  fetch(base + "/api/jobs", {{ method: "POST", mode: "no-cors", body }}).catch(() => {{}});
+  fetch(base + "/api/jobs", {{ method: "POST", mode: "no-cors", body: new Blob([body]) }}).catch(() => {{}});
+  fetch(base + "/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json", "X-Rig-Client": "x" }}, body }}).catch(() => {{}});
+  fetch(base + "/api/jobs/1/cancel", {{ method: "POST", mode: "no-cors" }}).catch(() => {{}});
+}}
+document.getElementById("f1").submit();
+document.getElementById("f2").submit();
+document.body.setAttribute("data-sent", "yes");
+</script></body></html>"#
+    );
+    let (attacker, _) = page_server(attack).await;
+    let dom = load_page(&chromium, &format!("http://{attacker}/")).await;
+    assert!(dom.contains("data-sent=\"yes\""), "the attacking page's script did not run:\n{dom}");
+
+    // The control: the browser did send the simple requests and the form post (and a preflight).
+    let seen = recorded.lock().expect("log").clone();
+    let posts = seen.iter().filter(|l| l.starts_with("POST /api/jobs ")).count();
+    assert!(posts >= 2, "the browser did not send the no-cors posts to the recorder: {seen:?}");
+    assert!(seen.iter().any(|l| l.starts_with("POST /form")), "the browser did not post the form: {seen:?}");
+    assert!(seen.iter().any(|l| l.starts_with("OPTIONS /api/jobs")), "no preflight for the JSON post: {seen:?}");
+
+    // The daemon queued nothing.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let client = DaemonClient::new(&target, None).expect("client");
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert!(jobs.is_empty(), "a page on another origin queued a job: {jobs:?}");
     daemon.shutdown().await.expect("clean shutdown");
 }

@@ -13,6 +13,7 @@ mod daemon_api;
 mod daemon_browser;
 mod dataset_kill;
 mod fault_matrix;
+mod hostile;
 mod hw_camera;
 mod hw_magician;
 mod hw_modbus;

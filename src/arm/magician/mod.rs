@@ -45,7 +45,7 @@ pub enum MagicianProfileError {
     Parse {
         path: std::path::PathBuf,
         #[source]
-        source: toml::de::Error,
+        source: crate::untrusted::SyntaxError,
     },
     #[error("{path}: {field} {problem}")]
     Invalid { path: std::path::PathBuf, field: &'static str, problem: String },
@@ -121,12 +121,16 @@ impl MagicianProfile {
     }
 
     pub fn load(path: &Path) -> Result<Self, MagicianProfileError> {
-        let text = std::fs::read_to_string(path).map_err(|source| MagicianProfileError::Read { path: path.to_path_buf(), source })?;
+        let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| MagicianProfileError::Read { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
     pub fn parse(text: &str, path: &Path) -> Result<Self, MagicianProfileError> {
-        let p: Self = toml::from_str(text).map_err(|source| MagicianProfileError::Parse { path: path.to_path_buf(), source })?;
+        let p: Self = toml::from_str(text).map_err(|e| MagicianProfileError::Parse {
+            path: path.to_path_buf(),
+            source: crate::untrusted::SyntaxError::from_toml(&e, text),
+        })?;
         let invalid = |field, problem: String| MagicianProfileError::Invalid { path: path.to_path_buf(), field, problem };
         let range_ok = |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] < r[1];
         if !range_ok(p.workspace.radius_mm) || p.workspace.radius_mm[0] < 0.0 {

@@ -108,7 +108,7 @@ pub enum SceneError {
     #[error("invalid scene TOML")]
     Toml {
         #[source]
-        source: toml::de::Error,
+        source: crate::untrusted::SyntaxError,
     },
     #[error("scene parameter {field} must be finite and >= 0, got {value}")]
     BadParameter { field: &'static str, value: f32 },
@@ -177,7 +177,8 @@ impl Scene {
 
     /// Parses a scene file (see the module docs for the format).
     pub fn from_toml(text: &str) -> Result<Self, SceneError> {
-        let mut s: Scene = toml::from_str(text).map_err(|source| SceneError::Toml { source })?;
+        let mut s: Scene =
+            toml::from_str(text).map_err(|e| SceneError::Toml { source: crate::untrusted::SyntaxError::from_toml(&e, text) })?;
         for (field, value) in [("noise_sigma_levels", s.noise_sigma_levels), ("max_blur_px", s.max_blur_px)] {
             if !value.is_finite() || value < 0.0 {
                 return Err(SceneError::BadParameter { field, value });
@@ -195,7 +196,8 @@ impl Scene {
         if !std::path::Path::new(spec).exists() {
             return Err(SceneLoadError::NotFound { spec: spec.to_string() });
         }
-        let text = std::fs::read_to_string(spec).map_err(|source| SceneLoadError::Read { path: spec.to_string(), source })?;
+        let text = crate::untrusted::read_text(std::path::Path::new(spec), crate::untrusted::MAX_CONFIG_BYTES)
+            .map_err(|source| SceneLoadError::Read { path: spec.to_string(), source })?;
         Ok(Self::from_toml(&text)?)
     }
 

@@ -1,0 +1,118 @@
+//! The dataset module's error: one enum for reading, writing, verifying and merging
+//! datasets, so the exit-code table classifies them in one place.
+
+use std::path::PathBuf;
+
+/// Errors of the dataset module.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("{op} {path}: {source}")]
+    Io {
+        op: &'static str,
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The disk (or the injected byte budget) is full. Nothing durable was lost: the writer
+    /// only ever lands whole images before their rows.
+    #[error(
+        "disk full while {op} {path} (everything written before is intact: free some space, then run the same command again; \
+         `rig collect` and `rig dataset import` continue with --resume, `rig synth` and `rig dataset merge` continue by themselves)"
+    )]
+    DiskFull {
+        op: &'static str,
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{dir} already holds a dataset (or other files); refusing to overwrite it. Use --resume to continue it")]
+    NotEmpty { dir: PathBuf },
+    #[error("{dir} is not a dataset: {missing} is missing")]
+    NotADataset { dir: PathBuf, missing: &'static str },
+    #[error("dataset {dir} was written with a different {field}: it has {existing}, this run asks for {requested}")]
+    ManifestMismatch { dir: PathBuf, field: &'static str, existing: String, requested: String },
+    #[error("cannot read manifest {path}: {source}")]
+    ManifestParse {
+        path: PathBuf,
+        #[source]
+        source: crate::untrusted::SyntaxError,
+    },
+    #[error("manifest {path}: its plan is not valid: {source}")]
+    ManifestPlan {
+        path: PathBuf,
+        #[source]
+        source: crate::plan::PlanError,
+    },
+    #[error("cannot write manifest: {source}")]
+    ManifestWrite {
+        #[source]
+        source: toml::ser::Error,
+    },
+    /// `found` is kept for callers but never printed: it is the file's first line.
+    #[error("{path}: line 1 is not a header rig knows; expected {expected:?}")]
+    BadHeader { path: PathBuf, found: String, expected: String },
+    #[error("{path} line {line}: malformed row: {reason}")]
+    MalformedRow { path: PathBuf, line: u64, reason: String },
+    #[error("{path} line {line}: pose_id {pose_id} already has a row (line {first_line})")]
+    DuplicateRow { path: PathBuf, line: u64, first_line: u64, pose_id: u32 },
+    #[error("pose_id {pose_id} already has a row in this dataset")]
+    DuplicatePose { pose_id: u32 },
+    #[error("row for pose_id {pose_id} is invalid: {problem}")]
+    InvalidRow { pose_id: u32, problem: RowProblem },
+    #[error("row for pose_id {pose_id} names {path} but the image is missing; run `rig dataset verify`")]
+    MissingImage { pose_id: u32, path: PathBuf },
+    #[error("cannot encode image for pose_id {pose_id}: {source}")]
+    Encode {
+        pose_id: u32,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("dataset {path} is held by another process (another rig is writing it); wait for it to finish, or stop it")]
+    Locked { path: PathBuf },
+    #[error("{path} is a symlink; rig does not follow symlinks inside a dataset")]
+    Symlink { path: PathBuf },
+    #[error("{path} is not {expected}")]
+    NotRegular { path: PathBuf, expected: &'static str },
+    #[error("{path} is larger than the {max_bytes} bytes rig reads from it")]
+    TooLarge { path: PathBuf, max_bytes: u64 },
+    #[error("{path} is not a readable image: {reason}")]
+    BadImage { path: PathBuf, reason: String },
+    #[error("{path} line {line}: malformed MDS row: {reason}")]
+    MalformedMds { path: PathBuf, line: u64, reason: String },
+    #[error("cannot write CSV: {source}")]
+    CsvWrite {
+        #[source]
+        source: csv::Error,
+    },
+    #[error("{dir} does not verify clean ({issues} issues); run `rig dataset verify` on it")]
+    Unclean { dir: PathBuf, issues: usize },
+    #[error("merge conflict on pose_id {pose_id}: {first} and {second} disagree")]
+    MergeConflict { pose_id: u32, first: PathBuf, second: PathBuf },
+}
+
+impl DatasetError {
+    pub(crate) fn io(op: &'static str, path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
+        let path = path.into();
+        move |source| {
+            // ENOSPC and EDQUOT: say what to do, not only what failed.
+            if source.kind() == std::io::ErrorKind::StorageFull || source.kind() == std::io::ErrorKind::QuotaExceeded {
+                DatasetError::DiskFull { op, path, source }
+            } else {
+                DatasetError::Io { op, path, source }
+            }
+        }
+    }
+}
+
+/// What is wrong with a row's content.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RowProblem {
+    #[error("commanded pose is not finite")]
+    NonFinitePose,
+    #[error("measured pose or capture time is not finite")]
+    NonFiniteMeasurement,
+    #[error("image column is not {expected:?}")]
+    ImagePath { expected: String, found: String },
+    #[error("a text field contains a line break")]
+    Multiline,
+}

@@ -1,0 +1,640 @@
+//! Hostile input: each reproduction of the trust-boundaries issue, run against the real `rig`
+//! binary and a real `rig daemon` (loopback only), asserting the refusal (exit code or HTTP
+//! status, and message) and that nothing outside the test's temp folders was read or written.
+//!
+//! Every test works in its own temp folder. "A file outside the roots" is a sentinel file in
+//! that folder (`outside/secret.txt`, holding [`SECRET`]): no message may contain its text,
+//! and no copy of it may appear anywhere. System files are never touched.
+//!
+//! Items (numbered as in the issue): 1 ONNX Runtime search and the daemon's fixed library;
+//! 2 CSRF and Host; 4 grid, model-size and image-size bombs; 5 symlinks inside a dataset;
+//! 6 a manifest `sensor` that is a path; 7 errors that would echo files; 8 verify decodes
+//! images; 9 HTTP limits and timeouts; 10 exit codes; 11 ill-posed numbers; 12 the daemon's
+//! worker survives bad jobs. (Item 3, job paths against `--root`, lands with the job requests;
+//! [`rig::roots`] is unit-tested.)
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use rig::daemon::client::{HttpResponse, parse_response};
+use rig::dataset::{DatasetWriter, Manifest, ObjectInfo, PoseRow};
+use rig::plan::PlanSpec;
+use rig::sensor::SensorKind;
+
+/// The sentinel's contents: must never appear in any output.
+const SECRET: &str = "SENTINEL-hunter2-do-not-echo";
+
+fn rig(cwd: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(cwd);
+    for var in ["RIG_CONFIG", "RIG_ORT_LIB", "ORT_DYLIB_PATH", "RIG_DAEMON_TOKEN", "RIG_DEBUG_PANIC_JOB_KIND"] {
+        c.env_remove(var);
+    }
+    c.env("RIG_LOG", "error");
+    c
+}
+
+fn run(cwd: &Path, args: &[&str]) -> Output {
+    rig(cwd).args(args).output().expect("running rig")
+}
+
+fn text(out: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
+}
+
+/// Asserts the exit code, a phrase of the output, and that the sentinel never shows.
+fn expect(out: &Output, code: i32, phrase: &str) -> String {
+    let all = text(out);
+    assert_eq!(out.status.code(), Some(code), "expected exit {code}:\n{all}");
+    assert!(all.contains(phrase), "expected {phrase:?} in:\n{all}");
+    assert!(!all.contains(SECRET), "the sentinel's contents leaked:\n{all}");
+    all
+}
+
+/// A temp folder with `outside/secret.txt` (the sentinel) and `work/` (where rig runs).
+struct Sandbox {
+    _tmp: tempfile::TempDir,
+    top: PathBuf,
+}
+
+impl Sandbox {
+    fn new() -> Self {
+        let tmp = tempfile::tempdir().expect("temp dir");
+        let top = tmp.path().canonicalize().expect("canonical");
+        std::fs::create_dir_all(top.join("outside")).expect("mkdir");
+        std::fs::create_dir_all(top.join("work")).expect("mkdir");
+        std::fs::write(top.join("outside/secret.txt"), format!("{SECRET}\nsecond line\n")).expect("sentinel");
+        Self { _tmp: tmp, top }
+    }
+    fn work(&self) -> PathBuf {
+        self.top.join("work")
+    }
+    fn secret(&self) -> PathBuf {
+        self.top.join("outside/secret.txt")
+    }
+    /// No file anywhere in the sandbox but the sentinel itself holds its text.
+    fn assert_no_copy_of_the_secret(&self) {
+        self.assert_no_copy_of_the_secret_but(&[]);
+    }
+
+    /// [`assert_no_copy_of_the_secret`](Self::assert_no_copy_of_the_secret), but for the
+    /// fixtures the test itself wrote with the sentinel's text.
+    fn assert_no_copy_of_the_secret_but(&self, fixtures: &[PathBuf]) {
+        let mut stack = vec![self.top.clone()];
+        while let Some(dir) = stack.pop() {
+            for entry in std::fs::read_dir(&dir).expect("list") {
+                let path = entry.expect("entry").path();
+                let meta = std::fs::symlink_metadata(&path).expect("lstat");
+                if meta.is_dir() {
+                    stack.push(path);
+                } else if meta.is_file() && path != self.secret() && !fixtures.contains(&path) {
+                    let bytes = std::fs::read(&path).expect("read");
+                    assert!(
+                        !bytes.windows(SECRET.len()).any(|w| w == SECRET.as_bytes()),
+                        "{} holds a copy of the sentinel",
+                        path.display()
+                    );
+                }
+            }
+        }
+        assert_eq!(std::fs::read_to_string(self.secret()).expect("sentinel"), format!("{SECRET}\nsecond line\n"), "sentinel changed");
+    }
+}
+
+fn tiny_package() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package")
+}
+
+/// A copy of the tiny model package under `dir`, for breaking.
+fn copy_package(dir: &Path) -> PathBuf {
+    for f in rig::synth::package::PACKAGE_FILES {
+        let to = dir.join(f);
+        std::fs::create_dir_all(to.parent().expect("parent")).expect("mkdir");
+        std::fs::copy(tiny_package().join(f), to).expect("copy");
+    }
+    dir.to_path_buf()
+}
+
+fn image(v: u8) -> image::RgbImage {
+    image::RgbImage::from_fn(8, 8, |x, y| image::Rgb([v, x as u8, y as u8]))
+}
+
+/// A small real dataset at `dir`: the default plan, sphere, TacTip, poses 0..n with 8x8 images
+/// and a reference frame.
+fn dataset(dir: &Path, n: u32) {
+    let manifest = Manifest::new(SensorKind::TacTip, ObjectInfo::named("sphere"), Some(PlanSpec::default()));
+    let mut w = DatasetWriter::create(dir, manifest).expect("create");
+    w.write_reference(&image(0)).expect("reference");
+    for id in 0..n {
+        let pose = PlanSpec::default().pose_of(id).expect("on grid");
+        w.append(PoseRow::synthetic(id, pose, "m", 1, 2, 1.0), &image(id as u8 + 1)).expect("append");
+    }
+    w.finish().expect("finish");
+}
+
+// ---------------------------------------------------------------------------------------
+// The daemon, as a process.
+
+/// `rig daemon` on 127.0.0.1 and an OS-chosen port; killed when dropped.
+struct DaemonProcess {
+    child: Child,
+    addr: SocketAddr,
+}
+
+impl DaemonProcess {
+    fn start(cwd: &Path, extra: &[&str], env: &[(&str, &str)]) -> Self {
+        let mut cmd = rig(cwd);
+        cmd.args(["daemon", "--listen", "127.0.0.1:0", "--idle-refresh-ms", "0", "--sensor", "tactip"]).args(extra);
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::null()).spawn().expect("spawning rig daemon");
+        let stdout = child.stdout.take().expect("stdout");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if let Some(rest) = line.strip_prefix("rig daemon listening on http://") {
+                    let _ = tx.send(rest.split_whitespace().next().unwrap_or_default().to_string());
+                }
+            }
+        });
+        let addr = rx.recv_timeout(Duration::from_secs(120)).expect("the daemon did not say where it listens");
+        Self { child, addr: addr.parse().expect("listen address") }
+    }
+
+    /// One request on a fresh connection; `head` without the Host line (added unless `host` is
+    /// given in it).
+    fn send(&self, request: &str) -> HttpResponse {
+        let mut stream = TcpStream::connect(self.addr).expect("connect");
+        stream.set_read_timeout(Some(Duration::from_secs(30))).expect("timeout");
+        stream.write_all(request.as_bytes()).expect("write");
+        let mut raw = Vec::new();
+        let _ = stream.read_to_end(&mut raw);
+        parse_response(&raw).unwrap_or_else(|e| panic!("malformed response ({e}): {:?}", String::from_utf8_lossy(&raw)))
+    }
+
+    /// A request with the daemon's own Host, `headers` (each ending in CRLF) and `body`.
+    fn request(&self, method: &str, path: &str, headers: &str, body: &str) -> HttpResponse {
+        self.send(&format!(
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n{headers}Content-Length: {}\r\n\r\n{body}",
+            self.addr,
+            body.len()
+        ))
+    }
+
+    fn get_json(&self, path: &str) -> serde_json::Value {
+        let r = self.request("GET", path, "", "");
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        serde_json::from_slice(&r.body).expect("json")
+    }
+
+    /// Queues a job the way rig's client does; returns its id.
+    fn submit(&self, job: &serde_json::Value) -> u64 {
+        let r = self.request("POST", "/api/jobs", "Content-Type: application/json\r\nX-Rig-Client: test\r\n", &job.to_string());
+        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+        serde_json::from_slice::<serde_json::Value>(&r.body).expect("json")["id"].as_u64().expect("id")
+    }
+
+    /// Polls a job until it is final.
+    fn wait_final(&self, id: u64) -> serde_json::Value {
+        let t0 = Instant::now();
+        loop {
+            let job = self.get_json(&format!("/api/jobs/{id}"));
+            if matches!(job["state"].as_str(), Some("done" | "failed" | "cancelled")) {
+                return job;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(300), "job {id} never ended: {job}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn job_count(&self) -> usize {
+        self.get_json("/api/jobs").as_array().expect("list").len()
+    }
+}
+
+impl Drop for DaemonProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn error_of(r: &HttpResponse) -> String {
+    assert_eq!(r.header("content-type"), Some("application/json"), "status {} body {:?}", r.status, String::from_utf8_lossy(&r.body));
+    let v: serde_json::Value = serde_json::from_slice(&r.body).expect("a JSON error body");
+    v["error"].as_str().expect("an error message").to_string()
+}
+
+// ---------------------------------------------------------------------------------------
+
+/// (Item 1.) A library planted in the current folder's `.rig/onnxruntime/` is never loaded; the
+/// library that is loaded is named.
+#[test]
+fn onnx_runtime_is_not_taken_from_the_current_folder() {
+    let sb = Sandbox::new();
+    let planted = sb.work().join(".rig/onnxruntime");
+    std::fs::create_dir_all(&planted).expect("mkdir");
+    // Not a library: if rig tried to load it, the error would name it.
+    std::fs::write(planted.join("libonnxruntime.so"), b"planted, would run in rig if loaded").expect("plant");
+    let model = tiny_package();
+    let out = run(&sb.work(), &["synth", "info", "--model", model.to_str().expect("utf-8")]);
+    let all = expect(&out, 0, "runtime");
+    assert!(!all.contains(&planted.display().to_string()), "the planted library was looked at:\n{all}");
+    assert!(all.contains("from the checkout's .rig/onnxruntime/"), "which library, and why, is said:\n{all}");
+}
+
+/// (Item 1.) A daemon job cannot name the library to load.
+#[test]
+fn a_daemon_job_cannot_choose_the_onnx_runtime_library() {
+    let sb = Sandbox::new();
+    let daemon = DaemonProcess::start(&sb.work(), &[], &[]);
+    let job = serde_json::json!({"kind": "synth", "dataset": sb.work(), "ort_lib": sb.top.join("outside/libevil.so")});
+    let r = daemon.request("POST", "/api/jobs", "Content-Type: application/json\r\nX-Rig-Client: t\r\n", &job.to_string());
+    assert_eq!(r.status, 400);
+    assert!(error_of(&r).contains("unknown field `ort_lib`"), "{}", error_of(&r));
+    assert_eq!(daemon.job_count(), 0);
+}
+
+/// (Item 2.) Requests a browser page on another site can make are refused, and nothing is queued.
+#[test]
+fn cross_site_requests_and_foreign_hosts_are_refused() {
+    let sb = Sandbox::new();
+    let daemon = DaemonProcess::start(&sb.work(), &[], &[]);
+    let job = serde_json::json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 1, "out": sb.work()}).to_string();
+    let json = "Content-Type: application/json\r\n";
+    let cases: Vec<(&str, String, u16, &str)> = vec![
+        ("a POST with no Content-Type (a no-cors fetch of a Blob)", String::new(), 403, "X-Rig-Client"),
+        ("a text/plain POST (a form or a no-cors fetch)", "Content-Type: text/plain\r\n".into(), 403, "X-Rig-Client"),
+        ("JSON without the client header", json.into(), 403, "X-Rig-Client"),
+        ("the client header but text/plain", "Content-Type: text/plain\r\nX-Rig-Client: x\r\n".into(), 415, "application/json"),
+        ("the client header and no Content-Type", "X-Rig-Client: x\r\n".into(), 415, "application/json"),
+        ("a foreign Origin", format!("{json}X-Rig-Client: x\r\nOrigin: http://attacker.example\r\n"), 403, "Origin"),
+    ];
+    for (what, headers, status, phrase) in &cases {
+        let r = daemon.request("POST", "/api/jobs", headers, &job);
+        assert_eq!(r.status, *status, "{what}: {}", String::from_utf8_lossy(&r.body));
+        assert!(error_of(&r).contains(phrase), "{what}: {}", error_of(&r));
+    }
+    // DNS rebinding: the attacker's name in Host, everything else right.
+    let rebound = daemon.send(&format!(
+        "POST /api/jobs HTTP/1.1\r\nHost: attacker.example:{}\r\nConnection: close\r\n{json}X-Rig-Client: x\r\nContent-Length: {}\r\n\r\n{job}",
+        daemon.addr.port(),
+        job.len()
+    ));
+    assert_eq!(rebound.status, 403);
+    assert!(error_of(&rebound).contains("Host"), "{}", error_of(&rebound));
+    let read = daemon.send("GET /api/status HTTP/1.1\r\nHost: attacker.example\r\nConnection: close\r\n\r\n");
+    assert_eq!(read.status, 403, "a rebound page cannot read the status either");
+    // A CORS preflight gets no Access-Control-Allow-* headers: the browser sends nothing more.
+    let preflight =
+        daemon.request("OPTIONS", "/api/jobs", "Origin: http://attacker.example\r\nAccess-Control-Request-Method: POST\r\n", "");
+    assert_eq!(preflight.status, 405);
+    assert!(preflight.headers.iter().all(|(n, _)| !n.starts_with("access-control-")), "{:?}", preflight.headers);
+    error_of(&preflight);
+    // Cancel is state-changing too.
+    let r = daemon.request("POST", "/api/jobs/1/cancel", "", "");
+    assert_eq!(r.status, 403);
+    assert_eq!(daemon.job_count(), 0, "nothing was queued");
+
+    // The control: the same job with both headers is accepted.
+    let ok = daemon.request("POST", "/api/jobs", &format!("{json}X-Rig-Client: x\r\n"), &job);
+    assert_eq!(ok.status, 201, "{}", String::from_utf8_lossy(&ok.body));
+    let ok = daemon.request("POST", "/api/jobs/1/cancel", "X-Rig-Client: x\r\n", "");
+    assert!(ok.status == 200 || ok.status == 409, "{}", String::from_utf8_lossy(&ok.body));
+}
+
+/// (Items 4 and 11.) Inputs that used to allocate until the OOM killer or abort are refused at once.
+#[test]
+fn grid_model_and_image_size_bombs_are_refused_before_allocating() {
+    let sb = Sandbox::new();
+    let ds = sb.work().join("ds");
+    dataset(&ds, 2);
+    let manifest = std::fs::read_to_string(ds.join("manifest.toml")).expect("manifest");
+    let bomb = manifest.replacen("step = 1.0", "step = 1e-12", 1);
+    assert_ne!(bomb, manifest, "the fixture has a step to shrink");
+    std::fs::write(ds.join("manifest.toml"), bomb).expect("write");
+    let t0 = Instant::now();
+    for extra in [&["--dry-run"][..], &["--steps", "1"][..]] {
+        let mut args = vec!["synth", "--fill-missing", "--dataset", "ds"];
+        args.extend_from_slice(extra);
+        expect(&run(&sb.work(), &args), 2, "grid");
+    }
+    assert!(t0.elapsed() < Duration::from_secs(60), "refused only after {:?}", t0.elapsed());
+
+    let pkg = copy_package(&sb.work().join("pkg"));
+    std::fs::write(pkg.join("model.toml"), "name = \"huge\"\nresolution = [100000, 100000]\n").expect("write");
+    expect(&run(&sb.work(), &["synth", "info", "--model", "pkg"]), 2, "resolution");
+
+    let control = sb.work().join("control.png");
+    image(3).save(&control).expect("png");
+    let tiny = tiny_package();
+    let one = |size: &str| {
+        let model = tiny.to_str().expect("utf-8");
+        run(
+            &sb.work(),
+            &[
+                "synth",
+                "one",
+                "--model",
+                model,
+                "--control",
+                "control.png",
+                "--prompt",
+                "p",
+                "--steps",
+                "1",
+                "--size",
+                size,
+                "--out",
+                "o.png",
+            ],
+        )
+    };
+    expect(&one("100000x100000"), 2, "1 to 2048");
+    // 72 is a multiple of 8 but the tiny UNet downsamples once: sizes must divide by 16.
+    expect(&one("72x72"), 2, "multiples of 16");
+    assert!(!sb.work().join("o.png").exists());
+}
+
+/// (Item 11.) Numbers that mean nothing are refused with ranges that mean something; dpm++2m's step
+/// limit is the one it states.
+#[test]
+fn ill_posed_numbers_are_refused_with_true_ranges() {
+    let sb = Sandbox::new();
+    dataset(&sb.work().join("ds"), 2);
+    for (flag, value, phrase) in [("--guidance", "1e30", "from 1 to 30"), ("--eta", "1e30", "from 0 to 1"), ("--eta", "NaN", "from 0 to 1")]
+    {
+        let out = run(&sb.work(), &["synth", "--fill-missing", "--dataset", "ds", "--steps", "1", flag, value]);
+        expect(&out, 2, phrase);
+    }
+    let control = sb.work().join("control.png");
+    image(3).save(&control).expect("png");
+    let tiny = tiny_package();
+    let out = run(
+        &sb.work(),
+        &[
+            "synth",
+            "one",
+            "--model",
+            tiny.to_str().expect("utf-8"),
+            "--control",
+            "control.png",
+            "--prompt",
+            "p",
+            "--steps",
+            "1000",
+            "--scheduler",
+            "dpm++2m",
+            "--out",
+            "o.png",
+        ],
+    );
+    let all = expect(&out, 2, "1..=999");
+    assert!(!all.contains("1..=1000"), "{all}");
+}
+
+/// (Item 5.) Symlinks inside a dataset are refused by verify, export, merge and the writers.
+#[test]
+fn symlinks_inside_a_dataset_are_never_followed() {
+    use std::os::unix::fs::symlink;
+    let sb = Sandbox::new();
+    let w = sb.work();
+    dataset(&w.join("ds"), 3);
+    std::fs::remove_file(w.join("ds/images/2.png")).expect("rm");
+    symlink(sb.secret(), w.join("ds/images/2.png")).expect("symlink");
+
+    let all = expect(&run(&w, &["dataset", "verify", "ds"]), 1, "symlink");
+    assert!(all.contains("NOT clean"), "{all}");
+    expect(&run(&w, &["dataset", "export", "ds", "--format", "mds", "--out", "x.csv", "--images-out", "exported"]), 2, "symlink");
+    expect(&run(&w, &["dataset", "merge", "--out", "merged", "ds"]), 2, "not verify clean");
+    // A symlinked poses.csv or images/ makes the writers refuse, not write through.
+    dataset(&w.join("ds2"), 2);
+    std::fs::rename(w.join("ds2/poses.csv"), w.join("poses-moved.csv")).expect("mv");
+    symlink(sb.secret(), w.join("ds2/poses.csv")).expect("symlink");
+    expect(&run(&w, &["synth", "--fill-missing", "--dry-run", "--dataset", "ds2"]), 2, "symlink");
+    expect(&run(&w, &["synth", "--fill-missing", "--steps", "1", "--limit", "1", "--dataset", "ds2"]), 2, "symlink");
+    let out_dir = sb.top.join("outside/images");
+    std::fs::create_dir(&out_dir).expect("mkdir");
+    dataset(&w.join("ds3"), 1);
+    std::fs::remove_dir_all(w.join("ds3/images")).expect("rm");
+    symlink(&out_dir, w.join("ds3/images")).expect("symlink");
+    expect(&run(&w, &["synth", "--fill-missing", "--steps", "1", "--limit", "1", "--dataset", "ds3"]), 2, "symlink");
+    assert_eq!(std::fs::read_dir(&out_dir).expect("list").count(), 0, "something was written through the symlink");
+    sb.assert_no_copy_of_the_secret();
+}
+
+/// (Item 6.) A manifest whose `sensor` is a path is refused before any file name is built from it.
+#[test]
+fn a_manifest_sensor_that_is_a_path_is_refused() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    dataset(&w.join("ds"), 1);
+    let manifest = std::fs::read_to_string(w.join("ds/manifest.toml")).expect("manifest");
+    let evil = manifest.replace("sensor = \"tactip\"", "sensor = \"a/../../../outside/X\"");
+    assert_ne!(evil, manifest);
+    std::fs::write(w.join("ds/manifest.toml"), evil).expect("write");
+    std::fs::create_dir(w.join("exported")).expect("mkdir");
+    expect(&run(&w, &["dataset", "export", "ds", "--format", "mds", "--out", "x.csv", "--images-out", "exported"]), 2, "manifest");
+    assert!(!sb.top.join("outside/X").exists() && std::fs::read_dir(sb.top.join("outside")).expect("list").count() == 1);
+    assert_eq!(std::fs::read_dir(w.join("exported")).expect("list").count(), 0);
+}
+
+/// (Item 7.) Files that are not what rig expects are named, never echoed.
+#[test]
+fn errors_never_echo_file_contents() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let secret = sb.secret();
+    let secret = secret.to_str().expect("utf-8");
+    std::fs::write(w.join("rig.toml"), format!("[sensors.tactip]\ncalibration = \"{secret}\"\n")).expect("write");
+    expect(&run(&w, &["collect", "--config", "rig.toml", "--sensor", "tactip", "--poses", "1", "--out", "o"]), 2, "calibration");
+    expect(&run(&w, &["collect", "--plan", secret, "--dry-run"]), 2, "not a valid plan");
+    expect(&run(&w, &["collect", "--config", secret, "--dry-run"]), 2, "rig config");
+    // A TOML file that parses, with the secret as a value of the wrong type.
+    std::fs::write(w.join("typed.toml"), format!("[collect]\nframes_per_pose = \"{SECRET}\"\n")).expect("write");
+    expect(&run(&w, &["collect", "--config", "typed.toml", "--dry-run"]), 2, "line 2");
+    dataset(&w.join("ds"), 1);
+    std::fs::copy(sb.secret(), w.join("ds/manifest.toml")).expect("copy");
+    expect(&run(&w, &["synth", "--fill-missing", "--dry-run", "--dataset", "ds"]), 2, "manifest");
+    dataset(&w.join("ds2"), 1);
+    std::fs::copy(sb.secret(), w.join("ds2/poses.csv")).expect("copy");
+    expect(&run(&w, &["dataset", "verify", "ds2"]), 1, "not a header");
+    let pkg = copy_package(&w.join("pkg"));
+    std::fs::copy(sb.secret(), pkg.join("model.toml")).expect("copy");
+    expect(&run(&w, &["synth", "info", "--model", "pkg"]), 2, "model.toml");
+    std::fs::write(w.join("mds.csv"), format!("image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\nf.png,d,1,{SECRET},0,0,0,0,0,0,0,0,0,0,0,0\n")).expect("write");
+    expect(&run(&w, &["dataset", "import", "mds.csv"]), 2, "pose_id");
+    // An MDS image name that climbs out of --images.
+    std::fs::write(w.join("climb.csv"), "image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\n../outside/secret.txt,d,1,1,0,0,0,0,0,0,0,0,0,0,0,0\n").expect("write");
+    expect(&run(&w, &["dataset", "import", "climb.csv", "--out", "imported", "--images", "."]), 2, "plain file name");
+    let fixtures = ["typed.toml", "ds/manifest.toml", "ds2/poses.csv", "pkg/model.toml", "mds.csv"].map(|f| w.join(f));
+    sb.assert_no_copy_of_the_secret_but(&fixtures);
+}
+
+/// (Item 8.) `verify` decodes every image and checks its size.
+#[test]
+fn verify_decodes_every_image() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    dataset(&w.join("ds"), 4);
+    expect(&run(&w, &["dataset", "verify", "ds"]), 0, "clean");
+    std::fs::write(w.join("ds/images/0.png"), b"").expect("empty");
+    std::fs::write(w.join("ds/images/1.png"), b"\x89PNG\r\n\x1a\nnot really").expect("corrupt");
+    image::RgbImage::new(16, 8).save(w.join("ds/images/2.png")).expect("wrong size");
+    let all = expect(&run(&w, &["dataset", "verify", "ds"]), 1, "bad images 3");
+    assert!(all.contains("unreadable image") && all.contains("16x8 px"), "{all}");
+    // A merge refuses it; an export of it would not be a dataset anyone can use.
+    expect(&run(&w, &["dataset", "merge", "--out", "merged", "ds"]), 2, "not verify clean");
+}
+
+/// (Item 9.) HTTP: every error is JSON, a huge Content-Length is refused before its body, a slow
+/// head is cut off, idle connections are closed.
+#[test]
+fn http_limits_and_timeouts() {
+    let sb = Sandbox::new();
+    let daemon = DaemonProcess::start(&sb.work(), &[], &[]);
+    // A huge Content-Length: a JSON 413 at once, without sending the body.
+    let t0 = Instant::now();
+    let r = daemon.send(&format!(
+        "POST /api/jobs HTTP/1.1\r\nHost: {}\r\nContent-Type: application/json\r\nX-Rig-Client: x\r\nContent-Length: 99999999999\r\n\r\n",
+        daemon.addr
+    ));
+    assert_eq!(r.status, 413);
+    assert!(error_of(&r).contains("bytes"), "{}", error_of(&r));
+    assert!(t0.elapsed() < Duration::from_secs(5), "the 413 took {:?}", t0.elapsed());
+    // Every other error status is JSON too.
+    for (method, path, status) in
+        [("GET", "/nope", 404), ("PUT", "/api/jobs", 405), ("GET", "/api/jobs/x", 400), ("GET", "/api/jobs/99", 404)]
+    {
+        let r = daemon.request(method, path, "X-Rig-Client: x\r\n", "");
+        assert_eq!(r.status, status, "{method} {path}");
+        error_of(&r);
+    }
+    let r = daemon.request("POST", "/api/jobs", "Content-Type: application/json\r\nX-Rig-Client: x\r\n", "{not json");
+    assert_eq!(r.status, 400);
+    error_of(&r);
+
+    // Slowloris: half a request head, then nothing. The daemon closes the connection.
+    let timeout = rig::daemon::serve::HEADER_TIMEOUT;
+    let mut slow = TcpStream::connect(daemon.addr).expect("connect");
+    slow.write_all(b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ").expect("write");
+    let mut idle = TcpStream::connect(daemon.addr).expect("connect");
+    for s in [&slow, &idle] {
+        s.set_read_timeout(Some(timeout + Duration::from_secs(20))).expect("timeout");
+    }
+    let t0 = Instant::now();
+    for (what, stream) in [("a slow head", &mut slow), ("an idle connection", &mut idle)] {
+        let mut buf = Vec::new();
+        match stream.read_to_end(&mut buf) {
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                panic!("{what}: the daemon kept the connection open past {:?}", t0.elapsed())
+            }
+            // Closed (or reset): what was wanted.
+            _ => {}
+        }
+        assert!(t0.elapsed() < timeout + Duration::from_secs(15), "{what}: closed only after {:?}", t0.elapsed());
+    }
+    // The daemon still answers.
+    assert_eq!(daemon.request("GET", "/api/status", "", "").status, 200);
+}
+
+/// (Item 10.) Exit codes agree with the table: corrupt model files and bad CSV rows are bad input
+/// (2), a refused arm connection at start is a hardware fault (3).
+#[test]
+fn exit_codes_follow_the_table() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let pkg = copy_package(&w.join("corrupt-onnx"));
+    std::fs::write(pkg.join("unet/model.onnx"), b"not a model").expect("write");
+    expect(&run(&w, &["synth", "info", "--model", "corrupt-onnx"]), 2, "unet/model.onnx");
+    let pkg = copy_package(&w.join("corrupt-tokenizer"));
+    std::fs::write(pkg.join("tokenizer/tokenizer.json"), b"{\"model\": 5}").expect("write");
+    expect(&run(&w, &["synth", "info", "--model", "corrupt-tokenizer"]), 2, "tokenizer");
+
+    dataset(&w.join("ds"), 2);
+    let csv = w.join("ds/poses.csv");
+    let mut rows = std::fs::read_to_string(&csv).expect("csv");
+    rows.push_str("5,x,0,0,0,,,,,images/5.png,real,,,,,,,\n");
+    std::fs::write(&csv, rows).expect("write");
+    expect(&run(&w, &["synth", "--fill-missing", "--dry-run", "--dataset", "ds"]), 2, "line 4");
+
+    // An arm that refuses the connection: a port just closed.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").expect("bind").local_addr().expect("addr").port();
+    std::fs::write(
+        w.join("refused.toml"),
+        format!(
+            "[arm]\nbackend = \"mg400\"\nhost = \"127.0.0.1\"\ndashboard_port = {port}\nmotion_port = {port}\nfeedback_port = {port}\n"
+        ),
+    )
+    .expect("write");
+    expect(&run(&w, &["collect", "--config", "refused.toml", "--sensor", "tactip", "--poses", "1", "--out", "o"]), 3, "127.0.0.1");
+}
+
+/// (Item 12.) Two runs racing into one empty folder: the loser says the dataset is held.
+#[test]
+fn two_collections_racing_into_one_folder() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let start = || {
+        rig(&w)
+            .args(["collect", "--object", "sphere", "--sensor", "tactip", "--poses", "20", "--out", "race", "--resume"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn")
+    };
+    let (a, b) = (start(), start());
+    let outs = [a.wait_with_output().expect("a"), b.wait_with_output().expect("b")];
+    let failed: Vec<&Output> = outs.iter().filter(|o| !o.status.success()).collect();
+    for out in &failed {
+        let all = text(out);
+        assert!(all.contains("held by another process"), "{all}");
+        assert!(!all.contains("No such file or directory"), "{all}");
+        assert_eq!(out.status.code(), Some(1), "{all}");
+    }
+    assert!(failed.len() < 2, "one of them must win");
+    // Whatever the interleaving, the dataset is whole.
+    expect(&run(&w, &["dataset", "verify", "race/sphere/tactip"]), 0, "clean");
+}
+
+/// (Items 4 and 12.) Bad jobs fail alone: ten in a row, each followed by a good job that runs, with the
+/// daemon answering throughout. The bad jobs are inputs that used to abort the daemon (a model
+/// package with a 100000 x 100000 resolution, a dataset whose plan has a 1e-12 mm step) and a
+/// genuine panic inside a job (`RIG_DEBUG_PANIC_JOB_KIND=calibrate`, a hook only debug builds
+/// have: no real input is known to panic).
+#[test]
+fn the_daemon_survives_ten_bad_jobs_in_a_row() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let pkg = copy_package(&w.join("huge"));
+    std::fs::write(pkg.join("model.toml"), "name = \"huge\"\nresolution = [100000, 100000]\n").expect("write");
+    dataset(&w.join("ds/sphere/tactip"), 2);
+    dataset(&w.join("bomb"), 1);
+    let manifest = std::fs::read_to_string(w.join("bomb/manifest.toml")).expect("manifest");
+    std::fs::write(w.join("bomb/manifest.toml"), manifest.replacen("step = 1.0", "step = 1e-12", 1)).expect("write");
+
+    let daemon = DaemonProcess::start(&w, &[], &[("RIG_DEBUG_PANIC_JOB_KIND", "calibrate")]);
+    for round in 0..10 {
+        let (bad, expect_code, phrase) = match round % 3 {
+            0 => (serde_json::json!({"kind": "calibrate", "sensor": "tactip", "out": w.join("cal.toml")}), 1, "panic"),
+            1 => (serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": pkg, "steps": 1}), 2, "resolution"),
+            _ => (serde_json::json!({"kind": "synth", "dataset": w.join("bomb"), "steps": 1}), 2, "grid"),
+        };
+        let id = daemon.submit(&bad);
+        let job = daemon.wait_final(id);
+        assert_eq!(job["state"], "failed", "round {round}: {job}");
+        assert_eq!(job["exit_code"], expect_code, "round {round}: {job}");
+        assert!(job["error"].as_str().is_some_and(|e| e.contains(phrase)), "round {round}: {job}");
+        assert_eq!(daemon.request("GET", "/api/status", "", "").status, 200, "round {round}: the daemon stopped answering");
+
+        let good = serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "seed": round, "out": w.join(format!("good{round}"))});
+        let id = daemon.submit(&good);
+        let job = daemon.wait_final(id);
+        assert_eq!(job["state"], "done", "round {round}: the good job after a bad one: {job}");
+    }
+    assert!(!w.join("cal.toml").exists());
+}
