@@ -323,7 +323,7 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
     if let Err(e) = spec.check() {
         return error(StatusCode::BAD_REQUEST, format!("bad job: {e}"));
     }
-    if let Err(e) = spec.confine(&api.roots) {
+    if let Err(e) = spec.confine(&api.roots, crate::jobs::Confine::Submitted) {
         return error(StatusCode::BAD_REQUEST, format!("bad job: {e}"));
     }
     match api.state.submit(spec) {

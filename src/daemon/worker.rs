@@ -103,8 +103,9 @@ pub(crate) async fn run_worker(
         if let Some(job) = state.start_next() {
             info!(id = job.id, kind = job.spec.kind(), "job starting");
             let mut spec = job.spec.clone();
-            // Confined again now: a folder may have been swapped for a symlink since submission.
-            let confined = spec.confine(&context.roots);
+            // Confined again now: what it reads must exist by now, and a folder may have been
+            // swapped for a symlink since submission.
+            let confined = spec.confine(&context.roots, crate::jobs::Confine::Starting);
             let panic_here = injected_panic(spec.kind());
             let ctx = RigContext {
                 rig: &mut rig,

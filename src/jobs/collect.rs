@@ -28,7 +28,6 @@ use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::Peripherals;
 use crate::plan::{Plan, PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
-use crate::roots::DataRoots;
 use crate::sensor::{SensorKind, SensorSet};
 
 /// A collection: the options of `rig collect` (see its `--help`), the body of a daemon
@@ -98,10 +97,10 @@ impl CollectRequest {
     }
 
     /// Resolves `stl` and `plan` (read) and `out` (written) inside `roots`.
-    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
-        super::confine_opt(&mut self.stl, |p| roots.input("stl", p))?;
-        super::confine_opt(&mut self.plan, |p| roots.input("plan", p))?;
-        self.out = roots.output("out", &self.out)?;
+    pub fn confine(&mut self, read: &super::Reader<'_>) -> Result<(), JobError> {
+        super::confine_opt(&mut self.stl, |p| read.input("stl", p))?;
+        super::confine_opt(&mut self.plan, |p| read.input("plan", p))?;
+        self.out = read.roots.output("out", &self.out)?;
         Ok(())
     }
 

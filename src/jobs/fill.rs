@@ -14,7 +14,6 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{JobError, Observer};
-use crate::roots::DataRoots;
 use crate::synth::fill::{
     FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, TwinSize, fill_missing_observed, find_datasets, missing_poses,
     synthesise_poses_of,
@@ -114,13 +113,13 @@ impl FillRequest {
 
     /// Resolves `dataset`, `poses_of` and `model` (read) and `out` (written) inside `roots`.
     /// The default model (`model` left out) is rig's own package, not a path of the request.
-    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
+    pub fn confine(&mut self, read: &super::Reader<'_>) -> Result<(), JobError> {
         if self.poses_of.is_none() {
-            self.dataset = roots.input("dataset", &self.dataset)?;
+            self.dataset = read.input("dataset", &self.dataset)?;
         }
-        super::confine_opt(&mut self.poses_of, |p| roots.input("poses_of", p))?;
-        super::confine_opt(&mut self.model, |p| roots.input("model", p))?;
-        super::confine_opt(&mut self.out, |p| roots.output("out", p))?;
+        super::confine_opt(&mut self.poses_of, |p| read.input("poses_of", p))?;
+        super::confine_opt(&mut self.model, |p| read.input("model", p))?;
+        super::confine_opt(&mut self.out, |p| read.roots.output("out", p))?;
         Ok(())
     }
 

@@ -71,14 +71,42 @@ impl JobRequest {
     }
 
     /// The request with every path it names resolved inside `roots` (symlinks followed,
-    /// relative paths from the roots' base): paths it reads must exist there, paths it writes
-    /// may not exist yet but must land there. The daemon confines each job when it is
-    /// submitted and again when it starts; a refused path is named as the request gave it.
-    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
+    /// relative paths from the roots' base), paths it writes may not exist yet but must land
+    /// there. Paths it reads must exist when the job starts ([`Confine::Starting`]); when it is
+    /// submitted ([`Confine::Submitted`]) they may still be missing, as an earlier job in the
+    /// queue may write them (a collection, then a fill of its dataset), but must lie inside
+    /// the roots all the same. A refused path is named as the request gave it.
+    pub fn confine(&mut self, roots: &DataRoots, when: Confine) -> Result<(), JobError> {
+        let read = Reader { roots, when };
         match self {
-            JobRequest::Collect(r) => r.confine(roots),
-            JobRequest::Synth(r) => r.confine(roots),
+            JobRequest::Collect(r) => r.confine(&read),
+            JobRequest::Synth(r) => r.confine(&read),
             JobRequest::Calibrate(r) => r.confine(roots),
+        }
+    }
+}
+
+/// When a daemon confines a job's paths.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Confine {
+    /// At `POST /api/jobs`: paths read may not exist yet.
+    Submitted,
+    /// When the job starts: paths read must exist.
+    Starting,
+}
+
+/// Resolves the paths a job reads, as [`Confine`] says.
+pub struct Reader<'a> {
+    pub roots: &'a DataRoots,
+    pub when: Confine,
+}
+
+impl Reader<'_> {
+    /// `given` resolved inside the roots; it must exist unless the job is only being submitted.
+    pub fn input(&self, field: &str, given: &std::path::Path) -> Result<PathBuf, crate::roots::PathError> {
+        match self.when {
+            Confine::Starting => self.roots.input(field, given),
+            Confine::Submitted => self.roots.output(field, given),
         }
     }
 }
