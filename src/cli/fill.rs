@@ -8,7 +8,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 
 use crate::synth::fill::{FillOptions, Shard, TwinSize, fill_missing, missing_poses, synthesise_poses_of};
-use crate::synth::{Pipeline, RuntimeOptions, SchedulerKind};
+use crate::synth::{ImageRange, Pipeline, RuntimeOptions, SchedulerKind};
 
 /// Fill-missing mode of `rig synth`.
 #[derive(Debug, Clone, Args)]
@@ -41,9 +41,9 @@ pub struct FillArgs {
     /// save) [default: the package's `guidance`, else 1].
     #[arg(long)]
     pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    #[arg(long, default_value_t = 0.0)]
-    pub eta: f32,
+    /// DDIM eta (0: deterministic) [default: the package's `eta`, else 0].
+    #[arg(long)]
+    pub eta: Option<f32>,
     /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
     #[arg(long)]
     pub sampler: Option<SchedulerKind>,
@@ -54,6 +54,11 @@ pub struct FillArgs {
     /// Poses per model call.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
+    /// How the model's output becomes 8-bit pixels: `clamp` (x/2 + 0.5 clamped to [0, 1], as
+    /// diffusers writes) or `minmax` (each image stretched from its own min to its own max, as
+    /// MultiDiffSense's scripts save, for comparing with their outputs).
+    #[arg(long, value_enum, default_value_t = ImageRange::Clamp)]
+    pub image_range: ImageRange,
     /// Supersampling factor of the control image's depth map.
     #[arg(long, default_value_t = 2)]
     pub supersample: u32,
@@ -89,6 +94,7 @@ impl FillArgs {
             guidance: self.guidance,
             eta: self.eta,
             sampler: self.sampler.map(|s| s.to_string()),
+            image_range: self.image_range,
             conditioning_scale: self.conditioning_scale,
             batch: self.batch,
             supersample: self.supersample,
@@ -183,17 +189,19 @@ fn load_pipeline(args: &FillArgs) -> anyhow::Result<Pipeline> {
 
 fn fill_options(args: &FillArgs, shard: Shard, pipeline: &Pipeline) -> FillOptions {
     let defaults = FillOptions::default();
-    let sampling = pipeline.package().config.sampling(args.steps, args.guidance, args.sampler, (defaults.steps, defaults.guidance));
+    let sampling =
+        pipeline.package().config.sampling(args.steps, args.guidance, args.sampler, args.eta, (defaults.steps, defaults.guidance));
     FillOptions {
         steps: sampling.steps,
         guidance: sampling.guidance,
-        eta: args.eta,
+        eta: sampling.eta,
         scheduler: sampling.sampler,
         conditioning_scale: args.conditioning_scale,
         shard,
         batch: args.batch,
         supersample: args.supersample,
         limit: args.limit,
+        image_range: args.image_range,
     }
 }
 

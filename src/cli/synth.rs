@@ -14,7 +14,7 @@ use clap::{Args as ClapArgs, Subcommand};
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
 use crate::synth::package::Sampling;
-use crate::synth::{ExecutionProviderKind, GenerateRequest, Pipeline, RuntimeOptions, SchedulerKind};
+use crate::synth::{ExecutionProviderKind, GenerateRequest, ImageRange, Pipeline, RuntimeOptions, SchedulerKind};
 
 /// `rig synth` arguments.
 #[derive(Debug, ClapArgs)]
@@ -84,9 +84,9 @@ pub struct OneArgs {
     /// `guidance`, else 9 as in MultiDiffSense's paper].
     #[arg(long)]
     pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    #[arg(long, default_value_t = 0.0)]
-    pub eta: f32,
+    /// DDIM eta (0: deterministic) [default: the package's `eta`, else 0].
+    #[arg(long)]
+    pub eta: Option<f32>,
     /// Seed of the initial noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -105,6 +105,11 @@ pub struct OneArgs {
     /// Output PNG (8-bit RGB).
     #[arg(long, value_name = "PNG")]
     pub out: PathBuf,
+    /// How the output becomes 8-bit pixels: `clamp` (x/2 + 0.5 clamped to [0, 1], as diffusers
+    /// writes) or `minmax` (stretched from the image's own min to its own max, as
+    /// MultiDiffSense's scripts save, for comparing with their outputs). --dump-raw is unaffected.
+    #[arg(long, value_enum, default_value_t = ImageRange::Clamp)]
+    pub image_range: ImageRange,
     /// Also write the decoder output before clamping, float32 .npy, NHWC.
     #[arg(long, value_name = "FILE.npy")]
     pub dump_raw: Option<PathBuf>,
@@ -157,15 +162,15 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let mut pipeline = load(&args.model, &args.runtime)?;
     let load_s = t0.elapsed().as_secs_f64();
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
-    let Sampling { steps, guidance, sampler: scheduler } =
-        pipeline.package().config.sampling(args.steps, args.guidance, args.scheduler, (50, 9.0));
+    let Sampling { steps, guidance, sampler: scheduler, eta } =
+        pipeline.package().config.sampling(args.steps, args.guidance, args.scheduler, args.eta, ONE_FALLBACK);
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
         negative_prompt: &args.negative_prompt,
         steps,
         guidance,
-        eta: args.eta,
+        eta,
         seed: args.seed,
         scheduler,
         conditioning_scale: args.conditioning_scale,
@@ -176,20 +181,21 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let t1 = Instant::now();
     let out = pipeline.generate(&request).context("synthesising the image")?;
     let gen_s = t1.elapsed().as_secs_f64();
-    out.image.save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
+    out.to_rgb8(args.image_range).save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
     if let Some(path) = &args.dump_raw {
         out.raw.write(path).with_context(|| format!("writing {}", path.display()))?;
     }
     let (w, h) = out.image.dimensions();
     println!("prompt: {prompt}");
     println!(
-        "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}",
+        "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}{}",
         args.out.display(),
         steps,
         scheduler,
         guidance,
-        args.eta,
-        args.seed
+        eta,
+        args.seed,
+        if args.image_range == ImageRange::Clamp { String::new() } else { format!(", image range {}", args.image_range) }
     );
     if let Some(path) = &args.dump_raw {
         println!("raw decoder output (NHWC float32): {}", path.display());
@@ -220,9 +226,38 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
         "scheduler    {} betas {}..{} over {} steps, {} spacing, steps_offset {}, set_alpha_to_one {}",
         s.beta_schedule, s.beta_start, s.beta_end, s.num_train_timesteps, s.timestep_spacing, s.steps_offset, s.set_alpha_to_one
     );
+    println!("sampling     {}", sampling_line(c));
     println!("sha256       {}", pipeline.package_hash());
     println!("runtime      {} ({})", pipeline.library().display(), args.runtime.provider);
     Ok(())
+}
+
+/// `rig synth one`'s steps and guidance when neither the flags nor the package name them (50
+/// steps, guidance 9: MultiDiffSense's paper).
+const ONE_FALLBACK: (usize, f32) = (50, 9.0);
+
+/// The package's sampling defaults as `rig synth info` prints them: each `model.toml` key, and
+/// what rig uses where the package names none.
+fn sampling_line(c: &crate::synth::package::ModelConfig) -> String {
+    fn key<T: std::fmt::Display>(v: Option<T>) -> String {
+        v.map(|v| v.to_string()).unwrap_or_else(|| "unset".to_string())
+    }
+    let mut line = format!(
+        "sampler {}, steps {}, eta {}, guidance {} (model.toml; flags override)",
+        key(c.sampler),
+        key(c.sampling_steps),
+        key(c.eta),
+        key(c.guidance)
+    );
+    if c.sampler.is_none() || c.sampling_steps.is_none() || c.eta.is_none() || c.guidance.is_none() {
+        let fill = crate::synth::fill::FillOptions::default();
+        line.push_str(&format!(
+            "; where unset: ddim, eta 0, and {} steps, guidance {} for rig synth one, {} steps, guidance {} for \
+             --fill-missing and --poses-of",
+            ONE_FALLBACK.0, ONE_FALLBACK.1, fill.steps, fill.guidance
+        ));
+    }
+    line
 }
 
 #[cfg(test)]
@@ -249,8 +284,11 @@ mod tests {
     fn one_parses_with_prompt_or_pose() {
         let one = parse_one(&["--prompt", "p", "--steps", "4", "--scheduler", "dpm++2m", "--size", "64x64"]).unwrap();
         assert_eq!((one.steps, one.guidance, one.scheduler, one.size), (Some(4), None, Some(SchedulerKind::DpmSolverPp2m), Some((64, 64))));
-        let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
+        assert_eq!((one.eta, one.image_range), (None, ImageRange::Clamp));
+        let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30", "--eta", "0.5", "--image-range", "minmax"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
+        assert_eq!((one.eta, one.image_range), (Some(0.5), ImageRange::MinMax));
+        assert!(parse_one(&["--prompt", "p", "--image-range", "stretch"]).is_err());
         assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");
     }
 }

@@ -97,9 +97,12 @@ pub struct SynthSpec {
     pub steps: Option<usize>,
     /// None: the package's `guidance`, else [`FillOptions`]' default.
     pub guidance: Option<f32>,
-    pub eta: f32,
+    /// None: the package's `eta`, else 0.
+    pub eta: Option<f32>,
     /// `ddim` or `dpm++2m`; none: the package's `sampler`, else ddim.
     pub sampler: Option<String>,
+    /// How the model's output becomes 8-bit pixels (`clamp` or `minmax`).
+    pub image_range: crate::synth::ImageRange,
     /// ControlNet conditioning scale (1: as trained).
     pub conditioning_scale: f32,
     pub batch: usize,
@@ -119,8 +122,9 @@ impl Default for SynthSpec {
             out: None,
             steps: None,
             guidance: None,
-            eta: d.eta,
+            eta: None,
             sampler: None,
+            image_range: d.image_range,
             conditioning_scale: d.conditioning_scale,
             batch: d.batch,
             supersample: d.supersample,
@@ -330,18 +334,19 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
     let mut options = FillOptions {
         steps: defaults.steps,
         guidance: defaults.guidance,
-        eta: spec.eta,
+        eta: defaults.eta,
         scheduler: SchedulerKind::default(),
         conditioning_scale: spec.conditioning_scale,
         shard,
         batch: spec.batch,
         supersample: spec.supersample,
         limit: spec.limit,
+        image_range: spec.image_range,
     };
     // The model runs on a blocking thread; the loaded package comes back for the next job.
     let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
     let out = spec.out.clone();
-    let (spec_steps, spec_guidance) = (spec.steps, spec.guidance);
+    let (spec_steps, spec_guidance, spec_eta) = (spec.steps, spec.guidance, spec.eta);
     let fallback = (defaults.steps, defaults.guidance);
     let task = tokio::task::spawn_blocking(move || {
         let mut loaded = match cached {
@@ -352,8 +357,9 @@ async fn run_synth(spec: &SynthSpec, ctx: RigContext<'_>) -> Result<JobEnd, JobE
             },
         };
         // The package's own sampling settings where the job names none.
-        let sampling = loaded.package().config.sampling(spec_steps, spec_guidance, scheduler, fallback);
-        (options.steps, options.guidance, options.scheduler) = (sampling.steps, sampling.guidance, sampling.sampler);
+        let sampling = loaded.package().config.sampling(spec_steps, spec_guidance, scheduler, spec_eta, fallback);
+        (options.steps, options.guidance, options.scheduler, options.eta) =
+            (sampling.steps, sampling.guidance, sampling.sampler, sampling.eta);
         let mut lines = Vec::new();
         let mut cancelled = false;
         for d in &datasets {

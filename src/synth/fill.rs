@@ -15,7 +15,7 @@ use std::str::FromStr;
 
 use image::RgbImage;
 
-use super::{GenerateRequest, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
+use super::{GenerateRequest, ImageRange, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
 use crate::calibration::Calibration;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
 use crate::geometry::objects::load_object;
@@ -89,6 +89,8 @@ pub struct FillOptions {
     pub supersample: u32,
     /// At most this many poses (after sharding); `None`: all.
     pub limit: Option<usize>,
+    /// How the decoder's output becomes 8-bit pixels (before any resize to the frames' size).
+    pub image_range: ImageRange,
 }
 
 impl Default for FillOptions {
@@ -103,6 +105,7 @@ impl Default for FillOptions {
             batch: 4,
             supersample: 2,
             limit: None,
+            image_range: ImageRange::Clamp,
         }
     }
 }
@@ -245,7 +248,7 @@ pub fn fill_missing_observed(
         let outputs = pipeline.generate_batch(&requests)?;
         let mut stop = false;
         for (((p, request), output), control) in chunk.iter().zip(&requests).zip(outputs).zip(&controls) {
-            let image = resized_to(output.image, output_size);
+            let image = resized_to(output.to_rgb8(options.image_range), output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
             synthesised += 1;
@@ -353,7 +356,7 @@ pub fn synthesise_poses_of(
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
         for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
-            let image = resized_to(output.image, output_size);
+            let image = resized_to(output.to_rgb8(options.image_range), output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
         }
