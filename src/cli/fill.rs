@@ -264,3 +264,26 @@ fn run_poses_of(source: &Path, args: FillArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use crate::synth::ImageRange;
+
+    fn parse(extra: &[&str]) -> super::FillArgs {
+        let cli = crate::cli::Cli::try_parse_from(["rig", "synth", "--fill-missing"].iter().chain(extra)).expect("parses");
+        let crate::cli::Command::Synth(args) = cli.command else { panic!("not rig synth") };
+        args.fill
+    }
+
+    #[test]
+    fn eta_and_image_range_reach_the_daemon_job() {
+        let args = parse(&[]);
+        assert_eq!((args.eta, args.image_range), (None, ImageRange::Clamp));
+        let args = parse(&["--eta", "0.3", "--image-range", "minmax"]);
+        assert_eq!((args.eta, args.image_range), (Some(0.3), ImageRange::MinMax));
+        let spec = args.job_spec();
+        assert_eq!((spec.eta, spec.image_range), (Some(0.3), ImageRange::MinMax));
+    }
+}
