@@ -176,10 +176,10 @@ def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, o
 
 def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
                      prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None,
-                     sampling_steps=None, guidance=None, sampler=None):
+                     sampling_steps=None, guidance=None, sampler=None, eta=None, end_token=None):
     mods = ", ".join(f'"{m}"' for m in modalities)
     text = (
-        f'name = "{name}"\n'
+        f"name = {json.dumps(name)}\n"
         f"resolution = [{width}, {height}]  # width, height in pixels\n"
         f"modalities = [{mods}]\n"
         f'prompt_template = "{prompt_template}"\n'
@@ -194,6 +194,10 @@ def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("Ta
         text += f"guidance = {float(guidance)}  # classifier-free guidance scale (1: unguided)\n"
     if sampler is not None:
         text += f'sampler = "{sampler}"  # default sampler of rig synth\n'
+    if eta is not None:
+        text += f"eta = {float(eta)}  # DDIM eta (0: deterministic)\n"
+    if end_token is not None:
+        text += f"end_token = {json.dumps(end_token)}  # padding token of the tokenizer\n"
     with open(os.path.join(out_dir, "model.toml"), "w") as f:
         f.write(text)
 
@@ -205,3 +209,43 @@ def write_scheduler_config(out_dir, scheduler_config):
     with open(os.path.join(out_dir, "scheduler", "scheduler_config.json"), "w") as f:
         json.dump(cfg, f, indent=2, sort_keys=True)
         f.write("\n")
+
+
+@torch.no_grad()
+def check_onnx(out_dir, text_encoder, controlnet, unet, vae, input_ids, height, width, vae_scale_factor=8):
+    """Runs each exported model in onnxruntime on the inputs PyTorch gets; returns
+    {model: max |onnx - torch|}. input_ids: int32 [1, 77]."""
+    import numpy as np
+    import onnxruntime as ort
+
+    gen = torch.Generator().manual_seed(0)
+    c = unet.config.in_channels
+    lh, lw = height // vae_scale_factor, width // vae_scale_factor
+    sample = torch.randn(2, c, lh, lw, generator=gen)
+    t = torch.tensor([451], dtype=torch.int64)
+    cond = torch.rand(2, 3, height, width, generator=gen)
+    ehs = text_encoder(input_ids.long(), return_dict=False)[0].repeat(2, 1, 1)
+    res = ControlNetWrapper(controlnet)(sample, t, ehs, cond, torch.tensor(1.0))
+    pred = UNetWrapper(unet, len(res) - 1)(sample, t, ehs, *res)
+    latent = torch.randn(1, vae.config.latent_channels, lh, lw, generator=gen)
+    img = vae.decode(latent, return_dict=False)[0]
+
+    def run(name, feeds):
+        s = ort.InferenceSession(os.path.join(out_dir, name, "model.onnx"), providers=["CPUExecutionProvider"])
+        return s.run(None, feeds)
+
+    te = run("text_encoder", {"input_ids": input_ids.numpy()})[0]
+    cn = run("controlnet", {"sample": sample.numpy(), "timestep": t.numpy(), "encoder_hidden_states": ehs.numpy(),
+                            "controlnet_cond": cond.numpy(), "conditioning_scale": np.array(1.0, dtype=np.float32)})
+    feeds = {"sample": sample.numpy(), "timestep": t.numpy(), "encoder_hidden_states": ehs.numpy()}
+    for i, r in enumerate(cn[:-1]):
+        feeds[f"down_block_additional_residual_{i}"] = r
+    feeds["mid_block_additional_residual"] = cn[-1]
+    un = run("unet", feeds)[0]
+    vd = run("vae_decoder", {"latent_sample": latent.numpy()})[0]
+    return {
+        "text_encoder": float(np.abs(te - ehs[:1].numpy()).max()),
+        "controlnet": max(float(np.abs(a - b.numpy()).max()) for a, b in zip(cn, res)),
+        "unet": float(np.abs(un - pred.numpy()).max()),
+        "vae_decoder": float(np.abs(vd - img.numpy()).max()),
+    }

@@ -77,6 +77,7 @@ impl FillArgs {
             eta: s.eta,
             sampler: s.sampler,
             conditioning_scale: s.conditioning_scale,
+            image_range: s.image_range,
             batch: self.batch,
             supersample: self.supersample,
             limit: self.limit,
@@ -149,5 +150,31 @@ fn usage_of(e: JobError) -> anyhow::Error {
     match e {
         JobError::BadOption { reason, .. } => anyhow::Error::new(crate::cli::usage(&reason)),
         e => anyhow::Error::new(e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use crate::synth::ImageRange;
+
+    fn parse(extra: &[&str]) -> super::FillArgs {
+        let cli = crate::cli::Cli::try_parse_from(["rig", "synth", "--fill-missing"].iter().chain(extra)).expect("parses");
+        let crate::cli::Command::Synth(args) = cli.command else { panic!("not rig synth") };
+        args.fill
+    }
+
+    #[test]
+    fn eta_and_image_range_reach_the_request_the_daemon_gets() {
+        let request = parse(&[]).request();
+        assert_eq!((request.eta, request.image_range), (None, ImageRange::Clamp), "left to the package");
+        let request = parse(&["--eta", "0.3", "--image-range", "minmax"]).request();
+        assert_eq!((request.eta, request.image_range), (Some(0.3), ImageRange::MinMax));
+        let json: crate::jobs::JobRequest =
+            serde_json::from_str(r#"{"kind": "synth", "eta": 0.3, "image_range": "minmax"}"#).expect("a daemon job");
+        let crate::jobs::JobRequest::Synth(job) = json else { panic!("not a synth job") };
+        assert_eq!((job.eta, job.image_range), (request.eta, request.image_range));
+        assert!(crate::cli::Cli::try_parse_from(["rig", "synth", "--fill-missing", "--image-range", "stretch"]).is_err());
     }
 }

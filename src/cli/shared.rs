@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args as ClapArgs;
 
-use crate::synth::{ExecutionProviderKind, RuntimeOptions, SchedulerKind};
+use crate::synth::{ExecutionProviderKind, ImageRange, RuntimeOptions, SchedulerKind};
 
 /// Sampling settings, the same flags in every synth mode. Each one left out takes the model
 /// package's own (`model.toml`), else rig's fallback: 20 steps unguided for a fill, 50 steps
@@ -19,9 +19,9 @@ pub struct SamplingArgs {
     /// save) [default: the package's `guidance`, else 1 (fill) or 9 (one)].
     #[arg(long)]
     pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    #[arg(long, default_value_t = 0.0)]
-    pub eta: f32,
+    /// DDIM eta (0: deterministic) [default: the package's `eta`, else 0].
+    #[arg(long)]
+    pub eta: Option<f32>,
     /// Sampler: ddim or dpm++2m [default: the package's `sampler`, else ddim].
     #[arg(long, alias = "scheduler")]
     pub sampler: Option<SchedulerKind>,
@@ -29,6 +29,11 @@ pub struct SamplingArgs {
     /// the model was trained).
     #[arg(long, default_value_t = 1.0)]
     pub conditioning_scale: f32,
+    /// How the model's output becomes 8-bit pixels: `clamp` (x/2 + 0.5 clamped to [0, 1], as
+    /// diffusers writes) or `minmax` (each image stretched from its own min to its own max, as
+    /// MultiDiffSense's scripts save, for comparing with their outputs).
+    #[arg(long, value_enum, default_value_t = ImageRange::Clamp)]
+    pub image_range: ImageRange,
 }
 
 /// Where ONNX Runtime comes from and where it runs.

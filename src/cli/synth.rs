@@ -15,7 +15,7 @@ use super::shared::{RuntimeArgs, SamplingArgs};
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
 use crate::synth::package::Sampling;
-use crate::synth::{GenerateRequest, Pipeline};
+use crate::synth::{GenerateRequest, ImageRange, Pipeline};
 
 /// `rig synth` arguments.
 #[derive(Debug, ClapArgs)]
@@ -120,7 +120,9 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     if let Some(g) = args.sampling.guidance {
         crate::synth::limits::check_guidance(g)?;
     }
-    crate::synth::limits::check_eta(args.sampling.eta)?;
+    if let Some(eta) = args.sampling.eta {
+        crate::synth::limits::check_eta(eta)?;
+    }
     crate::synth::limits::check_conditioning_scale(args.sampling.conditioning_scale)?;
     if let Some(size) = args.size {
         crate::synth::limits::check_size("size", size, 1)?;
@@ -140,14 +142,15 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let load_s = t0.elapsed().as_secs_f64();
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
     let s = &args.sampling;
-    let Sampling { steps, guidance, sampler: scheduler } = pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, (50, 9.0));
+    let Sampling { steps, guidance, sampler: scheduler, eta } =
+        pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, s.eta, ONE_FALLBACK);
     let request = GenerateRequest {
         control: &control,
         prompt: &prompt,
         negative_prompt: &args.negative_prompt,
         steps,
         guidance,
-        eta: s.eta,
+        eta,
         seed: args.seed,
         scheduler,
         conditioning_scale: s.conditioning_scale,
@@ -158,20 +161,21 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let t1 = Instant::now();
     let out = pipeline.generate(&request).context("synthesising the image")?;
     let gen_s = t1.elapsed().as_secs_f64();
-    out.image.save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
+    out.to_rgb8(s.image_range).save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
     if let Some(path) = &args.dump_raw {
         out.raw.write(path).with_context(|| format!("writing {}", path.display()))?;
     }
     let (w, h) = out.image.dimensions();
     println!("prompt: {prompt}");
     println!(
-        "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}",
+        "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}{}",
         args.out.display(),
         steps,
         scheduler,
         guidance,
-        s.eta,
-        args.seed
+        eta,
+        args.seed,
+        if s.image_range == ImageRange::Clamp { String::new() } else { format!(", image range {}", s.image_range) }
     );
     if let Some(path) = &args.dump_raw {
         println!("raw decoder output (NHWC float32): {}", path.display());
@@ -202,10 +206,39 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
         "scheduler    {} betas {}..{} over {} steps, {} spacing, steps_offset {}, set_alpha_to_one {}",
         s.beta_schedule, s.beta_start, s.beta_end, s.num_train_timesteps, s.timestep_spacing, s.steps_offset, s.set_alpha_to_one
     );
+    println!("sampling     {}", sampling_line(c));
     println!("sha256       {}", pipeline.package_hash());
     println!("runtime      {} (from {}; provider {})", pipeline.library().display(), pipeline.library_origin(), args.runtime.provider);
     println!("sizes        multiples of {} px, at most {} px a side", pipeline.size_multiple(), crate::synth::limits::MAX_SIDE_PX);
     Ok(())
+}
+
+/// `rig synth one`'s steps and guidance when neither the flags nor the package name them (50
+/// steps, guidance 9: MultiDiffSense's paper).
+const ONE_FALLBACK: (usize, f32) = (50, 9.0);
+
+/// The package's sampling defaults as `rig synth info` prints them: each `model.toml` key, and
+/// what rig uses where the package names none.
+fn sampling_line(c: &crate::synth::package::ModelConfig) -> String {
+    fn key<T: std::fmt::Display>(v: Option<T>) -> String {
+        v.map(|v| v.to_string()).unwrap_or_else(|| "unset".to_string())
+    }
+    let mut line = format!(
+        "sampler {}, steps {}, eta {}, guidance {} (model.toml; flags override)",
+        key(c.sampler),
+        key(c.sampling_steps),
+        key(c.eta),
+        key(c.guidance)
+    );
+    if c.sampler.is_none() || c.sampling_steps.is_none() || c.eta.is_none() || c.guidance.is_none() {
+        let fill = crate::synth::fill::FillOptions::default();
+        line.push_str(&format!(
+            "; where unset: ddim, eta 0, and {} steps, guidance {} for rig synth one, {} steps, guidance {} for \
+             --fill-missing and --poses-of",
+            ONE_FALLBACK.0, ONE_FALLBACK.1, fill.steps, fill.guidance
+        ));
+    }
+    line
 }
 
 #[cfg(test)]

@@ -18,7 +18,7 @@ use crate::synth::fill::{
     FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, TwinSize, fill_missing_observed, find_datasets, missing_poses,
     synthesise_poses_of,
 };
-use crate::synth::{Pipeline, SchedulerKind};
+use crate::synth::{ImageRange, Pipeline, SchedulerKind};
 
 /// A synthesis: the options of `rig synth --fill-missing` and `--poses-of` (see their
 /// `--help`), the body of a daemon `synth` job. Fields left out take these defaults; sampling
@@ -42,8 +42,8 @@ pub struct FillRequest {
     pub steps: Option<usize>,
     /// Classifier-free guidance scale (1: unguided).
     pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic).
-    pub eta: f32,
+    /// DDIM eta (0: deterministic); none: the package's `eta`, else 0.
+    pub eta: Option<f32>,
     /// `ddim` or `dpm++2m`.
     pub sampler: Option<SchedulerKind>,
     /// ControlNet conditioning scale (1: as trained).
@@ -52,6 +52,9 @@ pub struct FillRequest {
     pub batch: usize,
     /// Supersampling factor of the control image's depth map.
     pub supersample: u32,
+    /// How the model's output becomes 8-bit pixels: `clamp` (the default) or `minmax` (each
+    /// image stretched from its own min to its own max, as MultiDiffSense saves).
+    pub image_range: ImageRange,
     /// At most this many poses per dataset (after sharding).
     pub limit: Option<usize>,
     /// Twins mode: the twins' image size.
@@ -69,11 +72,12 @@ impl Default for FillRequest {
             out: None,
             steps: None,
             guidance: None,
-            eta: d.eta,
+            eta: None,
             sampler: None,
             conditioning_scale: d.conditioning_scale,
             batch: d.batch,
             supersample: d.supersample,
+            image_range: d.image_range,
             limit: None,
             twin_size: TwinSize::default(),
         }
@@ -197,17 +201,19 @@ impl FillRequest {
     /// own, else rig's default.
     pub fn options(&self, pipeline: &Pipeline) -> FillOptions {
         let defaults = FillOptions::default();
-        let sampling = pipeline.package().config.sampling(self.steps, self.guidance, self.sampler, (defaults.steps, defaults.guidance));
+        let sampling =
+            pipeline.package().config.sampling(self.steps, self.guidance, self.sampler, self.eta, (defaults.steps, defaults.guidance));
         FillOptions {
             steps: sampling.steps,
             guidance: sampling.guidance,
-            eta: self.eta,
+            eta: sampling.eta,
             scheduler: sampling.sampler,
             conditioning_scale: self.conditioning_scale,
             shard: self.shard.unwrap_or(Shard::ALL),
             batch: self.batch,
             supersample: self.supersample,
             limit: self.limit,
+            image_range: self.image_range,
         }
     }
 }

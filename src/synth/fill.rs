@@ -15,7 +15,7 @@ use std::str::FromStr;
 
 use image::RgbImage;
 
-use super::{GenerateRequest, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
+use super::{GenerateRequest, ImageRange, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
 use crate::calibration::model::Calibration;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
 use crate::geometry::objects::load_object;
@@ -105,6 +105,8 @@ pub struct FillOptions {
     pub supersample: u32,
     /// At most this many poses (after sharding); `None`: all.
     pub limit: Option<usize>,
+    /// How the decoder's output becomes 8-bit pixels (before any resize to the frames' size).
+    pub image_range: ImageRange,
 }
 
 impl Default for FillOptions {
@@ -119,6 +121,7 @@ impl Default for FillOptions {
             batch: 4,
             supersample: 2,
             limit: None,
+            image_range: ImageRange::Clamp,
         }
     }
 }
@@ -128,7 +131,7 @@ impl FillOptions {
     /// checked once the package's schedule is known, before any image is made). Front ends call
     /// this before loading a model; [`fill_missing_observed`] calls it again.
     pub fn validate(&self) -> Result<(), SynthError> {
-        check_fill_settings(Some(self.steps), Some(self.guidance), self.eta, self.conditioning_scale, self.batch, self.supersample)
+        check_fill_settings(Some(self.steps), Some(self.guidance), Some(self.eta), self.conditioning_scale, self.batch, self.supersample)
     }
 }
 
@@ -137,7 +140,7 @@ impl FillOptions {
 pub fn check_fill_settings(
     steps: Option<usize>,
     guidance: Option<f32>,
-    eta: f32,
+    eta: Option<f32>,
     conditioning_scale: f32,
     batch: usize,
     supersample: u32,
@@ -148,7 +151,9 @@ pub fn check_fill_settings(
     if let Some(g) = guidance {
         super::limits::check_guidance(g)?;
     }
-    super::limits::check_eta(eta)?;
+    if let Some(eta) = eta {
+        super::limits::check_eta(eta)?;
+    }
     super::limits::check_conditioning_scale(conditioning_scale)?;
     super::limits::check_batch(batch)?;
     super::limits::check_supersample(supersample)
@@ -292,7 +297,7 @@ pub fn fill_missing_observed(
         let outputs = pipeline.generate_batch(&requests)?;
         let mut stop = false;
         for (((p, request), output), control) in chunk.iter().zip(&requests).zip(outputs).zip(&controls) {
-            let image = resized_to(output.image, output_size);
+            let image = resized_to(output.to_rgb8(options.image_range), output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
             synthesised += 1;
@@ -402,7 +407,7 @@ pub fn synthesise_poses_of(
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
         for ((p, request), output) in chunk.iter().zip(&requests).zip(outputs) {
-            let image = resized_to(output.image, output_size);
+            let image = resized_to(output.to_rgb8(options.image_range), output_size);
             let row = PoseRow::synthetic(p.pose_id, p.pose, &model, request.seed, options.steps as u32, options.guidance as f64);
             writer.append(row, &image)?;
         }

@@ -36,7 +36,7 @@ pub mod text;
 
 use std::path::PathBuf;
 
-pub use pipeline::{GenerateOutput, GenerateRequest, Pipeline};
+pub use pipeline::{GenerateOutput, GenerateRequest, ImageRange, Pipeline};
 pub use runtime::{ExecutionProviderKind, RuntimeOptions};
 pub use scheduler::SchedulerKind;
 

@@ -28,9 +28,10 @@
 //! hint_encoding = "rgb01"            # control RGB scaled to [0,1] ("rgb11": to [-1,1])
 //! vae_scale_factor = 8               # image pixels per latent pixel
 //! end_token = "<|endoftext|>"        # padding token of the tokenizer
-//! sampling_steps = 20                # what the model was trained to be sampled with: the
-//! guidance = 1.0                     #   defaults of `rig synth one` (else 50 steps, guidance 9)
-//! sampler = "dpm++2m"                # default sampler of every `rig synth` mode (else ddim)
+//! sampling_steps = 20                # how the model is meant to be sampled: the defaults of
+//! guidance = 1.0                     #   every `rig synth` mode, each flag overriding its key
+//! sampler = "dpm++2m"                #   (else `rig synth one`: 50 steps, guidance 9; fills: 20
+//! eta = 0.0                          #   steps, guidance 1; ddim; eta 0)
 //! ```
 
 use std::io::Read;
@@ -87,6 +88,8 @@ struct RawModelToml {
     guidance: Option<f32>,
     #[serde(default)]
     sampler: Option<String>,
+    #[serde(default)]
+    eta: Option<f32>,
 }
 
 fn default_resolution() -> [u32; 2] {
@@ -126,6 +129,8 @@ pub struct ModelConfig {
     pub guidance: Option<f32>,
     /// The sampler the model is meant to be sampled with, if the package says.
     pub sampler: Option<SchedulerKind>,
+    /// DDIM eta the model is meant to be sampled with, if the package says.
+    pub eta: Option<f32>,
 }
 
 /// The sampling settings of a request: what was asked for, else the package's, else a fallback.
@@ -134,22 +139,25 @@ pub struct Sampling {
     pub steps: usize,
     pub guidance: f32,
     pub sampler: SchedulerKind,
+    pub eta: f32,
 }
 
 impl ModelConfig {
     /// The settings to sample with: each one asked for, else this package's, else `fallback`'s
-    /// (the sampler's fallback is DDIM).
+    /// steps and guidance, DDIM and eta 0.
     pub fn sampling(
         &self,
         steps: Option<usize>,
         guidance: Option<f32>,
         sampler: Option<SchedulerKind>,
+        eta: Option<f32>,
         fallback: (usize, f32),
     ) -> Sampling {
         Sampling {
             steps: steps.or(self.sampling_steps).unwrap_or(fallback.0),
             guidance: guidance.or(self.guidance).unwrap_or(fallback.1),
             sampler: sampler.or(self.sampler).unwrap_or_default(),
+            eta: eta.or(self.eta).unwrap_or(0.0),
         }
     }
 
@@ -195,6 +203,9 @@ impl ModelConfig {
         if let Some(g) = raw.guidance.filter(|g| super::limits::check_guidance(*g).is_err()) {
             return Err(bad("guidance", g.to_string(), "must be a number from 1 to 30 (1: unguided)"));
         }
+        if let Some(eta) = raw.eta.filter(|e| super::limits::check_eta(*e).is_err()) {
+            return Err(bad("eta", eta.to_string(), "must be a number from 0 to 1 (0: deterministic DDIM)"));
+        }
         let sampler = match raw.sampler {
             None => None,
             Some(text) => Some(text.parse::<SchedulerKind>().map_err(|_| bad("sampler", text, "expected \"ddim\" or \"dpm++2m\""))?),
@@ -212,6 +223,7 @@ impl ModelConfig {
             sampling_steps: raw.sampling_steps,
             guidance: raw.guidance,
             sampler,
+            eta: raw.eta,
         })
     }
 }
@@ -439,11 +451,14 @@ mod tests {
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "guidance", .. })));
         let (_d, p) = write_toml("resolution = [512, 512]\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::ModelToml { .. })));
-        assert_eq!((c.sampling_steps, c.guidance), (None, None));
+        assert_eq!((c.sampling_steps, c.guidance, c.eta), (None, None, None));
         assert_eq!(c.sampler, None);
-        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nguidance = 1.0\nsampler = \"dpm++2m\"\n");
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nguidance = 1.0\nsampler = \"dpm++2m\"\neta = 0.5\n");
         let c = ModelConfig::read(&p).unwrap();
         assert_eq!((c.sampling_steps, c.guidance, c.sampler), (Some(20), Some(1.0), Some(SchedulerKind::DpmSolverPp2m)));
+        assert_eq!(c.eta, Some(0.5));
+        let (_d, p) = write_toml("name = \"x\"\neta = -0.1\n");
+        assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "eta", .. })));
         let (_d, p) = write_toml("name = \"x\"\nsampler = \"euler\"\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampler", .. })));
         let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 0\n");
@@ -454,12 +469,17 @@ mod tests {
         let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 20\nsampler = \"dpm++2m\"\n");
         let c = ModelConfig::read(&p).unwrap();
         let dpm = SchedulerKind::DpmSolverPp2m;
-        assert_eq!(c.sampling(None, None, None, (50, 9.0)), Sampling { steps: 20, guidance: 9.0, sampler: dpm });
-        let asked = c.sampling(Some(4), Some(2.0), Some(SchedulerKind::Ddim), (50, 9.0));
-        assert_eq!(asked, Sampling { steps: 4, guidance: 2.0, sampler: SchedulerKind::Ddim });
+        assert_eq!(c.sampling(None, None, None, None, (50, 9.0)), Sampling { steps: 20, guidance: 9.0, sampler: dpm, eta: 0.0 });
+        let asked = c.sampling(Some(4), Some(2.0), Some(SchedulerKind::Ddim), Some(0.3), (50, 9.0));
+        assert_eq!(asked, Sampling { steps: 4, guidance: 2.0, sampler: SchedulerKind::Ddim, eta: 0.3 });
+        let (_d, p) = write_toml("name = \"x\"\neta = 0.7\n");
+        let with_eta = ModelConfig::read(&p).unwrap();
+        assert_eq!(with_eta.sampling(None, None, None, None, (50, 9.0)).eta, 0.7);
+        assert_eq!(with_eta.sampling(None, None, None, Some(0.0), (50, 9.0)).eta, 0.0);
         let (_d, p) = write_toml("name = \"x\"\n");
         let bare = ModelConfig::read(&p).unwrap();
-        assert_eq!(bare.sampling(None, None, None, (50, 9.0)), Sampling { steps: 50, guidance: 9.0, sampler: SchedulerKind::Ddim });
+        let want = Sampling { steps: 50, guidance: 9.0, sampler: SchedulerKind::Ddim, eta: 0.0 };
+        assert_eq!(bare.sampling(None, None, None, None, (50, 9.0)), want);
     }
 
     #[test]

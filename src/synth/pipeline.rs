@@ -14,7 +14,8 @@
 //! so a run can be compared with a Python one.
 //!
 //! Output: the decoder's `sample` (in [-1, 1] nominally) is kept raw, NHWC float32, and mapped
-//! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`.
+//! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`. [`raw_to_rgb8`] also
+//! maps it the way MultiDiffSense saves images ([`ImageRange::MinMax`]).
 
 use std::path::{Path, PathBuf};
 
@@ -84,11 +85,74 @@ impl<'a> GenerateRequest<'a> {
 /// One synthesised image.
 #[derive(Debug, Clone)]
 pub struct GenerateOutput {
+    /// The image as [`ImageRange::Clamp`] maps it.
     pub image: RgbImage,
     /// The decoder's output before clamping, `[1, H, W, 3]` float32.
     pub raw: NpyArray,
     /// Latents after each step, `[1, C, h, w]` each (empty unless asked for).
     pub step_latents: Vec<NpyArray>,
+}
+
+impl GenerateOutput {
+    /// The image with its 8-bit values mapped by `range` (`Clamp`: [`Self::image`] itself).
+    pub fn to_rgb8(&self, range: ImageRange) -> RgbImage {
+        match range {
+            ImageRange::Clamp => self.image.clone(),
+            ImageRange::MinMax => raw_to_rgb8(&self.raw.data, self.image.width(), self.image.height(), range),
+        }
+    }
+}
+
+/// How the decoder's output (nominally in [-1, 1]) becomes 8-bit pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ImageRange {
+    /// `round(clamp(x / 2 + 0.5, 0, 1) * 255)`, as diffusers writes images: the same value is
+    /// always the same grey, whatever else is in the image.
+    #[default]
+    Clamp,
+    /// Each image stretched from its own minimum to its own maximum (over its three channels),
+    /// as MultiDiffSense's generate.py and test.py save them: `normalise(x) = (x - min) / (max -
+    /// min + 1e-8)`, then torchvision's `save_image`, `floor(v * 255 + 0.5)`. Its darkest pixel is
+    /// always 0 and its brightest 255, so brightness is not comparable between images.
+    #[value(name = "minmax")]
+    MinMax,
+}
+
+impl std::fmt::Display for ImageRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ImageRange::Clamp => "clamp",
+            ImageRange::MinMax => "minmax",
+        })
+    }
+}
+
+/// One image's decoder output, NHWC `[height, width, 3]` float32 (the data of
+/// [`GenerateOutput::raw`]), as an 8-bit RGB image, its values mapped by `range`. Missing
+/// values (a short slice) read as NaN, which maps to 0.
+pub fn raw_to_rgb8(raw: &[f32], width: u32, height: u32, range: ImageRange) -> RgbImage {
+    let at = |i: usize| raw.get(i).copied().unwrap_or(f32::NAN);
+    let len = 3 * width as usize * height as usize;
+    match range {
+        ImageRange::Clamp => RgbImage::from_fn(width, height, |x, y| {
+            let i = 3 * (y as usize * width as usize + x as usize);
+            image::Rgb([to_u8(at(i)), to_u8(at(i + 1)), to_u8(at(i + 2))])
+        }),
+        ImageRange::MinMax => {
+            let values = &raw[..len.min(raw.len())];
+            let lo = values.iter().copied().fold(f32::INFINITY, f32::min);
+            let hi = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            // float32 throughout, as torch computes it; `as u8` truncates (torch's uint8 cast)
+            // and saturates, NaN to 0.
+            let span = (hi - lo) + 1e-8_f32;
+            let level = |v: f32| (((v - lo) / span) * 255.0 + 0.5).clamp(0.0, 255.0) as u8;
+            RgbImage::from_fn(width, height, |x, y| {
+                let i = 3 * (y as usize * width as usize + x as usize);
+                image::Rgb([level(at(i)), level(at(i + 1)), level(at(i + 2))])
+            })
+        }
+    }
 }
 
 /// A session with the file it came from and its checked inputs/outputs.
@@ -494,10 +558,7 @@ impl Pipeline {
                 for p in 0..plane {
                     raw.extend([img[p], img[plane + p], img[2 * plane + p]]);
                 }
-                let image = RgbImage::from_fn(size.0, size.1, |x, y| {
-                    let i = 3 * (y as usize * w + x as usize);
-                    image::Rgb([to_u8(raw[i]), to_u8(raw[i + 1]), to_u8(raw[i + 2])])
-                });
+                let image = raw_to_rgb8(&raw, size.0, size.1, ImageRange::Clamp);
                 GenerateOutput {
                     image,
                     raw: NpyArray { shape: vec![1, h, w, 3], data: raw },
@@ -602,6 +663,23 @@ mod tests {
         assert_eq!(to_u8(0.0), 128); // 127.5: half to even
         assert_eq!(to_u8(-3.0), 0);
         assert_eq!(to_u8(f32::NAN), 0);
+    }
+
+    #[test]
+    fn min_max_range_stretches_each_image_as_multidiffsense_saves() {
+        // One pixel row: min -1, max 3, span 4 (+1e-8, lost in float32).
+        let raw = [-1.0, 0.0, 3.0, 1.0, 2.0, 0.5];
+        let img = raw_to_rgb8(&raw, 2, 1, ImageRange::MinMax);
+        // (x + 1) / 4 * 255 + 0.5, truncated: 0.5 -> 0, 64.25 -> 64, 255.5 -> 255, 128 -> 128
+        // (127.5 + 0.5: exact), 191.75 -> 191, 96.125 -> 96.
+        assert_eq!(img.as_raw(), &vec![0, 64, 255, 128, 191, 96]);
+        // The clamp maps the same values without looking at the others.
+        let clamped = raw_to_rgb8(&raw, 2, 1, ImageRange::Clamp);
+        assert_eq!(clamped.as_raw(), &vec![0, 128, 255, 255, 255, 191]);
+        // A flat image: 0 / 1e-8 = 0 everywhere, as torch gives.
+        assert_eq!(raw_to_rgb8(&[0.3; 3], 1, 1, ImageRange::MinMax).as_raw(), &vec![0, 0, 0]);
+        // A short slice reads as NaN, which maps to 0 rather than panicking.
+        assert_eq!(raw_to_rgb8(&[0.0], 1, 1, ImageRange::Clamp).as_raw(), &vec![128, 0, 0]);
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! `cargo test --test synth <module>::`.
 
 mod eval;
+mod mds_parity;
 mod synth_errors;
 mod synth_fill;
 mod synth_parity;

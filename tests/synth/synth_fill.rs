@@ -166,7 +166,7 @@ fn render_controls_of_matches_single_renders_and_prompts() {
 
 /// A package's `sampler` (model.toml) is what every fill samples with unless `--sampler` says
 /// otherwise: a fill with no flag gives exactly the images of `--sampler dpm++2m` when the
-/// package names it, and not those of `--sampler ddim`.
+/// package names it, and not those of `--sampler ddim`. Likewise its `eta`.
 #[test]
 fn the_packages_sampling_settings_are_the_fills_default() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -204,4 +204,12 @@ fn the_packages_sampling_settings_are_the_fills_default() {
     // --conditioning-scale reaches the ControlNet: at 0 the hint is ignored.
     let unhinted = fill("unhinted", &["--conditioning-scale", "0"]);
     assert!(default != unhinted, "--conditioning-scale 0 changed nothing");
+
+    // The package's eta is the fill's default as well (with DDIM: DPM-Solver++ has none).
+    std::fs::write(package.join("model.toml"), format!("{toml}sampler = \"ddim\"\nsampling_steps = 3\neta = 0.5\n")).expect("model.toml");
+    let eta_default = fill("eta-default", &[]);
+    assert!(eta_default == fill("eta-half", &["--eta", "0.5"]), "no --eta: not the package's eta 0.5");
+    assert!(eta_default != fill("eta-zero", &["--eta", "0"]), "eta 0.5 and 0 gave the same images: the test cannot tell them apart");
+    // --image-range minmax writes the same samples with other pixel values than the clamp.
+    assert!(eta_default != fill("minmax", &["--image-range", "minmax"]), "--image-range minmax changed nothing");
 }
