@@ -21,6 +21,8 @@
 #    them, that the finished tasks redid nothing and task 2 only its missing poses, that no
 #    shard holds a pose twice, and that the merged datasets equal the unsharded fill pose for
 #    pose (same rows, same decoded pixels, no pose twice) and verify clean.
+# 6. Submits the GPU variant (submit.sh --gpu) to the node's one pretend GPU: the task must get
+#    it (CUDA_VISIBLE_DEVICES=0) and fail saying that this ONNX Runtime has no CUDA provider.
 #
 # RIG_BIN: the rig binary (default: target/release/rig, built here). RIG_SLURM_KEEP=1 keeps the
 # temporary folder. Exits non-zero on any failure, and then keeps the folder and prints the logs.
@@ -138,9 +140,12 @@ JobCompType=jobcomp/none
 MailProg=/bin/true
 MinJobAge=600
 CommunicationParameters=NoCtldInAddrAny,NoInAddrAny
-NodeName=localhost NodeAddr=127.0.0.1 CPUs=$cpus RealMemory=$mem_mb State=UNKNOWN
+GresTypes=gpu
+NodeName=localhost NodeAddr=127.0.0.1 CPUs=$cpus RealMemory=$mem_mb Gres=gpu:1 State=UNKNOWN
 PartitionName=rig Nodes=localhost Default=YES MaxTime=INFINITE State=UP
 CONF
+# One pretend GPU (/dev/null as its device file): enough for the scheduler to run the GPU variant.
+echo "NodeName=localhost Name=gpu File=/dev/null" > "$work/slurm/gres.conf"
 slurmctld -D -c -f "$SLURM_CONF" >"$work/slurm/log/slurmctld.out" 2>&1 &
 pids+=($!)
 slurmd -D -N localhost -f "$SLURM_CONF" >"$work/slurm/log/slurmd.out" 2>&1 &
@@ -305,6 +310,25 @@ for d in "$work"/whole/edge/*; do
   "$rig" dataset verify "$s" >"$work/verify.log" 2>&1 || { cat "$work/verify.log"; fail "$s does not verify clean"; }
   python3 tests/slurm/compare.py "$d" "$s" || fail "$s differs from the unsharded fill"
 done
+
+# --- 6. the GPU variant: scheduled with its GPU, rig asked for CUDA ---------------------------
+# There is no GPU here and the PyPI library has no CUDA provider, so the task must fail, and
+# say why, after the scheduler gave it the (pretend) GPU; its merge job then never runs.
+out=$(examples/slurm/submit.sh --gpu --datasets "$work/sharded" --shards 3 --array 1 --work "$work/gpu" \
+  --model "$model" --ort-lib "$ort_lib" --rig "$rig" -- --cpus-per-task=1 --mem=500M)
+echo "$out"
+gpu_job=$(echo "$out" | sed -n 's/^submitted fill array \([0-9]*\) .* merge job \([0-9]*\) .*/\1/p')
+gpu_merge=$(echo "$out" | sed -n 's/^submitted fill array \([0-9]*\) .* merge job \([0-9]*\) .*/\2/p')
+[ -n "$gpu_job" ] && [ -n "$gpu_merge" ] || fail "could not read the GPU job ids"
+jobs+=("$gpu_job" "$gpu_merge")
+wait_for_queue "$gpu_merge"
+info=$(scontrol show job -o "${gpu_job}_1")
+[ "$(field "$info" JobState)" = FAILED ] || fail "the GPU task: $(field "$info" JobState), expected FAILED"
+log="$work/gpu/rig-fill-${gpu_job}_1.out"
+grep -q 'provider cuda, CUDA_VISIBLE_DEVICES=0,' "$log" || fail "the GPU task was not given a GPU: $(head -n 1 "$log")"
+grep -q 'execution provider cuda is not available' "$log" || fail "the GPU task's log does not say that CUDA is missing: $log"
+scancel "$gpu_merge"
+say "GPU variant: the task got the GPU (CUDA_VISIBLE_DEVICES=0), rig ran with --provider cuda and failed as it must without CUDA"
 ok=1
 say "array run (submit, kill, resubmit, merge) $array_s s; daemons $daemons_s s; whole test $(elapsed "$start_all") s"
 say "ok"
