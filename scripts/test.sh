@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The test command: installs what the tests need, checks the guide's links, runs the whole
-# suite, checks that the API docs build without warnings, then smoke-runs every fuzz target for
-# a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
+# suite, runs the SLURM example on a private single-node SLURM (tests/slurm/run.sh, as root;
+# RIG_SKIP_SLURM=1 skips it), checks that the API docs build without warnings, then smoke-runs
+# every fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
@@ -24,6 +25,11 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
 echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs about 3 GiB)"
 cargo test --all-targets --locked
+# examples/slurm end to end on a single-node SLURM it starts and stops (installs slurm-wlm and
+# munge with apt when missing), with the rig binary the tests above just built.
+if [ "${RIG_SKIP_SLURM:-0}" != 1 ]; then
+  RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/slurm/run.sh
+fi
 # The API docs must build without warnings (broken intra-doc links, bad HTML in comments).
 RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --no-deps --locked
 fuzz_seconds="${FUZZ_SECONDS:-5}"
