@@ -7,5 +7,6 @@ mod dataset_mds;
 mod dataset_verify;
 mod decoders_never_panic;
 mod geometry_stl;
+mod job_requests;
 mod layers;
 mod plan_toml;
