@@ -31,7 +31,7 @@ impl Fixture {
         std::fs::write(outside.join("sentinel.txt"), "untouched").expect("sentinel");
         std::os::unix::fs::symlink(&outside, root.join("escape")).expect("symlink");
         std::os::unix::fs::symlink(outside.join("gone"), root.join("dangling")).expect("symlink");
-        let roots = DataRoots::new(&[root.clone()], &root).expect("roots");
+        let roots = DataRoots::new(std::slice::from_ref(&root), &root).expect("roots");
         let root = root.canonicalize().expect("canonical root");
         let outside = outside.canonicalize().expect("canonical outside");
         Self { _top: top, root, outside, roots }
