@@ -2,7 +2,7 @@
 //! same way (tools/ort_pipeline.py: same batching, same DDIM, same session calls), side by side.
 //!
 //!     cargo bench --bench synth_vs_python                 # release profile
-//!     cargo test --bench synth_vs_python -- --bench       # dev profile (what docs/synth.md quotes)
+//!     cargo test --bench synth_vs_python -- --bench       # dev profile (what docs/src/benchmarks.md quotes)
 //!
 //! Settings from the environment: RIG_BENCH_MODEL (package, default the tiny test package),
 //! RIG_BENCH_STEPS (20), RIG_BENCH_IMAGES (3 timed images after one warm-up), RIG_BENCH_SIZES

@@ -6,7 +6,8 @@
 //! variant does not compile until someone decides its exit code. Errors that wrap another
 //! (`RigError::Arm`, `FillError::Dataset`, ...) take the code of what they wrap, because a
 //! `#[error(transparent)]` wrapper hides its inner error from `source()` chains. The docs'
-//! table is [`Exit::markdown_table`]; a test checks the README holds it verbatim.
+//! table is [`Exit::markdown_table`]; a test checks the guide's
+//! `docs/src/faults.md` holds it verbatim.
 
 use std::fmt;
 
@@ -68,7 +69,7 @@ impl Exit {
         e.chain().find_map(classify).unwrap_or(Exit::Failure)
     }
 
-    /// The table the docs hold (README "Bad input"), generated from this enum.
+    /// The table the guide holds (`docs/src/faults.md`, "Exit codes"), generated from this enum.
     pub fn markdown_table() -> String {
         let mut table = String::from("| exit | meaning |\n|---|---|\n");
         for e in Exit::ALL {

@@ -135,7 +135,8 @@ pub struct Calibration {
     /// Maps a commanded work-frame x/y offset (mm) to the offset the object really shows under
     /// the sensor (row-major 2 x 2 matrix); `None` is the identity, the rigid model. Fitted
     /// when a rig's logged poses do not move the image as the rigid model says (the
-    /// MultiDiffSense example does not: see the README, "Comparing with reality").
+    /// MultiDiffSense example does not: see the guide, `docs/src/calibration.md`, "Fitting to the
+    /// real frames").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pose_xy_correction: Option<[[f64; 2]; 2]>,
 }

@@ -138,8 +138,8 @@ pub fn axis_difference_deg(a_deg: f64, b_deg: f64) -> f64 {
 /// How [`estimate_contact_with`] finds the contact in an image: the blur that turns the change
 /// from the reference into a smooth field, and how far above the noise floor the region starts.
 /// Each sensor kind has its own ([`Self::for_sensor`]), chosen on the true images of the
-/// training collection only (never on a model's images, never on a test set); README, "Choosing
-/// the estimator". Every method's image of a sensor is judged by the same one.
+/// training collection only (never on a model's images, never on a test set); the guide,
+/// `docs/src/evaluation.md`, "Choosing the estimator". Every method's image of a sensor is judged by the same one.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ContactEstimator {
     /// Box-blur radius as a divisor of the image width (radius `width / blur_divisor` rounded

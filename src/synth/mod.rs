@@ -12,7 +12,7 @@
 //! - [`runtime`] finds and loads the ONNX Runtime library (load-dynamic) and picks the
 //!   execution provider;
 //! - [`package`] opens a model package directory (layout in ARCHITECTURE.md and
-//!   the README, "Synthesis"), reads `model.toml`, and checks every model's tensor names, element types
+//!   the guide, `docs/src/synthesis.md`, "The model package"), reads `model.toml`, and checks every model's tensor names, element types
 //!   and ranks against the contract, naming file and tensor on a mismatch;
 //! - [`text`] tokenises (CLIP BPE, padded to 77 with the end token) and encodes prompts, with
 //!   an embedding cache;

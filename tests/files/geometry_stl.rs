@@ -1,4 +1,4 @@
-//! STL loading: the bad-file cases of issue #4, the real sample and the object library.
+//! STL loading: bad files (truncated, NaN, wrong counts, empty), the real sample and the object library.
 
 use std::path::PathBuf;
 

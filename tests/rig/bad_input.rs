@@ -1,9 +1,10 @@
 //! The bad-input table: each bad input a user can give rig, what rig says and its exit code.
 //!
 //! Runs the real binary on each bad input and checks the exit code and a key phrase of the
-//! message (2 = bad input, 1 = general; see `cli::exit_code`). Nothing may panic, and nothing
+//! message (2 = bad input, 1 = general; see `rig::report::Exit`). Nothing may panic, and nothing
 //! may move: every case fails before the arm is driven. The table prints as Markdown (run with
-//! `--nocapture`; `RIG_BAD_INPUT_TABLE=<file>` writes it, as the README's table was made).
+//! `--nocapture`; `RIG_BAD_INPUT_TABLE=<file>` writes it, as the table in
+//! `docs/src/faults.md` was made).
 
 use std::path::Path;
 use std::process::Command;

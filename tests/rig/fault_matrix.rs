@@ -11,7 +11,7 @@
 //!   exactly the plan's (nothing lost, nothing duplicated), the same as a run with no fault.
 //!
 //! The matrix prints as a Markdown table (run with `--nocapture` to see it; set
-//! `RIG_FAULT_TABLE=<file>` to write it to a file, as the README's table was made). The random
+//! `RIG_FAULT_TABLE=<file>` to write it to a file, as the table in `docs/src/faults.md` was made). The random
 //! choices (alarm moves, kill moment) come from `RIG_FAULT_SEED`, or from the time, printed.
 
 use std::collections::BTreeSet;

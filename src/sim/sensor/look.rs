@@ -2,7 +2,7 @@
 //! `real-sample/multidiffsense-example` (512x512) and scaled to other sizes by
 //! `min(width, height) / 512`.
 //!
-//! Measured facts (see the README, "Simulated tactile sensors"): the markers sit in concentric rings of
+//! Measured facts (see the guide, `docs/src/simulator.md`, "A measured static look"): the markers sit in concentric rings of
 //! 1, 8, 16, 16, 32, 32, 32 (137 in all) with a 25.2 px pitch, ring 1 turned by 30 deg and the
 //! others by 7.5 deg; pins are about 10 px across. The field of view is a circle of radius
 //! about 250 px, dark (near black, slightly blue) outside. TacTip: light grey pins on a black
