@@ -10,6 +10,8 @@
 use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
+
+use crate::mutate;
 use rig::arm::profile::FirmwareProfile;
 use rig::calibration::Calibration;
 use rig::config::RigConfig;
@@ -48,23 +50,6 @@ const CONFIG_SEED: &str = "[arm]\nbackend = \"sim\"\nsim_time_scale = 20.0\n[col
 const PLAN_SEED: &str = "sampling = \"lhs\"\nn_poses = 4\nseed = 1\norder = \"optimised\"\n\
 x_mm = { min = -5.0, max = 5.0, step = 1.0 }\ny_mm = { min = -5.0, max = 5.0, step = 1.0 }\n\
 z_mm = { min = 0.0, max = 1.0, step = 0.5 }\nyaw_deg = { min = -180.0, max = 180.0, step = 90.0 }\n";
-
-/// Applies byte edits (overwrite, insert, delete) at positions chosen by `edits`.
-fn mutate(seed: &[u8], edits: &[(usize, u8, u8)]) -> Vec<u8> {
-    let mut out = seed.to_vec();
-    for &(at, kind, byte) in edits {
-        let i = if out.is_empty() { 0 } else { at % out.len() };
-        match kind % 3 {
-            0 if !out.is_empty() => out[i] = byte,
-            1 => out.insert(i, byte),
-            _ if !out.is_empty() => {
-                out.remove(i);
-            }
-            _ => out.push(byte),
-        }
-    }
-    out
-}
 
 /// Runs every decoder on `bytes`; each either decodes or errs.
 fn decode_all(bytes: &[u8]) {

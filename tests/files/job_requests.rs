@@ -9,6 +9,8 @@
 use std::path::{Component, Path, PathBuf};
 
 use proptest::prelude::*;
+
+use crate::mutate;
 use rig::jobs::{Confine, JobRequest};
 use rig::roots::DataRoots;
 
@@ -118,23 +120,6 @@ const SEEDS: [&str; 4] = [
     r#"{"kind": "calibrate", "sensor": "vitac", "out": "cal/vitac.toml", "grid": 3, "span_mm": 2.0, "depths_mm": [-0.5, 0.5]}"#,
     r#"{"kind": "synth", "poses_of": "ds", "out": "twins", "twin_size": "model"}"#,
 ];
-
-/// Applies byte edits (overwrite, insert, delete) at positions chosen by `edits`.
-fn mutate(seed: &[u8], edits: &[(usize, u8, u8)]) -> Vec<u8> {
-    let mut out = seed.to_vec();
-    for &(at, kind, byte) in edits {
-        let i = if out.is_empty() { 0 } else { at % out.len() };
-        match kind % 3 {
-            0 if !out.is_empty() => out[i] = byte,
-            1 => out.insert(i, byte),
-            _ if !out.is_empty() => {
-                out.remove(i);
-            }
-            _ => out.push(byte),
-        }
-    }
-    out
-}
 
 proptest! {
     #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
