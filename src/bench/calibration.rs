@@ -14,8 +14,10 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::collection::FRAME_PERIOD_S;
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row};
+use super::table::{Column, KnobReport, Row};
 use crate::arm::profile::FirmwareProfile;
 use crate::calibration::Calibration;
 use crate::calibration::press::{Press, PressError, PressPattern, indenter_mesh};
@@ -68,7 +70,7 @@ pub fn map_error_px(fit: &Calibration, truth: &Calibration, half_span_mm: f64) -
             d.push((a.0 - b.0).hypot(a.1 - b.1));
         }
     }
-    (super::mean(&d), d.iter().copied().fold(0.0, f64::max))
+    (super::table::mean(&d), d.iter().copied().fold(0.0, f64::max))
 }
 
 /// Modelled arm seconds of a run: reference above the origin, then per press travel to

@@ -20,8 +20,10 @@ use std::time::Instant;
 
 use image::RgbImage;
 
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, mean};
+use super::table::{Column, KnobReport, Row, mean};
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::v4l2::CameraSettings;
 use crate::config::{ArmBackend, CollectConfig, RigConfig, SensorBackend, SensorConfig};

@@ -16,8 +16,10 @@
 
 use std::time::Instant;
 
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, fastest, mean};
+use super::table::{Column, KnobReport, Row, fastest, mean};
 use crate::calibration::Calibration;
 use crate::geometry::DepthMap;
 use crate::geometry::control::{control_image, control_values};

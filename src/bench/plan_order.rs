@@ -6,8 +6,10 @@
 
 use std::time::Instant;
 
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row};
+use super::table::{Column, KnobReport, Row};
 use crate::arm::profile::FirmwareProfile;
 use crate::plan::{Order, PlanSpec, Sampling};
 use crate::pose::{Pose, WorkFrame};

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::BenchError;
+use super::error::BenchError;
 
 /// One series: a name for the legend, points and their labels.
 #[derive(Debug, Clone, PartialEq, Default)]

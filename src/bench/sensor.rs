@@ -10,8 +10,10 @@
 
 use std::time::Instant;
 
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, fastest};
+use super::table::{Column, KnobReport, Row, fastest};
 use crate::calibration::DEFAULT_SCALE_PX_PER_MM_AT_512;
 use crate::geometry::DepthMap;
 use crate::metrics::ssim;

@@ -17,8 +17,10 @@ use std::time::Instant;
 use image::RgbImage;
 use image::imageops::FilterType;
 
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
-use super::{BenchConfig, BenchError, Column, Knob, KnobReport, Row, mean};
+use super::table::{Column, KnobReport, Row, mean};
 use crate::calibration::Calibration;
 use crate::geometry::control::control_image;
 use crate::geometry::objects::load_object;
