@@ -144,7 +144,8 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "| {} | `rig {}` | {} | {} |",
             c.input,
             c.args.join(" "),
-            msg.replace('|', "\\|"),
+            // As the guide prints it: the checkout as <repo>, angle brackets escaped for Markdown.
+            msg.replace(env!("CARGO_MANIFEST_DIR"), "<repo>").replace('<', "&lt;").replace('>', "&gt;").replace('|', "\\|"),
             code.map_or("signal".to_string(), |c| c.to_string())
         ));
         if code != Some(c.code) {
