@@ -123,7 +123,8 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let model = request.model_dir();
-    if model.ends_with("tests/data/tiny-package") {
+    // Said only when rig fell back to it, not when the user named it.
+    if request.model.is_none() && model.ends_with("tests/data/tiny-package") {
         println!("model: {} (the tiny test package with random weights: no trained default model is installed)", model.display());
     } else {
         println!("model: {}", model.display());
