@@ -202,6 +202,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::MalformedMds { .. }
             | D::Unclean { .. }
             | D::MergeConflict { .. }
+            | D::MixedSources { .. }
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }

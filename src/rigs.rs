@@ -31,6 +31,7 @@ use crate::camera::v4l2::V4l2Camera;
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
+use crate::dataset::CapturePart;
 use crate::geometry::objects::{ObjectChoice, ObjectResolveError};
 use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
 use crate::pose::Pose;
@@ -83,9 +84,25 @@ pub fn clock_for(config: &RigConfig) -> Arc<dyn Clock> {
 /// A camera of any backend this build supports.
 #[allow(clippy::large_enum_variant, reason = "a rig holds three cameras; boxing buys nothing")]
 pub enum RigCamera {
-    Simulated { kind: SensorKind, camera: SimCamera, calibration: String, timeouts: InjectedTimeouts },
-    V4l2 { kind: SensorKind, camera: V4l2Camera, calibration: String },
-    Nokhwa { kind: SensorKind, camera: NokhwaCamera, calibration: String },
+    Simulated {
+        kind: SensorKind,
+        camera: SimCamera,
+        calibration: String,
+        timeouts: InjectedTimeouts,
+    },
+    /// `device` is the configured selector (`/dev/video0`, `usb:1-2.3`), for the manifest.
+    V4l2 {
+        kind: SensorKind,
+        camera: V4l2Camera,
+        calibration: String,
+        device: String,
+    },
+    Nokhwa {
+        kind: SensorKind,
+        camera: NokhwaCamera,
+        calibration: String,
+        device: String,
+    },
 }
 
 /// Frame requests a simulated camera fails on purpose (`[sim.faults] camera_timeout_at_frames`).
@@ -129,6 +146,16 @@ impl RigCamera {
             RigCamera::Simulated { calibration, .. } | RigCamera::V4l2 { calibration, .. } | RigCamera::Nokhwa { calibration, .. } => {
                 calibration.clone()
             }
+        }
+    }
+    /// The camera as a dataset manifest's capture chain names it: backend `sim` (simulated),
+    /// `v4l2` or `nokhwa` with the configured device.
+    pub fn capture_part(&self) -> CapturePart {
+        let name = self.kind().to_string();
+        match self {
+            RigCamera::Simulated { .. } => CapturePart::new(name, "sim", true, None),
+            RigCamera::V4l2 { device, .. } => CapturePart::new(name, "v4l2", false, Some(device.clone())),
+            RigCamera::Nokhwa { device, .. } => CapturePart::new(name, "nokhwa", false, Some(device.clone())),
         }
     }
 }
@@ -356,10 +383,10 @@ impl Rig {
                     let name = kind.to_string();
                     if is_v4l2 {
                         let camera = V4l2Camera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration });
+                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration, device: device.clone() });
                     } else {
                         let camera = NokhwaCamera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration });
+                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration, device: device.clone() });
                     }
                 }
             }
