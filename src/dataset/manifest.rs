@@ -70,12 +70,44 @@ pub struct CapturePart {
     /// address or serial port; absent for in-process simulated parts.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub address: Option<String>,
+    /// A camera's device node as opened (`/dev/video2`), when the backend resolves one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device_path: Option<String>,
+    /// A camera's pixel format on the wire (`YUYV`, `MJPG`); absent for simulated sensors
+    /// (they render RGB) and where the backend picks it unseen.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+    /// A camera's frame size, px (width, height).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution_px: Option<[u32; 2]>,
+    /// The frame rate asked of a camera (configured, or the simulated sensor's), Hz.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub requested_fps: Option<u32>,
 }
 
 impl CapturePart {
     /// A part named `name` driven by `backend`.
     pub fn new(name: impl Into<String>, backend: impl Into<String>, simulated: bool, address: Option<String>) -> Self {
-        Self { name: name.into(), backend: backend.into(), simulated, address }
+        Self {
+            name: name.into(),
+            backend: backend.into(),
+            simulated,
+            address,
+            device_path: None,
+            format: None,
+            resolution_px: None,
+            requested_fps: None,
+        }
+    }
+
+    /// This camera part with its stream: device node, pixel format, frame size and requested
+    /// rate (each when known).
+    pub fn with_stream(mut self, device_path: Option<String>, format: Option<String>, resolution_px: [u32; 2], requested_fps: u32) -> Self {
+        self.device_path = device_path;
+        self.format = format;
+        self.resolution_px = Some(resolution_px);
+        self.requested_fps = Some(requested_fps);
+        self
     }
 }
 
@@ -282,7 +314,12 @@ mod tests {
 
         let chain = |simulated: bool| CaptureChain {
             arm: CapturePart::new("arm", if simulated { "sim-mg400" } else { "mg400" }, simulated, None),
-            sensors: vec![CapturePart::new("vitac", if simulated { "sim" } else { "v4l2" }, simulated, None)],
+            sensors: vec![CapturePart::new("vitac", if simulated { "sim" } else { "v4l2" }, simulated, None).with_stream(
+                (!simulated).then(|| "/dev/video2".to_string()),
+                (!simulated).then(|| "YUYV".to_string()),
+                [640, 480],
+                30,
+            )],
             modbus: Vec::new(),
         };
         let sim = Manifest { capture: Some(chain(true)), ..m.clone() };

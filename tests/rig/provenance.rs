@@ -102,6 +102,11 @@ fn simulated_collection_says_so_and_merge_keeps_sources_apart() {
     assert_eq!((capture.arm.backend.as_str(), capture.arm.simulated), ("sim-mg400", true));
     let sensors: Vec<(&str, &str, bool)> = capture.sensors.iter().map(|p| (p.name.as_str(), p.backend.as_str(), p.simulated)).collect();
     assert_eq!(sensors, [("tactip", "sim", true), ("vitac", "sim", true)]);
+    // Each sensor's stream: the simulated one's rendered size and rate, no wire format.
+    for part in &capture.sensors {
+        assert_eq!((part.resolution_px, part.requested_fps, part.format.as_deref()), (Some([512, 512]), Some(30), None), "{part:?}");
+    }
+    assert_eq!(capture.arm.address, None, "the simulated arm runs in-process");
     let modbus: Vec<(&str, bool)> = capture.modbus.iter().map(|p| (p.name.as_str(), p.simulated)).collect();
     assert_eq!(modbus, [("modbus.light", true)]);
 
