@@ -30,7 +30,7 @@ use crate::arm::{Arm, ArmError, Arrival, MoveKind, move_and_wait};
 use crate::camera::{Camera, CameraError, capture_settled};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
-use crate::dataset::{DatasetError, DatasetWriter, PoseRow};
+use crate::dataset::{DatasetError, DatasetWriter, PoseRow, Source};
 use crate::io::modbus::{ModbusError, NoPeripherals, Peripherals, format_readings};
 use crate::plan::PlannedPose;
 use crate::pose::{Pose, WorkFrame};
@@ -96,6 +96,8 @@ fn describe_pose(pose_id: Option<u32>) -> String {
 pub struct SensorStream<C: Camera> {
     pub camera: C,
     pub writer: DatasetWriter,
+    /// The source its rows are written with: `real`, or `simulated` for a simulated sensor.
+    pub source: Source,
 }
 
 /// What a finished (or interrupted) collection did.
@@ -336,7 +338,8 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         // the pose undone in every dataset and the retry captures it again.
         let modbus = format_readings(&self.peripherals.after_capture().await?);
         for (k, image, t_capture_s) in captured {
-            let row = PoseRow::real(planned.pose_id, planned.pose, measured, t_capture_s).with_modbus(modbus.clone());
+            let source = self.sensors[k].source;
+            let row = PoseRow::captured(planned.pose_id, planned.pose, measured, t_capture_s, source).with_modbus(modbus.clone());
             self.sensors[k].writer.append(row, &image)?;
         }
         self.go(above, MoveKind::Linear).await?;

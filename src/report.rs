@@ -128,6 +128,7 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::geometry::objects::ObjectResolveError,
         crate::arm::profile::ProfileLookupError,
         crate::record::replay::ReplayError,
+        crate::eval::compare_real::CompareRealError,
     );
     None
 }
@@ -181,6 +182,26 @@ impl Classify for crate::config::ConfigError {
     }
 }
 
+impl Classify for crate::eval::compare_real::CompareRealError {
+    fn exit(&self) -> Exit {
+        use crate::eval::compare_real::CompareRealError as C;
+        match self {
+            C::Mesh(e) => e.exit(),
+            C::PoseLog(e) => e.exit(),
+            C::FrameName { .. }
+            | C::Image { .. }
+            | C::FrameSize { .. }
+            | C::TooSmall { .. }
+            | C::NoPose { .. }
+            | C::TooFewFrames { .. }
+            | C::NoObjects { .. }
+            | C::TooManyFrames { .. }
+            | C::ReadDir { .. } => Exit::BadInput,
+            C::Metrics(_) | C::CreateDir { .. } | C::Write { .. } => Exit::Failure,
+        }
+    }
+}
+
 impl Classify for crate::plan::PlanError {
     fn exit(&self) -> Exit {
         Exit::BadInput
@@ -203,6 +224,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::MalformedMds { .. }
             | D::Unclean { .. }
             | D::MergeConflict { .. }
+            | D::MixedSources { .. }
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }

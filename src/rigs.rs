@@ -27,10 +27,11 @@ use crate::arm::{Alarm, Arm, ArmError, Arrival, MoveKind};
 use crate::calibration::Calibration;
 use crate::camera::nokhwa_backend::NokhwaCamera;
 use crate::camera::usb::DeviceSelector;
-use crate::camera::v4l2::V4l2Camera;
+use crate::camera::v4l2::{CameraSettings, V4l2Camera};
 use crate::camera::{Camera, CameraError, Frame};
 use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
+use crate::dataset::CapturePart;
 use crate::geometry::objects::{ObjectChoice, ObjectResolveError};
 use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
 use crate::pose::Pose;
@@ -80,12 +81,36 @@ pub fn clock_for(config: &RigConfig) -> Arc<dyn Clock> {
     }
 }
 
+/// Frame rate of the simulated sensors, Hz.
+const SIM_FPS: u32 = 30;
+
 /// A camera of any backend this build supports.
 #[allow(clippy::large_enum_variant, reason = "a rig holds three cameras; boxing buys nothing")]
 pub enum RigCamera {
-    Simulated { kind: SensorKind, camera: SimCamera, calibration: String, timeouts: InjectedTimeouts },
-    V4l2 { kind: SensorKind, camera: V4l2Camera, calibration: String },
-    Nokhwa { kind: SensorKind, camera: NokhwaCamera, calibration: String },
+    /// `resolution_px` is the rendered size, for the manifest.
+    Simulated {
+        kind: SensorKind,
+        camera: SimCamera,
+        calibration: String,
+        timeouts: InjectedTimeouts,
+        resolution_px: [u32; 2],
+    },
+    /// `device` is the configured selector (`/dev/video0`, `usb:1-2.3`) and `settings` the
+    /// configured stream, for the manifest.
+    V4l2 {
+        kind: SensorKind,
+        camera: V4l2Camera,
+        calibration: String,
+        device: String,
+        settings: CameraSettings,
+    },
+    Nokhwa {
+        kind: SensorKind,
+        camera: NokhwaCamera,
+        calibration: String,
+        device: String,
+        settings: CameraSettings,
+    },
 }
 
 /// Frame requests a simulated camera fails on purpose (`[sim.faults] camera_timeout_at_frames`).
@@ -129,6 +154,34 @@ impl RigCamera {
             RigCamera::Simulated { calibration, .. } | RigCamera::V4l2 { calibration, .. } | RigCamera::Nokhwa { calibration, .. } => {
                 calibration.clone()
             }
+        }
+    }
+    /// The camera as a dataset manifest's capture chain names it: backend `sim` (simulated,
+    /// its rendered size and frame rate), `v4l2` (the configured device, the node opened, the
+    /// negotiated format and size, the configured rate) or `nokhwa` (the configured device,
+    /// format when forced, size and rate).
+    pub fn capture_part(&self) -> CapturePart {
+        let name = self.kind().to_string();
+        let fourcc = |f: crate::camera::convert::PixelFormat| String::from_utf8_lossy(&f.fourcc()).into_owned();
+        match self {
+            RigCamera::Simulated { resolution_px, .. } => {
+                CapturePart::new(name, "sim", true, None).with_stream(None, None, *resolution_px, SIM_FPS)
+            }
+            RigCamera::V4l2 { device, camera, settings, .. } => {
+                let choice = camera.format();
+                CapturePart::new(name, "v4l2", false, Some(device.clone())).with_stream(
+                    Some(camera.path().display().to_string()),
+                    Some(fourcc(choice.format)),
+                    [choice.width, choice.height],
+                    settings.fps,
+                )
+            }
+            RigCamera::Nokhwa { device, settings, .. } => CapturePart::new(name, "nokhwa", false, Some(device.clone())).with_stream(
+                None,
+                settings.pixel_format.map(fourcc),
+                [settings.width, settings.height],
+                settings.fps,
+            ),
         }
     }
 }
@@ -332,13 +385,14 @@ impl Rig {
                         config.work_frame,
                         sim.truth(),
                         Arc::clone(&clock),
-                        1.0 / 30.0,
+                        1.0 / f64::from(SIM_FPS),
                     );
                     cameras.push(RigCamera::Simulated {
                         kind: *kind,
                         camera,
                         calibration: calib_name,
                         timeouts: InjectedTimeouts::from_faults(&config.faults),
+                        resolution_px: [width, height],
                     });
                 }
                 SensorBackend::V4l2 { ref device } | SensorBackend::Nokhwa { ref device } => {
@@ -356,10 +410,12 @@ impl Rig {
                     let name = kind.to_string();
                     if is_v4l2 {
                         let camera = V4l2Camera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration });
+                        let settings = sensor_cfg.camera.clone();
+                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration, device: device.clone(), settings });
                     } else {
                         let camera = NokhwaCamera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration });
+                        let settings = sensor_cfg.camera.clone();
+                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration, device: device.clone(), settings });
                     }
                 }
             }

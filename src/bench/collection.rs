@@ -135,8 +135,11 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         out: dir.to_path_buf(),
         resume: false,
         disk_budget_bytes: None,
+        arm: crate::jobs::collect::arm_part(&rig_config),
+        modbus: Vec::new(),
     };
-    let feeds = vec![SensorFeed { camera, sensor: kind, calibration: "default".into() }];
+    let capture = camera.capture_part();
+    let feeds = vec![SensorFeed { camera, sensor: kind, calibration: "default".into(), capture }];
     let t_wall = Instant::now();
     let result = crate::jobs::collect::run(&setup, &mut rig.arm, feeds, NoPeripherals, Arc::clone(&clock), Observer::hidden(), None).await;
     let wall_s = t_wall.elapsed().as_secs_f64();

@@ -343,12 +343,12 @@ fn from_dataset(args: &Args, dir: &Path, out: &Path) -> anyhow::Result<()> {
 
 type KnownFrames = (Vec<(String, Pose, RgbImage)>, RgbImage);
 
-/// A rig dataset: real rows (measured pose when logged), `reference.png`.
+/// A rig dataset: captured rows, real or simulated (measured pose when logged), `reference.png`.
 fn rig_dataset_frames(dir: &Path) -> anyhow::Result<KnownFrames> {
     let reference = load_rgb(&dir.join("reference.png"))?;
     let rows = crate::dataset::read_rows(dir).with_context(|| format!("reading {}", dir.display()))?;
     let mut frames = Vec::new();
-    for row in rows.iter().filter(|r| r.source == crate::dataset::Source::Real) {
+    for row in rows.iter().filter(|r| r.source.is_captured()) {
         let pose = row.measured().unwrap_or_else(|| row.commanded());
         frames.push((row.image.clone(), pose, load_rgb(&dir.join(&row.image))?));
     }

@@ -125,8 +125,13 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let mut feeds = Vec::new();
     for (index, camera) in rig.cameras.drain(..).enumerate() {
         let index = u8::try_from(index).context("more than 256 sensors")?;
-        let (sensor, calibration) = (camera.kind(), camera.calibration_name());
-        feeds.push(SensorFeed { camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()), sensor, calibration });
+        let (sensor, calibration, capture) = (camera.kind(), camera.calibration_name(), camera.capture_part());
+        feeds.push(SensorFeed {
+            camera: crate::record::RecordingCamera::new(camera, index, recorder.clone()),
+            sensor,
+            calibration,
+            capture,
+        });
     }
 
     let cancel = super::shared::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;

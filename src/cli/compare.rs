@@ -4,19 +4,23 @@
 //! rig compare-real [--sample DIR] [--calibration-dir calibration] [--fit] [--out DIR]
 //! ```
 //!
-//! For each sensor (TacTip, ViTac, ViTacTip) and each real frame 0-5 of the sample it renders
-//! the straight edge (`stl/1.stl`) at the logged pose through `calibration/mds-example-<sensor>.toml`
-//! with the sensor simulator and prints SSIM against the real frame over the whole frame and
-//! over the contact region, next to the pose-blind baseline (the mean of the other real frames
-//! of that sensor). The comparison is [`crate::eval::compare_real`]; the logged pose's depth
+//! The sample is any MultiDiffSense-layout folder: for each object `<id>` (`csv/<id>.csv` with
+//! `stl/<id>.stl`), each sensor (TacTip, ViTac, ViTacTip) and every real frame
+//! `tactile/<id>/<Sensor>/target/<id>_<Sensor>_<i>.png` there is, it renders the object at the
+//! frame's logged pose through `calibration/mds-example-<sensor>.toml` with the sensor
+//! simulator and prints SSIM against the real frame over the whole frame and over the contact
+//! region, next to the pose-blind baseline (the mean of the other real frames of that object
+//! and sensor), then the means. An object and sensor with fewer than two frames is skipped
+//! and named. The comparison is [`crate::eval::compare_real`]; the logged pose's depth
 //! convention is [`crate::dataset::export`]'s. This command parses, wires the simulator in as
 //! the renderer and prints.
 //!
 //! - The simulator starts from the median of the sensor's *other* real frames (leave one out)
 //!   and renders the scene of [`comparison_scene`] (no noise); `--procedural` uses its
 //!   modelled look instead, `--scene` another scene.
-//! - `--fit` first refits the calibrations (`calibration::contact_fit::fit_sensor`, in
-//!   `FIT_ORDER`, each seeded with the ones before) and writes them.
+//! - `--fit` first refits the calibrations to the first object's frames
+//!   (`calibration::contact_fit::fit_sensor`, in `FIT_ORDER`, each seeded with the ones
+//!   before) and writes them.
 
 use std::path::{Path, PathBuf};
 
@@ -26,13 +30,14 @@ use clap::Args as ClapArgs;
 use super::sensor_bridge::{render_tactile_with, simulator_available};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{FIT_ORDER, FitFrame, fit_sensor};
-use crate::eval::compare_real::{CompareOptions, FrameScores, RealSample, compare_sensor};
+use crate::eval::compare_real::{CompareOptions, CompareRealError, FrameScores, RealSample, compare_sensor};
 use crate::sensor::SensorKind;
 use crate::sim::sensor::{Scene, Stage};
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
-    /// The MultiDiffSense example folder (holds csv/, stl/, tactile/).
+    /// A MultiDiffSense-layout folder (csv/<id>.csv, stl/<id>.stl, tactile/<id>/<Sensor>/target/),
+    /// any number of objects and frames; default: the MultiDiffSense example.
     #[arg(long, env = "RIG_REAL_SAMPLE")]
     pub sample: Option<PathBuf>,
     /// Folder of the `mds-example-<sensor>.toml` calibrations.
@@ -107,56 +112,89 @@ fn fit_all(sample: &RealSample, calibration_dir: &Path) -> anyhow::Result<()> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = args.sample.clone().unwrap_or_else(default_sample_dir);
-    let sample =
-        RealSample::load(&dir).with_context(|| format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display()))?;
-    if args.fit {
-        fit_all(&sample, &args.calibration_dir)?;
+    let context = || format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display());
+    let ids = RealSample::object_ids(&dir).with_context(context)?;
+    if ids.is_empty() {
+        return Err(anyhow::Error::new(CompareRealError::NoObjects { dir: dir.clone() }).context(context()));
     }
-    println!("SSIM against the real frames (mean over frames; contact = pixels differing from the no-contact look)");
-    println!(
-        "{:<9} {:>5} {:>8} {:>8} | {:>10} {:>10} | {:>10} {:>10}",
-        "sensor", "frame", "contact%", "fp-IoU", "sim whole", "base whole", "sim cont.", "base cont."
-    );
+    if args.fit {
+        let first = RealSample::load_object(&dir, &ids[0]).with_context(context)?;
+        fit_all(&first, &args.calibration_dir)?;
+    }
     let scene = match &args.scene {
         Some(spec) => Scene::preset_or_file(spec)?,
         None => comparison_scene(),
     };
-    let options = CompareOptions { measured_reference: !args.procedural, panels: args.out.clone() };
-    let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
+    let mut calibrations = Vec::new();
     for sensor in SensorKind::ALL {
         let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
         let calib = Calibration::load(&path).with_context(|| format!("{}: run with --fit to create {}", sensor.label(), path.display()))?;
-        let render =
-            |depth: &_, calib: &_, seed, reference: Option<&_>| render_tactile_with(sensor, depth, calib, seed, &scene, reference).ok();
-        let scores = compare_sensor(&sample, sensor, &calib, &render, &options)?;
-        for s in &scores {
+        calibrations.push((sensor, calib));
+    }
+    println!("SSIM against the real frames (mean over frames; contact = pixels differing from the no-contact look)");
+    println!(
+        "{:<6} {:<9} {:>5} {:>8} {:>8} | {:>10} {:>10} | {:>10} {:>10}",
+        "object", "sensor", "frame", "contact%", "fp-IoU", "sim whole", "base whole", "sim cont.", "base cont."
+    );
+    let options = CompareOptions { measured_reference: !args.procedural, panels: args.out.clone() };
+    let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
+    let mut compared = 0usize;
+    let mut skipped = Vec::new();
+    for id in &ids {
+        let sample = RealSample::load_object(&dir, id).with_context(context)?;
+        for (sensor, calib) in &calibrations {
+            let sensor = *sensor;
+            let frames = sample.frames_of(sensor).len();
+            if frames < 2 {
+                // The baseline and the no-contact look need the sensor's other frames.
+                skipped.push(format!("object {id} {}: {frames} frame(s), need two", sensor.label()));
+                continue;
+            }
+            let render =
+                |depth: &_, calib: &_, seed, reference: Option<&_>| render_tactile_with(sensor, depth, calib, seed, &scene, reference).ok();
+            let scores = compare_sensor(&sample, sensor, calib, &render, &options)?;
+            compared += scores.len();
+            for s in &scores {
+                println!(
+                    "{:<6} {:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
+                    id,
+                    sensor.label(),
+                    s.index,
+                    100.0 * s.contact_fraction,
+                    s.footprint_iou,
+                    fmt(s.sim_whole),
+                    s.baseline_whole,
+                    fmt(s.sim_contact),
+                    s.baseline_contact
+                );
+            }
+            let n = scores.len() as f64;
+            let mean = |f: &dyn Fn(&FrameScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
+            let mean_opt = |f: &dyn Fn(&FrameScores) -> Option<f64>| {
+                scores.iter().map(f).collect::<Option<Vec<f64>>>().map(|v| v.iter().sum::<f64>() / n)
+            };
             println!(
-                "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
+                "{:<6} {:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
+                id,
                 sensor.label(),
-                s.index,
-                100.0 * s.contact_fraction,
-                s.footprint_iou,
-                fmt(s.sim_whole),
-                s.baseline_whole,
-                fmt(s.sim_contact),
-                s.baseline_contact
+                "mean",
+                100.0 * mean(&|s| s.contact_fraction),
+                mean(&|s| s.footprint_iou),
+                fmt(mean_opt(&|s| s.sim_whole)),
+                mean(&|s| s.baseline_whole),
+                fmt(mean_opt(&|s| s.sim_contact)),
+                mean(&|s| s.baseline_contact)
             );
         }
-        let n = scores.len() as f64;
-        let mean = |f: &dyn Fn(&FrameScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
-        let mean_opt =
-            |f: &dyn Fn(&FrameScores) -> Option<f64>| scores.iter().map(f).collect::<Option<Vec<f64>>>().map(|v| v.iter().sum::<f64>() / n);
-        println!(
-            "{:<9} {:>5} {:>8.1} {:>8.3} | {:>10} {:>10.3} | {:>10} {:>10.3}",
-            sensor.label(),
-            "mean",
-            100.0 * mean(&|s| s.contact_fraction),
-            mean(&|s| s.footprint_iou),
-            fmt(mean_opt(&|s| s.sim_whole)),
-            mean(&|s| s.baseline_whole),
-            fmt(mean_opt(&|s| s.sim_contact)),
-            mean(&|s| s.baseline_contact)
-        );
+    }
+    for line in &skipped {
+        println!("skipped {line}");
+    }
+    if compared == 0 {
+        return Err(anyhow::Error::new(crate::cli::usage(&format!(
+            "{}: no object has two frames of one sensor to compare (tactile/<id>/<Sensor>/target/<id>_<Sensor>_<i>.png)",
+            dir.display()
+        ))));
     }
     if !simulator_available() {
         println!("note: sensor simulator not available in this build; simulator columns are n/a");

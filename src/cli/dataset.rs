@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 
 use crate::dataset::durable;
 use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
-use crate::dataset::{DatasetWriter, Manifest, ObjectInfo, merge, read_rows, verify};
+use crate::dataset::{DatasetWriter, Manifest, MergeOptions, ObjectInfo, merge, read_rows, verify};
 use crate::sensor::SensorKind;
 
 /// `rig dataset ...`
@@ -85,6 +85,10 @@ pub enum DatasetCommand {
         /// Input datasets.
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
+        /// Merge even when the result would hold frames of a real rig and of the simulated
+        /// rig (rows of source real and simulated).
+        #[arg(long)]
+        allow_mixed: bool,
     },
 }
 
@@ -105,8 +109,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let target = ImportTarget { out, images, sensor, object, stl, resume };
             import(&csv, &target)
         }
-        DatasetCommand::Merge { out, inputs } => {
-            let report = merge(&inputs, &out).with_context(|| format!("merging into {}", out.display()))?;
+        DatasetCommand::Merge { out, inputs, allow_mixed } => {
+            let report = merge(&inputs, &out, MergeOptions { allow_mixed }).with_context(|| format!("merging into {}", out.display()))?;
             println!(
                 "merged {} datasets into {}: {} rows appended, {} already present",
                 report.inputs,

@@ -12,7 +12,8 @@ use crate::eval::{ContactEstimator, EvalOptions, evaluate};
 /// `rig eval` arguments.
 #[derive(Debug, ClapArgs)]
 pub struct Args {
-    /// The true images: a dataset or a folder of `<object>/<sensor>` datasets (rows `source=real`).
+    /// The true images: a dataset or a folder of `<object>/<sensor>` datasets (captured rows:
+    /// `source=real`, or `simulated` from the simulated rig).
     #[arg(long, value_name = "DIR")]
     pub real: PathBuf,
     /// Their synthetic twins (rows `source=synthetic`), e.g. from `rig synth --poses-of`.

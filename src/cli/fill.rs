@@ -1,5 +1,5 @@
 //! `rig synth --fill-missing`: synthesise every planned pose a dataset lacks; `rig synth
-//! --poses-of DATASET --out DIR`: synthesise exactly the real poses of a dataset (its
+//! --poses-of DATASET --out DIR`: synthesise exactly the captured poses of a dataset (its
 //! synthetic twin, for `rig eval`).
 
 use std::path::PathBuf;
@@ -19,7 +19,8 @@ pub struct FillArgs {
     /// Synthesise every pose of the dataset's plan that has no image yet.
     #[arg(long)]
     pub fill_missing: bool,
-    /// Synthesise exactly the poses of the real rows of this dataset (or of every dataset under
+    /// Synthesise exactly the poses of the captured rows (real or simulated; never synthetic
+    /// ones) of this dataset (or of every dataset under
     /// this folder, two levels deep) into --out, mirroring `<object>/<sensor>`: the synthetic
     /// twin of a test set for `rig eval`. Resumable.
     #[arg(long, value_name = "DATASET", conflicts_with = "fill_missing")]

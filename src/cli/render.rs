@@ -6,7 +6,9 @@
 //! ```
 //!
 //! `depth` writes the 16-bit depth PNG, `control` the MultiDiffSense control image, the
-//! tactile sensors go through the sensor simulator.
+//! tactile sensors go through the sensor simulator. `--reference FRAME` (a tactile sensor
+//! only) starts the simulator from a measured no-contact frame of the real sensor, of the
+//! output's size: it adds only the contact to it (`SensorSim::with_reference`).
 //!
 //! ```text
 //! rig render --controls-of DATASET [--size WxH] [--supersample N] --out DIR
@@ -24,9 +26,12 @@ use std::str::FromStr;
 use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
-use super::sensor_bridge::render_tactile;
+use image::GenericImageView;
+
+use super::sensor_bridge::{render_tactile, render_tactile_with};
 use super::usage;
 use crate::calibration::Calibration;
+use crate::dataset::durable::MAX_IMAGE_BYTES;
 use crate::dataset::{Manifest, read_rows};
 use crate::geometry::control::{control_image, depth_png16};
 use crate::geometry::objects::load_object;
@@ -34,6 +39,7 @@ use crate::geometry::raster::render_depth;
 use crate::geometry::stl::Mesh;
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
+use crate::sim::sensor::Scene;
 use crate::synth::fill::ControlRenderer;
 use crate::synth::prompt::mds_prompt;
 
@@ -113,6 +119,10 @@ pub struct Args {
     /// Noise seed of the sensor simulator.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// A measured no-contact frame (PNG, of --size) for a tactile sensor to start from: the
+    /// simulator keeps its look and adds only the contact.
+    #[arg(long, value_name = "FRAME")]
+    pub reference: Option<PathBuf>,
     /// Output PNG (with --controls-of: output folder).
     #[arg(long)]
     pub out: PathBuf,
@@ -143,19 +153,51 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (Some(pose), Some(sensor)) = (args.pose, args.sensor) else {
         return Err(usage("give --pose and --sensor (or --controls-of DATASET)").into());
     };
-    let mesh = load_mesh(args.object.as_deref(), args.stl.as_deref())?;
     let ImageSize { width, height } = args.size;
+    let reference = match (&args.reference, sensor) {
+        (None, _) => None,
+        (Some(_), View::Depth | View::Control) => {
+            return Err(usage("--reference applies to a tactile sensor (tactip, vitac, vitactip), not depth or control").into());
+        }
+        (Some(path), View::Tactile(_)) => Some(load_reference(path, width, height)?),
+    };
+    let mesh = load_mesh(args.object.as_deref(), args.stl.as_deref())?;
     let calib = load_calibration(args.calibration.as_deref(), width, height)?;
     let depth = render_depth(&mesh, &pose, &calib, width, height, args.supersample);
     let out = &args.out;
     match sensor {
         View::Depth => depth_png16(&depth).save(out),
         View::Control => control_image(&depth).save(out),
-        View::Tactile(sensor) => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
+        View::Tactile(sensor) => match &reference {
+            Some(r) => {
+                let scene = Scene::preset("full")?;
+                render_tactile_with(sensor, &depth, &calib, args.seed, &scene, Some(r))?.save(out)
+            }
+            None => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
+        },
     }
     .with_context(|| format!("writing {}", out.display()))?;
     println!("wrote {} ({}x{}, {:?}, max indentation {:.3} mm)", out.display(), width, height, sensor, depth.max_indentation_mm());
     Ok(())
+}
+
+/// Reads `--reference`: a PNG of `width` x `height`, at most [`MAX_IMAGE_BYTES`] bytes; any
+/// other file is a usage error naming it.
+fn load_reference(path: &Path, width: u32, height: u32) -> anyhow::Result<image::RgbImage> {
+    let bad = |why: String| anyhow::Error::new(usage(&format!("--reference {}: {why}", path.display())));
+    let bytes = crate::dataset::durable::read_regular(path, MAX_IMAGE_BYTES).map_err(|e| bad(e.to_string()))?;
+    let image =
+        image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+    if image.dimensions() != (width, height) {
+        return Err(bad(format!(
+            "{}x{} px, the output is {width}x{height} (give --size {}x{})",
+            image.width(),
+            image.height(),
+            image.width(),
+            image.height()
+        )));
+    }
+    Ok(image.to_rgb8())
 }
 
 /// `--controls-of`: the control image and prompt of every row of `dataset` into `out_dir`.

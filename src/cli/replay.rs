@@ -107,7 +107,12 @@ pub(crate) fn recording_header(
         },
         sensors: cameras
             .iter()
-            .map(|c| RecordedSensor { camera: c.name().to_string(), sensor_dir: c.kind(), calibration: c.calibration_name() })
+            .map(|c| RecordedSensor {
+                camera: c.name().to_string(),
+                sensor_dir: c.kind(),
+                calibration: c.calibration_name(),
+                capture: Some(c.capture_part()),
+            })
             .collect(),
         seed: spec.seed,
         plan_spec: spec.clone(),
@@ -116,5 +121,7 @@ pub(crate) fn recording_header(
         collect: config.collect.clone(),
         profile: profile.clone(),
         speed_factor_pct: config.arm.speed_factor,
+        capture_arm: Some(crate::jobs::collect::arm_part(config)),
+        capture_modbus: crate::jobs::collect::modbus_parts(config),
     }
 }

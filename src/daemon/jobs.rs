@@ -94,6 +94,7 @@ async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<Jo
         .map(|camera| SensorFeed {
             sensor: camera.kind(),
             calibration: camera.calibration_name(),
+            capture: camera.capture_part(),
             camera: LiveCamera { camera, state: Arc::clone(&state) },
         })
         .collect();

@@ -88,6 +88,11 @@ pub enum DatasetError {
     Unclean { dir: PathBuf, issues: usize },
     #[error("merge conflict on pose_id {pose_id}: {first} and {second} disagree")]
     MergeConflict { pose_id: u32, first: PathBuf, second: PathBuf },
+    /// A merge would put frames of a real rig and of the simulated rig in one dataset.
+    #[error(
+        "refusing to mix real and simulated frames: {real} has real rows, {simulated} has simulated rows (pass --allow-mixed to merge them anyway)"
+    )]
+    MixedSources { real: PathBuf, simulated: PathBuf },
 }
 
 impl DatasetError {

@@ -1,5 +1,7 @@
 //! `manifest.toml`: what a dataset is (plan, object, sensor) and how it was made (calibration,
-//! firmware profile, rig version, times). Written atomically (temp file, fsync, rename).
+//! firmware profile, rig version, times, and the capture chain: which arm, sensors and Modbus
+//! peripherals took the frames, and which of them were simulated). Written atomically (temp
+//! file, fsync, rename).
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -53,6 +55,83 @@ pub fn sha256_file(path: &Path) -> Result<String, DatasetError> {
     Ok(hex::encode(hasher.finalize()))
 }
 
+/// One part of the capture chain: the arm, a sensor's camera or a Modbus peripheral, with the
+/// backend that drove it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CapturePart {
+    /// What the part is: `arm`, a sensor name (`tactip`), `modbus.<name>`.
+    pub name: String,
+    /// The backend: `mg400`, `magician`, `sim-mg400` for the arm; `v4l2`, `nokhwa`, `sim`,
+    /// `replay` for a camera; `tcp`, `rtu`, `sim` for a Modbus peripheral.
+    pub backend: String,
+    /// True when the part is simulated (its frames or readings are not measured).
+    pub simulated: bool,
+    /// Where it was reached: the arm's address, a camera's device selector, a peripheral's
+    /// address or serial port; absent for in-process simulated parts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub address: Option<String>,
+    /// A camera's device node as opened (`/dev/video2`), when the backend resolves one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device_path: Option<String>,
+    /// A camera's pixel format on the wire (`YUYV`, `MJPG`); absent for simulated sensors
+    /// (they render RGB) and where the backend picks it unseen.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+    /// A camera's frame size, px (width, height).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution_px: Option<[u32; 2]>,
+    /// The frame rate asked of a camera (configured, or the simulated sensor's), Hz.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub requested_fps: Option<u32>,
+}
+
+impl CapturePart {
+    /// A part named `name` driven by `backend`.
+    pub fn new(name: impl Into<String>, backend: impl Into<String>, simulated: bool, address: Option<String>) -> Self {
+        Self {
+            name: name.into(),
+            backend: backend.into(),
+            simulated,
+            address,
+            device_path: None,
+            format: None,
+            resolution_px: None,
+            requested_fps: None,
+        }
+    }
+
+    /// This camera part with its stream: device node, pixel format, frame size and requested
+    /// rate (each when known).
+    pub fn with_stream(mut self, device_path: Option<String>, format: Option<String>, resolution_px: [u32; 2], requested_fps: u32) -> Self {
+        self.device_path = device_path;
+        self.format = format;
+        self.resolution_px = Some(resolution_px);
+        self.requested_fps = Some(requested_fps);
+        self
+    }
+}
+
+/// What captured a dataset's frames (`[capture]` in the manifest). Absent in manifests
+/// written before rig recorded it, and in datasets that were synthesised or imported.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CaptureChain {
+    /// The arm that placed the sensor.
+    pub arm: CapturePart,
+    /// Every sensor of the run, this dataset's included.
+    #[serde(default)]
+    pub sensors: Vec<CapturePart>,
+    /// The Modbus peripherals read or written around each capture.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub modbus: Vec<CapturePart>,
+}
+
+impl CaptureChain {
+    /// The parts that are simulated, by name (`arm`, `tactip`, `modbus.force`).
+    pub fn simulated_parts(&self) -> Vec<&str> {
+        std::iter::once(&self.arm).chain(&self.sensors).chain(&self.modbus).filter(|p| p.simulated).map(|p| p.name.as_str()).collect()
+    }
+}
+
 /// Contents of `manifest.toml`. Unknown keys are ignored when reading, so manifests written by
 /// later rig versions stay readable.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +160,10 @@ pub struct Manifest {
     /// The work frame of the collection, if an arm was used.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub work_frame: Option<WorkFrame>,
+    /// What captured the frames; `None` in manifests that predate the field and in datasets
+    /// no rig captured (synthesised, imported).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capture: Option<CaptureChain>,
 }
 
 impl Manifest {
@@ -97,6 +180,7 @@ impl Manifest {
             object,
             plan,
             work_frame: None,
+            capture: None,
         }
     }
 
@@ -153,6 +237,17 @@ impl Manifest {
             };
             return Err(mismatch("plan", show(&self.plan), show(&requested.plan)));
         }
+        // Resuming on other hardware is allowed; resuming a simulated run on a real rig (or
+        // the other way) would mix sources in one dataset.
+        if let (Some(existing), Some(asked)) = (&self.capture, &requested.capture)
+            && existing.simulated_parts() != asked.simulated_parts()
+        {
+            let show = |c: &CaptureChain| match c.simulated_parts() {
+                v if v.is_empty() => "nothing simulated".to_string(),
+                v => format!("simulated: {}", v.join(", ")),
+            };
+            return Err(mismatch("capture chain", show(existing), show(asked)));
+        }
         Ok(())
     }
 }
@@ -208,5 +303,34 @@ mod tests {
         other.plan.as_mut().unwrap().seed = 5;
         let err = m.check_same_dataset(&other, Path::new("d")).unwrap_err();
         assert!(matches!(err, DatasetError::ManifestMismatch { field: "plan", .. }), "{err}");
+    }
+
+    #[test]
+    fn manifests_without_a_capture_chain_still_read_and_resuming_across_sources_is_refused() {
+        let m = Manifest::new(SensorKind::ViTac, ObjectInfo::named("edge"), Some(PlanSpec::default()));
+        let old = toml::to_string(&m).unwrap();
+        assert!(!old.contains("capture"), "{old}");
+        assert_eq!(toml::from_str::<Manifest>(&old).unwrap().capture, None);
+
+        let chain = |simulated: bool| CaptureChain {
+            arm: CapturePart::new("arm", if simulated { "sim-mg400" } else { "mg400" }, simulated, None),
+            sensors: vec![CapturePart::new("vitac", if simulated { "sim" } else { "v4l2" }, simulated, None).with_stream(
+                (!simulated).then(|| "/dev/video2".to_string()),
+                (!simulated).then(|| "YUYV".to_string()),
+                [640, 480],
+                30,
+            )],
+            modbus: Vec::new(),
+        };
+        let sim = Manifest { capture: Some(chain(true)), ..m.clone() };
+        let text = toml::to_string(&sim).unwrap();
+        assert_eq!(toml::from_str::<Manifest>(&text).unwrap(), sim);
+        assert_eq!(chain(true).simulated_parts(), ["arm", "vitac"]);
+        let real = Manifest { capture: Some(chain(false)), ..m.clone() };
+        let err = sim.check_same_dataset(&real, Path::new("d")).unwrap_err();
+        assert!(matches!(err, DatasetError::ManifestMismatch { field: "capture chain", .. }), "{err}");
+        // A dataset from before the field resumes under any chain.
+        m.check_same_dataset(&sim, Path::new("d")).unwrap();
+        sim.check_same_dataset(&sim.clone(), Path::new("d")).unwrap();
     }
 }

@@ -5,12 +5,24 @@
 //! Merging again is harmless: rows already in the output are skipped. Every input verifies
 //! clean first, which decodes each image and refuses symlinks, so a merge copies only regular
 //! image files that belong to the datasets named.
+//!
+//! Frames of a real rig and of the simulated rig (rows of source `real` and `simulated`, in
+//! the inputs or the output) are not merged into one dataset unless the caller allows it
+//! ([`MergeOptions::allow_mixed`]): a dataset that mixes them can no longer be used as
+//! either.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use super::durable::{Kind, MAX_IMAGE_BYTES, entry_exists, read_regular, write_atomic};
-use super::{DatasetError, DatasetWriter, Manifest, PoseRow, REFERENCE_FILE, read_rows, verify};
+use super::{DatasetError, DatasetWriter, Manifest, PoseRow, REFERENCE_FILE, Source, read_rows, verify};
+
+/// How [`merge`] treats its inputs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MergeOptions {
+    /// Merge even when the result would hold both `real` and `simulated` rows.
+    pub allow_mixed: bool,
+}
 
 /// What [`merge`] did.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -24,7 +36,7 @@ pub struct MergeReport {
 
 /// Merges the datasets `inputs` into `out` (created from the first input's manifest when
 /// absent, appended to under its own manifest otherwise).
-pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError> {
+pub fn merge(inputs: &[PathBuf], out: &Path, options: MergeOptions) -> Result<MergeReport, DatasetError> {
     let mut manifests = Vec::with_capacity(inputs.len());
     for dir in inputs {
         let report = verify(dir)?;
@@ -36,7 +48,15 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
     let Some(first) = manifests.first().cloned() else {
         return Ok(MergeReport { inputs: 0, appended: 0, already_present: 0 });
     };
-    let mut writer = if out.join(super::MANIFEST_FILE).exists() { DatasetWriter::open(out)? } else { DatasetWriter::create(out, first)? };
+    let out_exists = out.join(super::MANIFEST_FILE).exists();
+    if !options.allow_mixed {
+        let mut dirs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+        if out_exists {
+            dirs.insert(0, out);
+        }
+        check_not_mixed(&dirs)?;
+    }
+    let mut writer = if out_exists { DatasetWriter::open(out)? } else { DatasetWriter::create(out, first)? };
     for (dir, m) in inputs.iter().zip(&manifests) {
         writer.manifest().check_same_dataset(m, dir)?;
     }
@@ -85,6 +105,20 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<MergeReport, DatasetError
     }
     writer.finish()?;
     Ok(MergeReport { inputs: inputs.len(), appended: new_ids.len(), already_present })
+}
+
+/// Refuses when `dirs` hold both `real` and `simulated` rows, naming the first dataset of each.
+fn check_not_mixed(dirs: &[&Path]) -> Result<(), DatasetError> {
+    let mut first_of: BTreeMap<Source, PathBuf> = BTreeMap::new();
+    for dir in dirs {
+        for row in read_rows(dir)?.iter().filter(|r| r.source.is_captured()) {
+            first_of.entry(row.source).or_insert_with(|| dir.to_path_buf());
+        }
+    }
+    match (first_of.remove(&Source::Real), first_of.remove(&Source::Simulated)) {
+        (Some(real), Some(simulated)) => Err(DatasetError::MixedSources { real, simulated }),
+        _ => Ok(()),
+    }
 }
 
 /// The bytes of a row's image: a regular file (never a symlink), bounded.

@@ -35,9 +35,9 @@ use serde::{Deserialize, Serialize};
 use crate::pose::Pose;
 
 pub use error::{DatasetError, RowProblem};
-pub use manifest::{Manifest, ObjectInfo};
-pub use merge::{MergeReport, merge};
-pub use verify::{VerifyIssue, VerifyReport, verify};
+pub use manifest::{CaptureChain, CapturePart, Manifest, ObjectInfo};
+pub use merge::{MergeOptions, MergeReport, merge};
+pub use verify::{CaptureNote, VerifyIssue, VerifyReport, verify};
 pub use writer::DatasetWriter;
 
 /// File names inside a dataset directory.
@@ -102,19 +102,42 @@ impl CsvLayout {
     }
 }
 /// Where a row's image came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+///
+/// `real` and `simulated` frames are both *captured*: a sensor (a physical one, or the
+/// simulated one of the simulated rig) took them at a pose the arm reached, with a measured
+/// pose and a capture time. `synthetic` frames were synthesised by the model. A frame from a
+/// simulated sensor is never called real.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Source {
-    /// Captured by a sensor on the rig.
+    /// Captured by a physical sensor on the rig.
     Real,
+    /// Captured by a simulated sensor (the simulated rig).
+    Simulated,
     /// Synthesised by the diffusion model.
     Synthetic,
+}
+
+impl Source {
+    /// Every source, in the order reports count them.
+    pub const ALL: [Source; 3] = [Source::Real, Source::Simulated, Source::Synthetic];
+
+    /// True for frames a sensor took (`real` or `simulated`), false for synthesised ones.
+    pub fn is_captured(self) -> bool {
+        matches!(self, Source::Real | Source::Simulated)
+    }
+
+    /// The source of frames captured by a sensor that is simulated or not.
+    pub fn captured(simulated: bool) -> Self {
+        if simulated { Source::Simulated } else { Source::Real }
+    }
 }
 
 impl std::fmt::Display for Source {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
             Source::Real => "real",
+            Source::Simulated => "simulated",
             Source::Synthetic => "synthetic",
         })
     }
@@ -190,15 +213,22 @@ impl PoseRow {
         }
     }
 
-    /// A captured row: commanded and measured work-frame poses and the capture time.
+    /// A row captured by a physical sensor: commanded and measured work-frame poses and the
+    /// capture time.
     pub fn real(pose_id: u32, commanded: Pose, measured: Pose, t_capture_s: f64) -> Self {
+        Self::captured(pose_id, commanded, measured, t_capture_s, Source::Real)
+    }
+
+    /// A captured row of `source` (`real` or `simulated`): commanded and measured work-frame
+    /// poses and the capture time.
+    pub fn captured(pose_id: u32, commanded: Pose, measured: Pose, t_capture_s: f64, source: Source) -> Self {
         Self {
             meas_x_mm: Some(measured.x_mm),
             meas_y_mm: Some(measured.y_mm),
             meas_z_mm: Some(measured.z_mm),
             meas_yaw_deg: Some(measured.yaw_deg),
             t_capture_s: Some(t_capture_s),
-            ..Self::commanded_only(pose_id, commanded, Source::Real)
+            ..Self::commanded_only(pose_id, commanded, source)
         }
     }
 

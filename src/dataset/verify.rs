@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_regular};
 use super::writer::{image_file_pose_id, is_temp_name};
-use super::{DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, parse_csv};
+use super::{CaptureChain, DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, Source, parse_csv};
 
 /// One problem found by [`verify`].
 #[derive(Debug, Clone, PartialEq)]
@@ -72,9 +72,12 @@ pub struct VerifyReport {
     pub rows: usize,
     /// Files named `<pose_id>.png` in `images/`.
     pub images: usize,
-    /// Rows of source `real` / `synthetic`.
+    /// Rows of source `real` / `simulated` / `synthetic`.
     pub real: usize,
+    pub simulated: usize,
     pub synthetic: usize,
+    /// What the manifest says captured the frames.
+    pub capture: CaptureNote,
     pub missing: usize,
     pub orphan: usize,
     pub duplicated: usize,
@@ -89,7 +92,55 @@ pub struct VerifyReport {
     pub issues: Vec<VerifyIssue>,
 }
 
+/// The manifest's capture chain as [`verify`] found it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum CaptureNote {
+    /// The manifest is missing or unreadable (reported as an issue).
+    #[default]
+    Unknown,
+    /// The manifest names what captured the frames.
+    Recorded(CaptureChain),
+    /// The manifest has no capture chain: it predates the field (or no rig captured this
+    /// dataset: synthesised or imported). Not an issue; old datasets stay clean.
+    Absent,
+}
+
+impl fmt::Display for CaptureNote {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CaptureNote::Unknown => write!(f, "capture: unknown (no readable manifest)"),
+            CaptureNote::Absent => write!(f, "capture: not recorded (the manifest predates the field, or no rig captured this dataset)"),
+            CaptureNote::Recorded(chain) => {
+                let parts: Vec<String> = std::iter::once(&chain.arm)
+                    .chain(&chain.sensors)
+                    .chain(&chain.modbus)
+                    .map(|p| {
+                        let mut s = format!("{} {}", p.name, p.backend);
+                        if let Some(address) = &p.address {
+                            s.push_str(&format!(" at {address}"));
+                        }
+                        if p.simulated {
+                            s.push_str(" (simulated)");
+                        }
+                        s
+                    })
+                    .collect();
+                write!(f, "capture: {}", parts.join(", "))
+            }
+        }
+    }
+}
+
 impl VerifyReport {
+    /// Rows of `source`.
+    pub fn count(&self, source: Source) -> usize {
+        match source {
+            Source::Real => self.real,
+            Source::Simulated => self.simulated,
+            Source::Synthetic => self.synthetic,
+        }
+    }
+
     /// True when nothing is wrong (a missing `reference.png` is allowed: synthetic-only
     /// datasets have none).
     pub fn is_clean(&self) -> bool {
@@ -101,13 +152,15 @@ impl fmt::Display for VerifyReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "rows {} ({} real, {} synthetic), images {}, reference.png {}",
+            "rows {} ({} real, {} simulated, {} synthetic), images {}, reference.png {}",
             self.rows,
             self.real,
+            self.simulated,
             self.synthetic,
             self.images,
             if self.has_reference { "present" } else { "absent" }
         )?;
+        writeln!(f, "{}", self.capture)?;
         writeln!(
             f,
             "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}, bad images {}, not regular files {}",
@@ -133,11 +186,10 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
 
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
-        Ok(true) => {
-            if let Err(e) = Manifest::load(dir) {
-                report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() });
-            }
-        }
+        Ok(true) => match Manifest::load(dir) {
+            Ok(m) => report.capture = m.capture.map_or(CaptureNote::Absent, CaptureNote::Recorded),
+            Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
+        },
         Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
     }
     // The dataset's image size: the reference frame's, else the first image's.
@@ -162,8 +214,9 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
             Ok(row) => {
                 report.rows += 1;
                 match row.source {
-                    super::Source::Real => report.real += 1,
-                    super::Source::Synthetic => report.synthetic += 1,
+                    Source::Real => report.real += 1,
+                    Source::Simulated => report.simulated += 1,
+                    Source::Synthetic => report.synthetic += 1,
                 }
                 if let Some(&first) = first_line.get(&row.pose_id) {
                     report.duplicated += 1;

@@ -10,7 +10,7 @@ use image::RgbImage;
 use super::error::EvalError;
 use super::pairing::{DatasetInfo, load_at, same_pose};
 use crate::calibration::model::Calibration;
-use crate::dataset::{REFERENCE_FILE, Source};
+use crate::dataset::REFERENCE_FILE;
 use crate::imaging::MeanImage;
 use crate::pose::Pose;
 
@@ -99,7 +99,7 @@ impl Collected {
             references.push(load_at(&d.dir.join(REFERENCE_FILE), size).ok());
             let (object, sensor) = d.key();
             let entry = by_sensor.entry(sensor).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
-            for r in d.rows_of(Source::Real) {
+            for r in d.captured_rows() {
                 entry.poses.push(CollectedPose { object: object.clone(), pose: r.commanded(), path: d.dir.join(&r.image), dataset: index });
             }
         }

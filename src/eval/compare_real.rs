@@ -2,7 +2,9 @@
 //! baseline. `rig compare-real` runs it on the MultiDiffSense example with the sensor
 //! simulator as the renderer.
 //!
-//! - [`RealSample`]: the real frames per sensor, their poses from the MDS pose log (read by
+//! - [`RealSample`]: one object of a MultiDiffSense-layout folder ([`RealSample::object_ids`]
+//!   lists them; any number of objects and of frames): the real frames per sensor, their poses
+//!   from the MDS pose log (read by
 //!   [`crate::dataset::export`], whose docs fix the depth convention: indentation =
 //!   [`MDS_CONTACT_DEPTH_MM`] minus the logged z) and the object's mesh.
 //! - [`compare_sensor`] renders each frame's pose through a calibration with a [`Renderer`]
@@ -38,8 +40,8 @@ use crate::sensor::SensorKind;
 pub const FOOTPRINT_MARGIN_PX: u32 = 16;
 /// Summed |RGB| difference from the no-contact look that makes a pixel part of the contact region.
 pub const CONTACT_THRESHOLD: u32 = 60;
-/// Frames compared (the sample holds 0-5; 6-10 are held back upstream).
-pub const FRAMES: std::ops::RangeInclusive<usize> = 0..=5;
+/// Most frames read per object and sensor (the per-pixel statistics hold them all in memory).
+pub const MAX_FRAMES_PER_SENSOR: usize = 1000;
 /// Frames smaller than this on a side are refused.
 const MIN_SIDE_PX: u32 = 16;
 
@@ -62,8 +64,18 @@ pub enum CompareRealError {
     FrameSize { path: PathBuf, width: u32, height: u32, expected_width: u32, expected_height: u32 },
     #[error("{path}: {width}x{height} is too small to compare")]
     TooSmall { path: PathBuf, width: u32, height: u32 },
-    #[error("no pose row for frame {index}")]
+    #[error("no pose row for frame {index} (its image is there, the pose log has no frame_{index}_0.png)")]
     NoPose { index: usize },
+    #[error("{dir}: no object found (a MultiDiffSense-layout folder has csv/<id>.csv and stl/<id>.stl for each object)")]
+    NoObjects { dir: PathBuf },
+    #[error("{dir}: more than {max} frames; compare fewer at a time")]
+    TooManyFrames { dir: PathBuf, max: usize },
+    #[error("listing {path}: {source}")]
+    ReadDir {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{sensor}: need at least two real frames, have {frames}")]
     TooFewFrames { sensor: &'static str, frames: usize },
     #[error(transparent)]
@@ -82,9 +94,12 @@ pub enum CompareRealError {
     },
 }
 
-/// The real sample: the object, the pose log and the frames (MultiDiffSense's layout:
-/// `stl/1.stl`, `csv/1.csv`, `tactile/1/<Sensor>/target/1_<Sensor>_<i>.png`).
+/// One object of a real sample: the object, the pose log and the frames (MultiDiffSense's
+/// layout: `stl/<id>.stl`, `csv/<id>.csv`, `tactile/<id>/<Sensor>/target/<id>_<Sensor>_<i>.png`
+/// for any frame indices `i`).
 pub struct RealSample {
+    /// The object id (`1`): the stem of its CSV and STL files.
+    pub object: String,
     pub mesh: Mesh,
     /// The pose log's rows by image index.
     pub rows: BTreeMap<usize, MdsRow>,
@@ -93,10 +108,34 @@ pub struct RealSample {
 }
 
 impl RealSample {
-    /// Loads the sample folder (object 1, frames [`FRAMES`]; a missing frame is skipped).
+    /// The object ids of a MultiDiffSense-layout folder: the stems of `csv/<id>.csv` that have
+    /// an `stl/<id>.stl`, in order (numerically when both are numbers).
+    pub fn object_ids(dir: &Path) -> Result<Vec<String>, CompareRealError> {
+        let csv_dir = dir.join("csv");
+        let mut ids: Vec<String> = list_dir(&csv_dir)?
+            .into_iter()
+            .filter_map(|name| name.strip_suffix(".csv").map(str::to_string))
+            .filter(|id| !id.is_empty() && !id.starts_with('.') && dir.join("stl").join(format!("{id}.stl")).is_file())
+            .collect();
+        ids.sort_by(|a, b| match (a.parse::<u64>(), b.parse::<u64>()) {
+            (Ok(x), Ok(y)) => x.cmp(&y),
+            _ => a.cmp(b),
+        });
+        Ok(ids)
+    }
+
+    /// Loads the first object of the folder ([`Self::object_ids`]).
     pub fn load(dir: &Path) -> Result<Self, CompareRealError> {
-        let mesh = Mesh::load(dir.join("stl/1.stl"))?;
-        let csv = dir.join("csv/1.csv");
+        let ids = Self::object_ids(dir)?;
+        let id = ids.first().ok_or_else(|| CompareRealError::NoObjects { dir: dir.to_path_buf() })?;
+        Self::load_object(dir, id)
+    }
+
+    /// Loads object `id` of the folder: every frame `tactile/<id>/<Sensor>/target/<id>_<Sensor>_<i>.png`
+    /// there is, for each sensor (a sensor without a folder has no frames).
+    pub fn load_object(dir: &Path, id: &str) -> Result<Self, CompareRealError> {
+        let mesh = Mesh::load(dir.join(format!("stl/{id}.stl")))?;
+        let csv = dir.join(format!("csv/{id}.csv"));
         let mut rows = BTreeMap::new();
         for row in import_mds(&csv)? {
             let index = row.frame_index().ok_or_else(|| CompareRealError::FrameName { path: csv.clone(), name: row.image_name.clone() })?;
@@ -105,13 +144,24 @@ impl RealSample {
         let mut frames = BTreeMap::new();
         for sensor in SensorKind::ALL {
             let name = sensor.label();
+            let target = dir.join(format!("tactile/{id}/{name}/target"));
+            let prefix = format!("{id}_{name}_");
+            let mut indices: Vec<usize> = if target.is_dir() {
+                list_dir(&target)?.iter().filter_map(|f| f.strip_prefix(&prefix)?.strip_suffix(".png")?.parse::<usize>().ok()).collect()
+            } else {
+                Vec::new()
+            };
+            indices.sort_unstable();
+            indices.dedup();
+            if indices.len() > MAX_FRAMES_PER_SENSOR {
+                return Err(CompareRealError::TooManyFrames { dir: target, max: MAX_FRAMES_PER_SENSOR });
+            }
             let mut list: Vec<(usize, RgbImage)> = Vec::new();
-            for i in FRAMES {
-                let path = dir.join(format!("tactile/1/{name}/target/1_{name}_{i}.png"));
-                if !path.is_file() {
-                    continue;
-                }
-                let img = image::open(&path).map_err(|source| CompareRealError::Image { path: path.clone(), source })?.to_rgb8();
+            for i in indices {
+                let path = target.join(format!("{prefix}{i}.png"));
+                let bytes = crate::dataset::durable::read_regular(&path, crate::dataset::durable::MAX_IMAGE_BYTES)?;
+                let img =
+                    image::load_from_memory(&bytes).map_err(|source| CompareRealError::Image { path: path.clone(), source })?.to_rgb8();
                 // The per-pixel statistics need one size per sensor.
                 if let Some((_, first)) = list.first()
                     && first.dimensions() != img.dimensions()
@@ -131,7 +181,7 @@ impl RealSample {
             }
             frames.insert(sensor, list);
         }
-        Ok(Self { mesh, rows, frames })
+        Ok(Self { object: id.to_string(), mesh, rows, frames })
     }
 
     /// The frames of `sensor` (image index, image), in index order.
@@ -151,7 +201,7 @@ impl RealSample {
         self.rows.get(&index).map(|r| r.render_pose(MDS_CONTACT_DEPTH_MM)).ok_or(CompareRealError::NoPose { index })
     }
 
-    /// The frames of `sensor` named as on disk (`1_<Sensor>_<i>.png`) with their pose:
+    /// The frames of `sensor` named as on disk (`<id>_<Sensor>_<i>.png`) with their pose:
     /// `pose_of` is [`Self::work_pose`] or [`Self::render_pose`].
     pub fn posed_frames(
         &self,
@@ -160,7 +210,7 @@ impl RealSample {
     ) -> Result<Vec<(String, Pose, RgbImage)>, CompareRealError> {
         self.frames_of(sensor)
             .iter()
-            .map(|(i, img)| Ok((format!("1_{}_{i}.png", sensor.label()), pose_of(self, *i)?, img.clone())))
+            .map(|(i, img)| Ok((format!("{}_{}_{i}.png", self.object, sensor.label()), pose_of(self, *i)?, img.clone())))
             .collect()
     }
 }
@@ -250,13 +300,27 @@ pub fn compare_sensor(
             sim_contact: sim.as_ref().and_then(masked),
         });
         if let Some(dir) = &options.panels {
-            save(&panel(real, &baseline, &footprints[k], &mask, sim.as_ref()), &dir.join(format!("{sensor}_{index}.png")))?;
+            let name = format!("{}_{sensor}_{index}.png", sample.object);
+            save(&panel(real, &baseline, &footprints[k], &mask, sim.as_ref()), &dir.join(name))?;
         }
     }
     if let Some(dir) = &options.panels {
-        save(&no_contact, &dir.join(format!("{sensor}_no_contact.png")))?;
+        save(&no_contact, &dir.join(format!("{}_{sensor}_no_contact.png", sample.object)))?;
     }
     Ok(scores)
+}
+
+/// The names of the entries of `dir`, sorted (names that are not UTF-8 are left out).
+fn list_dir(dir: &Path) -> Result<Vec<String>, CompareRealError> {
+    let err = |source| CompareRealError::ReadDir { path: dir.to_path_buf(), source };
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(err)? {
+        if let Ok(name) = entry.map_err(err)?.file_name().into_string() {
+            names.push(name);
+        }
+    }
+    names.sort();
+    Ok(names)
 }
 
 fn save(image: &RgbImage, path: &Path) -> Result<(), CompareRealError> {

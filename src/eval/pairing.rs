@@ -46,6 +46,12 @@ impl DatasetInfo {
     pub fn rows_of(&self, source: Source) -> impl Iterator<Item = &PoseRow> {
         self.rows.iter().filter(move |r| r.source == source)
     }
+
+    /// The captured rows: `real` and `simulated` (a simulated rig's frames stand on the
+    /// measured side like a real rig's).
+    pub fn captured_rows(&self) -> impl Iterator<Item = &PoseRow> {
+        self.rows.iter().filter(|r| r.source.is_captured())
+    }
 }
 
 /// Datasets under `root` keyed by (object, sensor); a key twice is an error.
@@ -121,12 +127,12 @@ pub(super) struct RowPairs<'a> {
     pub unpaired_synthetic: Vec<&'a PoseRow>,
 }
 
-/// Pairs the `source=real` rows of `real` with the `source=synthetic` rows of `synthetic`.
+/// Pairs the captured (`source=real` or `simulated`) rows of `real` with the `source=synthetic` rows of `synthetic`.
 pub(super) fn pair_rows<'a>(real: &'a DatasetInfo, synthetic: &'a DatasetInfo) -> RowPairs<'a> {
     let synthetic_rows: Vec<&PoseRow> = synthetic.rows_of(Source::Synthetic).collect();
     let mut used = vec![false; synthetic_rows.len()];
     let (mut twins, mut unpaired_real) = (Vec::new(), Vec::new());
-    for row in real.rows_of(Source::Real) {
+    for row in real.captured_rows() {
         let pose = row.commanded();
         match synthetic_rows.iter().enumerate().find(|(i, t)| !used[*i] && same_pose(&t.commanded(), &pose)) {
             Some((i, twin)) => {

@@ -124,7 +124,7 @@ fn judge_datasets(
         let (object, sensor) = key;
         let Some(s) = sides.synthetic.get(key) else {
             counts.unmatched_datasets.push(format!("real {} ({object}/{sensor})", r.dir.display()));
-            counts.unpaired_real += r.rows_of(Source::Real).count();
+            counts.unpaired_real += r.captured_rows().count();
             continue;
         };
         matched += 1;

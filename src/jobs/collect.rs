@@ -22,10 +22,10 @@ use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::collect::{CollectJob, CollectSummary, SensorStream, check_plan};
-use crate::config::{CollectConfig, RigConfig};
-use crate::dataset::{DatasetWriter, Manifest, ObjectInfo};
+use crate::config::{ArmBackend, CollectConfig, RigConfig};
+use crate::dataset::{CaptureChain, CapturePart, DatasetWriter, Manifest, ObjectInfo, Source};
 use crate::geometry::objects::ObjectChoice;
-use crate::io::modbus::Peripherals;
+use crate::io::modbus::{ModbusTransport, Peripherals};
 use crate::plan::{Plan, PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
 use crate::sensor::{SensorKind, SensorSet};
@@ -145,6 +145,8 @@ impl CollectRequest {
             out: self.out.clone(),
             resume: self.resume,
             disk_budget_bytes: config.faults.disk_budget_bytes,
+            arm: arm_part(config),
+            modbus: modbus_parts(config),
         };
         Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, grid_len: spec.grid_len(), profile })
     }
@@ -180,6 +182,10 @@ pub struct CollectSetup {
     pub resume: bool,
     /// Injected disk-full fault (`[sim.faults] disk_budget_bytes`).
     pub disk_budget_bytes: Option<u64>,
+    /// The arm, as the manifests' capture chain names it.
+    pub arm: CapturePart,
+    /// The Modbus peripherals, as the manifests' capture chain names them.
+    pub modbus: Vec<CapturePart>,
 }
 
 impl CollectSetup {
@@ -188,14 +194,42 @@ impl CollectSetup {
         self.out.join(&self.object.name).join(sensor.name())
     }
 
-    /// The manifest a new dataset of `sensor` starts with.
-    fn manifest(&self, sensor: SensorKind, calibration: &str) -> Manifest {
+    /// The manifest a new dataset of `sensor` starts with; `sensors` are the capture parts of
+    /// every sensor of the run.
+    fn manifest(&self, sensor: SensorKind, calibration: &str, sensors: &[CapturePart]) -> Manifest {
         let mut manifest = Manifest::new(sensor, self.object.clone(), Some(self.plan_spec.clone()));
         manifest.calibration = Some(calibration.to_string());
         manifest.firmware_profile = Some(self.profile_name.clone());
         manifest.work_frame = Some(self.work_frame);
+        manifest.capture = Some(CaptureChain { arm: self.arm.clone(), sensors: sensors.to_vec(), modbus: self.modbus.clone() });
         manifest
     }
+}
+
+/// The arm of `config` as a capture part (`arm`: `sim-mg400`, `mg400` at its host, `magician`
+/// on its serial port).
+pub fn arm_part(config: &RigConfig) -> CapturePart {
+    match &config.arm.backend {
+        ArmBackend::Simulated { .. } => CapturePart::new("arm", "sim-mg400", true, None),
+        ArmBackend::Mg400 { host, dashboard_port, .. } => CapturePart::new("arm", "mg400", false, Some(format!("{host}:{dashboard_port}"))),
+        ArmBackend::Magician { serial_port } => CapturePart::new("arm", "magician", false, Some(serial_port.display().to_string())),
+    }
+}
+
+/// The Modbus peripherals of `config` as capture parts (`modbus.<name>`), in name order.
+pub fn modbus_parts(config: &RigConfig) -> Vec<CapturePart> {
+    config
+        .modbus
+        .iter()
+        .map(|(name, p)| {
+            let name = format!("modbus.{name}");
+            match &p.transport {
+                ModbusTransport::Tcp { address } => CapturePart::new(name, "tcp", false, Some(address.clone())),
+                ModbusTransport::Rtu { device, .. } => CapturePart::new(name, "rtu", false, Some(device.display().to_string())),
+                ModbusTransport::Sim { .. } => CapturePart::new(name, "sim", true, None),
+            }
+        })
+        .collect()
 }
 
 /// One camera of a collection and the sensor whose dataset it fills.
@@ -204,6 +238,9 @@ pub struct SensorFeed<C> {
     pub sensor: SensorKind,
     /// The calibration it renders or was fitted with (named in the manifest).
     pub calibration: String,
+    /// The camera as the manifest's capture chain names it; its `simulated` flag decides the
+    /// rows' source (`simulated` or `real`).
+    pub capture: CapturePart,
 }
 
 /// How a collection ended when it did not fail.
@@ -250,13 +287,15 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
 ) -> Result<CollectOutcome, JobError> {
     let mut sensors = Vec::new();
     let mut datasets = Vec::new();
+    let parts: Vec<CapturePart> = cameras.iter().map(|f| f.capture.clone()).collect();
     for feed in cameras {
         let dir = setup.dataset_dir(feed.sensor);
-        let manifest = setup.manifest(feed.sensor, &feed.calibration);
+        let manifest = setup.manifest(feed.sensor, &feed.calibration, &parts);
         let writer = DatasetWriter::start(&dir, manifest, setup.resume)
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
             .with_byte_budget(setup.disk_budget_bytes);
-        sensors.push(SensorStream { camera: feed.camera, writer });
+        let source = Source::captured(feed.capture.simulated);
+        sensors.push(SensorStream { camera: feed.camera, writer, source });
         datasets.push(dir);
     }
     let job = CollectJob {

@@ -2,7 +2,7 @@
 //! daemon `synth` job are asked) and [`run`], its one runner.
 //!
 //! Two modes share the request: **fill** (every planned pose a dataset lacks, into the dataset
-//! or a shard's own `out`) and **twins** (`poses_of`: exactly the real poses of a test set,
+//! or a shard's own `out`) and **twins** (`poses_of`: exactly the captured poses of a test set,
 //! into `out`, for `rig eval`). [`FillRequest::targets`] checks the request and lists the
 //! datasets before a model is loaded; [`run`] works through them with a loaded
 //! [`Pipeline`], reporting each pose to the caller and stopping at the observer's cancel.
@@ -181,8 +181,8 @@ impl FillRequest {
         for t in self.targets()? {
             if self.twins() {
                 let rows = crate::dataset::read_rows(&t.dataset).map_err(|source| JobError::Dataset { dir: t.dataset.clone(), source })?;
-                let real = rows.iter().filter(|r| r.source == crate::dataset::Source::Real).count();
-                lines.push(format!("{}: {real} real poses to synthesise into {}", t.dataset.display(), t.written().display()));
+                let captured = rows.iter().filter(|r| r.source.is_captured()).count();
+                lines.push(format!("{}: {captured} captured poses to synthesise into {}", t.dataset.display(), t.written().display()));
             } else {
                 let work = missing_poses(&t.dataset, t.out.as_deref(), shard).map_err(JobError::fill("reading", &t.dataset))?;
                 lines.push(format!(
@@ -249,7 +249,7 @@ impl FillReport {
                 left(s.left)
             ),
             FillDone::Twins(s) => format!(
-                "{}: synthesised {} poses in {:.1} s ({} real poses in {}, {} were present{})",
+                "{}: synthesised {} poses in {:.1} s ({} captured poses in {}, {} were present{})",
                 self.target.written().display(),
                 s.synthesised,
                 self.elapsed_s,

@@ -10,6 +10,7 @@ use std::time::Duration;
 use super::collect::{CollectSetup, SensorFeed};
 use super::{JobError, Observer};
 use crate::collect::CollectSummary;
+use crate::dataset::CapturePart;
 use crate::record::replay::{ReplayError, ReplayRig};
 use crate::record::{Recording, RecordingHeader};
 
@@ -36,6 +37,9 @@ pub fn setup_of(header: &RecordingHeader, out: &Path) -> CollectSetup {
         out: out.to_path_buf(),
         resume: false,
         disk_budget_bytes: None,
+        // A recording from before the capture chain was recorded names no arm.
+        arm: header.capture_arm.clone().unwrap_or_else(|| CapturePart::new("arm", "unrecorded", false, None)),
+        modbus: header.capture_modbus.clone(),
     }
 }
 
@@ -49,7 +53,12 @@ pub async fn run(recording: &Recording, out: &Path, stall_after: Duration) -> Re
     let feeds: Vec<_> = std::mem::take(&mut rig.cameras)
         .into_iter()
         .zip(&h.sensors)
-        .map(|(camera, s)| SensorFeed { camera, sensor: s.sensor_dir, calibration: s.calibration.clone() })
+        .map(|(camera, s)| SensorFeed {
+            camera,
+            sensor: s.sensor_dir,
+            calibration: s.calibration.clone(),
+            capture: s.capture.clone().unwrap_or_else(|| CapturePart::new(s.sensor_dir.to_string(), "unrecorded", false, None)),
+        })
         .collect();
     let result = super::collect::run(
         &setup,

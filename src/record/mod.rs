@@ -82,6 +82,10 @@ pub struct RecordedSensor {
     pub sensor_dir: crate::sensor::SensorKind,
     /// Calibration named in the manifest.
     pub calibration: String,
+    /// The camera as the manifest's capture chain names it; absent in recordings made before
+    /// rig recorded it (their rows replay as `real`, as they were written then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capture: Option<crate::dataset::CapturePart>,
 }
 
 /// Everything a replay needs besides the events: what `rig collect` was asked and resolved.
@@ -102,6 +106,12 @@ pub struct RecordingHeader {
     pub collect: CollectConfig,
     pub profile: FirmwareProfile,
     pub speed_factor_pct: u8,
+    /// The arm and the Modbus peripherals as the manifests' capture chain names them; absent
+    /// in recordings made before rig recorded them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capture_arm: Option<crate::dataset::CapturePart>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub capture_modbus: Vec<crate::dataset::CapturePart>,
 }
 
 /// A decoded recording: header and events.
@@ -614,6 +624,7 @@ mod tests {
                 camera: "tactip".into(),
                 sensor_dir: crate::sensor::SensorKind::TacTip,
                 calibration: "default".into(),
+                capture: None,
             }],
             seed: 1,
             plan_spec: PlanSpec::default(),
@@ -622,6 +633,8 @@ mod tests {
             collect: CollectConfig::default(),
             profile: FirmwareProfile::default_mg400(),
             speed_factor_pct: 100,
+            capture_arm: None,
+            capture_modbus: Vec::new(),
         }
     }
 
@@ -670,8 +683,12 @@ mod tests {
     #[test]
     fn a_summary_counts_every_kind_of_event() {
         let mut h = header();
-        h.sensors =
-            vec![RecordedSensor { camera: "cam".into(), sensor_dir: crate::sensor::SensorKind::TacTip, calibration: "default".into() }];
+        h.sensors = vec![RecordedSensor {
+            camera: "cam".into(),
+            sensor_dir: crate::sensor::SensorKind::TacTip,
+            calibration: "default".into(),
+            capture: None,
+        }];
         let socket = |socket, direction, bytes: &[u8]| Event::Socket { socket, direction, t_s: 1.0, bytes: bytes.to_vec() };
         let frame = RecordedFrame { camera: 0, t_s: 2.0, t_capture_s: 1.9, seq: 1, width: 1, height: 1, rgb: vec![0; 3] };
         let events = vec![

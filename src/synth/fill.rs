@@ -316,7 +316,7 @@ pub fn fill_missing_observed(
 /// What `rig synth --poses-of` did for one dataset.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct PosesOfSummary {
-    /// Rows of the source with `source=real`: the poses to twin.
+    /// Captured rows of the source (`source=real` or `simulated`): the poses to twin.
     pub real: usize,
     /// Of those, poses the output already had (a resumed run).
     pub present: usize,
@@ -337,7 +337,7 @@ pub enum TwinSize {
     Source,
 }
 
-/// Synthesises exactly the poses of `source`'s real rows into the dataset `out` (created with
+/// Synthesises exactly the poses of `source`'s captured rows (real or simulated) into the dataset `out` (created with
 /// `source`'s manifest: object, sensor, calibration, plan, work frame; its `reference.png` is
 /// copied, at `size`), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
 /// `rig eval`. Seeds are [`pose_seed`]`(plan seed, pose_id)` as in [`fill_missing`], so a pose
@@ -361,7 +361,7 @@ pub fn synthesise_poses_of(
     let dir = source.to_path_buf();
     let real: Vec<PlannedPose> = read_rows(source)?
         .iter()
-        .filter(|r| r.source == crate::dataset::Source::Real)
+        .filter(|r| r.source.is_captured())
         .map(|r| PlannedPose { pose_id: r.pose_id, pose: r.commanded() })
         .collect();
     let manifest = Manifest {
@@ -369,6 +369,8 @@ pub fn synthesise_poses_of(
         resumed_utc: Vec::new(),
         ended_utc: None,
         rig_version: crate::version().to_string(),
+        // The twins are synthesised: no sensor captured them.
+        capture: None,
         ..source_manifest.clone()
     };
     let mut writer = DatasetWriter::resume(out, manifest)?;

@@ -6,7 +6,7 @@ use std::process::Command;
 
 use image::RgbImage;
 use proptest::prelude::*;
-use rig::dataset::{DatasetError, DatasetWriter, Manifest, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify};
+use rig::dataset::{DatasetError, DatasetWriter, Manifest, MergeOptions, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify};
 use rig::plan::PlanSpec;
 use rig::pose::Pose;
 
@@ -78,13 +78,13 @@ fn merge_joins_shards_and_refuses_conflicts() {
     let a = shard("a", &[0, 2, 4]);
     let b = shard("b", &[1, 3, 4]); // 4 is in both, identical
     let out = tmp.path().join("out");
-    let report = merge(&[a.clone(), b.clone()], &out).expect("merge");
+    let report = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merge");
     assert_eq!((report.appended, report.already_present), (5, 1));
     let ids: Vec<u32> = read_rows(&out).expect("rows").iter().map(|r| r.pose_id).collect();
     assert_eq!(ids, vec![0, 1, 2, 3, 4]);
     assert!(verify(&out).expect("verify").is_clean());
     // Merging again adds nothing.
-    let again = merge(&[a.clone(), b], &out).expect("merge again");
+    let again = merge(&[a.clone(), b], &out, MergeOptions::default()).expect("merge again");
     assert_eq!((again.appended, again.already_present), (0, 6));
 
     // A shard whose row 2 differs (another seed) conflicts; nothing is written.
@@ -93,7 +93,7 @@ fn merge_joins_shards_and_refuses_conflicts() {
     w.append(synth_row(2, 77), &img(2)).expect("append");
     w.append(synth_row(5, 5), &img(5)).expect("append");
     w.finish().expect("finish");
-    let err = merge(&[c], &out).unwrap_err();
+    let err = merge(&[c], &out, MergeOptions::default()).unwrap_err();
     assert!(matches!(err, DatasetError::MergeConflict { pose_id: 2, .. }), "{err}");
     assert_eq!(read_rows(&out).expect("rows").len(), 5);
 
@@ -102,7 +102,7 @@ fn merge_joins_shards_and_refuses_conflicts() {
     let mut m = manifest();
     m.sensor = rig::sensor::SensorKind::TacTip;
     DatasetWriter::create(&d, m).expect("create").finish().expect("finish");
-    let err = merge(&[a, d], &tmp.path().join("out2")).unwrap_err();
+    let err = merge(&[a, d], &tmp.path().join("out2"), MergeOptions::default()).unwrap_err();
     assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
 }
 

@@ -120,12 +120,108 @@ fn compare_real_prints_baseline_per_sensor() {
     for sensor in ["TacTip", "ViTac", "ViTacTip"] {
         let line = text
             .lines()
-            .find(|l| l.starts_with(sensor) && l.contains("mean"))
+            .find(|l| l.split_whitespace().nth(1) == Some(sensor) && l.contains("mean"))
             .unwrap_or_else(|| panic!("no mean line for {sensor}: {text}"));
         let nums: Vec<f64> = line.split_whitespace().filter_map(|w| w.parse().ok()).collect();
-        // contact%, fp-IoU, base whole, base contact (simulator columns may be n/a).
-        assert!(nums.len() >= 4, "{line}");
+        // object id, contact%, fp-IoU, base whole, base contact (simulator columns may be n/a).
+        assert!(nums.len() >= 5, "{line}");
         assert!(nums.iter().all(|v| v.is_finite()), "{line}");
     }
-    assert!(dir.path().join("vitac_0.png").is_file());
+    assert!(dir.path().join("1_vitac_0.png").is_file());
+}
+
+/// The frame indices of the `rig compare-real` lines of `object` and `sensor`, and whether a
+/// mean line follows them.
+fn compared_frames(text: &str, object: &str, sensor: &str) -> (Vec<usize>, bool) {
+    let lines: Vec<Vec<&str>> = text
+        .lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|w| w.len() > 3 && w[0] == object && w[1] == sensor)
+        .collect();
+    let frames = lines.iter().filter_map(|w| w[2].parse().ok()).collect();
+    (frames, lines.iter().any(|w| w[2] == "mean"))
+}
+
+#[test]
+fn compare_real_reads_any_number_of_frames_and_objects() {
+    let sample = shared().join("real-sample/multidiffsense-example");
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("mds");
+    // Object 1: 11 frames per sensor (the sample's 11 pose rows; its images reused under the
+    // missing indices). Object 2: three TacTip frames, no other sensor.
+    for (object, sensors, frames) in [("1", &["TacTip", "ViTac", "ViTacTip"][..], 11), ("2", &["TacTip"][..], 3)] {
+        std::fs::create_dir_all(dir.join("csv")).unwrap();
+        std::fs::create_dir_all(dir.join("stl")).unwrap();
+        std::fs::copy(sample.join("csv/1.csv"), dir.join(format!("csv/{object}.csv"))).unwrap();
+        std::fs::copy(sample.join("stl/1.stl"), dir.join(format!("stl/{object}.stl"))).unwrap();
+        for sensor in sensors {
+            let from = sample.join(format!("tactile/1/{sensor}/target"));
+            let mut have: Vec<PathBuf> = std::fs::read_dir(&from).unwrap().map(|e| e.unwrap().path()).collect();
+            have.sort();
+            assert!(!have.is_empty(), "{}", from.display());
+            let to = dir.join(format!("tactile/{object}/{sensor}/target"));
+            std::fs::create_dir_all(&to).unwrap();
+            for i in 0..frames {
+                std::fs::copy(&have[i % have.len()], to.join(format!("{object}_{sensor}_{i}.png"))).unwrap();
+            }
+        }
+    }
+    let (ok, text) = run(rig().args(["compare-real", "--sample"]).arg(&dir));
+    assert!(ok, "{text}");
+    for sensor in ["TacTip", "ViTac", "ViTacTip"] {
+        assert_eq!(compared_frames(&text, "1", sensor), ((0..11).collect(), true), "object 1 {sensor}:\n{text}");
+    }
+    assert_eq!(compared_frames(&text, "2", "TacTip"), ((0..3).collect(), true), "{text}");
+    assert!(text.contains("skipped object 2 ViTac: 0 frame(s), need two"), "{text}");
+
+    // A folder with no object is bad input.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(empty.join("csv")).unwrap();
+    let out = rig().args(["compare-real", "--sample"]).arg(&empty).output().unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no object found"));
+}
+
+#[test]
+fn render_starts_from_a_measured_reference_frame() {
+    let reference = shared().join("real-sample/multidiffsense-example/tactile/1/TacTip/target/1_TacTip_0.png");
+    let dir = tempfile::tempdir().unwrap();
+    let render = |out: &Path, extra: &[&str]| {
+        run(rig()
+            .args(["render", "--object", "edge", "--pose", "0,0,1,0", "--sensor", "tactip", "--size", "512x512", "--out"])
+            .arg(out)
+            .args(extra))
+    };
+    let (with_ref, plain) = (dir.path().join("ref.png"), dir.path().join("plain.png"));
+    let (ok, text) = render(&with_ref, &["--reference", reference.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    let (ok, text) = render(&plain, &[]);
+    assert!(ok, "{text}");
+    // Mean |difference| per channel from the measured frame: the render that started from it
+    // keeps its look away from the contact; the modelled one does not.
+    let diff = |path: &Path| {
+        let (a, b) = (image::open(path).unwrap().to_rgb8(), image::open(&reference).unwrap().to_rgb8());
+        a.as_raw().iter().zip(b.as_raw()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>() / a.as_raw().len() as f64
+    };
+    let (d_ref, d_plain) = (diff(&with_ref), diff(&plain));
+    assert!(d_ref < 10.0 && d_ref * 2.0 < d_plain, "from the reference {d_ref:.1}, modelled {d_plain:.1}");
+
+    // A reference of another size, or for a view that is not a sensor, is bad input.
+    let out = rig()
+        .args(["render", "--object", "edge", "--pose", "0,0,1,0", "--sensor", "tactip", "--size", "256x256", "--out"])
+        .arg(dir.path().join("x.png"))
+        .arg("--reference")
+        .arg(&reference)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("512x512 px, the output is 256x256"));
+    let out = rig()
+        .args(["render", "--object", "edge", "--pose", "0,0,1,0", "--sensor", "depth", "--out"])
+        .arg(dir.path().join("y.png"))
+        .arg("--reference")
+        .arg(&reference)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
 }

@@ -19,4 +19,5 @@ mod hw_magician;
 mod hw_modbus;
 mod mg400_client;
 mod mg400_hardware;
+mod provenance;
 mod record_replay;
