@@ -102,31 +102,46 @@ fn control_image_and_depth16_of_a_render() {
     }
 }
 
+/// Moving the sensor by (dx, dy) at yaw moves the footprint by -(dx, dy) turned by -yaw,
+/// through the calibration's rotation and scale; its area is the box's, within pixelisation.
+fn footprint_check(dx: f64, dy: f64, yaw: f64, rot: f64, scale: f64, mirror: bool) -> Result<(), String> {
+    fn ensure(ok: bool, what: String) -> Result<(), String> {
+        if ok { Ok(()) } else { Err(what) }
+    }
+    let mesh = box_mesh(Vec3::new(-1.5, -1.0, 0.0), Vec3::new(1.5, 1.0, 4.0));
+    let calib = Calibration {
+        scale_px_per_mm: [scale, if mirror { -scale } else { scale }],
+        rotation_deg: rot,
+        ..Calibration::default_for(256, 256)
+    };
+    let d = render_depth(&mesh, &Pose::new(dx, dy, 0.5, yaw), &calib, 256, 256, 1);
+    let (_, contact, (cx, cy)) = footprint(&d);
+    // Pixel-centre sampling of a turned 3 x 2 mm rectangle: off by up to about half a pixel
+    // along its edges, which is over 10% of the area at the smallest scales.
+    let expected_area = 3.0 * 2.0 * scale * scale;
+    let edge_px = 2.0 * (3.0 + 2.0) * scale;
+    let tolerance = (0.1 * expected_area).max(0.5 * edge_px);
+    ensure((contact as f64 - expected_area).abs() < tolerance, format!("{} vs {} (tolerance {})", contact, expected_area, tolerance))?;
+    let (s, c) = (-yaw).to_radians().sin_cos();
+    let (ox, oy) = (-dx, -dy);
+    let (sx, sy) = (c * ox - s * oy, s * ox + c * oy);
+    let (ex, ey) = calib.mm_to_px(sx, sy);
+    ensure((cx - ex).abs() < 0.75 && (cy - ey).abs() < 0.75, format!("centroid ({}, {}) expected ({}, {})", cx, cy, ex, ey))?;
+    Ok(())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
-    /// Moving the sensor by (dx, dy) at yaw moves the footprint by -(dx, dy) turned by -yaw,
-    /// through the calibration's rotation and scale.
+    /// See [`footprint_check`].
     #[test]
     fn footprint_moves_with_the_pose(
         dx in -3.0f64..3.0, dy in -3.0f64..3.0, yaw in -180.0f64..180.0,
         rot in -90.0f64..90.0, scale in 6.0f64..12.0, mirror in any::<bool>(),
     ) {
-        let mesh = box_mesh(Vec3::new(-1.5, -1.0, 0.0), Vec3::new(1.5, 1.0, 4.0));
-        let calib = Calibration {
-            scale_px_per_mm: [scale, if mirror { -scale } else { scale }],
-            rotation_deg: rot,
-            ..Calibration::default_for(256, 256)
-        };
-        let d = render_depth(&mesh, &Pose::new(dx, dy, 0.5, yaw), &calib, 256, 256, 1);
-        let (_, contact, (cx, cy)) = footprint(&d);
-        let expected_area = 3.0 * 2.0 * scale * scale;
-        prop_assert!((contact as f64 - expected_area).abs() / expected_area < 0.1, "{} vs {}", contact, expected_area);
-        let (s, c) = (-yaw).to_radians().sin_cos();
-        let (ox, oy) = (-dx, -dy);
-        let (sx, sy) = (c * ox - s * oy, s * ox + c * oy);
-        let (ex, ey) = calib.mm_to_px(sx, sy);
-        prop_assert!((cx - ex).abs() < 0.75 && (cy - ey).abs() < 0.75, "centroid ({}, {}) expected ({}, {})", cx, cy, ex, ey);
+        if let Err(e) = footprint_check(dx, dy, yaw, rot, scale, mirror) {
+            prop_assert!(false, "{}", e);
+        }
     }
 
     #[test]
@@ -160,4 +175,11 @@ fn committed_calibrations_load_and_line_up_with_the_real_ridge() {
         assert_eq!(c.image_size, [512, 512]);
         assert!(c.fit.as_ref().is_some_and(|f| !f.residuals_px.is_empty()), "{sensor}: fit record");
     }
+}
+
+/// A case proptest found at the smallest scale, where the rectangle's edge pixels are more than
+/// 10% of its area (it failed the former 10% bound: 247 px against 222.7).
+#[test]
+fn footprint_at_the_smallest_scale() {
+    footprint_check(-0.0909, -2.7129, -37.705, -52.611, 6.093, true).expect("footprint");
 }
