@@ -36,7 +36,7 @@ use crate::sim::sensor::{Scene, Stage};
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
-    /// A MultiDiffSense-layout folder (csv/<id>.csv, stl/<id>.stl, tactile/<id>/<Sensor>/target/),
+    /// A MultiDiffSense-layout folder (`csv/<id>.csv`, `stl/<id>.stl`, `tactile/<id>/<Sensor>/target/`),
     /// any number of objects and frames; default: the MultiDiffSense example.
     #[arg(long, env = "RIG_REAL_SAMPLE")]
     pub sample: Option<PathBuf>,
