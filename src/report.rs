@@ -113,6 +113,10 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::dataset::DatasetError,
         crate::synth::SynthError,
         crate::synth::scheduler::SchedulerError,
+        crate::synth::limits::BadSetting,
+        crate::synth::settings::UnknownSampler,
+        crate::synth::settings::BadShard,
+        crate::jobs::RequestError,
         crate::synth::fill::FillError,
         crate::rigs::RigError,
         crate::io::modbus::ModbusError,
@@ -136,6 +140,27 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
 impl Classify for UsageError {
     fn exit(&self) -> Exit {
         Exit::BadInput
+    }
+}
+
+/// A setting out of its range, an unknown sampler, a shard not written `i/n`: the caller's.
+macro_rules! bad_input {
+    ($($t:ty),*) => {
+        $(impl Classify for $t {
+            fn exit(&self) -> Exit {
+                Exit::BadInput
+            }
+        })*
+    };
+}
+bad_input!(crate::synth::limits::BadSetting, crate::synth::settings::UnknownSampler, crate::synth::settings::BadShard);
+
+impl Classify for crate::jobs::RequestError {
+    fn exit(&self) -> Exit {
+        match self {
+            crate::jobs::RequestError::BadOption { .. } | crate::jobs::RequestError::Setting(_) => Exit::BadInput,
+            crate::jobs::RequestError::Path(e) => e.exit(),
+        }
     }
 }
 
@@ -290,7 +315,7 @@ impl Classify for crate::synth::fill::FillError {
         match self {
             F::Dataset(e) => e.exit(),
             F::Synth(e) => e.exit(),
-            F::NoPlan { .. } | F::Object { .. } | F::Calibration { .. } | F::BadShard { .. } => Exit::BadInput,
+            F::NoPlan { .. } | F::Object { .. } | F::Calibration { .. } => Exit::BadInput,
         }
     }
 }
@@ -508,6 +533,15 @@ mod tests {
         assert_eq!(Exit::of(&anyhow::Error::new(full)), Exit::Failure);
         assert_eq!(Exit::from_code(3), Some(Exit::HardwareFault));
         assert_eq!(Exit::from_code(9), None);
+        // A setting out of range, a bad shard or sampler, a refused request: bad input, bare
+        // or wrapped.
+        let size = crate::synth::limits::check_size("size", (100_000, 100_000), 8).expect_err("too large");
+        assert_eq!(Exit::of(&anyhow::Error::new(size.clone())), Exit::BadInput);
+        assert_eq!(Exit::of(&anyhow::Error::new(crate::jobs::RequestError::Setting(size)).context("checking")), Exit::BadInput);
+        let shard = "0/3".parse::<crate::synth::settings::Shard>().expect_err("shard 0");
+        assert_eq!(Exit::of(&anyhow::Error::new(shard)), Exit::BadInput);
+        let sampler = "euler".parse::<crate::synth::SchedulerKind>().expect_err("unknown");
+        assert_eq!(Exit::of(&anyhow::Error::new(sampler)), Exit::BadInput);
     }
 
     /// The guide's Faults page (`docs/src/faults.md`, "Exit codes") holds the table generated

@@ -169,12 +169,13 @@ impl RigCamera {
             }
             RigCamera::V4l2 { device, camera, settings, .. } => {
                 let choice = camera.format();
-                CapturePart::new(name, "v4l2", false, Some(device.clone())).with_stream(
-                    Some(camera.path().display().to_string()),
-                    Some(fourcc(choice.format)),
-                    [choice.width, choice.height],
-                    settings.fps,
-                )
+                CapturePart::new(name, "v4l2", false, Some(device.clone()))
+                    .with_stream(
+                        Some(camera.path().display().to_string()),
+                        Some(fourcc(choice.format)),
+                        [choice.width, choice.height],
+                        settings.fps,
+                    )
             }
             RigCamera::Nokhwa { device, settings, .. } => CapturePart::new(name, "nokhwa", false, Some(device.clone())).with_stream(
                 None,
@@ -501,7 +502,7 @@ fn sim_calibration(
     width: u32,
     height: u32,
 ) -> Result<(Calibration, String), RigError> {
-    let saved = crate::calibration::saved_path(&kind.to_string());
+    let saved = kind.calibration_path();
     let configured = sensor_cfg.and_then(|s| s.calibration.clone());
     match configured.or_else(|| saved.is_file().then_some(saved)) {
         Some(p) => Ok((

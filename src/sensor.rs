@@ -42,6 +42,13 @@ impl SensorKind {
         }
     }
 
+    /// Where `rig calibrate` saves this sensor's calibration and where `rig collect` and
+    /// `rig synth --fill-missing` look for it: `calibration/<name>.toml` (relative to the
+    /// working directory).
+    pub fn calibration_path(&self) -> std::path::PathBuf {
+        std::path::Path::new("calibration").join(format!("{}.toml", self.name()))
+    }
+
     /// The name as the papers and the real dataset spell it (`TacTip`, `ViTac`, `ViTacTip`).
     pub fn label(&self) -> &'static str {
         match self {

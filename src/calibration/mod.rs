@@ -14,4 +14,4 @@ pub mod model;
 pub mod press;
 pub mod wizard;
 
-pub use model::{Calibration, CalibrationError, DEFAULT_SCALE_PX_PER_MM_AT_512, FitPoint, FitRecord, MAX_DEPTH_SCALE_PER_MM, saved_path};
+pub use model::{Calibration, CalibrationError, DEFAULT_SCALE_PX_PER_MM_AT_512, FitPoint, FitRecord, MAX_DEPTH_SCALE_PER_MM};

@@ -27,13 +27,6 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-/// Where `rig calibrate` saves a sensor's calibration and where `rig collect` and
-/// `rig synth --fill-missing` look for it: `calibration/<sensor>.toml` (relative to the working
-/// directory).
-pub fn saved_path(sensor: &str) -> std::path::PathBuf {
-    Path::new("calibration").join(format!("{sensor}.toml"))
-}
-
 /// Pixel scale of [`Calibration::default_for`] at 512 px image width, px/mm.
 pub const DEFAULT_SCALE_PX_PER_MM_AT_512: f64 = 8.5;
 

@@ -33,7 +33,8 @@ use crate::calibration::wizard::{LineIo, WizardOutcome, describe_fit, run_wizard
 use crate::calibration::{Calibration, FitPoint};
 use crate::config::{RigConfig, SensorBackend, SensorConfig};
 use crate::geometry::objects::ObjectChoice;
-use crate::jobs::calibrate::{CalibrateRequest, PressOutcome};
+use crate::jobs::CalibrateRequest;
+use crate::jobs::calibrate::PressOutcome;
 use crate::jobs::{JobRequest, Observer};
 use crate::pose::Pose;
 use crate::rigs::Rig;

@@ -9,7 +9,8 @@ use clap::Args;
 
 use super::shared::absolute;
 use crate::config::RigConfig;
-use crate::jobs::collect::{CollectRequest, SensorFeed};
+use crate::jobs::CollectRequest;
+use crate::jobs::collect::SensorFeed;
 use crate::jobs::{JobRequest, Observer};
 use crate::rigs::Rig;
 use crate::sensor::SensorSet;

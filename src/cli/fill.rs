@@ -8,7 +8,8 @@ use anyhow::{Context, bail};
 use clap::Args;
 
 use super::shared::{RuntimeArgs, SamplingArgs};
-use crate::jobs::fill::{FillReport, FillRequest};
+use crate::jobs::FillRequest;
+use crate::jobs::fill::FillReport;
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::synth::Pipeline;
 use crate::synth::fill::{Shard, TwinSize};

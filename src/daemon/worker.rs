@@ -122,7 +122,7 @@ pub(crate) async fn run_worker(
                 if panic_here {
                     panic!("RIG_DEBUG_PANIC_JOB_KIND: a panic injected into this job");
                 }
-                confined?;
+                confined.map_err(crate::jobs::JobError::from)?;
                 run_job(&spec, ctx).await
             });
             let (outcome, done) = match run.await {

@@ -6,9 +6,7 @@
 use std::ops::ControlFlow;
 use std::path::PathBuf;
 
-use serde::{Deserialize, Serialize};
-
-use super::{JobError, Observer};
+use super::{CalibrateRequest, JobError, Observer};
 use crate::arm::Arm;
 use crate::arm::profile::FirmwareProfile;
 use crate::calibration::detect::ContactDetector;
@@ -18,74 +16,9 @@ use crate::camera::Camera;
 use crate::collect::check_plan;
 use crate::config::RigConfig;
 use crate::plan::PlannedPose;
-use crate::roots::DataRoots;
 use crate::sensor::SensorKind;
 
-/// An automatic calibration: the options of `rig calibrate` (see its `--help`), the body of a
-/// daemon `calibrate` job. Fields left out take these defaults.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct CalibrateRequest {
-    /// The sensor to calibrate.
-    pub sensor: SensorKind,
-    /// Where to save the calibration (default `calibration/<sensor>.toml`).
-    pub out: Option<PathBuf>,
-    /// Presses per axis of the grid.
-    pub grid: usize,
-    /// Half the grid's side, mm.
-    pub span_mm: f64,
-    /// Extra indentations (mm) pressed at a 3 x 3 layer each, for the depth-dependent scale.
-    pub depths_mm: Vec<f64>,
-}
-
-impl Default for CalibrateRequest {
-    fn default() -> Self {
-        Self { sensor: SensorKind::TacTip, out: None, grid: 5, span_mm: 4.0, depths_mm: vec![-0.5, 0.5] }
-    }
-}
-
-/// Most presses per axis of a calibration grid (a 21 x 21 grid is 441 presses).
-pub const MAX_GRID: usize = 21;
-/// Most extra depth layers.
-pub const MAX_DEPTH_LAYERS: usize = 8;
-/// Largest half span of the grid, mm (larger than any sensor's skin).
-pub const MAX_SPAN_MM: f64 = 30.0;
-/// Largest extra indentation either way, mm.
-pub const MAX_EXTRA_DEPTH_MM: f64 = 5.0;
-
 impl CalibrateRequest {
-    /// Checks the pattern's numbers before a pattern is built: grid 2 to [`MAX_GRID`] presses
-    /// a side, half span above 0 and at most [`MAX_SPAN_MM`], at most [`MAX_DEPTH_LAYERS`]
-    /// finite extra depths within ±[`MAX_EXTRA_DEPTH_MM`].
-    pub fn check(&self) -> Result<(), JobError> {
-        let bad = |field, reason: String| Err(JobError::BadOption { field, reason });
-        if !(2..=MAX_GRID).contains(&self.grid) {
-            return bad("grid", format!("{} presses a side: must be 2 to {MAX_GRID}", self.grid));
-        }
-        if !(self.span_mm.is_finite() && self.span_mm > 0.0 && self.span_mm <= MAX_SPAN_MM) {
-            return bad("span_mm", format!("{}: must be above 0 and at most {MAX_SPAN_MM} mm", self.span_mm));
-        }
-        if self.depths_mm.len() > MAX_DEPTH_LAYERS {
-            return bad("depths_mm", format!("{} layers: at most {MAX_DEPTH_LAYERS}", self.depths_mm.len()));
-        }
-        if let Some(d) = self.depths_mm.iter().find(|d| !(d.is_finite() && d.abs() <= MAX_EXTRA_DEPTH_MM)) {
-            return bad("depths_mm", format!("{d}: each must be within ±{MAX_EXTRA_DEPTH_MM} mm"));
-        }
-        Ok(())
-    }
-
-    /// Resolves `out` (written) inside `roots`; the default, `calibration/<sensor>.toml`, is
-    /// resolved from the roots' base.
-    pub fn confine(&mut self, roots: &DataRoots) -> Result<(), JobError> {
-        self.out = Some(roots.output("out", &self.out_path())?);
-        Ok(())
-    }
-
-    /// Where the calibration is saved.
-    pub fn out_path(&self) -> PathBuf {
-        self.out.clone().unwrap_or_else(|| crate::calibration::saved_path(self.sensor.name()))
-    }
-
     /// The press pattern, checked against the workspace of `config`'s arm (nothing moves for a
     /// press outside it).
     pub fn prepare(&self, config: &RigConfig) -> Result<PressPattern, JobError> {

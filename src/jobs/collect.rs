@@ -14,9 +14,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use serde::{Deserialize, Serialize};
-
-use super::{JobError, Observer};
+use super::{CollectRequest, JobError, Observer};
 use crate::arm::Arm;
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
@@ -29,44 +27,6 @@ use crate::io::modbus::{ModbusTransport, Peripherals};
 use crate::plan::{Plan, PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
 use crate::sensor::{SensorKind, SensorSet};
-
-/// A collection: the options of `rig collect` (see its `--help`), the body of a daemon
-/// `collect` job. Fields left out take these defaults.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct CollectRequest {
-    /// Object name from the object library (`datasets/objects/<name>.stl`).
-    pub object: String,
-    /// Object STL file instead of a library name (its stem names the object).
-    pub stl: Option<PathBuf>,
-    /// The sensors to capture.
-    pub sensor: SensorSet,
-    /// Plan file (TOML); `poses` and `seed` override its fields.
-    pub plan: Option<PathBuf>,
-    /// Number of poses to sample from the grid.
-    pub poses: Option<usize>,
-    /// Seed of the sampling (and of the simulated sensors' noise).
-    pub seed: Option<u64>,
-    /// Output root; datasets go to `<out>/<object>/<sensor>/`.
-    pub out: PathBuf,
-    /// Continue a killed run (or start one when none exists).
-    pub resume: bool,
-}
-
-impl Default for CollectRequest {
-    fn default() -> Self {
-        Self {
-            object: "sphere".into(),
-            stl: None,
-            sensor: SensorSet::all(),
-            plan: None,
-            poses: None,
-            seed: None,
-            out: PathBuf::from("datasets"),
-            resume: false,
-        }
-    }
-}
 
 /// A collection resolved against a rig configuration: the plan built and checked against the
 /// workspace (nothing moves for a pose outside it), the object loaded.
@@ -87,23 +47,6 @@ pub struct PreparedCollect {
 }
 
 impl CollectRequest {
-    /// Checks what needs no file: the object name is a plain name (it names the dataset's
-    /// folder). The pose count is checked against the plan's grid by [`Self::plan_spec`].
-    pub fn check(&self) -> Result<(), JobError> {
-        if self.stl.is_none() {
-            super::check_plain_name("object", &self.object)?;
-        }
-        Ok(())
-    }
-
-    /// Resolves `stl` and `plan` (read) and `out` (written) inside `roots`.
-    pub fn confine(&mut self, read: &super::Reader<'_>) -> Result<(), JobError> {
-        super::confine_opt(&mut self.stl, |p| read.input("stl", p))?;
-        super::confine_opt(&mut self.plan, |p| read.input("plan", p))?;
-        self.out = read.roots.output("out", &self.out)?;
-        Ok(())
-    }
-
     /// The plan spec this request names: the plan file (or the default plan) with `poses` and
     /// `seed` applied, validated.
     pub fn plan_spec(&self) -> Result<PlanSpec, JobError> {

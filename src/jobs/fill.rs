@@ -11,78 +11,11 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
-
-use super::{JobError, Observer};
+use super::{FillRequest, JobError, Observer};
+use crate::synth::Pipeline;
 use crate::synth::fill::{
-    FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, TwinSize, fill_missing_observed, find_datasets, missing_poses,
-    synthesise_poses_of,
+    FillOptions, FillSummary, FilledPose, PosesOfSummary, Shard, fill_missing_observed, find_datasets, missing_poses, synthesise_poses_of,
 };
-use crate::synth::{ImageRange, Pipeline, SchedulerKind};
-
-/// A synthesis: the options of `rig synth --fill-missing` and `--poses-of` (see their
-/// `--help`), the body of a daemon `synth` job. Fields left out take these defaults; sampling
-/// settings left out take the model package's own (`model.toml`), else rig's.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct FillRequest {
-    /// A dataset (`.../<object>/<sensor>`) or a folder holding several (two levels deep).
-    pub dataset: PathBuf,
-    /// Twins mode: synthesise exactly the real poses of this dataset (or of every dataset
-    /// under this folder) into `out`, mirroring `<object>/<sensor>`.
-    pub poses_of: Option<PathBuf>,
-    /// Model package directory (default: `models/default`, else the tiny test package).
-    pub model: Option<PathBuf>,
-    /// Only part i of n of the poses (`"i/n"`), written to `out`.
-    pub shard: Option<Shard>,
-    /// Where the synthetic rows go (required with `shard` and `poses_of`; default: into the
-    /// dataset itself).
-    pub out: Option<PathBuf>,
-    /// Sampling steps.
-    pub steps: Option<usize>,
-    /// Classifier-free guidance scale (1: unguided).
-    pub guidance: Option<f32>,
-    /// DDIM eta (0: deterministic); none: the package's `eta`, else 0.
-    pub eta: Option<f32>,
-    /// `ddim` or `dpm++2m`.
-    pub sampler: Option<SchedulerKind>,
-    /// ControlNet conditioning scale (1: as trained).
-    pub conditioning_scale: f32,
-    /// Poses per model call.
-    pub batch: usize,
-    /// Supersampling factor of the control image's depth map.
-    pub supersample: u32,
-    /// How the model's output becomes 8-bit pixels: `clamp` (the default) or `minmax` (each
-    /// image stretched from its own min to its own max, as MultiDiffSense saves).
-    pub image_range: ImageRange,
-    /// At most this many poses per dataset (after sharding).
-    pub limit: Option<usize>,
-    /// Twins mode: the twins' image size.
-    pub twin_size: TwinSize,
-}
-
-impl Default for FillRequest {
-    fn default() -> Self {
-        let d = FillOptions::default();
-        Self {
-            dataset: PathBuf::from("datasets"),
-            poses_of: None,
-            model: None,
-            shard: None,
-            out: None,
-            steps: None,
-            guidance: None,
-            eta: None,
-            sampler: None,
-            conditioning_scale: d.conditioning_scale,
-            batch: d.batch,
-            supersample: d.supersample,
-            image_range: d.image_range,
-            limit: None,
-            twin_size: TwinSize::default(),
-        }
-    }
-}
 
 /// One dataset of a synthesis and where its rows go.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -101,32 +34,6 @@ impl FillTarget {
 }
 
 impl FillRequest {
-    /// Checks the sampling settings against [`crate::synth::limits`] before any model loads
-    /// (settings left to the package are checked when it is read).
-    pub fn check(&self) -> Result<(), JobError> {
-        crate::synth::fill::check_fill_settings(
-            self.steps,
-            self.guidance,
-            self.eta,
-            self.conditioning_scale,
-            self.batch,
-            self.supersample,
-        )?;
-        Ok(())
-    }
-
-    /// Resolves `dataset`, `poses_of` and `model` (read) and `out` (written) inside `roots`.
-    /// The default model (`model` left out) is rig's own package, not a path of the request.
-    pub fn confine(&mut self, read: &super::Reader<'_>) -> Result<(), JobError> {
-        if self.poses_of.is_none() {
-            self.dataset = read.input("dataset", &self.dataset)?;
-        }
-        super::confine_opt(&mut self.poses_of, |p| read.input("poses_of", p))?;
-        super::confine_opt(&mut self.model, |p| read.input("model", p))?;
-        super::confine_opt(&mut self.out, |p| read.roots.output("out", p))?;
-        Ok(())
-    }
-
     /// The model package this request uses.
     pub fn model_dir(&self) -> PathBuf {
         self.model.clone().unwrap_or_else(crate::synth::fill::default_model)

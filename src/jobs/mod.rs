@@ -2,15 +2,17 @@
 //!
 //! | job | request | runner | front ends |
 //! |---|---|---|---|
-//! | collect | [`collect::CollectRequest`] | [`collect::run`] | `rig collect`, daemon `collect`, `rig replay`, `rig bench` |
-//! | fill | [`fill::FillRequest`] | [`fill::run`] | `rig synth --fill-missing` / `--poses-of`, daemon `synth` |
+//! | collect | [`CollectRequest`] | [`collect::run`] | `rig collect`, daemon `collect`, `rig replay`, `rig bench` |
+//! | fill | [`FillRequest`] | [`fill::run`] | `rig synth --fill-missing` / `--poses-of`, daemon `synth` |
 //! | replay | a recording's header ([`replay::setup_of`]) | [`replay::run`] (over [`collect::run`]) | `rig replay` |
-//! | calibrate | [`calibrate::CalibrateRequest`] | [`calibrate::run`] | `rig calibrate`, daemon `calibrate`, `rig bench` |
+//! | calibrate | [`CalibrateRequest`] | [`calibrate::run`] | `rig calibrate`, daemon `calibrate`, `rig bench` |
 //!
-//! A request is a serde type: the CLI turns its clap arguments into one, the daemon
-//! deserialises the same type from a job's JSON ([`JobRequest`]), and replay and bench build
-//! one in code. Each request resolves and checks itself before anything moves or loads
-//! (`prepare`/`validate`), so every front end refuses the same inputs with the same errors.
+//! A request is a serde type ([`request`]): the CLI turns its clap arguments into one, the
+//! daemon deserialises the same type from a job's JSON ([`JobRequest`]), and replay and bench
+//! build one in code. Each request checks itself ([`JobRequest::check`]), then resolves itself
+//! against the rig's configuration and files before anything moves or loads (`prepare`,
+//! `targets`, beside each runner), so every front end refuses the same inputs with the same
+//! errors.
 //! The runners take the request, the hardware the front end opened (an [`crate::arm::Arm`],
 //! [`crate::camera::Camera`]s; never a backend by name: opening a rig is `rigs`' job, above
 //! this module), and an [`Observer`] for progress and cancellation.
@@ -23,124 +25,13 @@ pub mod calibrate;
 pub mod collect;
 pub mod fill;
 pub mod replay;
+pub mod request;
 
 use std::path::PathBuf;
 
-use crate::roots::DataRoots;
-
-use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 
-pub use calibrate::CalibrateRequest;
-pub use collect::CollectRequest;
-pub use fill::FillRequest;
-
-/// A job, as `POST /api/jobs` takes it: a `kind` and the options of the standalone command of
-/// that name (`{"kind": "collect", "object": "edge", "poses": 6}`); fields left out take the
-/// command's defaults.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "lowercase")]
-pub enum JobRequest {
-    /// `rig collect`.
-    Collect(CollectRequest),
-    /// `rig synth --fill-missing` (or `--poses-of`).
-    Synth(FillRequest),
-    /// `rig calibrate` (automatic presses).
-    Calibrate(CalibrateRequest),
-}
-
-impl JobRequest {
-    /// `collect`, `synth` or `calibrate`.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            JobRequest::Collect(_) => "collect",
-            JobRequest::Synth(_) => "synth",
-            JobRequest::Calibrate(_) => "calibrate",
-        }
-    }
-
-    /// Checks every setting that needs no file: numbers within their bounds (so nothing is
-    /// allocated from an absurd size), names that become file names plain. The preparing
-    /// steps of each job call the same check, so the CLI refuses what the daemon refuses.
-    pub fn check(&self) -> Result<(), JobError> {
-        match self {
-            JobRequest::Collect(r) => r.check(),
-            JobRequest::Synth(r) => r.check(),
-            JobRequest::Calibrate(r) => r.check(),
-        }
-    }
-
-    /// The request with every path it names resolved inside `roots` (symlinks followed,
-    /// relative paths from the roots' base), paths it writes may not exist yet but must land
-    /// there. Paths it reads must exist when the job starts ([`Confine::Starting`]); when it is
-    /// submitted ([`Confine::Submitted`]) they may still be missing, as an earlier job in the
-    /// queue may write them (a collection, then a fill of its dataset), but must lie inside
-    /// the roots all the same. A refused path is named as the request gave it.
-    pub fn confine(&mut self, roots: &DataRoots, when: Confine) -> Result<(), JobError> {
-        let read = Reader { roots, when };
-        match self {
-            JobRequest::Collect(r) => r.confine(&read),
-            JobRequest::Synth(r) => r.confine(&read),
-            JobRequest::Calibrate(r) => r.confine(roots),
-        }
-    }
-}
-
-/// When a daemon confines a job's paths.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Confine {
-    /// At `POST /api/jobs`: paths read may not exist yet.
-    Submitted,
-    /// When the job starts: paths read must exist.
-    Starting,
-}
-
-/// Resolves the paths a job reads, as [`Confine`] says.
-pub struct Reader<'a> {
-    pub roots: &'a DataRoots,
-    pub when: Confine,
-}
-
-impl Reader<'_> {
-    /// `given` resolved inside the roots; it must exist unless the job is only being submitted.
-    pub fn input(&self, field: &str, given: &std::path::Path) -> Result<PathBuf, crate::roots::PathError> {
-        match self.when {
-            Confine::Starting => self.roots.input(field, given),
-            Confine::Submitted => self.roots.output(field, given),
-        }
-    }
-}
-
-/// `Some(path)` resolved by `resolve`, `None` left alone.
-fn confine_opt(
-    path: &mut Option<PathBuf>,
-    resolve: impl FnOnce(&std::path::Path) -> Result<PathBuf, crate::roots::PathError>,
-) -> Result<(), JobError> {
-    if let Some(p) = path.as_mut() {
-        *p = resolve(p)?;
-    }
-    Ok(())
-}
-
-/// A name that becomes a folder or file name (an object name): not empty, at most 100 bytes,
-/// no path separator, no control character, not starting with a dot.
-pub fn check_plain_name(field: &'static str, name: &str) -> Result<(), JobError> {
-    let reason = if name.is_empty() {
-        Some("is empty")
-    } else if name.len() > 100 {
-        Some("is longer than 100 bytes")
-    } else if name.starts_with('.') {
-        Some("starts with a dot")
-    } else if name.chars().any(|c| c == '/' || c == '\\' || c.is_control()) {
-        Some("contains a path separator or a control character")
-    } else {
-        None
-    };
-    match reason {
-        Some(reason) => Err(JobError::BadOption { field, reason: format!("{reason}: it must be a plain name (it names a folder)") }),
-        None => Ok(()),
-    }
-}
+pub use request::{CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name};
 
 impl JobError {
     /// A [`JobError::Fill`] for `dir`, for `map_err`.
@@ -222,4 +113,14 @@ pub enum JobError {
     Replay(#[from] crate::record::replay::ReplayError),
     #[error("the synth worker thread stopped: {reason}")]
     Worker { reason: String },
+}
+
+impl From<RequestError> for JobError {
+    fn from(e: RequestError) -> Self {
+        match e {
+            RequestError::BadOption { field, reason } => JobError::BadOption { field, reason },
+            RequestError::Path(e) => JobError::Path(e),
+            RequestError::Setting(e) => JobError::Settings(e.into()),
+        }
+    }
 }

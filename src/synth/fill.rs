@@ -11,7 +11,6 @@
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
 use image::RgbImage;
 
@@ -36,59 +35,10 @@ pub enum FillError {
     Object { dir: PathBuf, object: String, reason: String },
     #[error("dataset {dir}: calibration {calibration}: {reason}")]
     Calibration { dir: PathBuf, calibration: String, reason: String },
-    #[error("shard {text:?}: write it i/n with 1 <= i <= n (e.g. 2/4)")]
-    BadShard { text: String },
 }
 
-/// One of `count` disjoint parts of the work, 1-based.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Shard {
-    pub index: u32,
-    pub count: u32,
-}
-
-impl Shard {
-    /// The whole work.
-    pub const ALL: Shard = Shard { index: 1, count: 1 };
-
-    /// Whether `pose_id` belongs to this shard.
-    pub fn owns(&self, pose_id: u32) -> bool {
-        pose_id % self.count == self.index - 1
-    }
-}
-
-impl FromStr for Shard {
-    type Err = FillError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let bad = || FillError::BadShard { text: s.to_string() };
-        let (i, n) = s.split_once('/').ok_or_else(bad)?;
-        let index: u32 = i.trim().parse().map_err(|_| bad())?;
-        let count: u32 = n.trim().parse().map_err(|_| bad())?;
-        if count == 0 || index == 0 || index > count {
-            return Err(bad());
-        }
-        Ok(Shard { index, count })
-    }
-}
-
-impl std::fmt::Display for Shard {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl serde::Serialize for Shard {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.collect_str(self)
-    }
-}
-
-impl<'de> serde::Deserialize<'de> for Shard {
-    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        let text = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
-        text.parse().map_err(serde::de::Error::custom)
-    }
-}
+use super::settings::defaults;
+pub use super::settings::{Shard, TwinSize};
 
 /// Sampler settings and work split of a fill.
 #[derive(Debug, Clone)]
@@ -112,14 +62,14 @@ pub struct FillOptions {
 impl Default for FillOptions {
     fn default() -> Self {
         Self {
-            steps: 20,
-            guidance: 1.0,
+            steps: defaults::STEPS,
+            guidance: defaults::GUIDANCE,
             eta: 0.0,
             scheduler: SchedulerKind::Ddim,
-            conditioning_scale: 1.0,
+            conditioning_scale: defaults::CONDITIONING_SCALE,
             shard: Shard::ALL,
-            batch: 4,
-            supersample: 2,
+            batch: defaults::BATCH,
+            supersample: defaults::SUPERSAMPLE,
             limit: None,
             image_range: ImageRange::Clamp,
         }
@@ -131,32 +81,16 @@ impl FillOptions {
     /// checked once the package's schedule is known, before any image is made). Front ends call
     /// this before loading a model; [`fill_missing_observed`] calls it again.
     pub fn validate(&self) -> Result<(), SynthError> {
-        check_fill_settings(Some(self.steps), Some(self.guidance), Some(self.eta), self.conditioning_scale, self.batch, self.supersample)
+        super::limits::check_fill_settings(
+            Some(self.steps),
+            Some(self.guidance),
+            Some(self.eta),
+            self.conditioning_scale,
+            self.batch,
+            self.supersample,
+        )?;
+        Ok(())
     }
-}
-
-/// The checks of [`FillOptions::validate`] on settings a request may leave to the package
-/// (`None`: the package's value, checked when the package is read).
-pub fn check_fill_settings(
-    steps: Option<usize>,
-    guidance: Option<f32>,
-    eta: Option<f32>,
-    conditioning_scale: f32,
-    batch: usize,
-    supersample: u32,
-) -> Result<(), SynthError> {
-    if steps == Some(0) {
-        return Err(SynthError::BadRequest { field: "steps", value: "0".into(), reason: "must be at least 1".into() });
-    }
-    if let Some(g) = guidance {
-        super::limits::check_guidance(g)?;
-    }
-    if let Some(eta) = eta {
-        super::limits::check_eta(eta)?;
-    }
-    super::limits::check_conditioning_scale(conditioning_scale)?;
-    super::limits::check_batch(batch)?;
-    super::limits::check_supersample(supersample)
 }
 
 /// What a fill did.
@@ -326,17 +260,6 @@ pub struct PosesOfSummary {
     pub left: usize,
 }
 
-/// The image size of a synthetic twin ([`synthesise_poses_of`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TwinSize {
-    /// The model's resolution: its output as it came (the reference is resized to match).
-    #[default]
-    Model,
-    /// The source dataset's frame size, as `--fill-missing` writes (the output resized).
-    Source,
-}
-
 /// Synthesises exactly the poses of `source`'s captured rows (real or simulated) into the dataset `out` (created with
 /// `source`'s manifest: object, sensor, calibration, plan, work frame; its `reference.png` is
 /// copied, at `size`), keeping each pose's `pose_id`. This is how a test set gets its synthetic twin for
@@ -486,7 +409,7 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
     match manifest.calibration.as_deref() {
         // An uncalibrated collection: the calibration `rig calibrate` saved since, if any.
         None | Some("default") => {
-            let saved = crate::calibration::model::saved_path(manifest.sensor.name());
+            let saved = manifest.sensor.calibration_path();
             if saved.is_file() {
                 return calibration_of(
                     dir,

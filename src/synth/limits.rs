@@ -10,8 +10,19 @@
 //! | batch | 1 to 16 | each image of a batch holds its latents and control hint twice under guidance |
 //! | supersample | 1 to 8 | the depth render holds `supersample^2` samples per pixel |
 //! | steps | 1 to the sampler's limit | DDIM takes one per training timestep, DPM-Solver++ one fewer ([`super::scheduler::NoiseSchedule::max_steps`]) |
+//!
+//! The checks stand alone (their error is [`BadSetting`], which becomes
+//! [`super::SynthError::BadRequest`]), so the daemon's request validation can be fuzzed without
+//! the rest of rig.
 
-use super::SynthError;
+/// A setting outside its range.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{field} = {value} is not valid: {reason}")]
+pub struct BadSetting {
+    pub field: &'static str,
+    pub value: String,
+    pub reason: String,
+}
 
 /// Largest width or height of a synthesised image, px.
 pub const MAX_SIDE_PX: u32 = 2048;
@@ -26,48 +37,44 @@ pub const MAX_BATCH: usize = 16;
 /// Largest supersampling factor of the control image's depth render.
 pub const MAX_SUPERSAMPLE: u32 = 8;
 
-fn in_range(field: &'static str, value: f32, (lo, hi): (f32, f32), why: &str) -> Result<(), SynthError> {
+fn in_range(field: &'static str, value: f32, (lo, hi): (f32, f32), why: &str) -> Result<(), BadSetting> {
     if value.is_finite() && (lo..=hi).contains(&value) {
         Ok(())
     } else {
-        Err(SynthError::BadRequest { field, value: value.to_string(), reason: format!("must be a number from {lo} to {hi} ({why})") })
+        Err(BadSetting { field, value: value.to_string(), reason: format!("must be a number from {lo} to {hi} ({why})") })
     }
 }
 
 /// Guidance in [`GUIDANCE`].
-pub fn check_guidance(guidance: f32) -> Result<(), SynthError> {
+pub fn check_guidance(guidance: f32) -> Result<(), BadSetting> {
     in_range("guidance", guidance, GUIDANCE, "1: unguided; larger values push the image away from the decoder's range")
 }
 
 /// Eta in [`ETA`].
-pub fn check_eta(eta: f32) -> Result<(), SynthError> {
+pub fn check_eta(eta: f32) -> Result<(), BadSetting> {
     in_range("eta", eta, ETA, "0: deterministic DDIM, 1: DDPM-like noise")
 }
 
 /// Conditioning scale in [`CONDITIONING_SCALE`].
-pub fn check_conditioning_scale(scale: f32) -> Result<(), SynthError> {
+pub fn check_conditioning_scale(scale: f32) -> Result<(), BadSetting> {
     in_range("conditioning_scale", scale, CONDITIONING_SCALE, "0 ignores the depth hint, 1 is as trained")
 }
 
 /// Batch in 1..=[`MAX_BATCH`].
-pub fn check_batch(batch: usize) -> Result<(), SynthError> {
+pub fn check_batch(batch: usize) -> Result<(), BadSetting> {
     if (1..=MAX_BATCH).contains(&batch) {
         Ok(())
     } else {
-        Err(SynthError::BadRequest {
-            field: "batch",
-            value: batch.to_string(),
-            reason: format!("must be 1 to {MAX_BATCH} images per model call"),
-        })
+        Err(BadSetting { field: "batch", value: batch.to_string(), reason: format!("must be 1 to {MAX_BATCH} images per model call") })
     }
 }
 
 /// Supersampling in 1..=[`MAX_SUPERSAMPLE`].
-pub fn check_supersample(supersample: u32) -> Result<(), SynthError> {
+pub fn check_supersample(supersample: u32) -> Result<(), BadSetting> {
     if (1..=MAX_SUPERSAMPLE).contains(&supersample) {
         Ok(())
     } else {
-        Err(SynthError::BadRequest {
+        Err(BadSetting {
             field: "supersample",
             value: supersample.to_string(),
             reason: format!("must be 1 to {MAX_SUPERSAMPLE} samples per pixel side"),
@@ -77,13 +84,13 @@ pub fn check_supersample(supersample: u32) -> Result<(), SynthError> {
 
 /// An image size: each side 1..=[`MAX_SIDE_PX`] and a multiple of `multiple` (the package's
 /// [`size multiple`](super::Pipeline::size_multiple)).
-pub fn check_size(field: &'static str, (width, height): (u32, u32), multiple: u32) -> Result<(), SynthError> {
+pub fn check_size(field: &'static str, (width, height): (u32, u32), multiple: u32) -> Result<(), BadSetting> {
     let value = format!("{width}x{height}");
     if width == 0 || height == 0 || width > MAX_SIDE_PX || height > MAX_SIDE_PX {
-        return Err(SynthError::BadRequest { field, value, reason: format!("width and height must be 1 to {MAX_SIDE_PX} px") });
+        return Err(BadSetting { field, value, reason: format!("width and height must be 1 to {MAX_SIDE_PX} px") });
     }
     if multiple > 0 && (!width.is_multiple_of(multiple) || !height.is_multiple_of(multiple)) {
-        return Err(SynthError::BadRequest {
+        return Err(BadSetting {
             field,
             value,
             reason: format!(
@@ -95,6 +102,31 @@ pub fn check_size(field: &'static str, (width, height): (u32, u32), multiple: u3
         });
     }
     Ok(())
+}
+
+/// The checks of a fill's settings that need no package: steps at least 1 (their upper
+/// bound depends on the package's schedule), guidance, eta, conditioning scale, batch and
+/// supersampling in range. `None`: left to the package, whose value is checked when it is read.
+pub fn check_fill_settings(
+    steps: Option<usize>,
+    guidance: Option<f32>,
+    eta: Option<f32>,
+    conditioning_scale: f32,
+    batch: usize,
+    supersample: u32,
+) -> Result<(), BadSetting> {
+    if steps == Some(0) {
+        return Err(BadSetting { field: "steps", value: "0".into(), reason: "must be at least 1".into() });
+    }
+    if let Some(g) = guidance {
+        check_guidance(g)?;
+    }
+    if let Some(eta) = eta {
+        check_eta(eta)?;
+    }
+    check_conditioning_scale(conditioning_scale)?;
+    check_batch(batch)?;
+    check_supersample(supersample)
 }
 
 fn round_to(v: u32, multiple: u32) -> u32 {

@@ -21,6 +21,7 @@
 //! - [`pipeline`] runs the step loop with classifier-free guidance batched as [uncond, cond];
 //! - [`npy`] reads and writes float32 `.npy` files for comparing with Python runs;
 //! - [`limits`] holds the ranges of sampling settings and sizes, checked before allocating;
+//! - [`settings`] holds the setting types a job request names (sampler, image range, shard);
 //! - [`onnx_graph`] counts the UNet's downsamples, which fix the sizes a package can make.
 
 pub mod fill;
@@ -32,6 +33,7 @@ pub mod pipeline;
 pub mod prompt;
 pub mod runtime;
 pub mod scheduler;
+pub mod settings;
 pub mod text;
 
 use std::path::PathBuf;
@@ -122,6 +124,12 @@ fn splitmix64(x: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+impl From<limits::BadSetting> for SynthError {
+    fn from(e: limits::BadSetting) -> Self {
+        SynthError::BadRequest { field: e.field, value: e.value, reason: e.reason }
+    }
 }
 
 #[cfg(test)]

@@ -103,30 +103,7 @@ impl GenerateOutput {
     }
 }
 
-/// How the decoder's output (nominally in [-1, 1]) becomes 8-bit pixels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ImageRange {
-    /// `round(clamp(x / 2 + 0.5, 0, 1) * 255)`, as diffusers writes images: the same value is
-    /// always the same grey, whatever else is in the image.
-    #[default]
-    Clamp,
-    /// Each image stretched from its own minimum to its own maximum (over its three channels),
-    /// as MultiDiffSense's generate.py and test.py save them: `normalise(x) = (x - min) / (max -
-    /// min + 1e-8)`, then torchvision's `save_image`, `floor(v * 255 + 0.5)`. Its darkest pixel is
-    /// always 0 and its brightest 255, so brightness is not comparable between images.
-    #[value(name = "minmax")]
-    MinMax,
-}
-
-impl std::fmt::Display for ImageRange {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            ImageRange::Clamp => "clamp",
-            ImageRange::MinMax => "minmax",
-        })
-    }
-}
+pub use super::settings::ImageRange;
 
 /// One image's decoder output, NHWC `[height, width, 3]` float32 (the data of
 /// [`GenerateOutput::raw`]), as an 8-bit RGB image, its values mapped by `range`. Missing

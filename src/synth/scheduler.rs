@@ -288,31 +288,7 @@ fn linspace_f32(start: f64, end: f64, n: usize) -> Vec<f32> {
     (0..n).map(|i| if i < half { start + step * i as f64 } else { end - step * (n - 1 - i) as f64 } as f32).collect()
 }
 
-/// Which sampler the pipeline runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum SchedulerKind {
-    /// diffusers' `DDIMScheduler` (what MultiDiffSense samples with, 50 steps, eta 0).
-    #[default]
-    Ddim,
-    /// DPM-Solver++ 2M: second-order multistep; similar quality in fewer steps (about 20).
-    DpmSolverPp2m,
-}
-
-impl SchedulerKind {
-    /// `ddim` or `dpm++2m`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Ddim => "ddim",
-            Self::DpmSolverPp2m => "dpm++2m",
-        }
-    }
-}
-
-impl std::fmt::Display for SchedulerKind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+pub use super::settings::SchedulerKind;
 
 /// A JSON parse error as a [`SyntaxError`](crate::untrusted::SyntaxError): its line and column,
 /// its reason without the values it quotes from the file.
@@ -321,30 +297,6 @@ pub(crate) fn json_syntax(e: &serde_json::Error) -> crate::untrusted::SyntaxErro
     // serde_json appends " at line L column C"; the position is kept as numbers instead.
     let reason = text.rsplit_once(" at line ").map_or(text.as_str(), |(r, _)| r);
     crate::untrusted::SyntaxError::at(e.line(), e.column(), reason)
-}
-
-impl std::str::FromStr for SchedulerKind {
-    type Err = SchedulerError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.to_ascii_lowercase().as_str() {
-            "ddim" => Ok(Self::Ddim),
-            "dpm++2m" | "dpmpp2m" | "dpm-solver++2m" | "dpmsolver++" => Ok(Self::DpmSolverPp2m),
-            _ => Err(SchedulerError::Unsupported { field: "scheduler", value: s.to_string(), supported: "ddim, dpm++2m" }),
-        }
-    }
-}
-
-impl serde::Serialize for SchedulerKind {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.collect_str(self)
-    }
-}
-
-impl<'de> serde::Deserialize<'de> for SchedulerKind {
-    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        let text = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
-        text.parse().map_err(serde::de::Error::custom)
-    }
 }
 
 /// One image's sampler state for a fixed number of steps.
