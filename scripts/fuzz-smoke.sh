@@ -4,7 +4,8 @@
 #
 # Targets: MG400 replies and requests (reply_decoder), feedback frames (feedback_decoder),
 # Dobot Magician serial packets (magician_decoder), the recording file (recording_decoder),
-# STL (stl_decoder) and plan TOML. The firmware profile, calibration and rig config TOML and
+# STL (stl_decoder), plan TOML (plan_toml) and the daemon's job requests, JSON to validated
+# and confined request (job_request). The firmware profile, calibration and rig config TOML and
 # the MDS CSV import have no cargo-fuzz target (they reach too far into rig to compile
 # alone); tests/files/decoders_never_panic.rs covers them, and every decoder here, with
 # proptest as part of `cargo test`.
@@ -33,6 +34,12 @@ export RUSTC_BOOTSTRAP=1
 for target in $(cargo fuzz list); do
   echo "fuzz-smoke: $target for ${seconds}s"
   mkdir -p "fuzz/corpus/$target"
-  cargo fuzz run --fuzz-dir fuzz "$target" -- -max_total_time="$seconds" -rss_limit_mb=2048
+  # Committed seeds (fuzz/seeds/<target>/) and a dictionary (fuzz/<target>.dict) where a
+  # target has them: a few seconds of random bytes rarely make a valid JSON request.
+  seeds=()
+  [ -d "fuzz/seeds/$target" ] && seeds=("fuzz/seeds/$target")
+  dict=()
+  [ -f "fuzz/$target.dict" ] && dict=("-dict=fuzz/$target.dict")
+  cargo fuzz run --fuzz-dir fuzz "$target" "fuzz/corpus/$target" "${seeds[@]}" -- -max_total_time="$seconds" -rss_limit_mb=2048 "${dict[@]}"
 done
 echo "fuzz-smoke: no crashes"
