@@ -158,7 +158,7 @@ impl RigCamera {
     }
     /// The camera as a dataset manifest's capture chain names it: backend `sim` (simulated,
     /// its rendered size and frame rate), `v4l2` (the configured device, the node opened, the
-    /// negotiated format and size, the configured rate) or `nokhwa` (the configured device,
+    /// negotiated format and size, the configured rate, the locked controls as read back) or `nokhwa` (the configured device,
     /// format when forced, size and rate).
     pub fn capture_part(&self) -> CapturePart {
         let name = self.kind().to_string();
@@ -176,6 +176,7 @@ impl RigCamera {
                         [choice.width, choice.height],
                         settings.fps,
                     )
+                    .with_controls(camera.controls().iter().copied())
             }
             RigCamera::Nokhwa { device, settings, .. } => CapturePart::new(name, "nokhwa", false, Some(device.clone())).with_stream(
                 None,

@@ -168,6 +168,47 @@ const CID_EXPOSURE_AUTO_PRIORITY: u32 = 0x009a_0903;
 /// `V4L2_EXPOSURE_MANUAL` of the exposure_auto menu.
 const EXPOSURE_MANUAL: i64 = 1;
 
+/// The controls rig locks, by their V4L2 names (as `v4l2-ctl --list-ctrls` prints them), in
+/// the order [`read_back`] reports them.
+pub const LOCKED_CONTROLS: [(&str, u32); 7] = [
+    ("auto_exposure", CID_EXPOSURE_AUTO),
+    ("exposure_time_absolute", CID_EXPOSURE_ABSOLUTE),
+    ("exposure_dynamic_framerate", CID_EXPOSURE_AUTO_PRIORITY),
+    ("gain_automatic", CID_AUTOGAIN),
+    ("gain", CID_GAIN),
+    ("white_balance_automatic", CID_AUTO_WHITE_BALANCE),
+    ("white_balance_temperature", CID_WHITE_BALANCE_TEMPERATURE),
+];
+
+/// Every control of [`LOCKED_CONTROLS`] the device has, read back after locking: what the
+/// driver holds, which may differ from what was written (drivers clamp and round, and some
+/// ignore a write). `get` reads one control by id; a control it cannot read (the device has
+/// none) is left out.
+pub fn read_back(get: impl Fn(u32) -> std::io::Result<i64>) -> Vec<(&'static str, i64)> {
+    LOCKED_CONTROLS.iter().filter_map(|&(name, id)| get(id).ok().map(|v| (name, v))).collect()
+}
+
+/// The settings asked for that the controls read back (from [`read_back`]) do not hold, as
+/// `name: asked A, reads B` (a control that could not be read at all reads `-`).
+pub fn lock_mismatches(settings: &CameraSettings, read: &[(&str, i64)]) -> Vec<String> {
+    let value = |name: &str| read.iter().find(|(n, _)| *n == name).map(|&(_, v)| v);
+    let mut asked: Vec<(&str, i64)> = Vec::new();
+    if let Some(e) = settings.exposure_100us {
+        asked.extend([("auto_exposure", EXPOSURE_MANUAL), ("exposure_time_absolute", e)]);
+    }
+    if let Some(g) = settings.gain {
+        asked.push(("gain", g));
+    }
+    if let Some(k) = settings.white_balance_k {
+        asked.extend([("white_balance_automatic", 0), ("white_balance_temperature", k)]);
+    }
+    asked
+        .into_iter()
+        .filter(|&(name, want)| value(name) != Some(want))
+        .map(|(name, want)| format!("{name}: asked {want}, reads {}", value(name).map_or("-".to_string(), |v| v.to_string())))
+        .collect()
+}
+
 /// A V4L2 camera.
 pub struct V4l2Camera {
     name: String,
@@ -175,6 +216,7 @@ pub struct V4l2Camera {
     choice: FormatChoice,
     frames: watch::Receiver<Option<RawFrame>>,
     timeout: Duration,
+    controls: Vec<(&'static str, i64)>,
 }
 
 impl V4l2Camera {
@@ -202,6 +244,14 @@ impl V4l2Camera {
         let params = device.set_params(&v4l::video::capture::Parameters::with_fps(choice.fps)).map_err(io_err)?;
         let interval_s = f64::from(params.interval.numerator) / f64::from(params.interval.denominator.max(1));
         lock_controls(&device, settings).map_err(|e| device_err(format!("locking exposure/gain/white balance: {e}")))?;
+        let controls = read_back(|id| match device.control(id)?.value {
+            v4l::control::Value::Integer(v) => Ok(v),
+            v4l::control::Value::Boolean(b) => Ok(i64::from(b)),
+            _ => Err(std::io::Error::other("not an integer control")),
+        });
+        for mismatch in lock_mismatches(settings, &controls) {
+            tracing::warn!(camera = name, device = %path.display(), "control not held as asked: {mismatch}");
+        }
         let exposure_s = settings.exposure_100us.map_or(interval_s, |e| e as f64 * 1e-4);
 
         let (tx, rx) = watch::channel(None);
@@ -228,6 +278,7 @@ impl V4l2Camera {
             choice,
             frames: rx,
             timeout: Duration::from_secs_f64((interval_s * (f64::from(warmup) + 10.0)).max(2.0)),
+            controls,
         })
     }
 
@@ -238,6 +289,10 @@ impl V4l2Camera {
     /// The format, size and rate in use.
     pub fn format(&self) -> FormatChoice {
         self.choice
+    }
+    /// The locked controls as read back after locking ([`read_back`]).
+    pub fn controls(&self) -> &[(&'static str, i64)] {
+        &self.controls
     }
 }
 
@@ -381,6 +436,40 @@ impl Camera for V4l2Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A device whose controls read from `values` (by id); ids not there cannot be read.
+    fn device(values: &[(u32, i64)]) -> impl Fn(u32) -> std::io::Result<i64> + '_ {
+        move |id| values.iter().find(|(i, _)| *i == id).map(|&(_, v)| v).ok_or_else(|| std::io::Error::other("no such control"))
+    }
+
+    #[test]
+    fn read_back_names_the_controls_the_device_has() {
+        let read = read_back(device(&[(CID_EXPOSURE_ABSOLUTE, 150), (CID_EXPOSURE_AUTO, 1), (CID_GAIN, 12)]));
+        assert_eq!(read, vec![("auto_exposure", 1), ("exposure_time_absolute", 150), ("gain", 12)]);
+        assert!(read_back(device(&[])).is_empty());
+    }
+
+    #[test]
+    fn mismatches_are_what_the_device_does_not_hold() {
+        let settings = CameraSettings { exposure_100us: Some(150), gain: Some(10), white_balance_k: Some(4600), ..Default::default() };
+        let held = [
+            ("auto_exposure", 1),
+            ("exposure_time_absolute", 150),
+            ("gain", 10),
+            ("white_balance_automatic", 0),
+            ("white_balance_temperature", 4600),
+        ];
+        assert!(lock_mismatches(&settings, &held).is_empty());
+        // The driver rounded the exposure, left auto white balance on and has no gain control.
+        let read =
+            [("auto_exposure", 1), ("exposure_time_absolute", 156), ("white_balance_automatic", 1), ("white_balance_temperature", 4600)];
+        assert_eq!(
+            lock_mismatches(&settings, &read),
+            vec!["exposure_time_absolute: asked 150, reads 156", "gain: asked 10, reads -", "white_balance_automatic: asked 0, reads 1"]
+        );
+        // Nothing asked, nothing to hold.
+        assert!(lock_mismatches(&CameraSettings::default(), &read).is_empty());
+    }
 
     fn offer(format: PixelFormat, width: u32, height: u32, max_fps: f64) -> FormatOffer {
         FormatOffer { format, width, height, max_fps }

@@ -83,6 +83,12 @@ pub struct CapturePart {
     /// The frame rate asked of a camera (configured, or the simulated sensor's), Hz.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub requested_fps: Option<u32>,
+    /// A V4L2 camera's exposure, gain and white-balance controls as read back from the device
+    /// after rig locked them, by their V4L2 names (`exposure_time_absolute = 150`, in 100 us;
+    /// `auto_exposure = 1`: manual); only the controls the device has. Absent for simulated
+    /// sensors and backends that do not lock controls (nokhwa).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub controls: std::collections::BTreeMap<String, i64>,
 }
 
 impl CapturePart {
@@ -97,6 +103,7 @@ impl CapturePart {
             format: None,
             resolution_px: None,
             requested_fps: None,
+            controls: std::collections::BTreeMap::new(),
         }
     }
 
@@ -107,6 +114,12 @@ impl CapturePart {
         self.format = format;
         self.resolution_px = Some(resolution_px);
         self.requested_fps = Some(requested_fps);
+        self
+    }
+
+    /// This camera part with its controls as read back from the device.
+    pub fn with_controls<'a>(mut self, controls: impl IntoIterator<Item = (&'a str, i64)>) -> Self {
+        self.controls = controls.into_iter().map(|(name, value)| (name.to_string(), value)).collect();
         self
     }
 }
@@ -332,5 +345,21 @@ mod tests {
         // A dataset from before the field resumes under any chain.
         m.check_same_dataset(&sim, Path::new("d")).unwrap();
         sim.check_same_dataset(&sim.clone(), Path::new("d")).unwrap();
+    }
+
+    #[test]
+    fn read_back_camera_controls_round_trip_and_older_parts_read_without_them() {
+        let part = CapturePart::new("tactip", "v4l2", false, Some("usb:1-2".into()))
+            .with_stream(Some("/dev/video2".into()), Some("YUYV".into()), [640, 480], 30)
+            .with_controls([("auto_exposure", 1), ("exposure_time_absolute", 150), ("gain", 12)]);
+        let chain = CaptureChain { arm: CapturePart::new("arm", "mg400", false, None), sensors: vec![part.clone()], modbus: Vec::new() };
+        let m = Manifest { capture: Some(chain), ..Manifest::new(SensorKind::TacTip, ObjectInfo::named("edge"), None) };
+        let text = toml::to_string(&m).unwrap();
+        assert!(text.contains("exposure_time_absolute = 150"), "{text}");
+        assert_eq!(toml::from_str::<Manifest>(&text).unwrap(), m);
+        // A part written without controls (simulated, nokhwa, older rig) has none.
+        let bare = toml::to_string(&CapturePart::new("vitac", "sim", true, None)).unwrap();
+        assert!(!bare.contains("controls"), "{bare}");
+        assert!(toml::from_str::<CapturePart>(&bare).unwrap().controls.is_empty());
     }
 }

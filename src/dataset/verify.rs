@@ -99,7 +99,7 @@ pub enum CaptureNote {
     #[default]
     Unknown,
     /// The manifest names what captured the frames.
-    Recorded(CaptureChain),
+    Recorded(Box<CaptureChain>),
     /// The manifest has no capture chain: it predates the field (or no rig captured this
     /// dataset: synthesised or imported). Not an issue; old datasets stay clean.
     Absent,
@@ -187,7 +187,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
         Ok(true) => match Manifest::load(dir) {
-            Ok(m) => report.capture = m.capture.map_or(CaptureNote::Absent, CaptureNote::Recorded),
+            Ok(m) => report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c))),
             Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
         },
         Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
