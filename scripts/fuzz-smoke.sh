@@ -17,7 +17,8 @@
 # src/arm/magician/proto.rs and tests/files/decoders_never_panic.rs (part of `cargo test`).
 #
 # Cost on a fresh machine (2 cores): installing cargo-fuzz was not timed here (it was
-# preinstalled); the first build of the six targets took 15 min on 2 shared cores; each run is the given
+# preinstalled); the first build of the seven targets took about a minute on a quiet 2-core machine
+# (longer when other builds share the cores); each run is the given
 # seconds plus about a second of start-up.
 #
 # Usage: scripts/fuzz-smoke.sh [seconds-per-target]   (default 10)

@@ -6,7 +6,7 @@
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
-# (about 15 minutes cold on 2 shared cores, seconds once fuzz/target is warm).
+# (about a minute cold on a quiet 2-core machine, seconds once fuzz/target is warm).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
