@@ -1,9 +1,13 @@
 """The same pipeline as rig's, driven from Python onnxruntime: for the benchmark
 (benches/synth_vs_python.rs) and for checking rig against an independent implementation.
 
-Same work per image as `rig synth one`: tokenise (padded to 77 with the end token), encode the
-prompt and the negative prompt in one call, then per step one ControlNet call and one UNet call
-on the [uncond, cond] batch (only cond at guidance 1), DDIM (eta 0) in numpy, one VAE decode.
+Same work per image as `rig synth one --sampler ddim`: tokenise (padded to 77 with the end
+token), encode the prompt and the negative prompt in one call, then per step one ControlNet call
+and one UNet call on the [uncond, cond] batch (only cond at guidance 1), DDIM (eta 0) in numpy,
+one VAE decode. The package's `model.toml` gives the resolution, the VAE factor, the latent
+scale and the hint encoding; the UNet's input gives the latent channels; the scheduler config
+gives the prediction type (epsilon, sample or v_prediction). So any rig package runs, the tiny
+test package (4 latent channels at 1/8, epsilon) and `models/default` (1/4, sample) alike.
 
     python tools/ort_pipeline.py --model tests/data/tiny-package --control control.png \
         --prompt "..." --steps 20 --guidance 7.5 --images 5 [--size 64x64] [--threads N] [--json]
@@ -13,6 +17,7 @@ import argparse
 import json
 import os
 import time
+import tomllib
 
 import numpy as np
 import onnxruntime as ort
@@ -31,12 +36,23 @@ class DDIM:
         self.final = np.float32(1.0) if cfg.get("set_alpha_to_one", True) else self.ac[0]
         self.ratio = n // steps
         self.timesteps = (np.arange(0, steps) * self.ratio)[::-1] + cfg.get("steps_offset", 0)
+        self.prediction = cfg.get("prediction_type", "epsilon")
+        if self.prediction not in ("epsilon", "sample", "v_prediction"):
+            raise SystemExit(f"prediction_type {self.prediction!r} is not supported")
 
-    def step(self, eps, t, x):
+    def step(self, out, t, x):
         a = self.ac[t]
         prev = t - self.ratio
         a_prev = self.ac[prev] if prev >= 0 else self.final
-        x0 = (x - np.sqrt(1 - a) * eps) / np.sqrt(a)
+        if self.prediction == "epsilon":
+            eps = out
+            x0 = (x - np.sqrt(1 - a) * eps) / np.sqrt(a)
+        elif self.prediction == "sample":
+            x0 = out
+            eps = (x - np.sqrt(a) * x0) / np.sqrt(1 - a)
+        else:  # v_prediction
+            x0 = np.sqrt(a) * x - np.sqrt(1 - a) * out
+            eps = np.sqrt(a) * out + np.sqrt(1 - a) * x
         return np.sqrt(a_prev) * x0 + np.sqrt(1 - a_prev) * eps
 
 
@@ -57,7 +73,15 @@ class Pipeline:
         self.tok.enable_padding(length=77, pad_id=end, pad_token="<|endoftext|>")
         with open(os.path.join(model, "scheduler", "scheduler_config.json")) as f:
             self.sched_cfg = json.load(f)
+        with open(os.path.join(model, "model.toml"), "rb") as f:
+            self.config = tomllib.load(f)
+        self.resolution = tuple(self.config.get("resolution", (512, 512)))
+        self.vae_factor = int(self.config.get("vae_scale_factor", 8))
+        self.latent_scale = float(self.config.get("latent_scale", 0.18215))
+        self.hint_encoding = self.config.get("hint_encoding", "rgb01")
         self.types = {s: {i.name: i for i in getattr(self, s).get_inputs()} for s in ("text", "cn", "unet")}
+        channels = self.types["unet"]["sample"].shape[1]
+        self.latent_channels = channels if isinstance(channels, int) else 4
         self.down = [o.name for o in self.cn.get_outputs()]
         self.res = [i.name for i in self.unet.get_inputs()][3:]
 
@@ -66,12 +90,14 @@ class Pipeline:
         shape = [] if len(spec.shape) == 0 else ([1] if spec.shape == [1] else [batch])
         return np.full(shape, t, dtype=np_type(spec.type))
 
-    def generate(self, control, prompt, negative, steps, guidance, latents, scale=0.18215):
+    def generate(self, control, prompt, negative, steps, guidance, latents):
         guided = guidance != 1.0
         prompts = [negative, prompt] if guided else [prompt]
         ids = np.array([e.ids for e in self.tok.encode_batch(prompts)], dtype=np_type(self.types["text"]["input_ids"].type))
         ehs = self.text.run(["last_hidden_state"], {"input_ids": ids})[0]
         hint = (np.asarray(control, dtype=np.float32) / 255.0).transpose(2, 0, 1)[None]
+        if self.hint_encoding == "rgb11":
+            hint = hint * 2.0 - 1.0
         b = 2 if guided else 1
         hint = np.repeat(hint, b, axis=0)
         sched = DDIM(self.sched_cfg, steps)
@@ -86,7 +112,7 @@ class Pipeline:
             if guided:
                 eps = eps[0:1] + np.float32(guidance) * (eps[1:2] - eps[0:1])
             x = sched.step(eps, int(t), x).astype(np.float32)
-        raw = self.vae.run(["sample"], {"latent_sample": (x / np.float32(scale)).astype(np.float32)})[0]
+        raw = self.vae.run(["sample"], {"latent_sample": (x / np.float32(self.latent_scale)).astype(np.float32)})[0]
         return raw.transpose(0, 2, 3, 1)
 
 
@@ -110,15 +136,14 @@ def main():
     pipe = Pipeline(args.model, args.threads)
     load_s = time.perf_counter() - t0
     control = Image.open(args.control).convert("RGB")
-    if args.size:
-        w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = (int(v) for v in args.size.lower().split("x")) if args.size else pipe.resolution
+    if control.size != (w, h):
         control = control.resize((w, h), Image.BILINEAR)
-    w, h = control.size
     rng = np.random.default_rng(0)
     times = []
     raw = None
     for i in range(args.images + 1):  # the first image warms up and is not timed
-        lat = np.load(args.init_latents) if args.init_latents else rng.standard_normal((1, 4, h // 8, w // 8)).astype(np.float32)
+        lat = np.load(args.init_latents) if args.init_latents else rng.standard_normal((1, pipe.latent_channels, h // pipe.vae_factor, w // pipe.vae_factor)).astype(np.float32)
         t = time.perf_counter()
         raw = pipe.generate(control, args.prompt, args.negative_prompt, args.steps, args.guidance, lat)
         if i > 0:
