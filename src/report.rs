@@ -406,10 +406,10 @@ impl Classify for crate::jobs::JobError {
             J::Fill { source, .. } => source.exit(),
             J::Model { source, .. } => source.exit(),
             J::Press(e) => e.exit(),
-            J::Path(e) => e.exit(),
+            J::Request(e) => e.exit(),
             J::Settings(e) => e.exit(),
             J::Replay(e) => e.exit(),
-            J::BadOption { .. } | J::SensorNotOpen { .. } => Exit::BadInput,
+            J::SensorNotOpen { .. } => Exit::BadInput,
             J::SaveCalibration { .. } | J::Worker { .. } => Exit::Failure,
         }
     }

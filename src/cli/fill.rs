@@ -151,7 +151,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
 /// An option the request refused is bad input on the command line (exit 2).
 fn usage_of(e: JobError) -> anyhow::Error {
     match e {
-        JobError::BadOption { reason, .. } => anyhow::Error::new(crate::cli::usage(&reason)),
+        JobError::Request(crate::jobs::RequestError::BadOption { reason, .. }) => anyhow::Error::new(crate::cli::usage(&reason)),
         e => anyhow::Error::new(e),
     }
 }

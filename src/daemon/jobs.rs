@@ -110,19 +110,15 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
     let RigContext { state, job_id, pipeline, ort_lib, .. } = ctx;
     if request.twins() {
         // Twins are for evaluating a model offline; the daemon's synth jobs fill datasets.
-        return Err(JobError::BadOption {
-            field: "poses_of",
-            reason: "the daemon runs fills only: run `rig synth --poses-of` locally".into(),
-        }
-        .into());
+        return Err(JobError::bad_option("poses_of", "the daemon runs fills only: run `rig synth --poses-of` locally").into());
     }
     let targets = request.targets()?;
     let model = request.model_dir();
     let Some(ort_lib) = ort_lib else {
-        return Err(JobError::BadOption {
-            field: "synth",
-            reason: "the daemon found no ONNX Runtime library when it started: restart it with --ort-lib PATH".into(),
-        }
+        return Err(JobError::bad_option(
+            "synth",
+            "the daemon found no ONNX Runtime library when it started: restart it with --ort-lib PATH",
+        )
         .into());
     };
     let runtime = RuntimeOptions { ort_lib: Some(ort_lib), ..RuntimeOptions::default() };

@@ -47,7 +47,7 @@ impl FillRequest {
     /// Checks the request and lists the datasets it works on, before any model is loaded.
     pub fn targets(&self) -> Result<Vec<FillTarget>, JobError> {
         self.check()?;
-        let bad = |field, reason: String| JobError::BadOption { field, reason };
+        let bad = |field, reason: String| JobError::bad_option(field, reason);
         let no_dataset = |root: &Path| {
             bad("dataset", format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()))
         };

@@ -34,6 +34,12 @@ use tokio::sync::watch;
 pub use request::{CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name};
 
 impl JobError {
+    /// An option the command would reject (exit code 2), refused after the request's own
+    /// checks (by what it names, or by where it runs).
+    pub fn bad_option(field: &'static str, reason: impl Into<String>) -> JobError {
+        RequestError::BadOption { field, reason: reason.into() }.into()
+    }
+
     /// A [`JobError::Fill`] for `dir`, for `map_err`.
     pub fn fill(action: &'static str, dir: &std::path::Path) -> impl FnOnce(crate::synth::fill::FillError) -> JobError {
         let dir = dir.to_path_buf();
@@ -98,29 +104,17 @@ pub enum JobError {
     Press(#[from] crate::calibration::press::PressError),
     #[error("saving the calibration {path}: {reason}")]
     SaveCalibration { path: PathBuf, reason: String },
-    /// A path outside the daemon's data roots, or one that cannot be resolved there.
+    /// A request refused before anything was read or loaded: an option out of its bounds, a
+    /// path outside the data roots.
     #[error("{0}")]
-    Path(#[from] crate::roots::PathError),
+    Request(#[from] RequestError),
     /// A sampling or size setting out of its bounds.
     #[error("{0}")]
     Settings(#[from] crate::synth::SynthError),
-    /// An option the command would reject (exit code 2).
-    #[error("{field}: {reason}")]
-    BadOption { field: &'static str, reason: String },
     #[error("sensor {sensor} is not open here (open: {opened})")]
     SensorNotOpen { sensor: crate::sensor::SensorKind, opened: String },
     #[error("{0}")]
     Replay(#[from] crate::record::replay::ReplayError),
     #[error("the synth worker thread stopped: {reason}")]
     Worker { reason: String },
-}
-
-impl From<RequestError> for JobError {
-    fn from(e: RequestError) -> Self {
-        match e {
-            RequestError::BadOption { field, reason } => JobError::BadOption { field, reason },
-            RequestError::Path(e) => JobError::Path(e),
-            RequestError::Setting(e) => JobError::Settings(e.into()),
-        }
-    }
 }
