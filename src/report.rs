@@ -111,6 +111,7 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::config::ConfigError,
         crate::plan::PlanError,
         crate::dataset::DatasetError,
+        crate::dataset::lerobot::LerobotError,
         crate::synth::SynthError,
         crate::synth::scheduler::SchedulerError,
         crate::synth::limits::BadSetting,
@@ -262,6 +263,17 @@ impl Classify for crate::dataset::DatasetError {
             | D::Encode { .. }
             | D::Locked { .. }
             | D::CsvWrite { .. } => Exit::Failure,
+        }
+    }
+}
+
+impl Classify for crate::dataset::lerobot::LerobotError {
+    fn exit(&self) -> Exit {
+        use crate::dataset::lerobot::LerobotError as L;
+        match self {
+            L::Dataset(e) => e.exit(),
+            L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) => Exit::BadInput,
+            L::Io { .. } | L::Write { .. } => Exit::Failure,
         }
     }
 }

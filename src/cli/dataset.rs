@@ -7,6 +7,7 @@ use anyhow::{Context, bail};
 
 use crate::dataset::durable;
 use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
+use crate::dataset::lerobot::{LerobotOptions, export_lerobot};
 use crate::dataset::{DatasetWriter, Manifest, MergeOptions, ObjectInfo, merge, read_rows, verify};
 use crate::sensor::SensorKind;
 
@@ -24,6 +25,10 @@ pub enum Format {
     Mds,
     /// tactile-bench: sensor_image,object_label,pose_x..pose_Rz,pose_id,source.
     TactileBench,
+    /// LeRobot v3 (parquet): one episode per object, one frame per pose, one image key per
+    /// sensor; --out is a new folder. DIR may be a dataset, an object folder or a folder of
+    /// objects.
+    Lerobot,
 }
 
 // The doc comments are `--help` text, where `<obj_id>` is a placeholder, not HTML.
@@ -34,15 +39,27 @@ pub enum DatasetCommand {
     /// killed run; exits 1 when the dataset is not clean. Changes nothing.
     #[command(after_help = crate::cli::examples::DATASET_VERIFY)]
     Verify { dir: PathBuf },
-    /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect.
+    /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect, or the
+    /// datasets under DIR as a LeRobot v3 dataset.
     #[command(after_help = crate::cli::examples::DATASET_EXPORT)]
     Export {
         dir: PathBuf,
         #[arg(long, value_enum)]
         format: Format,
-        /// Output CSV (default: standard output).
+        /// Output CSV (default: standard output); for lerobot, the output folder (required,
+        /// absent or empty).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// lerobot only: meta/info.json's fps; frame i of an episode is stamped i / fps s.
+        #[arg(long, default_value_t = 1)]
+        fps: u32,
+        /// lerobot only: the task text of every episode (default: "press the <sensors>
+        /// against the <object>").
+        #[arg(long)]
+        task: Option<String>,
+        /// lerobot only: meta/info.json's robot_type (default: from the capture chain's arm).
+        #[arg(long)]
+        robot_type: Option<String>,
         /// MDS obj_id column.
         #[arg(long, default_value = "1")]
         obj_id: String,
@@ -102,7 +119,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        DatasetCommand::Export { dir, format, out, obj_id, images_out } => {
+        DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, .. } => {
+            let Some(out) = out else { bail!(crate::cli::usage("--format lerobot needs --out DIR (a new folder)")) };
+            let options = LerobotOptions { fps, task, robot_type };
+            let s = export_lerobot(&dir, &out, &options).with_context(|| format!("exporting {} as LeRobot", dir.display()))?;
+            let sensors: Vec<&str> = s.sensors.iter().map(|k| k.name()).collect();
+            println!(
+                "wrote a LeRobot v3 dataset to {}: {} episode{}, {} frames, image keys for {}{}",
+                out.display(),
+                s.episodes,
+                if s.episodes == 1 { "" } else { "s" },
+                s.frames,
+                sensors.join(", "),
+                if s.reencoded > 0 { format!(" ({} images re-encoded as 8-bit RGB)", s.reencoded) } else { String::new() }
+            );
+            Ok(())
+        }
+        DatasetCommand::Export { dir, format, out, obj_id, images_out, .. } => {
             export(&dir, format, out.as_deref(), &obj_id, images_out.as_deref())
         }
         DatasetCommand::Import { csv, out, images, sensor, object, stl, resume } => {
@@ -150,6 +183,7 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
             }
         }
         Format::TactileBench => export_tactile_bench(&rows, &manifest.object.name, &mut buf)?,
+        Format::Lerobot => bail!("the LeRobot export writes a folder, not a CSV"),
     }
     match out {
         Some(path) => {

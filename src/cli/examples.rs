@@ -50,7 +50,8 @@ Examples:
 pub const DATASET_EXPORT: &str = "\
 Examples:
   rig dataset export datasets/sphere/tactip --format mds --out sphere-tactip.csv --images-out mds-images
-  rig dataset export datasets/sphere/vitac --format tactile-bench --out sphere-vitac.csv";
+  rig dataset export datasets/sphere/vitac --format tactile-bench --out sphere-vitac.csv
+  rig dataset export datasets/sphere --format lerobot --out lerobot/sphere";
 
 /// `rig dataset import`.
 pub const DATASET_IMPORT: &str = "\

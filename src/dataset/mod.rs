@@ -18,11 +18,12 @@
 //! image whose row was never written; [`DatasetWriter::resume`] repairs all three and takes
 //! the set of done pose ids from the CSV. [`verify()`] reports what is wrong without touching
 //! anything; [`export`] writes the MultiDiffSense (MDS) and tactile-bench CSV dialects and
-//! reads the MDS one; [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
+//! reads the MDS one; [`lerobot`] writes a LeRobot v3 dataset (parquet); [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
 
 pub mod durable;
 mod error;
 pub mod export;
+pub mod lerobot;
 pub mod manifest;
 pub mod merge;
 pub mod verify;

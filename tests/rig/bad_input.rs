@@ -74,6 +74,8 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     write("bad.csv", b"a,b\n1,2\n");
     write("bad-row.csv", b"image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\nf.png,d,1,x,1,2,3,4,5,6,0,0,0,0,0,0\n");
     std::fs::create_dir_all(dir.join("not-a-dataset")).expect("mkdir");
+    std::fs::create_dir_all(dir.join("not-a-dataset-either")).expect("mkdir");
+    write("not-a-dataset-either/notes.txt", b"a user's file\n");
 
     // A real small dataset, for the "already exists" and "different plan" cases.
     let made = rig(dir)
@@ -124,6 +126,13 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("verify a folder that is not a dataset", &["dataset", "verify", "not-a-dataset"], 2, "is not a dataset"),
         case("import a CSV that is not MDS", &["dataset", "import", "bad.csv"], 2, "missing column"),
         case("import an MDS row with a bad number", &["dataset", "import", "bad-row.csv"], 2, "malformed MDS row"),
+        case("LeRobot export without --out", &["dataset", "export", "ds", "--format", "lerobot"], 2, "needs --out"),
+        case(
+            "LeRobot export into a folder in use",
+            &["dataset", "export", "ds", "--format", "lerobot", "--out", "not-a-dataset-either"],
+            2,
+            "refusing to overwrite",
+        ),
         case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "missing"),
         case(
             "synthetic twins on the daemon",
@@ -160,6 +169,10 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     }
     // Nothing of a refused run may be left as a dataset.
     assert!(!dir.join("cal/sphere/tactip/poses.csv").exists(), "a refused calibration started a dataset");
+    // A refused export leaves the folder it was pointed at as it was.
+    let kept: Vec<_> =
+        std::fs::read_dir(dir.join("not-a-dataset-either")).expect("ls").filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
+    assert_eq!(kept, vec![std::ffi::OsString::from("notes.txt")], "a refused export touched its --out");
     let table = table.join("\n");
     println!("\n{table}\n");
     if let Ok(path) = std::env::var("RIG_BAD_INPUT_TABLE") {
