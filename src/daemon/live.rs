@@ -116,6 +116,9 @@ impl Camera for LiveCamera<'_> {
         publish_frame(&self.state, &self.camera.sensor_dir(), &frame);
         Ok(frame)
     }
+    fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+        self.camera.stream_stats()
+    }
 }
 
 /// Encodes `frame` as JPEG and publishes it as `sensor`'s latest frame. A frame that does
