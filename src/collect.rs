@@ -17,6 +17,11 @@
 //! succeeded. A required peripheral's fault is retried like a camera timeout; an optional
 //! one's only leaves its values empty (see [`crate::io::modbus`]).
 //!
+//! However a run ends (finished, interrupted, failed), what each camera's stream delivered
+//! during it ([`Camera::stream_stats`] after the run less before it) is added to that sensor's
+//! part of the capture chain in every dataset's manifest, so a resumed dataset's counts cover
+//! all its runs. A run killed outright (SIGKILL, power loss) adds nothing.
+//!
 //! The job only sees the [`Arm`], [`Camera`] and [`Peripherals`] traits: the same code drives
 //! the real and the simulated rig.
 
@@ -27,7 +32,7 @@ use tokio::sync::watch;
 use tracing::{info, warn};
 
 use crate::arm::{Arm, ArmError, Arrival, MoveKind, move_and_wait};
-use crate::camera::{Camera, CameraError, capture_settled};
+use crate::camera::{Camera, CameraError, StreamOrigin, StreamStats, capture_settled};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
 use crate::dataset::{DatasetError, DatasetWriter, PoseRow, Source};
@@ -166,8 +171,70 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         move_and_wait(&mut *self.arm, target, kind, timeout).await
     }
 
-    /// Runs the plan. Poses already present in every sensor's dataset are skipped.
+    /// Runs the plan. Poses already present in every sensor's dataset are skipped. However the
+    /// run ends, the cameras' stream counts of the run go into the manifests
+    /// ([`record_streams`](Self::record_streams)); a finished run then stamps its end time.
     pub async fn run(mut self, plan: &[PlannedPose]) -> Result<CollectSummary, CollectError> {
+        let at_start: Vec<Option<StreamStats>> = self.sensors.iter().map(|s| s.camera.stream_stats()).collect();
+        let result = self.run_plan(plan).await;
+        let recorded = self.record_streams(&at_start);
+        let (summary, end) = match result {
+            Ok(ended) => ended,
+            Err(e) => {
+                if let Err(not_recorded) = recorded {
+                    warn!(error = %not_recorded, "could not add the stream counts to the manifests");
+                }
+                return Err(e);
+            }
+        };
+        recorded?;
+        // Rows are already durable; finishing stamps the end time, which an interrupted run
+        // has not reached.
+        if !summary.interrupted {
+            for s in std::mem::take(&mut self.sensors) {
+                s.writer.finish()?;
+            }
+        }
+        self.progress.finish_and_clear();
+        end?;
+        info!(?summary, "collection finished");
+        Ok(summary)
+    }
+
+    /// Adds what each camera's stream delivered since `at_start` to its sensor's part of the
+    /// capture chain, in every dataset's manifest (each lists every sensor of the run). A
+    /// camera that cannot count adds nothing; a measured stream also adds its timing.
+    fn record_streams(&mut self, at_start: &[Option<StreamStats>]) -> Result<(), DatasetError> {
+        let runs: Vec<(String, StreamStats)> = self
+            .sensors
+            .iter()
+            .zip(at_start)
+            .filter_map(|(s, start)| {
+                let now = s.camera.stream_stats()?;
+                let run = start.as_ref().map_or(now, |start| now.since(start));
+                Some((s.writer.manifest().sensor.to_string(), run))
+            })
+            .collect();
+        if runs.is_empty() {
+            return Ok(());
+        }
+        for s in &mut self.sensors {
+            s.writer.update_manifest(|manifest| {
+                let Some(chain) = manifest.capture.as_mut() else { return };
+                for (name, run) in &runs {
+                    if let Some(part) = chain.sensors.iter_mut().find(|p| &p.name == name) {
+                        let timed = (run.origin == StreamOrigin::Measured).then_some((run.timed_frames, run.timed_s));
+                        part.add_stream_run(run.frames_received, run.frames_dropped, timed);
+                    }
+                }
+            })?;
+        }
+        Ok(())
+    }
+
+    /// The plan's steps, up to the arm disabled at the end; returns the summary and how the
+    /// final retract went.
+    async fn run_plan(&mut self, plan: &[PlannedPose]) -> Result<(CollectSummary, Result<Arrival, ArmError>), CollectError> {
         let mut summary = CollectSummary { captured: 0, skipped: 0, remaining: 0, recovered_faults: 0, interrupted: false };
         let todo: Vec<&PlannedPose> =
             plan.iter().filter(|p| self.sensors.iter().any(|s| !s.writer.done_ids().contains(&p.pose_id))).collect();
@@ -206,17 +273,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
             warn!(error = %e, "could not retract at the end");
         }
         self.arm.disable().await?;
-        // Rows are already durable; finishing stamps the end time, which an interrupted run
-        // has not reached.
-        if !summary.interrupted {
-            for s in std::mem::take(&mut self.sensors) {
-                s.writer.finish()?;
-            }
-        }
-        self.progress.finish_and_clear();
-        end?;
-        info!(?summary, "collection finished");
-        Ok(summary)
+        Ok((summary, end))
     }
 
     /// Runs one step, clearing and retrying it after a recoverable arm fault (alarm, timeout,
