@@ -273,6 +273,12 @@ impl Arm for RigArm {
             RigArm::Magician(a) => a.disable().await,
         }
     }
+    async fn firmware_version(&mut self) -> Option<String> {
+        match self {
+            RigArm::Mg400(a) => a.firmware_version().await,
+            RigArm::Magician(a) => a.firmware_version().await,
+        }
+    }
 }
 
 /// An opened rig: the arm client, the cameras, and the simulator when one runs in-process.

@@ -99,6 +99,9 @@ impl Arm for LiveArm<'_> {
         self.publish_mode(if r.is_ok() { "disabled" } else { "error" });
         r
     }
+    async fn firmware_version(&mut self) -> Option<String> {
+        self.arm.firmware_version().await
+    }
 }
 
 /// One of the rig's cameras, publishing every frame it gives.
