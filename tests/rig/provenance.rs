@@ -107,6 +107,8 @@ fn simulated_collection_says_so_and_merge_keeps_sources_apart() {
         assert_eq!((part.resolution_px, part.requested_fps, part.format.as_deref()), (Some([512, 512]), Some(30), None), "{part:?}");
     }
     assert_eq!(capture.arm.address, None, "the simulated arm runs in-process");
+    // The simulated MG400 runs the default profile's firmware, and says it is simulated.
+    assert_eq!(capture.arm.firmware.as_deref(), Some("1.6.0.0 (simulated)"));
     let modbus: Vec<(&str, bool)> = capture.modbus.iter().map(|p| (p.name.as_str(), p.simulated)).collect();
     assert_eq!(modbus, [("modbus.light", true)]);
 
