@@ -482,6 +482,7 @@ auto_exposure = 1
         arm.firmware = Some("3.7.0".into());
         let mut camera = CapturePart::new("tactip", "v4l2", false, Some("serial:TT-0042".into()))
             .with_stream(Some("/dev/video2".into()), Some("YUYV".into()), [640, 480], 30)
+            .with_controls([("auto_exposure", 1), ("exposure_time_absolute", 156)])
             .with_usb("1-2.3", 0x0c45, 0x6366, Some("TT-0042"));
         camera.add_stream_run(301, 2, Some((299, 10.0)));
         let chain = CaptureChain { arm, sensors: vec![camera], modbus: Vec::new() };
