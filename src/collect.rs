@@ -415,6 +415,11 @@ fn has_reference(writer: &DatasetWriter) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::Frame;
+    use crate::camera::meter::StreamMeter;
+    use crate::clock::MockClock;
+    use crate::dataset::{CaptureChain, CapturePart, Manifest, ObjectInfo};
+    use crate::sensor::SensorKind;
 
     #[test]
     fn plan_check_names_the_pose() {
@@ -430,5 +435,121 @@ mod tests {
         let e = check_plan(&plan, &wf, check).unwrap_err();
         assert!(matches!(e, CollectError::Unreachable { pose_id: Some(7), which: "contact", .. }), "{e}");
         assert!(e.to_string().contains("z below"));
+    }
+
+    /// An arm that is wherever it is sent, at once.
+    struct InstantArm {
+        at: Pose,
+    }
+
+    impl Arm for InstantArm {
+        async fn enable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
+            self.at = target;
+            Ok(())
+        }
+        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<Arrival, ArmError> {
+            Ok(Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
+        }
+        async fn pose(&mut self) -> Result<Pose, ArmError> {
+            Ok(self.at)
+        }
+        async fn stop(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
+            Ok(Vec::new())
+        }
+        async fn disable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+    }
+
+    /// A measured camera: each frame asked for is one driver buffer, its sequence number
+    /// `step` after the previous one (`step - 1` dropped), stamped `step` frame intervals of
+    /// 1/30 s later.
+    struct MeteredCamera {
+        meter: StreamMeter,
+        sequence: u32,
+        t_s: f64,
+        step: u32,
+    }
+
+    impl MeteredCamera {
+        fn deliver(&mut self) {
+            self.sequence += self.step;
+            self.t_s += f64::from(self.step) / 30.0;
+            self.meter.record(self.sequence, self.t_s);
+        }
+    }
+
+    impl Camera for &mut MeteredCamera {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
+            self.deliver();
+            Ok(Frame { image: image::RgbImage::new(2, 2), t_capture_s: not_before_s, seq: u64::from(self.sequence) })
+        }
+        fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+            Some(self.meter.stats())
+        }
+    }
+
+    fn planned(n: u32) -> Vec<PlannedPose> {
+        (0..n).map(|pose_id| PlannedPose { pose_id, pose: Pose::new(f64::from(pose_id), 0.0, 0.5, 0.0) }).collect()
+    }
+
+    async fn collect(camera: &mut MeteredCamera, dir: &std::path::Path, plan: &[PlannedPose], resume: bool, stop_after: Option<usize>) {
+        let part = CapturePart::new("tactip", "v4l2", false, Some("port:1-2".into()));
+        let mut manifest = Manifest::new(SensorKind::TacTip, ObjectInfo::named("edge"), None);
+        manifest.capture =
+            Some(CaptureChain { arm: CapturePart::new("arm", "mg400", false, None), sensors: vec![part], modbus: Vec::new() });
+        let writer = DatasetWriter::start(dir, manifest, resume).unwrap();
+        let (_stop, cancel) = watch::channel(false);
+        let mut arm = InstantArm { at: Pose::default() };
+        let job = CollectJob {
+            arm: &mut arm,
+            sensors: vec![SensorStream { camera, writer, source: Source::Real }],
+            work_frame: WorkFrame::default(),
+            options: CollectConfig { settle_s: 0.0, ..CollectConfig::default() },
+            clock: Arc::new(MockClock::new()),
+            cancel,
+            stop_after,
+            progress: indicatif::ProgressBar::hidden(),
+            peripherals: NoPeripherals,
+        };
+        job.run(plan).await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_measured_stream_of_each_run_is_added_to_the_manifest() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("edge").join("tactip");
+        // The camera has streamed before the run (a daemon keeps its cameras open): those
+        // frames are not the run's.
+        let mut camera = MeteredCamera { meter: StreamMeter::new(), sequence: 0, t_s: 100.0, step: 2 };
+        for _ in 0..5 {
+            camera.deliver();
+        }
+        // Run 1: the reference frame and 3 poses, every other frame dropped by the driver.
+        collect(&mut camera, &dir, &planned(3), false, None).await;
+        let part = |dir: &std::path::Path| Manifest::load(dir).unwrap().capture.unwrap().sensors.remove(0);
+        let first = part(&dir);
+        assert_eq!((first.frames_received, first.frames_dropped), (Some(4), Some(4)));
+        assert!((first.stream_s.unwrap() - 8.0 / 30.0).abs() < 1e-9, "{first:?}");
+        assert!((first.measured_fps.unwrap() - 15.0).abs() < 1e-9, "{first:?}");
+
+        // Run 2 resumes a longer plan, now without drops, and is interrupted after one pose:
+        // its frame is added, and the rate covers both runs' timed frames and time.
+        camera.step = 1;
+        collect(&mut camera, &dir, &planned(6), true, Some(1)).await;
+        let second = part(&dir);
+        assert_eq!((second.frames_received, second.frames_dropped), (Some(5), Some(4)));
+        assert!((second.stream_s.unwrap() - 9.0 / 30.0).abs() < 1e-9, "{second:?}");
+        assert!((second.measured_fps.unwrap() - 5.0 / (9.0 / 30.0)).abs() < 1e-9, "{second:?}");
+        assert_eq!(Manifest::load(&dir).unwrap().resumed_utc.len(), 1);
     }
 }
