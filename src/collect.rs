@@ -17,6 +17,11 @@
 //! succeeded. A required peripheral's fault is retried like a camera timeout; an optional
 //! one's only leaves its values empty (see [`crate::io::modbus`]).
 //!
+//! However a run ends (finished, interrupted, failed), what each camera's stream delivered
+//! during it ([`Camera::stream_stats`] after the run less before it) is added to that sensor's
+//! part of the capture chain in every dataset's manifest, so a resumed dataset's counts cover
+//! all its runs. A run killed outright (SIGKILL, power loss) adds nothing.
+//!
 //! The job only sees the [`Arm`], [`Camera`] and [`Peripherals`] traits: the same code drives
 //! the real and the simulated rig.
 
@@ -27,7 +32,7 @@ use tokio::sync::watch;
 use tracing::{info, warn};
 
 use crate::arm::{Arm, ArmError, Arrival, MoveKind, move_and_wait};
-use crate::camera::{Camera, CameraError, capture_settled};
+use crate::camera::{Camera, CameraError, StreamOrigin, StreamStats, capture_settled};
 use crate::clock::Clock;
 use crate::config::CollectConfig;
 use crate::dataset::{DatasetError, DatasetWriter, PoseRow, Source};
@@ -166,8 +171,70 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         move_and_wait(&mut *self.arm, target, kind, timeout).await
     }
 
-    /// Runs the plan. Poses already present in every sensor's dataset are skipped.
+    /// Runs the plan. Poses already present in every sensor's dataset are skipped. However the
+    /// run ends, the cameras' stream counts of the run go into the manifests
+    /// ([`record_streams`](Self::record_streams)); a finished run then stamps its end time.
     pub async fn run(mut self, plan: &[PlannedPose]) -> Result<CollectSummary, CollectError> {
+        let at_start: Vec<Option<StreamStats>> = self.sensors.iter().map(|s| s.camera.stream_stats()).collect();
+        let result = self.run_plan(plan).await;
+        let recorded = self.record_streams(&at_start);
+        let (summary, end) = match result {
+            Ok(ended) => ended,
+            Err(e) => {
+                if let Err(not_recorded) = recorded {
+                    warn!(error = %not_recorded, "could not add the stream counts to the manifests");
+                }
+                return Err(e);
+            }
+        };
+        recorded?;
+        // Rows are already durable; finishing stamps the end time, which an interrupted run
+        // has not reached.
+        if !summary.interrupted {
+            for s in std::mem::take(&mut self.sensors) {
+                s.writer.finish()?;
+            }
+        }
+        self.progress.finish_and_clear();
+        end?;
+        info!(?summary, "collection finished");
+        Ok(summary)
+    }
+
+    /// Adds what each camera's stream delivered since `at_start` to its sensor's part of the
+    /// capture chain, in every dataset's manifest (each lists every sensor of the run). A
+    /// camera that cannot count adds nothing; a measured stream also adds its timing.
+    fn record_streams(&mut self, at_start: &[Option<StreamStats>]) -> Result<(), DatasetError> {
+        let runs: Vec<(String, StreamStats)> = self
+            .sensors
+            .iter()
+            .zip(at_start)
+            .filter_map(|(s, start)| {
+                let now = s.camera.stream_stats()?;
+                let run = start.as_ref().map_or(now, |start| now.since(start));
+                Some((s.writer.manifest().sensor.to_string(), run))
+            })
+            .collect();
+        if runs.is_empty() {
+            return Ok(());
+        }
+        for s in &mut self.sensors {
+            s.writer.update_manifest(|manifest| {
+                let Some(chain) = manifest.capture.as_mut() else { return };
+                for (name, run) in &runs {
+                    if let Some(part) = chain.sensors.iter_mut().find(|p| &p.name == name) {
+                        let timed = (run.origin == StreamOrigin::Measured).then_some((run.timed_frames, run.timed_s));
+                        part.add_stream_run(run.frames_received, run.frames_dropped, timed);
+                    }
+                }
+            })?;
+        }
+        Ok(())
+    }
+
+    /// The plan's steps, up to the arm disabled at the end; returns the summary and how the
+    /// final retract went.
+    async fn run_plan(&mut self, plan: &[PlannedPose]) -> Result<(CollectSummary, Result<Arrival, ArmError>), CollectError> {
         let mut summary = CollectSummary { captured: 0, skipped: 0, remaining: 0, recovered_faults: 0, interrupted: false };
         let todo: Vec<&PlannedPose> =
             plan.iter().filter(|p| self.sensors.iter().any(|s| !s.writer.done_ids().contains(&p.pose_id))).collect();
@@ -206,17 +273,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
             warn!(error = %e, "could not retract at the end");
         }
         self.arm.disable().await?;
-        // Rows are already durable; finishing stamps the end time, which an interrupted run
-        // has not reached.
-        if !summary.interrupted {
-            for s in std::mem::take(&mut self.sensors) {
-                s.writer.finish()?;
-            }
-        }
-        self.progress.finish_and_clear();
-        end?;
-        info!(?summary, "collection finished");
-        Ok(summary)
+        Ok((summary, end))
     }
 
     /// Runs one step, clearing and retrying it after a recoverable arm fault (alarm, timeout,
@@ -358,6 +415,11 @@ fn has_reference(writer: &DatasetWriter) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::Frame;
+    use crate::camera::meter::StreamMeter;
+    use crate::clock::MockClock;
+    use crate::dataset::{CaptureChain, CapturePart, Manifest, ObjectInfo};
+    use crate::sensor::SensorKind;
 
     #[test]
     fn plan_check_names_the_pose() {
@@ -373,5 +435,121 @@ mod tests {
         let e = check_plan(&plan, &wf, check).unwrap_err();
         assert!(matches!(e, CollectError::Unreachable { pose_id: Some(7), which: "contact", .. }), "{e}");
         assert!(e.to_string().contains("z below"));
+    }
+
+    /// An arm that is wherever it is sent, at once.
+    struct InstantArm {
+        at: Pose,
+    }
+
+    impl Arm for InstantArm {
+        async fn enable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
+            self.at = target;
+            Ok(())
+        }
+        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<Arrival, ArmError> {
+            Ok(Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
+        }
+        async fn pose(&mut self) -> Result<Pose, ArmError> {
+            Ok(self.at)
+        }
+        async fn stop(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
+            Ok(Vec::new())
+        }
+        async fn disable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+    }
+
+    /// A measured camera: each frame asked for is one driver buffer, its sequence number
+    /// `step` after the previous one (`step - 1` dropped), stamped `step` frame intervals of
+    /// 1/30 s later.
+    struct MeteredCamera {
+        meter: StreamMeter,
+        sequence: u32,
+        t_s: f64,
+        step: u32,
+    }
+
+    impl MeteredCamera {
+        fn deliver(&mut self) {
+            self.sequence += self.step;
+            self.t_s += f64::from(self.step) / 30.0;
+            self.meter.record(self.sequence, self.t_s);
+        }
+    }
+
+    impl Camera for &mut MeteredCamera {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
+            self.deliver();
+            Ok(Frame { image: image::RgbImage::new(2, 2), t_capture_s: not_before_s, seq: u64::from(self.sequence) })
+        }
+        fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+            Some(self.meter.stats())
+        }
+    }
+
+    fn planned(n: u32) -> Vec<PlannedPose> {
+        (0..n).map(|pose_id| PlannedPose { pose_id, pose: Pose::new(f64::from(pose_id), 0.0, 0.5, 0.0) }).collect()
+    }
+
+    async fn collect(camera: &mut MeteredCamera, dir: &std::path::Path, plan: &[PlannedPose], resume: bool, stop_after: Option<usize>) {
+        let part = CapturePart::new("tactip", "v4l2", false, Some("port:1-2".into()));
+        let mut manifest = Manifest::new(SensorKind::TacTip, ObjectInfo::named("edge"), None);
+        manifest.capture =
+            Some(CaptureChain { arm: CapturePart::new("arm", "mg400", false, None), sensors: vec![part], modbus: Vec::new() });
+        let writer = DatasetWriter::start(dir, manifest, resume).unwrap();
+        let (_stop, cancel) = watch::channel(false);
+        let mut arm = InstantArm { at: Pose::default() };
+        let job = CollectJob {
+            arm: &mut arm,
+            sensors: vec![SensorStream { camera, writer, source: Source::Real }],
+            work_frame: WorkFrame::default(),
+            options: CollectConfig { settle_s: 0.0, ..CollectConfig::default() },
+            clock: Arc::new(MockClock::new()),
+            cancel,
+            stop_after,
+            progress: indicatif::ProgressBar::hidden(),
+            peripherals: NoPeripherals,
+        };
+        job.run(plan).await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_measured_stream_of_each_run_is_added_to_the_manifest() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("edge").join("tactip");
+        // The camera has streamed before the run (a daemon keeps its cameras open): those
+        // frames are not the run's.
+        let mut camera = MeteredCamera { meter: StreamMeter::new(), sequence: 0, t_s: 100.0, step: 2 };
+        for _ in 0..5 {
+            camera.deliver();
+        }
+        // Run 1: the reference frame and 3 poses, every other frame dropped by the driver.
+        collect(&mut camera, &dir, &planned(3), false, None).await;
+        let part = |dir: &std::path::Path| Manifest::load(dir).unwrap().capture.unwrap().sensors.remove(0);
+        let first = part(&dir);
+        assert_eq!((first.frames_received, first.frames_dropped), (Some(4), Some(4)));
+        assert!((first.stream_s.unwrap() - 8.0 / 30.0).abs() < 1e-9, "{first:?}");
+        assert!((first.measured_fps.unwrap() - 15.0).abs() < 1e-9, "{first:?}");
+
+        // Run 2 resumes a longer plan, now without drops, and is interrupted after one pose:
+        // its frame is added, and the rate covers both runs' timed frames and time.
+        camera.step = 1;
+        collect(&mut camera, &dir, &planned(6), true, Some(1)).await;
+        let second = part(&dir);
+        assert_eq!((second.frames_received, second.frames_dropped), (Some(5), Some(4)));
+        assert!((second.stream_s.unwrap() - 9.0 / 30.0).abs() < 1e-9, "{second:?}");
+        assert!((second.measured_fps.unwrap() - 5.0 / (9.0 / 30.0)).abs() < 1e-9, "{second:?}");
+        assert_eq!(Manifest::load(&dir).unwrap().resumed_utc.len(), 1);
     }
 }

@@ -157,9 +157,10 @@ impl RigCamera {
         }
     }
     /// The camera as a dataset manifest's capture chain names it: backend `sim` (simulated,
-    /// its rendered size and frame rate), `v4l2` (the configured device, the node opened, the
-    /// negotiated format and size, the configured rate, the locked controls as read back) or `nokhwa` (the configured device,
-    /// format when forced, size and rate).
+    /// its rendered size and frame rate), `v4l2` (the configured device, the node opened and
+    /// its USB identity, the negotiated format and size, the configured rate, the locked
+    /// controls as read back) or `nokhwa` (the configured device, format when forced, size and
+    /// rate). The stream counts are added when a collection ends.
     pub fn capture_part(&self) -> CapturePart {
         let name = self.kind().to_string();
         let fourcc = |f: crate::camera::convert::PixelFormat| String::from_utf8_lossy(&f.fourcc()).into_owned();
@@ -169,14 +170,18 @@ impl RigCamera {
             }
             RigCamera::V4l2 { device, camera, settings, .. } => {
                 let choice = camera.format();
-                CapturePart::new(name, "v4l2", false, Some(device.clone()))
+                let part = CapturePart::new(name, "v4l2", false, Some(device.clone()))
                     .with_stream(
                         Some(camera.path().display().to_string()),
                         Some(fourcc(choice.format)),
                         [choice.width, choice.height],
                         settings.fps,
                     )
-                    .with_controls(camera.controls().iter().copied())
+                    .with_controls(camera.controls().iter().copied());
+                match camera.usb() {
+                    Some(usb) => part.with_usb(&usb.port_path, usb.vendor_id, usb.product_id, usb.serial.as_deref()),
+                    None => part,
+                }
             }
             RigCamera::Nokhwa { device, settings, .. } => CapturePart::new(name, "nokhwa", false, Some(device.clone())).with_stream(
                 None,
@@ -207,6 +212,13 @@ impl Camera for RigCamera {
             }
             RigCamera::V4l2 { camera, .. } => camera.frame_after(not_before_s).await,
             RigCamera::Nokhwa { camera, .. } => camera.frame_after(not_before_s).await,
+        }
+    }
+    fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+        match self {
+            RigCamera::Simulated { camera, .. } => camera.stream_stats(),
+            RigCamera::V4l2 { camera, .. } => camera.stream_stats(),
+            RigCamera::Nokhwa { camera, .. } => camera.stream_stats(),
         }
     }
 }
@@ -259,6 +271,12 @@ impl Arm for RigArm {
         match self {
             RigArm::Mg400(a) => a.disable().await,
             RigArm::Magician(a) => a.disable().await,
+        }
+    }
+    async fn firmware_version(&mut self) -> Option<String> {
+        match self {
+            RigArm::Mg400(a) => a.firmware_version().await,
+            RigArm::Magician(a) => a.firmware_version().await,
         }
     }
 }

@@ -20,7 +20,12 @@ fuzz_target!(|data: &[u8]| {
             if let Ok(command) = proto::Command::from_packet(&packet) {
                 let _ = command.encode();
             }
-            for command in [proto::Command::GetPose, proto::Command::GetAlarmsState, proto::Command::GetQueuedCurrentIndex] {
+            for command in [
+                proto::Command::GetDeviceVersion,
+                proto::Command::GetPose,
+                proto::Command::GetAlarmsState,
+                proto::Command::GetQueuedCurrentIndex,
+            ] {
                 let _ = command.parse_reply(&packet);
             }
             let bytes = packet.encode().expect("a framed packet re-encodes");

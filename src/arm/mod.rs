@@ -111,4 +111,10 @@ pub trait Arm: Send {
     fn clear_error(&mut self) -> impl Future<Output = Result<Vec<Alarm>, ArmError>> + Send;
     /// Disable the motors.
     fn disable(&mut self) -> impl Future<Output = Result<(), ArmError>> + Send;
+    /// The controller's firmware version, as it reports it, for the manifest; `None` when the
+    /// controller has no way to report it (the MG400's V1.x dashboard has no version command)
+    /// or did not answer. Never fails a run.
+    fn firmware_version(&mut self) -> impl Future<Output = Option<String>> + Send {
+        async { None }
+    }
 }

@@ -135,7 +135,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         out: dir.to_path_buf(),
         resume: false,
         disk_budget_bytes: None,
-        arm: crate::jobs::collect::arm_part(&rig_config),
+        arm: crate::jobs::collect::arm_part(&rig_config, &profile),
         modbus: Vec::new(),
     };
     let capture = camera.capture_part();

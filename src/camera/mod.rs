@@ -6,8 +6,15 @@
 //!
 //! [`capture_settled`] is the capture step the jobs are built of: a number of frames exposed
 //! after the arm settled, the last one or their mean.
+//!
+//! [`Camera::stream_stats`] says what the stream delivered since the camera was opened
+//! ([`StreamStats`]: frames received, frames the driver dropped, the delivery rate); the
+//! collection job takes it before and after a run and writes the difference into the
+//! dataset manifests. V4L2 measures it ([`meter::StreamMeter`]), a simulated sensor counts
+//! what it rendered and says it measured nothing, backends that cannot count give `None`.
 
 pub mod convert;
+pub mod meter;
 pub mod nokhwa_backend;
 pub mod usb;
 pub mod v4l2;
@@ -50,6 +57,60 @@ pub trait Camera: Send {
     /// The next frame whose exposure started no earlier than `not_before_s` (rig clock);
     /// older buffered frames are dropped.
     fn frame_after(&mut self, not_before_s: f64) -> impl Future<Output = Result<Frame, CameraError>> + Send;
+    /// What the stream delivered since the camera was opened; `None` when the backend cannot
+    /// count it.
+    fn stream_stats(&self) -> Option<StreamStats> {
+        None
+    }
+}
+
+/// Where the figures of a [`StreamStats`] come from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StreamOrigin {
+    /// Counted from the driver's buffer sequence numbers and timestamps.
+    Measured,
+    /// A simulated sensor: the frames it rendered, none dropped, nothing timed; it renders at
+    /// `nominal_fps`, a setting, not a measurement.
+    Simulated { nominal_fps: f64 },
+}
+
+/// What a camera stream delivered, counted since the camera was opened. Counts only grow, so
+/// the figures of a run are the difference of two snapshots ([`since`](Self::since)).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StreamStats {
+    /// Frames the stream handed to rig (after the warm-up frames).
+    pub frames_received: u64,
+    /// Frames the driver skipped in its sequence numbers: captured, never delivered.
+    pub frames_dropped: u64,
+    /// Frames that followed another one of the same stream with a later timestamp.
+    pub timed_frames: u64,
+    /// The time between those frames and the ones before them, s (driver time).
+    pub timed_s: f64,
+    pub origin: StreamOrigin,
+}
+
+impl StreamStats {
+    /// Frames delivered per second of driver time; `None` when nothing was timed or the
+    /// figures are not measured.
+    pub fn measured_fps(&self) -> Option<f64> {
+        if self.origin != StreamOrigin::Measured || self.timed_frames == 0 {
+            return None;
+        }
+        let fps = self.timed_frames as f64 / self.timed_s;
+        (fps.is_finite() && fps > 0.0).then_some(fps)
+    }
+
+    /// The figures between `earlier` (a snapshot of the same camera) and these; counts that
+    /// went down (a camera reopened since) give 0.
+    pub fn since(&self, earlier: &StreamStats) -> StreamStats {
+        StreamStats {
+            frames_received: self.frames_received.saturating_sub(earlier.frames_received),
+            frames_dropped: self.frames_dropped.saturating_sub(earlier.frames_dropped),
+            timed_frames: self.timed_frames.saturating_sub(earlier.timed_frames),
+            timed_s: (self.timed_s - earlier.timed_s).max(0.0),
+            origin: self.origin,
+        }
+    }
 }
 
 /// How [`capture_settled`] takes a pose's image.

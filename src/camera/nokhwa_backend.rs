@@ -8,6 +8,10 @@
 //! exposure that errs late. `frame_after` therefore waits one extra frame interval past the
 //! arrival so a frame exposed before the arrival is never taken. On Linux prefer the V4L2
 //! backend, which has driver timestamps and locks exposure.
+//!
+//! nokhwa hands over no driver sequence numbers either, so it cannot tell a dropped frame
+//! from one never captured: [`Camera::stream_stats`] stays `None` (its default), and the
+//! manifest records no frame counts or measured rate for a nokhwa camera.
 
 use std::sync::Arc;
 use std::time::Duration;

@@ -214,6 +214,25 @@ pub fn resolve_video_device(selector: &DeviceSelector) -> Result<PathBuf, UsbErr
     select_video_node(&list_video_nodes(), selector).map(|n| n.path.clone())
 }
 
+/// [`resolve_video_device`] with the USB identity sysfs gives for the node (what the manifest
+/// records: serial, vendor and product id, port). A `/dev/...` path is taken as given and its
+/// identity looked up; the identity is `None` for a node that is not a USB device or that
+/// sysfs does not list.
+pub fn resolve_video_node(selector: &DeviceSelector) -> Result<(PathBuf, Option<UsbIdentity>), UsbError> {
+    video_node_of(&list_video_nodes(), selector)
+}
+
+/// [`resolve_video_node`] among `nodes` (tests build them from fake trees).
+pub fn video_node_of(nodes: &[VideoNode], selector: &DeviceSelector) -> Result<(PathBuf, Option<UsbIdentity>), UsbError> {
+    if let DeviceSelector::Path(p) = selector {
+        // `/dev/v4l/by-id/...` links name a node too.
+        let real = std::fs::canonicalize(p).ok();
+        let usb = nodes.iter().find(|n| &n.path == p || real.as_ref() == Some(&n.path)).and_then(|n| n.usb.clone());
+        return Ok((p.clone(), usb));
+    }
+    select_video_node(nodes, selector).map(|n| (n.path.clone(), n.usb.clone()))
+}
+
 /// USB devices libusb can see; empty when libusb cannot run here. Strings (serial, product)
 /// need the device opened, which may be refused without permissions; they are then `None`.
 pub fn list_usb_devices() -> Vec<UsbIdentity> {
@@ -321,6 +340,16 @@ mod tests {
         assert!(matches!(select_video_node(&nodes, &DeviceSelector::Port("2-1".into())), Err(UsbError::NotFound { .. })));
         // The metadata node video3 is never picked, even by its own index.
         assert!(select_video_node(&nodes, &DeviceSelector::Index(3)).is_err());
+
+        // The identity goes with the node, however it was selected; a node without a serial
+        // has none, and a path sysfs does not list has no identity.
+        let (path, usb) = video_node_of(&nodes, &DeviceSelector::Serial("TT-0042".into())).unwrap();
+        assert_eq!((path, usb.and_then(|u| u.serial)), (dev.join("video2"), Some("TT-0042".to_string())));
+        let (_, usb) = video_node_of(&nodes, &DeviceSelector::Path(dev.join("video0"))).unwrap();
+        let usb = usb.expect("video0 is a USB camera");
+        assert_eq!((usb.port_path.as_str(), usb.vendor_id, usb.serial), ("1-2.1", 0x0c45, None));
+        assert_eq!(video_node_of(&nodes, &DeviceSelector::Path(dev.join("video9"))).unwrap(), (dev.join("video9"), None));
+        assert!(matches!(video_node_of(&nodes, &DeviceSelector::Port("2-1".into())), Err(UsbError::NotFound { .. })));
     }
 
     #[test]

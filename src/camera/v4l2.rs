@@ -15,6 +15,12 @@
 //! Time: V4L2 stamps buffers with `CLOCK_MONOTONIC` (flag `TIMESTAMP_MONOTONIC`), at the start
 //! of exposure (`TSTAMP_SRC_SOE`) or end of frame (`TSTAMP_SRC_EOF`, the UVC default).
 //! [`TimeMapping`] shifts it onto the rig clock and to the middle of the exposure.
+//!
+//! The capture thread also feeds every buffer after warm-up (its `sequence` and driver stamp)
+//! to a [`StreamMeter`], and publishes the counts with each frame, so
+//! [`Camera::stream_stats`] gives the frames received, the frames the driver dropped and the
+//! delivery rate. [`V4l2Camera::usb`] is the USB identity of the device opened, as sysfs gave
+//! it (serial, vendor and product id), for the manifest.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -23,8 +29,9 @@ use std::time::Duration;
 use tokio::sync::watch;
 
 use super::convert::{self, PixelFormat};
-use super::usb::DeviceSelector;
-use super::{Camera, CameraError, Frame};
+use super::meter::StreamMeter;
+use super::usb::{DeviceSelector, UsbIdentity};
+use super::{Camera, CameraError, Frame, StreamStats};
 use crate::clock::Clock;
 
 /// Camera settings from the sensor's configuration.
@@ -155,6 +162,8 @@ struct RawFrame {
     seq: u64,
     t_start_s: f64,
     t_mid_s: f64,
+    /// The stream's counts up to and including this frame.
+    stats: StreamStats,
 }
 
 // V4L2 control ids (linux/v4l2-controls.h).
@@ -213,6 +222,7 @@ pub fn lock_mismatches(settings: &CameraSettings, read: &[(&str, i64)]) -> Vec<S
 pub struct V4l2Camera {
     name: String,
     path: PathBuf,
+    usb: Option<UsbIdentity>,
     choice: FormatChoice,
     frames: watch::Receiver<Option<RawFrame>>,
     timeout: Duration,
@@ -225,7 +235,7 @@ impl V4l2Camera {
         use v4l::video::Capture;
         let device_err = |reason: String| CameraError::Device { camera: name.to_string(), reason };
         let io_err = |source: std::io::Error| CameraError::Io { camera: name.to_string(), source };
-        let path = super::usb::resolve_video_device(selector).map_err(|e| device_err(e.to_string()))?;
+        let (path, usb) = super::usb::resolve_video_node(selector).map_err(|e| device_err(e.to_string()))?;
         let device = v4l::Device::with_path(&path).map_err(io_err)?;
         let offers = enumerate_offers(&device).map_err(io_err)?;
         let choice = choose_format(&offers, settings).map_err(|reason| device_err(format!("{}: {reason}", path.display())))?;
@@ -275,6 +285,7 @@ impl V4l2Camera {
         Ok(Self {
             name: name.to_string(),
             path,
+            usb,
             choice,
             frames: rx,
             timeout: Duration::from_secs_f64((interval_s * (f64::from(warmup) + 10.0)).max(2.0)),
@@ -285,6 +296,11 @@ impl V4l2Camera {
     /// The device node in use.
     pub fn path(&self) -> &std::path::Path {
         &self.path
+    }
+    /// The USB identity of the device opened (serial, vendor and product id, port), when
+    /// sysfs leads from its node to a USB device.
+    pub fn usb(&self) -> Option<&UsbIdentity> {
+        self.usb.as_ref()
     }
     /// The format, size and rate in use.
     pub fn format(&self) -> FormatChoice {
@@ -373,6 +389,7 @@ fn capture_loop(
     stream.set_timeout(Duration::from_secs(2));
     let _ = ready.send(Ok(()));
     let mut mapping = TimeMapping::new(clock.now_s(), monotonic_now_s(), exposure_s);
+    let mut meter = StreamMeter::new();
     let mut n: u64 = 0;
     // Ends when every receiver is gone (the camera was dropped) or the device fails.
     while !tx.is_closed() {
@@ -396,12 +413,14 @@ fn capture_loop(
         let source = if meta.flags.contains(Flags::TSTAMP_SRC_SOE) { StampSource::StartOfExposure } else { StampSource::EndOfFrame };
         // A driver without monotonic stamps: use the dequeue time (end of frame, roughly).
         let driver_s = if monotonic { driver_s } else { monotonic_now_s() };
+        meter.record(meta.sequence, driver_s);
         let used = (meta.bytesused as usize).min(bytes.len());
         let frame = RawFrame {
             bytes: Arc::new(bytes[..used].to_vec()),
             seq: u64::from(meta.sequence),
             t_start_s: mapping.exposure_start_s(driver_s, source),
             t_mid_s: mapping.exposure_mid_s(driver_s, source),
+            stats: meter.stats(),
         };
         let _ = tx.send(Some(frame));
     }
@@ -430,6 +449,12 @@ impl Camera for V4l2Camera {
             .map_err(|e| CameraError::Device { camera: camera.clone(), reason: e.to_string() })?
             .map_err(|e| CameraError::Decode { camera: camera.clone(), reason: e.to_string() })?;
         Ok(Frame { image, t_capture_s: raw.t_mid_s, seq: raw.seq })
+    }
+
+    /// The counts the capture thread published with its newest frame: every buffer since
+    /// warm-up, also those no job asked for. Before the first frame, nothing yet.
+    fn stream_stats(&self) -> Option<StreamStats> {
+        Some(self.frames.borrow().as_ref().map_or_else(|| StreamMeter::new().stats(), |f| f.stats))
     }
 }
 

@@ -121,7 +121,7 @@ pub(crate) fn recording_header(
         collect: config.collect.clone(),
         profile: profile.clone(),
         speed_factor_pct: config.arm.speed_factor,
-        capture_arm: Some(crate::jobs::collect::arm_part(config)),
+        capture_arm: Some(crate::jobs::collect::arm_part(config, profile)),
         capture_modbus: crate::jobs::collect::modbus_parts(config),
     }
 }

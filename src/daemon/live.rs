@@ -99,6 +99,9 @@ impl Arm for LiveArm<'_> {
         self.publish_mode(if r.is_ok() { "disabled" } else { "error" });
         r
     }
+    async fn firmware_version(&mut self) -> Option<String> {
+        self.arm.firmware_version().await
+    }
 }
 
 /// One of the rig's cameras, publishing every frame it gives.
@@ -115,6 +118,9 @@ impl Camera for LiveCamera<'_> {
         let frame = self.camera.frame_after(not_before_s).await?;
         publish_frame(&self.state, &self.camera.sensor_dir(), &frame);
         Ok(frame)
+    }
+    fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+        self.camera.stream_stats()
     }
 }
 

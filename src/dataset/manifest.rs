@@ -56,8 +56,9 @@ pub fn sha256_file(path: &Path) -> Result<String, DatasetError> {
 }
 
 /// One part of the capture chain: the arm, a sensor's camera or a Modbus peripheral, with the
-/// backend that drove it.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+/// backend that drove it. Every field after `simulated` is optional: a manifest written before
+/// rig recorded it still reads, and a field is absent where the backend does not know it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CapturePart {
     /// What the part is: `arm`, a sensor name (`tactip`), `modbus.<name>`.
     pub name: String,
@@ -89,6 +90,38 @@ pub struct CapturePart {
     /// sensors and backends that do not lock controls (nokhwa).
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub controls: std::collections::BTreeMap<String, i64>,
+    /// A camera's USB serial number as the device reports it (sysfs `serial`); absent when the
+    /// device has none or is not a USB device.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial: Option<String>,
+    /// A camera's USB vendor and product id, `vvvv:pppp` in hex (`0c45:6366`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub usb_id: Option<String>,
+    /// A camera's USB port path (`1-2.3`) when it was opened.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub usb_port: Option<String>,
+    /// The arm's firmware version as the controller reported it (the Magician); for the
+    /// simulated MG400 the version its firmware profile names, followed by `(simulated)`.
+    /// Absent where the controller does not report one (the MG400: see `firmware_profile`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub firmware: Option<String>,
+    /// Frames the camera's stream delivered while rig collected into this dataset, summed
+    /// over every run (resumes included) that counted them; for a simulated sensor, the
+    /// frames it rendered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames_received: Option<u64>,
+    /// Frames the driver captured but never delivered (gaps in its buffer sequence numbers),
+    /// summed like `frames_received`; 0 for a simulated sensor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames_dropped: Option<u64>,
+    /// Driver time the measured rate covers, s, summed over the runs; absent unless measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream_s: Option<f64>,
+    /// Frames delivered per second of driver time, over every run that measured it (the runs'
+    /// rates weighted by their `stream_s`); absent unless measured (never for a simulated
+    /// sensor, whose rate is its `requested_fps`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_fps: Option<f64>,
 }
 
 impl CapturePart {
@@ -104,6 +137,14 @@ impl CapturePart {
             resolution_px: None,
             requested_fps: None,
             controls: std::collections::BTreeMap::new(),
+            serial: None,
+            usb_id: None,
+            usb_port: None,
+            firmware: None,
+            frames_received: None,
+            frames_dropped: None,
+            stream_s: None,
+            measured_fps: None,
         }
     }
 
@@ -122,11 +163,39 @@ impl CapturePart {
         self.controls = controls.into_iter().map(|(name, value)| (name.to_string(), value)).collect();
         self
     }
+
+    /// This camera part with its USB identity: port path, vendor and product id, serial (when
+    /// the device has one).
+    pub fn with_usb(mut self, port_path: &str, vendor_id: u16, product_id: u16, serial: Option<&str>) -> Self {
+        self.usb_port = Some(port_path.to_string());
+        self.usb_id = Some(format!("{vendor_id:04x}:{product_id:04x}"));
+        self.serial = serial.map(str::to_string);
+        self
+    }
+
+    /// Adds one run's stream to this camera part: `frames_received` and `frames_dropped` are
+    /// added to the totals; `timed`, for a measured stream, is the run's timed frames and the
+    /// driver time between them, s, which extend `stream_s` and update `measured_fps` (total
+    /// timed frames over total `stream_s`).
+    pub fn add_stream_run(&mut self, frames_received: u64, frames_dropped: u64, timed: Option<(u64, f64)>) {
+        self.frames_received = Some(self.frames_received.unwrap_or(0).saturating_add(frames_received));
+        self.frames_dropped = Some(self.frames_dropped.unwrap_or(0).saturating_add(frames_dropped));
+        let Some((frames, seconds)) = timed.filter(|&(n, s)| n > 0 && s.is_finite() && s > 0.0) else { return };
+        let (before_s, before_fps) = match (self.stream_s, self.measured_fps) {
+            (Some(s), Some(fps)) if s.is_finite() && s > 0.0 && fps.is_finite() && fps >= 0.0 => (s, fps),
+            _ => (0.0, 0.0),
+        };
+        // The earlier runs' timed frames, exact up to rounding.
+        let before_frames = (before_fps * before_s).round();
+        let total_s = before_s + seconds;
+        self.stream_s = Some(total_s);
+        self.measured_fps = Some((before_frames + frames as f64) / total_s);
+    }
 }
 
 /// What captured a dataset's frames (`[capture]` in the manifest). Absent in manifests
 /// written before rig recorded it, and in datasets that were synthesised or imported.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CaptureChain {
     /// The arm that placed the sensor.
     pub arm: CapturePart,
@@ -361,5 +430,98 @@ mod tests {
         let bare = toml::to_string(&CapturePart::new("vitac", "sim", true, None)).unwrap();
         assert!(!bare.contains("controls"), "{bare}");
         assert!(toml::from_str::<CapturePart>(&bare).unwrap().controls.is_empty());
+    }
+
+    /// A manifest as rig wrote it before the USB identity, firmware and stream counts.
+    const MANIFEST_BEFORE_STREAM_COUNTS: &str = r#"
+rig_version = "0.1.0"
+sensor = "tactip"
+calibration = "default"
+firmware_profile = "mg400-v1.6"
+started_utc = "2026-11-22T11:46:33Z"
+
+[object]
+name = "sphere"
+
+[capture.arm]
+name = "arm"
+backend = "mg400"
+simulated = false
+address = "192.168.1.6:29999"
+
+[[capture.sensors]]
+name = "tactip"
+backend = "v4l2"
+simulated = false
+address = "port:1-2.3"
+device_path = "/dev/video2"
+format = "YUYV"
+resolution_px = [640, 480]
+requested_fps = 30
+
+[capture.sensors.controls]
+auto_exposure = 1
+"#;
+
+    #[test]
+    fn manifests_from_before_the_stream_counts_still_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(super::super::MANIFEST_FILE), MANIFEST_BEFORE_STREAM_COUNTS).unwrap();
+        let m = Manifest::load(dir.path()).unwrap();
+        let chain = m.capture.expect("the capture chain");
+        assert_eq!(chain.arm.firmware, None);
+        let part = &chain.sensors[0];
+        assert_eq!((part.device_path.as_deref(), part.controls.get("auto_exposure")), (Some("/dev/video2"), Some(&1)));
+        assert_eq!((&part.serial, &part.usb_id, &part.usb_port), (&None, &None, &None));
+        assert_eq!((part.frames_received, part.frames_dropped, part.stream_s, part.measured_fps), (None, None, None, None));
+    }
+
+    #[test]
+    fn identity_firmware_and_stream_counts_round_trip() {
+        let mut arm = CapturePart::new("arm", "magician", false, Some("/dev/ttyUSB0".into()));
+        arm.firmware = Some("3.7.0".into());
+        let mut camera = CapturePart::new("tactip", "v4l2", false, Some("serial:TT-0042".into()))
+            .with_stream(Some("/dev/video2".into()), Some("YUYV".into()), [640, 480], 30)
+            .with_controls([("auto_exposure", 1), ("exposure_time_absolute", 156)])
+            .with_usb("1-2.3", 0x0c45, 0x6366, Some("TT-0042"));
+        camera.add_stream_run(301, 2, Some((299, 10.0)));
+        let chain = CaptureChain { arm, sensors: vec![camera], modbus: Vec::new() };
+        let m = Manifest { capture: Some(chain), ..Manifest::new(SensorKind::TacTip, ObjectInfo::named("edge"), None) };
+        let text = toml::to_string(&m).unwrap();
+        for line in ["serial = \"TT-0042\"", "usb_id = \"0c45:6366\"", "usb_port = \"1-2.3\"", "firmware = \"3.7.0\"", "frames_dropped = 2"]
+        {
+            assert!(text.contains(line), "{line} missing:\n{text}");
+        }
+        assert_eq!(toml::from_str::<Manifest>(&text).unwrap(), m);
+    }
+
+    #[test]
+    fn stream_counts_add_up_over_runs() {
+        let mut part = CapturePart::new("tactip", "v4l2", false, None);
+        // First run: 300 frames delivered, 2 dropped, 299 timed over 10 s.
+        part.add_stream_run(300, 2, Some((299, 10.0)));
+        assert_eq!((part.frames_received, part.frames_dropped, part.stream_s), (Some(300), Some(2), Some(10.0)));
+        assert!((part.measured_fps.unwrap() - 29.9).abs() < 1e-9);
+        // A resumed run at a lower rate: 151 frames, 150 timed over 10 s.
+        part.add_stream_run(151, 0, Some((150, 10.0)));
+        assert_eq!((part.frames_received, part.frames_dropped, part.stream_s), (Some(451), Some(2), Some(20.0)));
+        assert!((part.measured_fps.unwrap() - 449.0 / 20.0).abs() < 1e-9, "{:?}", part.measured_fps);
+        // A run that timed nothing adds its counts and leaves the rate alone.
+        part.add_stream_run(1, 0, None);
+        part.add_stream_run(1, 0, Some((0, 0.0)));
+        assert_eq!((part.frames_received, part.stream_s), (Some(453), Some(20.0)));
+        assert!((part.measured_fps.unwrap() - 449.0 / 20.0).abs() < 1e-9);
+
+        // A simulated sensor counts rendered frames and never gets a measured rate.
+        let mut sim = CapturePart::new("vitac", "sim", true, None);
+        sim.add_stream_run(5, 0, None);
+        sim.add_stream_run(3, 0, None);
+        assert_eq!((sim.frames_received, sim.frames_dropped, sim.stream_s, sim.measured_fps), (Some(8), Some(0), None, None));
+
+        // A hand-edited manifest's nonsense rate is not carried into the total.
+        let mut edited = CapturePart::new("tactip", "v4l2", false, None);
+        (edited.stream_s, edited.measured_fps) = (Some(-1.0), Some(f64::NAN));
+        edited.add_stream_run(31, 0, Some((30, 1.0)));
+        assert_eq!((edited.stream_s, edited.measured_fps), (Some(1.0), Some(30.0)));
     }
 }

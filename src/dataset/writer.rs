@@ -272,6 +272,13 @@ impl DatasetWriter {
         Ok(())
     }
 
+    /// Changes the manifest in force and writes it atomically (what a collection does at its
+    /// end with the stream counts of its cameras).
+    pub fn update_manifest(&mut self, change: impl FnOnce(&mut Manifest)) -> Result<(), DatasetError> {
+        change(&mut self.manifest);
+        self.manifest.store(&self.dir)
+    }
+
     /// Records the end time in the manifest and releases the dataset.
     pub fn finish(mut self) -> Result<Manifest, DatasetError> {
         self.manifest.ended_utc = Some(utc_now());

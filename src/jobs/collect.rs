@@ -88,7 +88,7 @@ impl CollectRequest {
             out: self.out.clone(),
             resume: self.resume,
             disk_budget_bytes: config.faults.disk_budget_bytes,
-            arm: arm_part(config),
+            arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
         };
         Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, grid_len: spec.grid_len(), profile })
@@ -125,7 +125,8 @@ pub struct CollectSetup {
     pub resume: bool,
     /// Injected disk-full fault (`[sim.faults] disk_budget_bytes`).
     pub disk_budget_bytes: Option<u64>,
-    /// The arm, as the manifests' capture chain names it.
+    /// The arm, as the manifests' capture chain names it ([`run`] adds the firmware version
+    /// the controller reports, if it reports one).
     pub arm: CapturePart,
     /// The Modbus peripherals, as the manifests' capture chain names them.
     pub modbus: Vec<CapturePart>,
@@ -137,23 +138,29 @@ impl CollectSetup {
         self.out.join(&self.object.name).join(sensor.name())
     }
 
-    /// The manifest a new dataset of `sensor` starts with; `sensors` are the capture parts of
-    /// every sensor of the run.
-    fn manifest(&self, sensor: SensorKind, calibration: &str, sensors: &[CapturePart]) -> Manifest {
+    /// The manifest a new dataset of `sensor` starts with; `arm` and `sensors` are the capture
+    /// parts of the run's arm and of every sensor of the run.
+    fn manifest(&self, sensor: SensorKind, calibration: &str, arm: &CapturePart, sensors: &[CapturePart]) -> Manifest {
         let mut manifest = Manifest::new(sensor, self.object.clone(), Some(self.plan_spec.clone()));
         manifest.calibration = Some(calibration.to_string());
         manifest.firmware_profile = Some(self.profile_name.clone());
         manifest.work_frame = Some(self.work_frame);
-        manifest.capture = Some(CaptureChain { arm: self.arm.clone(), sensors: sensors.to_vec(), modbus: self.modbus.clone() });
+        manifest.capture = Some(CaptureChain { arm: arm.clone(), sensors: sensors.to_vec(), modbus: self.modbus.clone() });
         manifest
     }
 }
 
 /// The arm of `config` as a capture part (`arm`: `sim-mg400`, `mg400` at its host, `magician`
-/// on its serial port).
-pub fn arm_part(config: &RigConfig) -> CapturePart {
+/// on its serial port). The simulated MG400 runs `profile`, so its firmware is the profile's
+/// version marked `(simulated)`; a real controller's firmware is what it reports when the run
+/// starts ([`Arm::firmware_version`]), and the MG400 reports none.
+pub fn arm_part(config: &RigConfig, profile: &FirmwareProfile) -> CapturePart {
     match &config.arm.backend {
-        ArmBackend::Simulated { .. } => CapturePart::new("arm", "sim-mg400", true, None),
+        ArmBackend::Simulated { .. } => {
+            let mut part = CapturePart::new("arm", "sim-mg400", true, None);
+            part.firmware = Some(format!("{} (simulated)", profile.firmware));
+            part
+        }
         ArmBackend::Mg400 { host, dashboard_port, .. } => CapturePart::new("arm", "mg400", false, Some(format!("{host}:{dashboard_port}"))),
         ArmBackend::Magician { serial_port } => CapturePart::new("arm", "magician", false, Some(serial_port.display().to_string())),
     }
@@ -231,9 +238,13 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
     let mut sensors = Vec::new();
     let mut datasets = Vec::new();
     let parts: Vec<CapturePart> = cameras.iter().map(|f| f.capture.clone()).collect();
+    let mut arm_part = setup.arm.clone();
+    if let Some(version) = arm.firmware_version().await {
+        arm_part.firmware = Some(version);
+    }
     for feed in cameras {
         let dir = setup.dataset_dir(feed.sensor);
-        let manifest = setup.manifest(feed.sensor, &feed.calibration, &parts);
+        let manifest = setup.manifest(feed.sensor, &feed.calibration, &arm_part, &parts);
         let writer = DatasetWriter::start(&dir, manifest, setup.resume)
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
             .with_byte_budget(setup.disk_budget_bytes);

@@ -539,6 +539,9 @@ impl<C: Camera> Camera for RecordingCamera<C> {
         }
         Ok(frame)
     }
+    fn stream_stats(&self) -> Option<crate::camera::StreamStats> {
+        self.inner.stream_stats()
+    }
 }
 
 /// Connects the MG400 client like [`Mg400Client::connect`], with every socket recorded.

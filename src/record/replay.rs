@@ -558,7 +558,9 @@ impl AsyncWrite for ReplayStream {
 }
 
 /// A replayed camera: hands out the recorded frames in recorded order. The recorded frame is
-/// returned whatever `not_before_s` asks: the recording already honoured it.
+/// returned whatever `not_before_s` asks: the recording already honoured it. It has no stream
+/// ([`Camera::stream_stats`] is `None`): a recording holds the frames the job took, not the
+/// ones the camera delivered between them, so a replayed dataset records no frame counts.
 pub struct ReplayCamera {
     session: ReplaySession,
     index: u8,

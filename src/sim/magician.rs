@@ -12,7 +12,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 
-use crate::arm::magician::proto::{Command, MagicianPose, PacketFramer, Reply};
+use crate::arm::magician::proto::{Command, DeviceVersion, MagicianPose, PacketFramer, Reply};
+
+/// The firmware version the simulated Magician reports unless told otherwise (a made-up
+/// version, not one a real controller is known to run).
+pub const SIM_FIRMWARE: DeviceVersion = DeviceVersion { major: 3, minor: 7, revision: 0 };
 
 /// The simulated Magician's state.
 #[derive(Debug, Clone)]
@@ -22,6 +26,8 @@ pub struct SimMagician {
     pub home: MagicianPose,
     pub alarms: Vec<u16>,
     pub executing: bool,
+    /// What GetDeviceVersion answers.
+    pub firmware: DeviceVersion,
     queue: VecDeque<(u64, Command)>,
     next_index: u64,
     current_index: u64,
@@ -36,6 +42,7 @@ impl SimMagician {
             home: pose,
             alarms: Vec::new(),
             executing: false,
+            firmware: SIM_FIRMWARE,
             queue: VecDeque::new(),
             next_index: 1,
             current_index: 0,
@@ -47,6 +54,7 @@ impl SimMagician {
     pub fn handle(&mut self, command: Command) -> Reply {
         self.log.push(command);
         match command {
+            Command::GetDeviceVersion => Reply::DeviceVersion(self.firmware),
             Command::GetPose => Reply::Pose(self.pose),
             Command::GetAlarmsState => Reply::Alarms(self.alarms.clone()),
             Command::ClearAllAlarmsState => {

@@ -41,7 +41,7 @@ async fn real_camera_streams_fresh_frames_in_order() {
     println!("format {:?}", camera.format());
     let mut last = None::<(f64, u64)>;
     let start_s = clock.now_s();
-    let n = 60;
+    let n: u32 = 60;
     for _ in 0..n {
         let asked_s = clock.now_s();
         let frame = camera.frame_after(asked_s).await.expect("a frame");
@@ -56,4 +56,10 @@ async fn real_camera_streams_fresh_frames_in_order() {
     // Reported, not asserted: rates depend on the camera and the USB bus.
     let elapsed_s = clock.now_s() - start_s;
     println!("{n} fresh frames in {elapsed_s:.2} s ({:.1} requests/s; each waits for a new exposure)", f64::from(n) / elapsed_s);
+    // The stream delivered at least the frames handed out, and its rate was measured.
+    let stats = camera.stream_stats().expect("V4L2 counts its stream");
+    assert!(stats.frames_received >= u64::from(n), "{stats:?}");
+    let fps = stats.measured_fps().expect("a measured rate");
+    println!("stream: {} frames received, {} dropped by the driver, {fps:.2} fps delivered", stats.frames_received, stats.frames_dropped);
+    println!("usb identity: {:?}", camera.usb());
 }

@@ -23,6 +23,8 @@ async fn real_magician_enables_and_holds_its_pose() {
         MagicianArm::open(&port(), MagicianProfile::default_magician(), Arc::new(MonotonicClock::new())).expect("opens the serial port");
     let here = arm.pose().await.expect("GetPose answers");
     println!("Magician at {here}");
+    let firmware = arm.firmware_version().await.expect("GetDeviceVersion answers");
+    println!("firmware {firmware}");
     arm.enable().await.unwrap();
     arm.move_to(here, MoveKind::Linear).await.unwrap();
     let arrival = arm.wait_arrived(here, Duration::from_secs(10)).await.unwrap();

@@ -107,6 +107,8 @@ fn simulated_collection_says_so_and_merge_keeps_sources_apart() {
         assert_eq!((part.resolution_px, part.requested_fps, part.format.as_deref()), (Some([512, 512]), Some(30), None), "{part:?}");
     }
     assert_eq!(capture.arm.address, None, "the simulated arm runs in-process");
+    // The simulated MG400 runs the default profile's firmware, and says it is simulated.
+    assert_eq!(capture.arm.firmware.as_deref(), Some("1.6.0.0 (simulated)"));
     let modbus: Vec<(&str, bool)> = capture.modbus.iter().map(|p| (p.name.as_str(), p.simulated)).collect();
     assert_eq!(modbus, [("modbus.light", true)]);
 
@@ -144,4 +146,71 @@ fn simulated_collection_says_so_and_merge_keeps_sources_apart() {
     let v = rig().args(["dataset", "verify"]).arg(&merged).output().expect("verify");
     assert!(v.status.success(), "{}", text(&v));
     assert!(text(&v).contains("rows 4 (2 real, 2 simulated, 0 synthetic)"), "{}", text(&v));
+}
+
+/// Keeps the first `keep` data lines of `dir/poses.csv` (their images become orphans, which a
+/// resume deletes and captures again), as a run interrupted after `keep` poses leaves it.
+fn truncate_rows(dir: &Path, keep: usize) {
+    let path = dir.join("poses.csv");
+    let text = std::fs::read_to_string(&path).expect("read csv");
+    let kept: Vec<&str> = text.lines().take(1 + keep).collect();
+    std::fs::write(&path, kept.join("\n") + "\n").expect("write csv");
+}
+
+#[test]
+fn simulated_stream_counts_say_so_and_a_resumed_run_adds_to_them() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("sim");
+    let collect = |resume: bool| {
+        let mut c = rig();
+        c.args(["collect", "--object", "sphere", "--sensor", "tactip,vitac", "--seed", "3", "--poses", "4", "--out"]).arg(&out);
+        if resume {
+            c.arg("--resume");
+        }
+        let o = c.output().expect("running rig collect");
+        assert!(o.status.success(), "rig collect failed:\n{}", text(&o));
+    };
+    let datasets = [out.join("sphere").join("tactip"), out.join("sphere").join("vitac")];
+    // Every sensor part of every manifest: (name, simulated, frames received, dropped,
+    // measured rate, measured time).
+    let counts = |dir: &Path| {
+        let manifest = Manifest::load(dir).expect("manifest");
+        let capture = manifest.capture.expect("a capture chain");
+        capture
+            .sensors
+            .iter()
+            .map(|p| (p.name.clone(), p.simulated, p.frames_received, p.frames_dropped, p.measured_fps, p.stream_s))
+            .collect::<Vec<_>>()
+    };
+
+    collect(false);
+    // Each simulated sensor rendered the reference frame and one frame per pose; it drops
+    // nothing and measures nothing (no rate, no stream time: its rate is the nominal one).
+    for dir in &datasets {
+        assert_eq!(
+            counts(dir),
+            [("tactip".to_string(), true, Some(5), Some(0), None, None), ("vitac".to_string(), true, Some(5), Some(0), None, None)],
+            "{}",
+            dir.display()
+        );
+        let text = std::fs::read_to_string(dir.join("manifest.toml")).expect("manifest text");
+        assert!(!text.contains("measured_fps") && !text.contains("stream_s"), "{text}");
+    }
+
+    // As if interrupted after two poses: the resumed run captures the other two, and its
+    // frames are added to the first run's.
+    for dir in &datasets {
+        truncate_rows(dir, 2);
+    }
+    collect(true);
+    for dir in &datasets {
+        assert_eq!(lines(dir).len(), 4, "{}", dir.display());
+        assert_eq!(Manifest::load(dir).expect("manifest").resumed_utc.len(), 1);
+        assert_eq!(
+            counts(dir),
+            [("tactip".to_string(), true, Some(7), Some(0), None, None), ("vitac".to_string(), true, Some(7), Some(0), None, None)],
+            "{}",
+            dir.display()
+        );
+    }
 }

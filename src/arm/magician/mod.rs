@@ -10,6 +10,7 @@
 //!   within the profile's tolerance; an alarm raised meanwhile is an [`ArmError::Fault`].
 //! - `stop`: force-stop and clear the queue. `disable`: stop the queue (the protocol has no
 //!   motor power-off; the steppers keep holding).
+//! - `firmware_version`: GetDeviceVersion, `major.minor.revision`.
 //!
 //! The Magician's `r` (end-effector rotation) is rig's `yaw_deg`. The blocking serial link runs
 //! on tokio's blocking pool so the futures stay `Send` and never block the runtime.
@@ -354,6 +355,20 @@ impl Arm for MagicianArm {
         self.request(Command::QueuedStopExec, "stopping the queue").await?;
         Ok(())
     }
+
+    async fn firmware_version(&mut self) -> Option<String> {
+        match self.request(Command::GetDeviceVersion, "reading the firmware version").await {
+            Ok(Reply::DeviceVersion(version)) => Some(version.to_string()),
+            Ok(other) => {
+                tracing::warn!("GetDeviceVersion answered {other:?}; recording no firmware version");
+                None
+            }
+            Err(e) => {
+                tracing::warn!(error = %e, "the Magician did not report its firmware version");
+                None
+            }
+        }
+    }
 }
 
 #[cfg(all(test, unix))]
@@ -385,6 +400,8 @@ mod tests {
         let profile = MagicianProfile::default_magician();
         let mut arm = MagicianArm::open(&pty.slave_path, profile, Arc::new(MonotonicClock::new())).unwrap();
 
+        // The simulator's firmware version, as the controller reports it.
+        assert_eq!(arm.firmware_version().await.as_deref(), Some("3.7.0"));
         // A reset alarm is pending: enable clears it.
         arm.enable().await.unwrap();
         let target = Pose::new(220.0, 10.0, 20.0, 15.0);
@@ -415,5 +432,24 @@ mod tests {
         assert!(matches!(e, ArmError::Timeout { .. }), "{e}");
         drop(arm);
         server.stop();
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_controller_that_does_not_answer_the_version_query_reports_none() {
+        let pty = PtyPair::open().unwrap();
+        // A device that reads requests and never answers.
+        let mut master = pty.master_file().unwrap();
+        let silent = std::thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            while matches!(std::io::Read::read(&mut master, &mut buf), Ok(n) if n > 0) {}
+        });
+        let mut profile = MagicianProfile::default_magician();
+        profile.serial.reply_timeout_ms = 50;
+        let mut arm = MagicianArm::open(&pty.slave_path, profile, Arc::new(MonotonicClock::new())).unwrap();
+        assert_eq!(arm.firmware_version().await, None);
+        drop(arm);
+        // Closing the terminal ends the silent device's read.
+        drop(pty);
+        drop(silent);
     }
 }

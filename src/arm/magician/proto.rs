@@ -21,6 +21,7 @@
 //!
 //! | id | command | ctrl | request params | reply params |
 //! |---|---|---|---|---|
+//! | 2 | GetDeviceVersion | 0x00 | - | firmware major, minor, revision: 3 x u8 (see below) |
 //! | 10 | GetPose | 0x00 | - | x, y, z, r (mm, mm, mm, deg), joint 1..4 (deg): 8 x f32 |
 //! | 20 | GetAlarmsState | 0x00 | - | alarm bit field, 16 bytes (bit n = alarm n) |
 //! | 21 | ClearAllAlarmsState | 0x01 | - | - |
@@ -32,6 +33,11 @@
 //! | 242 | SetQueuedCmdForceStopExec | 0x01 | - | - |
 //! | 245 | SetQueuedCmdClear | 0x01 | - | - |
 //! | 246 | GetQueuedCmdCurrentIndex | 0x00 | - | index of the queued command executing now, u64 |
+//!
+//! GetDeviceVersion: the protocol gives three bytes. Later versions of Dobot's DLL read a
+//! fourth (a hardware version; UNCERTAIN which firmware sends it), so a longer reply is
+//! accepted and only its first three bytes are read. rig does not send DeviceSN (id 0, a
+//! string): the arm part of the manifest names the serial port instead.
 //!
 //! Note: id 31 is SetHOMECmd; the queue-control commands are the 240 block (a note handed to
 //! this module said 31 was SetQueuedCmdStartExec, which the sources above contradict).
@@ -49,6 +55,7 @@ pub const OVERHEAD: usize = 6;
 
 /// Command ids (protocol section 3).
 pub mod id {
+    pub const GET_DEVICE_VERSION: u8 = 2;
     pub const GET_POSE: u8 = 10;
     pub const GET_ALARMS_STATE: u8 = 20;
     pub const CLEAR_ALL_ALARMS_STATE: u8 = 21;
@@ -245,6 +252,8 @@ impl PtpMode {
 /// The commands rig sends to a Magician.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Command {
+    /// The controller's firmware version.
+    GetDeviceVersion,
     GetPose,
     GetAlarmsState,
     ClearAllAlarmsState,
@@ -287,6 +296,7 @@ impl Command {
     pub fn packet(&self) -> Packet {
         let put = |values: &[f32]| values.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
         match *self {
+            Command::GetDeviceVersion => Packet::new(id::GET_DEVICE_VERSION, Ctrl::READ, vec![]),
             Command::GetPose => Packet::new(id::GET_POSE, Ctrl::READ, vec![]),
             Command::GetAlarmsState => Packet::new(id::GET_ALARMS_STATE, Ctrl::READ, vec![]),
             Command::ClearAllAlarmsState => Packet::new(id::CLEAR_ALL_ALARMS_STATE, Ctrl::WRITE, vec![]),
@@ -319,6 +329,7 @@ impl Command {
             if p.params.is_empty() { Ok(c) } else { Err(ProtoError::ParamLength { id: p.id, expected: 0, got: p.params.len() }) }
         };
         match (p.id, p.ctrl.is_write()) {
+            (id::GET_DEVICE_VERSION, false) => none(Command::GetDeviceVersion),
             (id::GET_POSE, false) => none(Command::GetPose),
             (id::GET_ALARMS_STATE, false) => none(Command::GetAlarmsState),
             // The protocol shares id 20 between get and clear in some firmware; 21 is the clear.
@@ -358,6 +369,10 @@ impl Command {
             return Err(ProtoError::WrongReply { expected: request.id, got: reply.id });
         }
         match self {
+            Command::GetDeviceVersion => match reply.params[..] {
+                [major, minor, revision, ..] => Ok(Reply::DeviceVersion(DeviceVersion { major, minor, revision })),
+                _ => Err(ProtoError::ParamLength { id: reply.id, expected: 3, got: reply.params.len() }),
+            },
             Command::GetPose => {
                 let v = f32s(&reply.params, reply.id, 8)?;
                 Ok(Reply::Pose(MagicianPose { x_mm: v[0], y_mm: v[1], z_mm: v[2], r_deg: v[3], joints_deg: [v[4], v[5], v[6], v[7]] }))
@@ -405,11 +420,27 @@ pub struct MagicianPose {
     pub joints_deg: [f32; 4],
 }
 
+/// GetDeviceVersion result: the controller's firmware version.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceVersion {
+    pub major: u8,
+    pub minor: u8,
+    pub revision: u8,
+}
+
+impl std::fmt::Display for DeviceVersion {
+    /// `3.7.0`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{}.{}", self.major, self.minor, self.revision)
+    }
+}
+
 /// A decoded reply.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Reply {
     /// A set command was accepted; no result.
     Ack,
+    DeviceVersion(DeviceVersion),
     Pose(MagicianPose),
     /// Active alarm codes.
     Alarms(Vec<u16>),
@@ -425,6 +456,7 @@ impl Reply {
         let request = command.packet();
         let params = match self {
             Reply::Ack => vec![],
+            Reply::DeviceVersion(v) => vec![v.major, v.minor, v.revision],
             Reply::Pose(p) => [p.x_mm, p.y_mm, p.z_mm, p.r_deg, p.joints_deg[0], p.joints_deg[1], p.joints_deg[2], p.joints_deg[3]]
                 .iter()
                 .flat_map(|v| v.to_le_bytes())
@@ -449,6 +481,8 @@ mod tests {
         assert_eq!(Command::QueuedStartExec.encode(), [0xAA, 0xAA, 0x02, 0xF0, 0x01, 0x0F]);
         // GetQueuedCmdCurrentIndex: id 246 (0xF6), ctrl 0 -> 0x0A.
         assert_eq!(Command::GetQueuedCurrentIndex.encode(), [0xAA, 0xAA, 0x02, 0xF6, 0x00, 0x0A]);
+        // GetDeviceVersion: id 2, ctrl 0 -> -(0x02) = 0xFE.
+        assert_eq!(Command::GetDeviceVersion.encode(), [0xAA, 0xAA, 0x02, 0x02, 0x00, 0xFE]);
         // ClearAllAlarmsState: id 21 (0x15), ctrl 1 -> -(0x16) = 0xEA.
         assert_eq!(Command::ClearAllAlarmsState.encode(), [0xAA, 0xAA, 0x02, 0x15, 0x01, 0xEA]);
         // SetPTPCmd MOVL to (200, 0, 50, 0): 200.0f32 = 00 00 48 43, 50.0f32 = 00 00 48 42.
@@ -480,6 +514,28 @@ mod tests {
         field[2] = 0x10;
         let packet = Packet::new(20, Ctrl::READ, field);
         assert_eq!(Command::GetAlarmsState.parse_reply(&packet), Ok(Reply::Alarms(vec![0x00, 0x14])));
+    }
+
+    #[test]
+    fn device_version_replies() {
+        // Firmware 3.7.0: AA AA 05 02 00 03 07 00, checksum -(0x02 + 0x03 + 0x07) = 0xF4.
+        let bytes = [0xAA, 0xAA, 0x05, 0x02, 0x00, 0x03, 0x07, 0x00, 0xF4];
+        let Decoded::Packet { packet, used } = decode(&bytes) else { panic!("not framed: {:?}", decode(&bytes)) };
+        assert_eq!(used, bytes.len());
+        let version = DeviceVersion { major: 3, minor: 7, revision: 0 };
+        assert_eq!(Command::GetDeviceVersion.parse_reply(&packet), Ok(Reply::DeviceVersion(version)));
+        assert_eq!(version.to_string(), "3.7.0");
+        assert_eq!(Reply::DeviceVersion(version).packet_for(&Command::GetDeviceVersion).encode(), Ok(bytes.to_vec()));
+        // A fourth byte (a hardware version, in later DLLs) is ignored.
+        let longer = Packet::new(2, Ctrl::READ, vec![3, 9, 2, 1]);
+        assert_eq!(
+            Command::GetDeviceVersion.parse_reply(&longer),
+            Ok(Reply::DeviceVersion(DeviceVersion { major: 3, minor: 9, revision: 2 }))
+        );
+        // Too short is an error, not a panic; another command's reply is refused.
+        let short = Packet::new(2, Ctrl::READ, vec![3, 7]);
+        assert_eq!(Command::GetDeviceVersion.parse_reply(&short), Err(ProtoError::ParamLength { id: 2, expected: 3, got: 2 }));
+        assert_eq!(Command::GetDeviceVersion.parse_reply(&Command::GetPose.packet()), Err(ProtoError::WrongReply { expected: 2, got: 10 }));
     }
 
     #[test]
@@ -515,6 +571,7 @@ mod tests {
     fn any_command() -> impl Strategy<Value = Command> {
         let f = -1000.0f32..1000.0;
         prop_oneof![
+            Just(Command::GetDeviceVersion),
             Just(Command::GetPose),
             Just(Command::GetAlarmsState),
             Just(Command::ClearAllAlarmsState),
@@ -555,6 +612,7 @@ mod tests {
                 (Command::Home, Reply::QueuedIndex(idx)),
                 (Command::GetAlarmsState, Reply::Alarms(alarms.clone())),
                 (Command::QueuedClear, Reply::Ack),
+                (Command::GetDeviceVersion, Reply::DeviceVersion(DeviceVersion { major: idx as u8, minor: (idx >> 8) as u8, revision: (idx >> 16) as u8 })),
             ] {
                 let bytes = reply.packet_for(&cmd).encode().unwrap();
                 let Decoded::Packet { packet, .. } = decode(&bytes) else { panic!("not framed") };
@@ -571,6 +629,7 @@ mod tests {
             while let Some(p) = framer.next_packet() {
                 let _ = Command::from_packet(&p);
                 let _ = Command::GetPose.parse_reply(&p);
+                let _ = Command::GetDeviceVersion.parse_reply(&p);
                 n += 1;
                 prop_assert!(n <= bytes.len());
             }

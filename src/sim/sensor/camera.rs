@@ -13,6 +13,10 @@
 //!
 //! With the scene's `stale_frame` stage the camera hands out what it saw one frame period
 //! before the end of the exposure (a buffer that was not flushed), stamped as the new frame.
+//!
+//! It renders a frame only when one is asked for, so it has no stream to measure:
+//! [`Camera::stream_stats`] counts the frames it rendered, none dropped, and gives its frame
+//! rate as nominal ([`StreamOrigin::Simulated`]), never as measured.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -22,7 +26,7 @@ use tokio::sync::watch;
 
 use super::stages::mix64;
 use super::{MotionState, SensorSim, Stage};
-use crate::camera::{Camera, CameraError, Frame};
+use crate::camera::{Camera, CameraError, Frame, StreamOrigin, StreamStats};
 use crate::clock::Clock;
 use crate::geometry::DepthMap;
 use crate::pose::{Pose, WorkFrame};
@@ -215,5 +219,15 @@ impl Camera for SimCamera {
         let seq = self.seq;
         self.seq += 1;
         Ok(Frame { image, t_capture_s: t_end - self.exposure_s / 2.0, seq })
+    }
+
+    fn stream_stats(&self) -> Option<StreamStats> {
+        Some(StreamStats {
+            frames_received: self.seq,
+            frames_dropped: 0,
+            timed_frames: 0,
+            timed_s: 0.0,
+            origin: StreamOrigin::Simulated { nominal_fps: 1.0 / self.frame_period_s },
+        })
     }
 }
