@@ -173,7 +173,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
 
     /// Runs the plan. Poses already present in every sensor's dataset are skipped. However the
     /// run ends, the cameras' stream counts of the run go into the manifests
-    /// ([`record_streams`](Self::record_streams)); a finished run then stamps its end time.
+    /// (`record_streams`); a finished run then stamps its end time.
     pub async fn run(mut self, plan: &[PlannedPose]) -> Result<CollectSummary, CollectError> {
         let at_start: Vec<Option<StreamStats>> = self.sensors.iter().map(|s| s.camera.stream_stats()).collect();
         let result = self.run_plan(plan).await;

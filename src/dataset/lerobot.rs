@@ -22,17 +22,17 @@
 //!
 //! | LeRobot feature | dtype, shape | from |
 //! |---|---|---|
-//! | `observation.state` | float32 [4] | the measured pose (x_mm, y_mm, z_mm, yaw_deg, work frame); the commanded pose where no sensor measured one (synthetic rows) |
-//! | `action` | float32 [4] | the commanded pose (what the plan asked the arm for) |
-//! | `observation.images.<sensor>` | image [H, W, 3] | the frame's PNG, bytes as in the dataset (other colour types re-encoded as 8-bit RGB) |
-//! | `state_measured` | bool [1] | true when `observation.state` was measured |
-//! | `pose_id` | int64 [1] | rig's pose_id |
-//! | `source.<sensor>` | string [1] | the row's `source`: `real`, `simulated` or `synthetic` |
-//! | `timestamp` | float32 [1] | `frame_index / fps` (poses are not a time series; `--fps` sets the spacing) |
-//! | `frame_index`, `episode_index`, `index`, `task_index` | int64 [1] | LeRobot's bookkeeping |
+//! | `observation.state` | float32 `[4]` | the measured pose (x_mm, y_mm, z_mm, yaw_deg, work frame); the commanded pose where no sensor measured one (synthetic rows) |
+//! | `action` | float32 `[4]` | the commanded pose (what the plan asked the arm for) |
+//! | `observation.images.<sensor>` | image `[H, W, 3]` | the frame's PNG, bytes as in the dataset (other colour types re-encoded as 8-bit RGB) |
+//! | `state_measured` | bool `[1]` | true when `observation.state` was measured |
+//! | `pose_id` | int64 `[1]` | rig's pose_id |
+//! | `source.<sensor>` | string `[1]` | the row's `source`: `real`, `simulated` or `synthetic` |
+//! | `timestamp` | float32 `[1]` | `frame_index / fps` (poses are not a time series; `--fps` sets the spacing) |
+//! | `frame_index`, `episode_index`, `index`, `task_index` | int64 `[1]` | LeRobot's bookkeeping |
 //!
 //! Stats are exact (every frame, every pixel), where LeRobot samples images and bins
-//! quantiles; image stats are per channel on [0, 1], shaped [3, 1, 1] as LeRobot's are.
+//! quantiles; image stats are per channel on [0, 1], shaped `[3, 1, 1]` as LeRobot's are.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs::File;
