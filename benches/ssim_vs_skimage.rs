@@ -18,21 +18,11 @@ use std::process::Command;
 use std::time::Instant;
 
 use image::RgbImage;
+use rig::bench::loops::texture;
 use rig::metrics::{ssim, ssim_reference};
 
 fn env_or(name: &str, default: &str) -> String {
     std::env::var(name).unwrap_or_else(|_| default.to_string())
-}
-
-fn texture(w: u32, h: u32, seed: u32) -> RgbImage {
-    let mut s = seed.wrapping_mul(2_654_435_761).max(1);
-    RgbImage::from_fn(w, h, |x, y| {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        let base = ((x / 8 + y / 8) % 2 * 120) as u8;
-        image::Rgb([base.wrapping_add((s & 63) as u8), base.wrapping_add(((s >> 8) & 63) as u8), ((s >> 16) & 255) as u8])
-    })
 }
 
 /// The pair and where it came from.
@@ -42,7 +32,7 @@ fn pair() -> (RgbImage, RgbImage, String) {
     let load = |i: u32| image::open(dir.join(format!("1_TacTip_{i}.png"))).ok().map(|im| im.to_rgb8());
     match (load(0), load(2)) {
         (Some(a), Some(b)) if a.dimensions() == (512, 512) && b.dimensions() == (512, 512) => (a, b, "real TacTip frames 0 and 2".into()),
-        _ => (texture(512, 512, 1), texture(512, 512, 2), "seeded 512 x 512 textures".into()),
+        _ => (texture(512, 1), texture(512, 2), "seeded 512 x 512 textures".into()),
     }
 }
 
@@ -77,7 +67,7 @@ fn skimage(python: &str, a: &Path, b: &Path, repeats: usize) -> Result<(f64, f64
 
 fn main() {
     if !std::env::args().any(|a| a == "--bench") {
-        let (a, b) = (texture(64, 48, 1), texture(64, 48, 2));
+        let (a, b) = (texture(64, 1), texture(64, 2));
         let (fast, slow) = (ssim(&a, &b).expect("ssim"), ssim_reference(&a, &b).expect("reference"));
         assert!((fast - slow).abs() < 1e-12, "{fast} vs {slow}");
         println!("ssim_vs_skimage: smoke ok (run with --bench to time)");

@@ -15,11 +15,13 @@ pub enum Knob {
     Calibration,
     PlanOrder,
     Sensor,
+    Loops,
 }
 
 impl Knob {
     /// Every knob, in report order.
-    pub const ALL: [Knob; 6] = [Knob::Synthesis, Knob::Control, Knob::Collection, Knob::Calibration, Knob::PlanOrder, Knob::Sensor];
+    pub const ALL: [Knob; 7] =
+        [Knob::Synthesis, Knob::Control, Knob::Collection, Knob::Calibration, Knob::PlanOrder, Knob::Sensor, Knob::Loops];
 
     /// The name used on the command line and for the plot file (`<name>.svg`).
     pub fn name(self) -> &'static str {
@@ -30,6 +32,7 @@ impl Knob {
             Knob::Calibration => "calibration",
             Knob::PlanOrder => "plan-order",
             Knob::Sensor => "sensor",
+            Knob::Loops => "loops",
         }
     }
 }
@@ -42,7 +45,7 @@ impl fmt::Display for Knob {
 
 /// A knob name that is not one of [`Knob::ALL`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor)")]
+#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops)")]
 pub struct KnobParseError {
     pub given: String,
 }
@@ -98,6 +101,11 @@ pub struct BenchConfig {
     pub plan_seeds: Vec<u64>,
     /// Timed frames per sensor-simulator cell (the fastest is reported).
     pub sensor_frames: usize,
+    /// Calls per side and round of the inner-loop comparison (the fastest is reported).
+    pub loop_repeats: usize,
+    /// The Python that runs the inner loops' peers (scikit-image for SSIM); `None` leaves the
+    /// peers out.
+    pub peer_python: Option<PathBuf>,
 }
 
 impl BenchConfig {
@@ -125,6 +133,8 @@ impl BenchConfig {
             plan_poses: 500,
             plan_seeds: vec![0],
             sensor_frames: 3,
+            loop_repeats: 5,
+            peer_python: None,
         }
     }
 
@@ -138,6 +148,7 @@ impl BenchConfig {
             collect_poses: 5,
             plan_seeds: vec![0, 1, 2],
             sensor_frames: 10,
+            loop_repeats: 20,
             ..Self::quick(synth_model)
         }
     }

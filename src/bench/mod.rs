@@ -12,6 +12,7 @@
 //! | calibration points | [`calibration`] | map error against the simulated truth | s of arm time |
 //! | plan order | [`plan_order`] | (none: same poses) | total motion time |
 //! | sensor-simulator stages | [`sensor`] | SSIM to the full scene | ms per frame |
+//! | inner loops against the code they replaced and their peers | [`loops`] | difference from rig's value | ms per call, ratios |
 //!
 //! Data flow: [`BenchConfig`] (sizes, counts, which knobs) -> one `measure` function per knob
 //! -> [`KnobReport`] (columns, rows, a [`plot::Plot`]) -> [`write_report`]. A knob that fails
@@ -26,6 +27,7 @@ pub mod collection;
 pub mod control;
 mod error;
 mod knob;
+pub mod loops;
 pub mod machine;
 pub mod plan_order;
 pub mod plot;
@@ -72,6 +74,7 @@ pub async fn run(config: &BenchConfig, work_dir: &Path, mut progress: impl FnMut
             Knob::Calibration => calibration::measure(config, &work_dir.join("calibration")).await,
             Knob::PlanOrder => plan_order::measure(config),
             Knob::Sensor => sensor::measure(config),
+            Knob::Loops => loops::measure(config, &work_dir.join("loops")),
         };
         match result {
             Ok(report) => {

@@ -1,7 +1,7 @@
 //! `rig bench`: what accuracy costs in time.
 //!
 //! ```text
-//! rig bench [--quick] [--out DIR] [--only synthesis,control,...] [--model DIR]
+//! rig bench [--quick] [--out DIR] [--only synthesis,control,...] [--model DIR] [--python PATH]
 //! ```
 //!
 //! Measures every knob (see [`crate::bench`]) in one run on this machine and writes
@@ -26,19 +26,24 @@ pub struct Args {
     #[arg(long, default_value = "out/bench")]
     pub out: PathBuf,
     /// Measure only these knobs (comma-separated): synthesis, control, collection,
-    /// calibration, plan-order, sensor.
+    /// calibration, plan-order, sensor, loops.
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<Knob>,
     /// Model package for the synthesis knob (default: models/default if present, else the tiny
     /// test package).
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
+    /// A Python with scikit-image, Pillow and numpy: the loops knob times scikit-image's SSIM
+    /// beside rig's with it (left out without one).
+    #[arg(long, value_name = "PATH", env = "RIG_PYTHON")]
+    pub python: Option<PathBuf>,
 }
 
 /// Runs `rig bench`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let model = args.model.clone().unwrap_or_else(default_synth_model);
     let mut config = if args.quick { BenchConfig::quick(model) } else { BenchConfig::full(model) };
+    config.peer_python = args.python.clone();
     if !args.only.is_empty() {
         config.knobs = Knob::ALL.into_iter().filter(|k| args.only.contains(k)).collect();
     }

@@ -152,7 +152,8 @@ Examples:
 pub const BENCH: &str = "\
 Examples:
   rig bench --quick
-  rig bench --only synthesis,control --out out/bench";
+  rig bench --only synthesis,control --out out/bench
+  rig bench --only loops --python .rig/skimage/bin/python";
 
 /// `rig generate`.
 pub const GENERATE: &str = "\

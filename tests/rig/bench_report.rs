@@ -34,6 +34,9 @@ fn tiny_config() -> BenchConfig {
         plan_poses: 40,
         plan_seeds: vec![0],
         sensor_frames: 1,
+        loop_repeats: 1,
+        // The peer's row is left out: a developer's $RIG_PYTHON must not change the table.
+        peer_python: None,
     }
 }
 
@@ -56,6 +59,7 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
         (Knob::Calibration, 2),
         (Knob::PlanOrder, 2),
         (Knob::Sensor, sensor_rows),
+        (Knob::Loops, 2),
     ];
     assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
     for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {
@@ -86,6 +90,8 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
     // Sanity of the numbers, not their speed: the reference rows match themselves exactly.
     let control = &report.knobs[1];
     assert_eq!(control.rows.last().map(|r| r.values[1]), Some(0.0));
+    let loops = &report.knobs[6];
+    assert!(loops.rows[1].values[2] < 1e-12, "SSIM agrees with the code it replaced: {:?}", loops.rows[1]);
     let synth = &report.knobs[0];
     assert!(synth.rows.iter().filter(|r| r.values[0] == 4.0).all(|r| r.values[1] == 1.0));
 }

@@ -1,0 +1,192 @@
+//! Inner loops against the implementation each replaced and against a peer, measured side by
+//! side in this run: SSIM ([`metrics::ssim`](crate::metrics::ssim)) against
+//! [`metrics::ssim_reference`](crate::metrics::ssim_reference) (the whole-plane code it
+//! replaced) and against scikit-image's `structural_similarity` with the same definition, run
+//! by [`BenchConfig::peer_python`] when that Python has scikit-image.
+//!
+//! The pair is two seeded textures of `image_px` x `image_px` px (SSIM's cost does not depend
+//! on the content). Each side is timed `loop_repeats` times per round, the rounds interleaved;
+//! the fastest call is reported, the figure least disturbed by other load. Accuracy: the
+//! absolute difference of each side's value from rig's.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use image::RgbImage;
+
+use super::error::BenchError;
+use super::knob::{BenchConfig, Knob};
+use super::plot::{Plot, Series};
+use super::table::{Column, KnobReport, Row};
+use crate::metrics::{ssim, ssim_reference};
+
+/// The peer's script (`tools/ssim_skimage.py`), run with `python -c`, so the bench needs no
+/// checkout beside the binary.
+const SKIMAGE_SCRIPT: &str = include_str!("../../tools/ssim_skimage.py");
+
+/// Rounds of the interleaved timing.
+const ROUNDS: usize = 3;
+
+/// A seeded `side` x `side` RGB texture: an 8 px checkerboard with noise on it.
+pub fn texture(side: u32, seed: u32) -> RgbImage {
+    let mut s = seed.wrapping_mul(2_654_435_761).max(1);
+    RgbImage::from_fn(side, side, |x, y| {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        let base = ((x / 8 + y / 8) % 2 * 120) as u8;
+        image::Rgb([base.wrapping_add((s & 63) as u8), base.wrapping_add(((s >> 8) & 63) as u8), ((s >> 16) & 255) as u8])
+    })
+}
+
+/// Fastest seconds of `repeats` calls, and the value.
+fn fastest_of(repeats: usize, mut f: impl FnMut() -> Result<f64, BenchError>) -> Result<(f64, f64), BenchError> {
+    let mut best = f64::INFINITY;
+    let mut value = f64::NAN;
+    for _ in 0..repeats.max(1) {
+        let t = Instant::now();
+        value = std::hint::black_box(f()?);
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    Ok((best, value))
+}
+
+/// scikit-image's fastest seconds and value on the pair saved as `a` and `b`, or why not.
+fn skimage(python: &Path, a: &Path, b: &Path, repeats: usize) -> Result<(f64, f64), String> {
+    let out = Command::new(python)
+        .args(["-c", SKIMAGE_SCRIPT])
+        .args([a, b])
+        .args(["--repeats", &repeats.max(1).to_string(), "--json"])
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
+    if !out.status.success() {
+        let last = String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("failed").to_string();
+        return Err(format!("{}: {last}", python.display()));
+    }
+    let v: serde_json::Value = serde_json::from_slice(out.stdout.trim_ascii()).map_err(|e| format!("the peer printed no JSON: {e}"))?;
+    match (v["min_s"].as_f64(), v["ssim"].as_f64()) {
+        (Some(s), Some(value)) => Ok((s, value)),
+        _ => Err("the peer's JSON lacks min_s or ssim".into()),
+    }
+}
+
+/// Measures the loops (see the module docs).
+pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, BenchError> {
+    let side = config.image_px.max(16);
+    let (a, b) = (texture(side, 1), texture(side, 2));
+    let peer_files = match &config.peer_python {
+        Some(_) => {
+            std::fs::create_dir_all(work_dir).map_err(|e| BenchError::io(work_dir, e))?;
+            let (pa, pb) = (work_dir.join("a.png"), work_dir.join("b.png"));
+            for (img, path) in [(&a, &pa), (&b, &pb)] {
+                img.save(path).map_err(|e| BenchError::io(path, std::io::Error::other(e)))?;
+            }
+            Some((pa, pb))
+        }
+        None => None,
+    };
+    let repeats = config.loop_repeats;
+    let (mut rig_s, mut prev_s, mut peer_s) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+    let (mut rig_v, mut prev_v, mut peer_v) = (f64::NAN, f64::NAN, None);
+    let mut peer_note = match &config.peer_python {
+        None => Some("no Python given (`--python` or `$RIG_PYTHON`)".to_string()),
+        Some(_) => None,
+    };
+    for _ in 0..ROUNDS {
+        let (s, v) = fastest_of(repeats, || Ok(ssim(&a, &b)?))?;
+        (rig_s, rig_v) = (rig_s.min(s), v);
+        let (s, v) = fastest_of(repeats, || Ok(ssim_reference(&a, &b)?))?;
+        (prev_s, prev_v) = (prev_s.min(s), v);
+        if let (Some(python), Some((pa, pb)), None) = (&config.peer_python, &peer_files, &peer_note) {
+            match skimage(python, pa, pb, repeats) {
+                Ok((s, v)) => (peer_s, peer_v) = (peer_s.min(s), Some(v)),
+                Err(e) => peer_note = Some(e),
+            }
+        }
+    }
+    let ms = |s: f64| s * 1e3;
+    let mut rows = vec![
+        Row { label: "SSIM: rig".into(), values: vec![ms(rig_s), 1.0, 0.0] },
+        Row { label: "SSIM: previous implementation".into(), values: vec![ms(prev_s), rig_s / prev_s, (prev_v - rig_v).abs()] },
+    ];
+    let mut series = vec![
+        Series { name: "rig".into(), points: vec![[0.0, ms(rig_s)]], labels: vec![format!("{:.2} ms", ms(rig_s))] },
+        Series { name: "previous implementation".into(), points: vec![[1.0, ms(prev_s)]], labels: vec![format!("{:.3}x", rig_s / prev_s)] },
+    ];
+    if let (Some(v), None) = (peer_v, &peer_note) {
+        rows.push(Row { label: "SSIM: scikit-image".into(), values: vec![ms(peer_s), rig_s / peer_s, (v - rig_v).abs()] });
+        series.push(Series {
+            name: "scikit-image".into(),
+            points: vec![[2.0, ms(peer_s)]],
+            labels: vec![format!("{:.3}x", rig_s / peer_s)],
+        });
+    }
+    let mut notes = vec![format!(
+        "SSIM of one {side} x {side} RGB pair (seeded textures), {ROUNDS} interleaved rounds of {repeats} calls per side, \
+         the fastest call reported; rig on {} threads. `rig / this` is rig's time over this side's (below 1: rig is faster); \
+         `Δ SSIM vs rig` is the absolute difference of this side's value from rig's. scikit-image: `structural_similarity(..., \
+         gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=255, channel_axis=2)`.",
+        rayon::current_num_threads()
+    )];
+    if let Some(why) = peer_note {
+        notes.push(format!("scikit-image not measured: {why}."));
+    }
+    Ok(KnobReport {
+        knob: Knob::Loops,
+        title: "Inner loops: against the code they replaced and their peers".into(),
+        label_column: "loop: implementation".into(),
+        columns: vec![Column::new("fastest [ms]", 3), Column::new("rig / this", 3), Column::new("Δ SSIM vs rig (abs)", 12)],
+        rows,
+        notes,
+        plot: Plot {
+            title: "SSIM time".into(),
+            x_label: "implementation (0 rig, 1 previous, 2 scikit-image)".into(),
+            y_label: "ms per call".into(),
+            series,
+            lines: false,
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(peer_python: Option<std::path::PathBuf>) -> BenchConfig {
+        BenchConfig { image_px: 40, loop_repeats: 1, peer_python, ..BenchConfig::quick("unused".into()) }
+    }
+
+    #[test]
+    fn without_a_python_the_peer_is_left_out_and_said_so() {
+        let tmp = tempfile::tempdir().unwrap();
+        let r = measure(&config(None), tmp.path()).unwrap();
+        assert_eq!(r.rows.len(), 2);
+        assert!(r.rows[1].values[2] < 1e-12, "the previous code agrees: {:?}", r.rows[1]);
+        assert!(r.notes.iter().any(|n| n.contains("scikit-image not measured")), "{:?}", r.notes);
+    }
+
+    #[test]
+    fn the_peers_time_and_value_become_its_row() {
+        use std::os::unix::fs::PermissionsExt;
+        let tmp = tempfile::tempdir().unwrap();
+        // A stand-in for Python: whatever it is asked, it answers 0.5 s and SSIM 0.25.
+        let fake = tmp.path().join("python");
+        std::fs::write(&fake, "#!/bin/sh\necho '{\"ssim\": 0.25, \"mean_s\": 0.6, \"min_s\": 0.5}'\n").unwrap();
+        std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let r = measure(&config(Some(fake)), &tmp.path().join("work")).unwrap();
+        assert_eq!(r.rows.len(), 3, "{:?}", r.notes);
+        let (rig, peer) = (&r.rows[0], &r.rows[2]);
+        assert_eq!(peer.values[0], 500.0);
+        assert!((peer.values[1] - rig.values[0] / 500.0).abs() < 1e-12);
+        let rig_value = ssim(&texture(40, 1), &texture(40, 2)).unwrap();
+        assert!((peer.values[2] - (0.25 - rig_value).abs()).abs() < 1e-12);
+        // A peer that fails is a note, not an error.
+        let broken = tmp.path().join("broken");
+        std::fs::write(&broken, "#!/bin/sh\necho 'no module named skimage' >&2\nexit 1\n").unwrap();
+        std::fs::set_permissions(&broken, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let r = measure(&config(Some(broken)), &tmp.path().join("work2")).unwrap();
+        assert_eq!(r.rows.len(), 2);
+        assert!(r.notes.iter().any(|n| n.contains("no module named skimage")), "{:?}", r.notes);
+    }
+}
