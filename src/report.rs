@@ -273,7 +273,7 @@ impl Classify for crate::dataset::lerobot::LerobotError {
         match self {
             L::Dataset(e) => e.exit(),
             L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) => Exit::BadInput,
-            L::Io { .. } | L::Write { .. } => Exit::Failure,
+            L::Write { .. } => Exit::Failure,
         }
     }
 }

@@ -109,7 +109,10 @@ def check_arrow(out):
         if ep["tasks"] != [task_of[table.column("task_index")[ep["dataset_from_index"]].as_py()]]:
             fail(f"episode {ep['episode_index']} tasks {ep['tasks']}")
     ok(f"{len(task_of)} tasks: {list(task_of.values())}")
+    import numpy as np
+
     decoded = 0
+    pixels = {}
     for key, ft in features.items():
         if ft["dtype"] != "image":
             continue
@@ -119,6 +122,7 @@ def check_arrow(out):
             img.load()
             if img.size != (w, h) or len(img.getbands()) != c:
                 fail(f"{key}: an image is {img.size} {img.mode}, the feature says {w}x{h}x{c}")
+            pixels.setdefault(key, []).append(np.asarray(img.convert("RGB")))
             decoded += 1
     ok(f"{decoded} images decode to their features' shapes")
     stats = json.loads((out / "meta/stats.json").read_text())
@@ -128,14 +132,11 @@ def check_arrow(out):
         for stat in ("min", "max", "mean", "std", "count", "q01", "q50", "q99"):
             if stat not in stats.get(key, {}):
                 fail(f"stats.json lacks {key}/{stat}")
-    import numpy as np
-
     for key, ft in features.items():
         if ft["dtype"] in ("string", "bool"):
             continue
         if ft["dtype"] == "image":
-            pixels = np.stack([np.asarray(Image.open(io.BytesIO(c["bytes"])).convert("RGB")) for c in table.column(key).to_pylist()])
-            values = pixels.reshape(-1, 3).astype(np.float64) / 255.0
+            values = np.stack(pixels[key]).reshape(-1, 3).astype(np.float64) / 255.0
             shape = (3, 1, 1)
         else:
             values = np.asarray(table.column(key).to_pylist(), dtype=np.float64).reshape(n, -1)

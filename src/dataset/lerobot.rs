@@ -113,19 +113,14 @@ pub enum LerobotError {
     OutNotEmpty { out: PathBuf },
     #[error("{0}")]
     BadOption(String),
-    #[error("{op} {path}: {source}")]
-    Io {
-        op: &'static str,
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
     #[error("writing {path}: {reason}")]
     Write { path: PathBuf, reason: String },
 }
 
-fn io_err<'a>(op: &'static str, path: &'a Path) -> impl FnOnce(std::io::Error) -> LerobotError + 'a {
-    move |source| LerobotError::Io { op, path: path.to_path_buf(), source }
+/// An I/O error as the dataset module reports it (a full disk says what to do).
+fn io_err(op: &'static str, path: &Path) -> impl FnOnce(std::io::Error) -> LerobotError {
+    let to_dataset = DatasetError::io(op, path);
+    move |source| LerobotError::Dataset(to_dataset(source))
 }
 
 /// One sensor's dataset of an object.
@@ -136,11 +131,21 @@ struct SensorData {
     rows: BTreeMap<u32, PoseRow>,
 }
 
+/// One frame's poses, as the sensors agree on them ([`frame_poses`]).
+#[derive(Debug, Clone, Copy)]
+struct FramePoses {
+    pose_id: u32,
+    commanded: Pose,
+    /// The measured pose, or the commanded one when no sensor measured it.
+    state: Pose,
+    measured: bool,
+}
+
 /// One object's datasets: one episode.
 struct EpisodeData {
     object: String,
     sensors: Vec<SensorData>,
-    pose_ids: Vec<u32>,
+    frames: Vec<FramePoses>,
 }
 
 /// Exports every dataset under `root` (a dataset, an object folder `<object>/<sensor>/`, or a
@@ -204,10 +209,6 @@ fn load_episodes(root: &Path) -> Result<Vec<EpisodeData>, LerobotError> {
     }
     let mut by_object: BTreeMap<String, Vec<SensorData>> = BTreeMap::new();
     for dir in dirs {
-        let report = super::verify(&dir)?;
-        if !report.is_clean() {
-            return Err(DatasetError::Unclean { dir, issues: report.issues.len() }.into());
-        }
         let manifest = Manifest::load(&dir)?;
         let rows = read_rows(&dir)?.into_iter().map(|r| (r.pose_id, r)).collect();
         let group = by_object.entry(manifest.object.name.clone()).or_default();
@@ -227,8 +228,8 @@ fn load_episodes(root: &Path) -> Result<Vec<EpisodeData>, LerobotError> {
     let mut episodes = Vec::new();
     for (object, mut sensors) in by_object {
         sensors.sort_by_key(|s| s.sensor);
-        let pose_ids = joint_pose_ids(&object, &sensors)?;
-        episodes.push(EpisodeData { object, sensors, pose_ids });
+        let frames = joint_frames(&object, &sensors)?;
+        episodes.push(EpisodeData { object, sensors, frames });
     }
     let first: Vec<SensorKind> = episodes[0].sensors.iter().map(|s| s.sensor).collect();
     for e in &episodes[1..] {
@@ -252,8 +253,9 @@ fn sensor_list(sensors: &[SensorKind]) -> String {
     sensors.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
 }
 
-/// The pose ids of an object's frames: every sensor must have the same ones, commanded alike.
-fn joint_pose_ids(object: &str, sensors: &[SensorData]) -> Result<Vec<u32>, LerobotError> {
+/// An object's frames in pose id order: every sensor must have the same pose ids, and agree on
+/// each one's poses.
+fn joint_frames(object: &str, sensors: &[SensorData]) -> Result<Vec<FramePoses>, LerobotError> {
     let first = &sensors[0];
     let ids: BTreeSet<u32> = first.rows.keys().copied().collect();
     if ids.is_empty() {
@@ -277,15 +279,12 @@ fn joint_pose_ids(object: &str, sensors: &[SensorData]) -> Result<Vec<u32>, Lero
             });
         }
     }
-    for &id in &ids {
-        frame_poses(object, sensors, id)?;
-    }
-    Ok(ids.into_iter().collect())
+    ids.into_iter().map(|id| frame_poses(object, sensors, id)).collect()
 }
 
 /// A frame's commanded pose and its state (measured pose, or the commanded one when no sensor
 /// measured it) with whether it was measured. The sensors must agree on both.
-fn frame_poses(object: &str, sensors: &[SensorData], pose_id: u32) -> Result<(Pose, Pose, bool), LerobotError> {
+fn frame_poses(object: &str, sensors: &[SensorData], pose_id: u32) -> Result<FramePoses, LerobotError> {
     fn row<'a>(object: &str, s: &'a SensorData, pose_id: u32) -> Result<&'a PoseRow, LerobotError> {
         s.rows
             .get(&pose_id)
@@ -322,8 +321,8 @@ fn frame_poses(object: &str, sensors: &[SensorData], pose_id: u32) -> Result<(Po
         }
     }
     Ok(match measured {
-        Some((m, _)) => (commanded, m, true),
-        None => (commanded, commanded, false),
+        Some((m, _)) => FramePoses { pose_id, commanded, state: m, measured: true },
+        None => FramePoses { pose_id, commanded, state: commanded, measured: false },
     })
 }
 
@@ -693,14 +692,25 @@ struct EpisodeOut {
     stats: Stats,
 }
 
-/// Reads a frame's PNG, checks its size against the sensor's, and returns the bytes to store
-/// (re-encoded when not 8-bit RGB) and the decoded image for the stats.
-fn frame_image(path: &Path, expected: &mut Option<[u32; 2]>, reencoded: &mut usize) -> Result<(Vec<u8>, image::RgbImage), LerobotError> {
-    let bytes = durable::read_regular(path, durable::MAX_IMAGE_BYTES)?;
+/// Reads a frame's PNG (a regular file, bounded), checks its size against the sensor's other
+/// frames (`expected`), and returns the bytes to store (re-encoded when not 8-bit RGB) and the
+/// decoded image for the stats.
+fn frame_image(
+    pose_id: u32,
+    path: &Path,
+    expected: Option<[u32; 2]>,
+    reencoded: &mut usize,
+) -> Result<(Vec<u8>, image::RgbImage), LerobotError> {
+    let bytes = match durable::read_regular(path, durable::MAX_IMAGE_BYTES) {
+        Err(DatasetError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            return Err(DatasetError::MissingImage { pose_id, path: path.to_path_buf() }.into());
+        }
+        other => other?,
+    };
     let decoded = durable::decode_image(&bytes).map_err(|reason| DatasetError::BadImage { path: path.to_path_buf(), reason })?;
     let size = [decoded.width(), decoded.height()];
     match expected {
-        Some(e) if *e != size => {
+        Some(e) if e != size => {
             return Err(LerobotError::Layout {
                 reason: format!(
                     "{} is {}x{} px but the sensor's other frames are {}x{}: an image feature has one shape",
@@ -712,8 +722,7 @@ fn frame_image(path: &Path, expected: &mut Option<[u32; 2]>, reencoded: &mut usi
                 ),
             });
         }
-        Some(_) => {}
-        None => *expected = Some(size),
+        _ => {}
     }
     if let image::DynamicImage::ImageRgb8(rgb) = decoded {
         return Ok((bytes, rgb));
@@ -776,8 +785,8 @@ fn write_all(
         let mut stats = Stats::new(sensors);
         let from = index;
         let mut batch: Vec<FrameOut> = Vec::with_capacity(BATCH_FRAMES);
-        for (i, &pose_id) in episode.pose_ids.iter().enumerate() {
-            let (commanded, state, measured) = frame_poses(&episode.object, &episode.sensors, pose_id)?;
+        for (i, frame) in episode.frames.iter().enumerate() {
+            let FramePoses { pose_id, commanded, state, measured } = *frame;
             let mut images = Vec::with_capacity(sensors.len());
             let mut sources = Vec::with_capacity(sensors.len());
             for s in &episode.sensors {
@@ -785,11 +794,8 @@ fn write_all(
                     reason: format!("object {:?}: {} has no pose {pose_id}", episode.object, s.dir.display()),
                 })?;
                 let path = s.dir.join(&row.image);
-                let mut shape = image_shapes.get(&s.sensor).copied();
-                let (bytes, rgb) = frame_image(&path, &mut shape, &mut reencoded)?;
-                if let Some(shape) = shape {
-                    image_shapes.insert(s.sensor, shape);
-                }
+                let (bytes, rgb) = frame_image(pose_id, &path, image_shapes.get(&s.sensor).copied(), &mut reencoded)?;
+                image_shapes.insert(s.sensor, [rgb.width(), rgb.height()]);
                 if let Some(h) = stats.images.get_mut(&image_key(s.sensor)) {
                     h.push(&rgb);
                 }
@@ -848,7 +854,7 @@ fn write_all(
     for o in &outs {
         all.extend(&o.stats);
     }
-    write_json(tmp, "meta/stats.json", &all.json())?;
+    write_json(&tmp.join("meta"), "stats.json", &all.json())?;
     let total_frames = index;
     let info = json!({
         "codebase_version": CODEBASE_VERSION,
@@ -865,7 +871,7 @@ fn write_all(
         "video_path": null,
         "features": features_json(sensors, &image_shapes),
     });
-    write_json(tmp, "meta/info.json", &info)?;
+    write_json(&tmp.join("meta"), "info.json", &info)?;
     Ok(LerobotSummary {
         episodes: outs.len(),
         frames: usize::try_from(total_frames).unwrap_or(usize::MAX),
@@ -875,13 +881,11 @@ fn write_all(
     })
 }
 
-fn write_json(tmp: &Path, rel: &str, value: &Value) -> Result<(), LerobotError> {
-    let path = tmp.join(rel);
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(io_err("creating", dir))?;
-    }
-    let text = serde_json::to_string_pretty(value).map_err(|e| write_err(&path, e))?;
-    std::fs::write(&path, text + "\n").map_err(io_err("writing", &path))
+/// `dir/name` as pretty JSON, written atomically and durably ([`durable::write_atomic`]).
+fn write_json(dir: &Path, name: &str, value: &Value) -> Result<(), LerobotError> {
+    std::fs::create_dir_all(dir).map_err(io_err("creating", dir))?;
+    let text = serde_json::to_string_pretty(value).map_err(|e| write_err(&dir.join(name), e))? + "\n";
+    Ok(durable::write_atomic(dir, name, text.as_bytes())?)
 }
 
 /// `meta/tasks.parquet`: `task_index` with the task text as the pandas index (LeRobot reads it
