@@ -534,8 +534,13 @@ fn sim_calibration(
 
 /// The depth maps of `object` a simulated sensor renders.
 fn sim_depth_source(object: &ObjectChoice, calib: Calibration, width: u32, height: u32) -> crate::sim::sensor::DepthSource {
-    let mesh = Arc::clone(&object.mesh);
-    Box::new(move |object_pose: &Pose| crate::geometry::raster::render_depth(&mesh, object_pose, &calib, width, height, 1))
+    use crate::geometry::raster::{PreparedMesh, RasterScratch, render_depth_into};
+    let mesh = PreparedMesh::new(&object.mesh).sorted_top_down();
+    Box::new(move |object_pose: &Pose| {
+        let mut depth = crate::geometry::DepthMap::empty(0, 0);
+        render_depth_into(&mesh, object_pose, &calib, width, height, 1, &mut RasterScratch::default(), &mut depth);
+        depth
+    })
 }
 
 /// The simulator's switches for the configured faults.

@@ -27,6 +27,7 @@ use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
 use image::GenericImageView;
+use rayon::prelude::*;
 
 use super::sensor_bridge::{render_tactile, render_tactile_with};
 use super::usage;
@@ -40,7 +41,7 @@ use crate::geometry::stl::Mesh;
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
 use crate::sim::sensor::Scene;
-use crate::synth::fill::ControlRenderer;
+use crate::synth::fill::{ControlRenderer, ControlScratch};
 use crate::synth::prompt::mds_prompt;
 
 /// What `rig render` produces.
@@ -200,6 +201,22 @@ fn load_reference(path: &Path, width: u32, height: u32) -> anyhow::Result<image:
     Ok(image.to_rgb8())
 }
 
+/// Writes `image` as a PNG with fast compression (the control maps' flat regions compress
+/// well at any level; the default level costs more than rendering them).
+fn write_png_fast(image: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    let mut file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    PngEncoder::new_with_quality(&mut file, CompressionType::Fast, FilterType::Up).write_image(
+        image.as_raw(),
+        image.width(),
+        image.height(),
+        image::ExtendedColorType::Rgb8,
+    )?;
+    std::io::Write::flush(&mut file)?;
+    Ok(())
+}
+
 /// `--controls-of`: the control image and prompt of every row of `dataset` into `out_dir`.
 fn controls_of(dataset: &Path, size: ImageSize, supersample: u32, out_dir: &Path) -> anyhow::Result<()> {
     if !dataset.join("manifest.toml").is_file() {
@@ -213,10 +230,14 @@ fn controls_of(dataset: &Path, size: ImageSize, supersample: u32, out_dir: &Path
     let mut prompts = csv::Writer::from_path(out_dir.join("prompts.csv"))
         .with_context(|| format!("writing {}", out_dir.join("prompts.csv").display()))?;
     prompts.write_record(["pose_id", "sensor", "prompt"])?;
+    // The maps are independent: render and write them in parallel, one scratch per thread.
+    rows.par_iter().try_for_each_init(ControlScratch::default, |scratch, row| -> anyhow::Result<()> {
+        let path = out_dir.join(format!("{}.png", row.pose_id));
+        let image = renderer.control_image_with(&row.commanded(), scratch);
+        write_png_fast(&image, &path).with_context(|| format!("writing {}", path.display()))
+    })?;
     for row in &rows {
         let pose = row.commanded();
-        let path = out_dir.join(format!("{}.png", row.pose_id));
-        renderer.control_image(&pose).save(&path).with_context(|| format!("writing {}", path.display()))?;
         prompts.write_record([row.pose_id.to_string(), kind.label().to_string(), mds_prompt(kind.label(), &pose)])?;
     }
     prompts.flush()?;

@@ -14,7 +14,7 @@
 //! `round(32768 + 1000 * height_mm)` clamped to 1..=65535 (micrometres around mid-range, so
 //! +-32 mm round-trips at 1 um). [`depth_from_png16`] inverts it.
 
-use image::{ImageBuffer, Luma, Rgb, RgbImage};
+use image::{ImageBuffer, Luma, RgbImage};
 
 use super::DepthMap;
 
@@ -28,32 +28,64 @@ const DEPTH16_PER_MM: f64 = 1000.0;
 
 /// Per-pixel hint values in [0, 1] (row-major), before colour mapping; see the module docs.
 pub fn control_values(depth: &DepthMap) -> Vec<f32> {
-    let covered = depth.height_mm.iter().copied().filter(|&h| h > DepthMap::BACKGROUND_MM && h.is_finite());
-    let (lo, hi) = covered.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), h| (lo.min(h), hi.max(h)));
-    let span = hi - lo;
-    depth
-        .height_mm
-        .iter()
-        .map(|&h| {
-            if !(h > DepthMap::BACKGROUND_MM && h.is_finite()) {
-                0.0
-            } else if span > 1e-6 {
-                ((h - lo) / span).clamp(0.0, 1.0)
-            } else {
-                1.0
-            }
-        })
-        .collect()
+    let range = ControlRange::of(depth);
+    depth.height_mm.iter().map(|&h| range.value(h)).collect()
+}
+
+/// The covered heights' span that [`control_values`] normalises by.
+#[derive(Debug, Clone, Copy)]
+struct ControlRange {
+    lo: f32,
+    span: f32,
+}
+
+impl ControlRange {
+    fn of(depth: &DepthMap) -> Self {
+        let w = (depth.width as usize).max(1);
+        let rows = depth.height_mm.chunks(w).filter(|row| any_covered(row));
+        let covered = rows.flatten().copied().filter(|&h| h > DepthMap::BACKGROUND_MM && h.is_finite());
+        let (lo, hi) = covered.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), h| (lo.min(h), hi.max(h)));
+        Self { lo, span: hi - lo }
+    }
+
+    fn value(self, h: f32) -> f32 {
+        if !(h > DepthMap::BACKGROUND_MM && h.is_finite()) {
+            0.0
+        } else if self.span > 1e-6 {
+            ((h - self.lo) / self.span).clamp(0.0, 1.0)
+        } else {
+            1.0
+        }
+    }
 }
 
 /// The control image: inverted, normalised depth through viridis, RGB8.
 pub fn control_image(depth: &DepthMap) -> RgbImage {
-    let values = control_values(depth);
+    let range = ControlRange::of(depth);
+    let (w, h) = (depth.width as usize, depth.height as usize);
     let mut img = RgbImage::new(depth.width, depth.height);
-    for (px, t) in img.pixels_mut().zip(values) {
-        *px = Rgb(viridis(t));
+    if w == 0 || depth.height_mm.len() != w * h {
+        return img;
+    }
+    // Rows the object does not reach are the background colour throughout.
+    let background: Vec<u8> = std::iter::repeat_n(viridis(0.0), w).flatten().collect();
+    for (out, row) in img.chunks_exact_mut(3 * w).zip(depth.height_mm.chunks_exact(w)) {
+        out.copy_from_slice(&background);
+        if !any_covered(row) {
+            continue;
+        }
+        let first = row.iter().position(|&h| h > DepthMap::BACKGROUND_MM).unwrap_or(0);
+        let last = row.iter().rposition(|&h| h > DepthMap::BACKGROUND_MM).unwrap_or(first);
+        for (px, &h) in out[3 * first..3 * (last + 1)].chunks_exact_mut(3).zip(&row[first..=last]) {
+            px.copy_from_slice(&viridis(range.value(h)));
+        }
     }
     img
+}
+
+/// Whether any height of `row` is an object's (vectorised: no early exit).
+fn any_covered(row: &[f32]) -> bool {
+    row.iter().fold(false, |any, &h| any | (h > DepthMap::BACKGROUND_MM))
 }
 
 /// The plain 16-bit depth image (see the module docs for the encoding).

@@ -51,8 +51,113 @@ pub const MAX_SAMPLES: u64 = 1 << 26;
 /// pixel (0 is treated as 1; lowered so the samples stay within [`MAX_SAMPLES`]). A pose with a
 /// non-finite component renders nothing.
 pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32, supersample: u32) -> DepthMap {
+    let mut out = DepthMap::empty(0, 0);
+    render_depth_into(&PreparedMesh::new(mesh), object_pose, calib, width, height, supersample, &mut RasterScratch::default(), &mut out);
+    out
+}
+
+/// A mesh ready to be rendered many times: the triangles that can show from above (walls,
+/// whose normal is nearly horizontal, project to slivers whose interpolated heights are
+/// ill-conditioned; the faces around them already cover those pixels) and the mesh's top.
+#[derive(Debug, Clone)]
+pub struct PreparedMesh {
+    triangles: Vec<[glam::Vec3; 3]>,
+    top_z_mm: f32,
+}
+
+impl PreparedMesh {
+    /// `mesh` without its walls, in its own order.
+    pub fn new(mesh: &Mesh) -> Self {
+        let triangles = mesh
+            .triangles
+            .iter()
+            .filter(|tri| {
+                let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+                n.z.abs() > 1e-4 * n.length()
+            })
+            .copied()
+            .collect();
+        Self { triangles, top_z_mm: mesh.top_z_mm() }
+    }
+
+    /// Orders the triangles by their highest vertex, top first. The result of a render does not
+    /// depend on the order, but the rasteriser skips a triangle that lies under what it has
+    /// already drawn, so a mesh drawn many times is worth sorting once.
+    pub fn sorted_top_down(mut self) -> Self {
+        let top = |t: &[glam::Vec3; 3]| t[0].z.max(t[1].z).max(t[2].z);
+        self.triangles.sort_by(|a, b| top(b).total_cmp(&top(a)));
+        self
+    }
+
+    /// Triangles kept.
+    pub fn len(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// True when no triangle can show from above.
+    pub fn is_empty(&self) -> bool {
+        self.triangles.is_empty()
+    }
+}
+
+/// [`render_depth`] with the size and supersampling in one value.
+pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, opts: &RasterOptions) -> DepthMap {
+    render_depth(mesh, object_pose, calib, opts.width, opts.height, opts.supersample)
+}
+
+/// The buffers a depth render reuses from call to call: the projected triangles and the
+/// supersampled samples. A renderer that draws many poses through one scratch (one per
+/// thread) allocates nothing once the buffers have grown to the largest render.
+#[derive(Debug, Default)]
+pub struct RasterScratch {
+    triangles: Vec<Projected>,
+    samples: Vec<f32>,
+}
+
+/// One triangle projected to sample space, with its sample bounding box (inclusive).
+#[derive(Debug, Clone, Copy)]
+struct Projected {
+    a: DVec2,
+    b: DVec2,
+    c: DVec2,
+    z: [f64; 3],
+    inv_area: f64,
+    i0: usize,
+    i1: usize,
+    j0: usize,
+    j1: usize,
+}
+
+/// A rectangle of samples, inclusive bounds.
+#[derive(Debug, Clone, Copy)]
+struct Region {
+    i0: usize,
+    i1: usize,
+    j0: usize,
+    j1: usize,
+}
+
+/// [`render_depth`] into `out` (resized to `width x height`), with the buffers of `scratch`.
+///
+/// Only the samples under the projected object's bounding box are cleared, rasterised and
+/// averaged; the rest of `out` is background. The result equals [`render_depth`]'s bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn render_depth_into(
+    mesh: &PreparedMesh,
+    object_pose: &Pose,
+    calib: &Calibration,
+    width: u32,
+    height: u32,
+    supersample: u32,
+    scratch: &mut RasterScratch,
+    out: &mut DepthMap,
+) {
+    out.width = width;
+    out.height = height;
+    out.height_mm.clear();
+    out.height_mm.resize(width as usize * height as usize, DepthMap::BACKGROUND_MM);
     if width == 0 || height == 0 || !object_pose.is_finite() {
-        return DepthMap::empty(width, height);
+        return;
     }
     // Keep the supersampled buffer bounded (MAX_SAMPLES f32s) whatever size is asked for.
     let mut ss = supersample.clamp(1, MAX_SUPERSAMPLE);
@@ -60,16 +165,42 @@ pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width:
         ss -= 1;
     }
     let (sw, sh) = (width * ss, height * ss);
-    let fine = rasterise(mesh, object_pose, &calib.scaled_to(sw, sh), sw, sh);
+    let Some(covered) = project(mesh, object_pose, &calib.scaled_to(sw, sh), sw as usize, sh as usize, &mut scratch.triangles) else {
+        return;
+    };
     if ss == 1 {
-        return fine;
+        let all = Region { i0: 0, i1: width as usize - 1, j0: 0, j1: height as usize - 1 };
+        rasterise(&scratch.triangles, &mut out.height_mm, all);
+        return;
     }
-    downsample(&fine, width, height, ss)
-}
-
-/// [`render_depth`] with the size and supersampling in one value.
-pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, opts: &RasterOptions) -> DepthMap {
-    render_depth(mesh, object_pose, calib, opts.width, opts.height, opts.supersample)
+    // The covered samples, widened to whole output pixels.
+    let ss = ss as usize;
+    let (x0, x1, y0, y1) = (covered.i0 / ss, covered.i1 / ss, covered.j0 / ss, covered.j1 / ss);
+    let region = Region { i0: x0 * ss, i1: (x1 + 1) * ss - 1, j0: y0 * ss, j1: (y1 + 1) * ss - 1 };
+    let (rw, rh) = (region.i1 - region.i0 + 1, region.j1 - region.j0 + 1);
+    scratch.samples.clear();
+    scratch.samples.resize(rw * rh, DepthMap::BACKGROUND_MM);
+    rasterise(&scratch.triangles, &mut scratch.samples, region);
+    let need = (ss * ss).div_ceil(2);
+    let w = width as usize;
+    for y in y0..=y1 {
+        let row = &mut out.height_mm[y * w..(y + 1) * w];
+        for (x, cell) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
+            let (mut sum, mut n) = (0.0f64, 0usize);
+            for dy in 0..ss {
+                let start = ((y - y0) * ss + dy) * rw + (x - x0) * ss;
+                for &v in &scratch.samples[start..start + ss] {
+                    if v > DepthMap::BACKGROUND_MM {
+                        sum += v as f64;
+                        n += 1;
+                    }
+                }
+            }
+            if n >= need {
+                *cell = (sum / n as f64) as f32;
+            }
+        }
+    }
 }
 
 /// The affine map from object-frame x/y (mm) to pixels for a pose and calibration (the pose's
@@ -86,7 +217,187 @@ pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
         * DAffine2::from_translation(-DVec2::from(calib.effective_offset_mm(object_pose.x_mm, object_pose.y_mm)))
 }
 
-fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32) -> DepthMap {
+/// Projects the triangles that can cover a sample centre of a `width x height` image into
+/// `out`, and returns the bounding box of their samples (`None` when none can).
+fn project(
+    mesh: &PreparedMesh,
+    object_pose: &Pose,
+    calib: &Calibration,
+    width: usize,
+    height: usize,
+    out: &mut Vec<Projected>,
+) -> Option<Region> {
+    out.clear();
+    let to_px = object_to_pixel(object_pose, calib);
+    // Height of a vertex above the skin plane: the plane lies z_mm below the object's top.
+    let plane_z = mesh.top_z_mm as f64 - object_pose.z_mm;
+    let mut covered = Region { i0: usize::MAX, i1: 0, j0: usize::MAX, j1: 0 };
+    for tri in &mesh.triangles {
+        let p = tri.map(|v| {
+            let uv = to_px.transform_point2(DVec2::new(v.x as f64, v.y as f64));
+            (uv, v.z as f64 - plane_z)
+        });
+        let (a, b, c) = (p[0].0, p[1].0, p[2].0);
+        let area = (b - a).perp_dot(c - a);
+        // Walls seen edge-on and degenerate triangles cover no pixel centre reliably: skip.
+        if !area.is_finite() || area.abs() < 1e-12 {
+            continue;
+        }
+        let min = a.min(b).min(c);
+        let max = a.max(b).max(c);
+        // Pixel (i, j) is sampled at its centre (i + 0.5, j + 0.5).
+        let i0 = ceil(min.x - 0.5).max(0.0);
+        let j0 = ceil(min.y - 0.5).max(0.0);
+        let i1 = floor(max.x - 0.5).min(width as f64 - 1.0);
+        let j1 = floor(max.y - 0.5).min(height as f64 - 1.0);
+        if i0 > i1 || j0 > j1 {
+            continue;
+        }
+        let t = Projected {
+            a,
+            b,
+            c,
+            z: [p[0].1, p[1].1, p[2].1],
+            inv_area: 1.0 / area,
+            i0: i0 as usize,
+            i1: i1 as usize,
+            j0: j0 as usize,
+            j1: j1 as usize,
+        };
+        covered = Region { i0: covered.i0.min(t.i0), i1: covered.i1.max(t.i1), j0: covered.j0.min(t.j0), j1: covered.j1.max(t.j1) };
+        out.push(t);
+    }
+    (!out.is_empty()).then_some(covered)
+}
+
+/// `x.ceil()` without a libm call (x86-64's baseline has no rounding instruction); equal to it
+/// for every finite `x` below 2^52 in magnitude, which is all the rasteriser asks (it clamps
+/// the result to the image, and the casts saturate beyond that).
+fn ceil(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t < x { t + 1.0 } else { t }
+}
+
+/// `x.floor()`, as [`ceil`].
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
+}
+
+/// Z-buffers `triangles` into `buf`, which holds the samples of `region` row by row (every
+/// triangle lies inside it). Two shortcuts keep it to the samples a triangle can change, and
+/// neither changes a result (the z-buffer keeps each sample's maximum, whatever the order):
+///
+/// - a triangle whose highest possible interpolated height does not exceed any sample under its
+///   bounding box is skipped (meshes sorted top down, [`Mesh::sort_top_down`], hide most of
+///   their underside this way);
+/// - each row visits only the span where the edge functions can pass, found from their values
+///   at the row's ends and widened by two samples plus their rounding, and tests those samples
+///   exactly as before.
+fn rasterise(triangles: &[Projected], buf: &mut [f32], region: Region) {
+    let stride = region.i1 - region.i0 + 1;
+    const EPS: f64 = -1e-9;
+    for t in triangles {
+        let (a, b, c) = (t.a, t.b, t.c);
+        let [za, zb, zc] = t.z;
+        if hidden(t, buf, stride, region) {
+            continue;
+        }
+        // Barycentric weights from edge functions, normalised by the signed area so both
+        // windings work.
+        let weights = |x: f64, py: f64| {
+            let q = DVec2::new(x, py);
+            let wa = (c - b).perp_dot(q - b) * t.inv_area;
+            let wb = (a - c).perp_dot(q - c) * t.inv_area;
+            [wa, wb, 1.0 - wa - wb]
+        };
+        for j in t.j0..=t.j1 {
+            let py = j as f64 + 0.5;
+            let Some((lo, hi)) = row_span(t, py, weights) else {
+                continue;
+            };
+            let start = (j - region.j0) * stride;
+            let row = &mut buf[start + lo - region.i0..=start + hi - region.i0];
+            // Branch-free, so the compiler can test two samples at a time; a NaN weight fails
+            // the test, as it did as `w < EPS || ...` followed by `z > cell`.
+            for (k, cell) in row.iter_mut().enumerate() {
+                let [wa, wb, wc] = weights((lo + k) as f64 + 0.5, py);
+                let inside = (wa >= EPS) & (wb >= EPS) & (wc >= EPS);
+                let z = (wa * za + wb * zb + wc * zc) as f32;
+                *cell = if inside & (z > *cell) { z } else { *cell };
+            }
+        }
+    }
+}
+
+/// True when no sample under `t`'s bounding box can rise: each already holds at least the
+/// highest height the triangle can interpolate (its top vertex, plus the weights' tolerance and
+/// rounding), so the exact test would reject every sample.
+fn hidden(t: &Projected, buf: &[f32], stride: usize, region: Region) -> bool {
+    let [za, zb, zc] = t.z;
+    let (top, bottom) = (za.max(zb).max(zc), za.min(zb).min(zc));
+    let bar = top + 1e-6 * (1.0 + top.abs() + (top - bottom));
+    if !bar.is_finite() {
+        return false;
+    }
+    (t.j0..=t.j1).all(|j| {
+        let start = (j - region.j0) * stride + (t.i0 - region.i0);
+        buf[start..start + (t.i1 - t.i0 + 1)].iter().all(|&v| v as f64 >= bar)
+    })
+}
+
+/// The samples of row `py` inside `t`'s bounding box that can pass the edge test: each weight
+/// is linear along the row, so its crossing of the tolerance is found from its values at the
+/// box's two ends, then widened by two samples and its rounding (a weight that barely changes
+/// along the row narrows nothing). `None` when no sample can pass.
+fn row_span(t: &Projected, py: f64, weights: impl Fn(f64, f64) -> [f64; 3]) -> Option<(usize, usize)> {
+    const EPS: f64 = -1e-9;
+    // A narrow box is cheaper to test whole than to narrow.
+    if t.i1 - t.i0 < 8 {
+        return Some((t.i0, t.i1));
+    }
+    let n = (t.i1 - t.i0) as f64;
+    let (first, last) = (weights(t.i0 as f64 + 0.5, py), weights(t.i1 as f64 + 0.5, py));
+    let (mut lo, mut hi) = (0.0f64, n);
+    for (v0, v1) in first.into_iter().zip(last) {
+        let per_sample = (v1 - v0) / n;
+        let slack = 2.0 + 1e-12 * (1.0 + v0.abs() + v1.abs()) / per_sample.abs();
+        if !slack.is_finite() || slack > n {
+            continue;
+        }
+        let crossing = (EPS - v0) / per_sample;
+        if per_sample > 0.0 {
+            lo = lo.max(crossing - slack);
+        } else {
+            hi = hi.min(crossing + slack);
+        }
+    }
+    let (lo, hi) = (ceil(lo.max(0.0)), floor(hi.min(n)));
+    (lo <= hi).then(|| (t.i0 + lo as usize, t.i0 + hi as usize))
+}
+
+/// The straightforward renderer [`render_depth`] replaced: a fresh full-size sample buffer per
+/// call, every triangle's whole bounding box tested sample by sample, every sample averaged. It
+/// is the tests' oracle (the results are equal bit for bit) and `rig bench`'s "previous code".
+#[doc(hidden)]
+pub fn render_depth_reference(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32, supersample: u32) -> DepthMap {
+    if width == 0 || height == 0 || !object_pose.is_finite() {
+        return DepthMap::empty(width, height);
+    }
+    // Keep the supersampled buffer bounded (MAX_SAMPLES f32s) whatever size is asked for.
+    let mut ss = supersample.clamp(1, MAX_SUPERSAMPLE);
+    while ss > 1 && (width as u64 * ss as u64) * (height as u64 * ss as u64) > MAX_SAMPLES {
+        ss -= 1;
+    }
+    let (sw, sh) = (width * ss, height * ss);
+    let fine = rasterise_reference(mesh, object_pose, &calib.scaled_to(sw, sh), sw, sh);
+    if ss == 1 {
+        return fine;
+    }
+    downsample_reference(&fine, width, height, ss)
+}
+
+fn rasterise_reference(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, height: u32) -> DepthMap {
     let mut map = DepthMap::empty(width, height);
     let to_px = object_to_pixel(object_pose, calib);
     // Height of a vertex above the skin plane: the plane lies z_mm below the object's top.
@@ -145,7 +456,7 @@ fn rasterise(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width: u32, h
     map
 }
 
-fn downsample(fine: &DepthMap, width: u32, height: u32, ss: u32) -> DepthMap {
+fn downsample_reference(fine: &DepthMap, width: u32, height: u32, ss: u32) -> DepthMap {
     let mut out = DepthMap::empty(width, height);
     let fw = fine.width as usize;
     let ss = ss as usize;
@@ -237,5 +548,52 @@ mod tests {
         let calib = Calibration::default_for(64, 64);
         let d = render_depth(&mesh, &Pose::new(0.3, 0.1, 0.7, 10.0), &calib, 64, 64, 4);
         assert!((d.max_indentation_mm() - 0.7).abs() < 1e-4);
+    }
+
+    /// The library objects at poses across the workspace, sizes and supersampling factors,
+    /// through one reused scratch and a mesh sorted top down: equal to the straightforward
+    /// renderer bit for bit.
+    #[test]
+    fn library_objects_render_exactly_as_the_reference_renderer() {
+        let mut scratch = RasterScratch::default();
+        let mut out = DepthMap::empty(0, 0);
+        for name in crate::geometry::shapes::OBJECT_NAMES {
+            let mesh = crate::geometry::shapes::object_mesh(name).expect("library object");
+            let prepared = PreparedMesh::new(&mesh).sorted_top_down();
+            for (k, (w, h, ss)) in [(96u32, 80u32, 1u32), (64, 64, 2), (50, 70, 3)].into_iter().enumerate() {
+                let calib = Calibration::default_for(w, h);
+                for pose in [Pose::new(0.0, 0.0, 1.0, 0.0), Pose::new(-3.5, 2.0, 2.5, 37.0 + k as f64), Pose::new(9.0, -1.0, -0.5, -120.0)]
+                {
+                    render_depth_into(&prepared, &pose, &calib, w, h, ss, &mut scratch, &mut out);
+                    assert_eq!(out, render_depth_reference(&mesh, &pose, &calib, w, h, ss), "{name} {w}x{h} ss {ss} {pose:?}");
+                }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Random triangle soups (slivers, both windings, overlaps, triangles off the image)
+        /// render exactly as the straightforward renderer does.
+        #[test]
+        fn random_meshes_render_exactly_as_the_reference_renderer(
+            coords in proptest::collection::vec(-12.0f32..12.0, 9..180),
+            pose in (-4.0f64..4.0, -4.0f64..4.0, -2.0f64..3.0, -180.0f64..180.0),
+            size in (1u32..70, 1u32..70),
+            ss in 1u32..4,
+        ) {
+            let triangles: Vec<[Vec3; 3]> = coords
+                .chunks_exact(9)
+                .map(|c| [Vec3::new(c[0], c[1], c[2] * 0.3), Vec3::new(c[3], c[4], c[5] * 0.3), Vec3::new(c[6], c[7], c[8] * 0.3)])
+                .collect();
+            let mesh = Mesh::new(triangles);
+            let pose = Pose::new(pose.0, pose.1, pose.2, pose.3);
+            let calib = Calibration::default_for(size.0, size.1);
+            let expected = render_depth_reference(&mesh, &pose, &calib, size.0, size.1, ss);
+            proptest::prop_assert_eq!(&render_depth(&mesh, &pose, &calib, size.0, size.1, ss), &expected);
+            let mut out = DepthMap::empty(3, 3);
+            render_depth_into(&PreparedMesh::new(&mesh).sorted_top_down(), &pose, &calib, size.0, size.1, ss, &mut RasterScratch::default(), &mut out);
+            proptest::prop_assert_eq!(&out, &expected);
+        }
     }
 }

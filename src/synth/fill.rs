@@ -18,6 +18,7 @@ use super::{GenerateRequest, ImageRange, Pipeline, SchedulerKind, SynthError, po
 use crate::calibration::model::Calibration;
 use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
 use crate::geometry::objects::load_object;
+use crate::geometry::raster::PreparedMesh;
 use crate::geometry::stl::Mesh;
 use crate::plan::PlannedPose;
 use crate::pose::Pose;
@@ -348,6 +349,8 @@ pub fn synthesise_poses_of(
 /// tools (`rig render --controls-of`) use it too, so training and synthesis see the same hints.
 pub struct ControlRenderer {
     pub mesh: Mesh,
+    /// `mesh` ready for rendering (built once).
+    prepared: PreparedMesh,
     pub calibration: Calibration,
     /// Added to a pose's z (indentation) to place the object: the work frame's contact depth.
     pub contact_depth_mm: f64,
@@ -361,8 +364,10 @@ impl ControlRenderer {
     /// The renderer of the dataset at `dir` (whose manifest is `manifest`) for `width` x
     /// `height` hints.
     pub fn for_dataset(dir: &Path, manifest: &Manifest, width: u32, height: u32, supersample: u32) -> Result<Self, FillError> {
+        let mesh = object_mesh(dir, manifest)?;
         Ok(Self {
-            mesh: object_mesh(dir, manifest)?,
+            prepared: PreparedMesh::new(&mesh).sorted_top_down(),
+            mesh,
             calibration: calibration_of(dir, manifest, width, height)?,
             contact_depth_mm: manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
             width,
@@ -373,7 +378,37 @@ impl ControlRenderer {
 
     /// The control image of the work-frame `pose`.
     pub fn control_image(&self, pose: &Pose) -> RgbImage {
-        control_image_for(&self.mesh, &self.calibration, self.contact_depth_mm, pose, self.width, self.height, self.supersample)
+        self.control_image_with(pose, &mut ControlScratch::default())
+    }
+
+    /// [`ControlRenderer::control_image`] with the buffers of `scratch`: a loop over many
+    /// poses (one scratch per thread) allocates only the images it returns.
+    pub fn control_image_with(&self, pose: &Pose, scratch: &mut ControlScratch) -> RgbImage {
+        let object_pose = Pose { z_mm: pose.z_mm + self.contact_depth_mm, ..*pose };
+        crate::geometry::raster::render_depth_into(
+            &self.prepared,
+            &object_pose,
+            &self.calibration,
+            self.width,
+            self.height,
+            self.supersample,
+            &mut scratch.raster,
+            &mut scratch.depth,
+        );
+        crate::geometry::control::control_image(&scratch.depth)
+    }
+}
+
+/// The buffers [`ControlRenderer::control_image_with`] reuses from pose to pose.
+#[derive(Debug)]
+pub struct ControlScratch {
+    raster: crate::geometry::raster::RasterScratch,
+    depth: crate::geometry::DepthMap,
+}
+
+impl Default for ControlScratch {
+    fn default() -> Self {
+        Self { raster: Default::default(), depth: crate::geometry::DepthMap::empty(0, 0) }
     }
 }
 

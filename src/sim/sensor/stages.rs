@@ -72,7 +72,8 @@ impl CellField {
     }
 
     /// Calls `f(x, y, value)` for every pixel of a `width` x `height` image with the field
-    /// sampled bilinearly, skipping rows of cells where the field is exactly `skip_value`.
+    /// sampled bilinearly, skipping the pixels whose four cells are all exactly `skip_value`
+    /// (they would sample `skip_value`, for which `f` must do nothing).
     pub fn for_each_pixel(&self, width: usize, height: usize, skip_value: f32, mut f: impl FnMut(usize, f32)) {
         let c = self.cell_px as f32;
         let cols: Vec<(usize, usize, f32)> = (0..width)
@@ -88,10 +89,15 @@ impl CellField {
             let y1 = (y0 + 1).min(self.h - 1);
             let ty = fy - y0 as f32;
             let (r0, r1) = (&self.v[y0 * self.w..(y0 + 1) * self.w], &self.v[y1 * self.w..(y1 + 1) * self.w]);
-            if r0.iter().chain(r1).all(|&v| v == skip_value) {
+            // The cells of these two rows that are not `skip_value`; a pixel between two
+            // cells outside them samples exactly `skip_value`.
+            let live = |k: &usize| r0[*k] != skip_value || r1[*k] != skip_value;
+            let (Some(k0), Some(k1)) = ((0..self.w).find(live), (0..self.w).rev().find(live)) else {
                 continue;
-            }
-            for (x, &(x0, x1, tx)) in cols.iter().enumerate() {
+            };
+            let first = cols.partition_point(|&(_, x1, _)| x1 < k0);
+            let last = cols.partition_point(|&(x0, _, _)| x0 <= k1);
+            for (x, &(x0, x1, tx)) in cols.iter().enumerate().take(last).skip(first) {
                 let a = r0[x0] + (r0[x1] - r0[x0]) * tx;
                 let b = r1[x0] + (r1[x1] - r1[x0]) * tx;
                 f(y * width + x, a + (b - a) * ty);
@@ -270,27 +276,52 @@ pub fn see_through(
         }
     });
     // Visibility of the object per pixel, then softened by the scattering of the skin.
-    let mut vis = CellField {
-        w,
-        h,
-        cell_px: 1,
-        v: depth.height_mm.iter().map(|&d| if d <= -gap_mm { 0.0 } else { smoothstep(-gap_mm, 0.0, d) }).collect(),
-    };
-    if vis.v.iter().all(|&v| v == 0.0) {
-        return;
-    }
-    vis.blur(edge_blur_px.round().max(0.0) as usize, 2);
-    for (i, &v) in vis.v.iter().enumerate() {
-        if v <= 0.0 {
-            continue;
+    VIS.with(|vis| {
+        let mut vis = vis.borrow_mut();
+        let mut field = CellField { w, h, cell_px: 1, v: std::mem::take(&mut *vis) };
+        // Visibility is 0 wherever the object is farther than the gap: fill, then compute
+        // only the rows and columns of the nearer pixels.
+        field.v.clear();
+        field.v.resize(w * h, 0.0);
+        // A NaN height goes through `smoothstep`, as it always has.
+        let near = |d: f32| d > -gap_mm || d.is_nan();
+        let (mut x0, mut x1) = (w, 0);
+        for (row, out) in depth.height_mm.chunks_exact(w.max(1)).zip(field.v.chunks_exact_mut(w.max(1))) {
+            let (Some(first), Some(last)) = (row.iter().position(|&d| near(d)), row.iter().rposition(|&d| near(d))) else {
+                continue;
+            };
+            (x0, x1) = (x0.min(first), x1.max(last + 1));
+            for (v, &d) in out[first..=last].iter_mut().zip(&row[first..=last]) {
+                *v = if near(d) { smoothstep(-gap_mm, 0.0, d) } else { 0.0 };
+            }
         }
-        let a = v * v * 0.97 * fov[i];
-        let t = t_at(i);
-        for c in 0..3 {
-            let p = &mut buf[i * 3 + c];
-            *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
+        if x0 < x1 && field.v.iter().any(|&v| v != 0.0) {
+            field.blur(edge_blur_px.round().max(0.0) as usize, 2);
+            for (y, row) in field.v.chunks_exact(w).enumerate() {
+                if row.iter().fold(true, |none, &v| none & (v <= 0.0)) {
+                    continue;
+                }
+                for (x, &v) in row.iter().enumerate() {
+                    if v <= 0.0 {
+                        continue;
+                    }
+                    let i = y * w + x;
+                    let a = v * v * 0.97 * fov[i];
+                    let t = t_at(i);
+                    for c in 0..3 {
+                        let p = &mut buf[i * 3 + c];
+                        *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
+                    }
+                }
+            }
         }
-    }
+        *vis = field.v;
+    });
+}
+
+thread_local! {
+    /// The see-through visibility plane, reused from frame to frame on this thread.
+    static VIS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,
