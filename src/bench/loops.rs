@@ -2,7 +2,11 @@
 //! side in this run: SSIM ([`metrics::ssim`](crate::metrics::ssim)) against
 //! [`metrics::ssim_reference`](crate::metrics::ssim_reference) (the whole-plane code it
 //! replaced) and against scikit-image's `structural_similarity` with the same definition, run
-//! by [`BenchConfig::peer_python`] when that Python has scikit-image.
+//! by [`BenchConfig::peer_python`] when that Python has scikit-image; and control maps
+//! ([`render_depth_into`](crate::geometry::raster::render_depth_into) on a prepared mesh, in
+//! parallel) against the renderer they replaced
+//! ([`render_depth_reference`](crate::geometry::raster::render_depth_reference), one map after
+//! the other).
 //!
 //! The pair is two seeded textures of `image_px` x `image_px` px (SSIM's cost does not depend
 //! on the content). Each side is timed `loop_repeats` times per round, the rounds interleaved;
@@ -71,6 +75,63 @@ fn skimage(python: &Path, a: &Path, b: &Path, repeats: usize) -> Result<(f64, f6
     }
 }
 
+/// Poses of the control-map loop.
+const CONTROL_POSES: usize = 48;
+
+/// Seconds per control map of rig and of the code it replaced, and the largest channel
+/// difference between their maps.
+struct ControlMaps {
+    rig_s: f64,
+    previous_s: f64,
+    max_difference: u8,
+}
+
+/// Times [`CONTROL_POSES`] control maps of the library sphere, `side` px, both ways.
+fn control_maps(side: u32, repeats: usize) -> Result<ControlMaps, BenchError> {
+    use crate::geometry::control::control_image;
+    use crate::geometry::raster::{PreparedMesh, RasterScratch, render_depth_into, render_depth_reference};
+    use crate::geometry::{DepthMap, shapes::object_mesh};
+    use crate::pose::Pose;
+    use rayon::prelude::*;
+    let mesh = object_mesh("sphere").ok_or(BenchError::Empty { knob: Knob::Loops, reason: "the library has no sphere" })?;
+    let prepared = PreparedMesh::new(&mesh).sorted_top_down();
+    let calib = crate::calibration::Calibration::default_for(side, side);
+    let poses: Vec<Pose> = (0..CONTROL_POSES)
+        .map(|k| {
+            let t = k as f64 / CONTROL_POSES as f64;
+            Pose::new(-5.0 + 10.0 * t, 4.0 - 8.0 * (t * 7.0).fract(), 1.5 + (t * 3.0).fract() * 2.0, -90.0 + 180.0 * (t * 5.0).fract())
+        })
+        .collect();
+    let rig = || -> Vec<RgbImage> {
+        poses
+            .par_iter()
+            .map_init(
+                || (RasterScratch::default(), DepthMap::empty(0, 0)),
+                |(scratch, depth), pose| {
+                    render_depth_into(&prepared, pose, &calib, side, side, 2, scratch, depth);
+                    control_image(depth)
+                },
+            )
+            .collect()
+    };
+    let previous =
+        || -> Vec<RgbImage> { poses.iter().map(|p| control_image(&render_depth_reference(&mesh, p, &calib, side, side, 2))).collect() };
+    let (mut rig_s, mut previous_s) = (f64::INFINITY, f64::INFINITY);
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    for _ in 0..ROUNDS * repeats.max(1) {
+        let t = Instant::now();
+        ours = std::hint::black_box(rig());
+        rig_s = rig_s.min(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        theirs = std::hint::black_box(previous());
+        previous_s = previous_s.min(t.elapsed().as_secs_f64());
+    }
+    let max_difference =
+        ours.iter().zip(&theirs).flat_map(|(a, b)| a.as_raw().iter().zip(b.as_raw())).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
+    let n = CONTROL_POSES as f64;
+    Ok(ControlMaps { rig_s: rig_s / n, previous_s: previous_s / n, max_difference })
+}
+
 /// Measures the loops (see the module docs).
 pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, BenchError> {
     let side = config.image_px.max(16);
@@ -122,21 +183,36 @@ pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, Benc
             labels: vec![format!("{:.3}x", rig_s / peer_s)],
         });
     }
+    // Control maps: the library sphere at poses across the workspace, 2 x 2 supersampling.
+    let maps = control_maps(side, repeats)?;
+    rows.push(Row { label: "control map: rig".into(), values: vec![ms(maps.rig_s), 1.0, 0.0] });
+    rows.push(Row {
+        label: "control map: previous implementation".into(),
+        values: vec![ms(maps.previous_s), maps.rig_s / maps.previous_s, maps.max_difference as f64],
+    });
     let mut notes = vec![format!(
         "SSIM of one {side} x {side} RGB pair (seeded textures), {ROUNDS} interleaved rounds of {repeats} calls per side, \
          the fastest call reported; rig on {} threads. `rig / this` is rig's time over this side's (below 1: rig is faster); \
-         `Δ SSIM vs rig` is the absolute difference of this side's value from rig's. scikit-image: `structural_similarity(..., \
+         `Δ vs rig` is the absolute difference of this side's SSIM from rig's. scikit-image: `structural_similarity(..., \
          gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=255, channel_axis=2)`.",
         rayon::current_num_threads()
     )];
     if let Some(why) = peer_note {
         notes.push(format!("scikit-image not measured: {why}."));
     }
+    notes.push(format!(
+        "Control map: the ControlNet hint of the library sphere at {CONTROL_POSES} poses, {side} x {side} px with 2 x 2 \
+         supersampling, per map: rig renders them in parallel with a prepared mesh and buffers reused per thread (as \
+         `rig render --controls-of` and `rig synth --fill-missing` do, without writing the PNG); the previous implementation \
+         rendered each with a fresh full-size sample buffer, one after the other. Fastest of {} rounds. `Δ vs rig` is the \
+         largest difference of a channel value between the two sides' maps.",
+        ROUNDS * repeats.max(1)
+    ));
     Ok(KnobReport {
         knob: Knob::Loops,
         title: "Inner loops: against the code they replaced and their peers".into(),
         label_column: "loop: implementation".into(),
-        columns: vec![Column::new("fastest [ms]", 3), Column::new("rig / this", 3), Column::new("Δ SSIM vs rig (abs)", 12)],
+        columns: vec![Column::new("fastest [ms]", 3), Column::new("rig / this", 3), Column::new("Δ vs rig (abs)", 12)],
         rows,
         notes,
         plot: Plot {
@@ -161,8 +237,11 @@ mod tests {
     fn without_a_python_the_peer_is_left_out_and_said_so() {
         let tmp = tempfile::tempdir().unwrap();
         let r = measure(&config(None), tmp.path()).unwrap();
-        assert_eq!(r.rows.len(), 2);
+        assert_eq!(r.rows.len(), 4);
         assert!(r.rows[1].values[2] < 1e-12, "the previous code agrees: {:?}", r.rows[1]);
+        assert_eq!(r.rows[2].label, "control map: rig");
+        assert_eq!(r.rows[3].values[2], 0.0, "the previous renderer's maps are the same: {:?}", r.rows[3]);
+        assert!(r.rows[3].values[0] > 0.0 && r.rows[3].values[1] > 0.0, "{:?}", r.rows[3]);
         assert!(r.notes.iter().any(|n| n.contains("scikit-image not measured")), "{:?}", r.notes);
     }
 
@@ -175,7 +254,7 @@ mod tests {
         std::fs::write(&fake, "#!/bin/sh\necho '{\"ssim\": 0.25, \"mean_s\": 0.6, \"min_s\": 0.5}'\n").unwrap();
         std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
         let r = measure(&config(Some(fake)), &tmp.path().join("work")).unwrap();
-        assert_eq!(r.rows.len(), 3, "{:?}", r.notes);
+        assert_eq!(r.rows.len(), 5, "{:?}", r.notes);
         let (rig, peer) = (&r.rows[0], &r.rows[2]);
         assert_eq!(peer.values[0], 500.0);
         assert!((peer.values[1] - rig.values[0] / 500.0).abs() < 1e-12);
@@ -186,7 +265,7 @@ mod tests {
         std::fs::write(&broken, "#!/bin/sh\necho 'no module named skimage' >&2\nexit 1\n").unwrap();
         std::fs::set_permissions(&broken, std::fs::Permissions::from_mode(0o755)).unwrap();
         let r = measure(&config(Some(broken)), &tmp.path().join("work2")).unwrap();
-        assert_eq!(r.rows.len(), 2);
+        assert_eq!(r.rows.len(), 4);
         assert!(r.notes.iter().any(|n| n.contains("no module named skimage")), "{:?}", r.notes);
     }
 }
