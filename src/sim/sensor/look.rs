@@ -184,6 +184,8 @@ pub struct StaticLook {
     pub vignette: Vec<f32>,
     /// 1 inside the field of view, 0 outside, soft at the rim.
     pub fov: Vec<f32>,
+    /// Per row, the columns `[start, end)` outside which `fov` is 0.
+    pub fov_span: Vec<(usize, usize)>,
     /// Marker rest positions, px.
     pub markers: Vec<[f32; 2]>,
     /// The no-contact frame before vignetting and noise: background plus markers at rest.
@@ -278,7 +280,14 @@ impl StaticLook {
         if let Some(m) = look.markers {
             super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
         }
-        Self { background, vignette, fov, markers, rest_frame, measured: false, skin_lum: None }
+        let fov_span = fov
+            .chunks_exact(w.max(1))
+            .map(|row| match (row.iter().position(|&f| f != 0.0), row.iter().rposition(|&f| f != 0.0)) {
+                (Some(first), Some(last)) => (first, last + 1),
+                _ => (0, 0),
+            })
+            .collect();
+        Self { background, vignette, fov, fov_span, markers, rest_frame, measured: false, skin_lum: None }
     }
 
     /// The static look taken from a measured no-contact frame of one real sensor

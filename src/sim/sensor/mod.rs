@@ -347,6 +347,7 @@ impl SensorSim {
                     &mut buf,
                     &depth,
                     &self.fixed.fov,
+                    &self.fixed.fov_span,
                     object_rgb,
                     self.look.glow_rgb,
                     &glow,

@@ -74,7 +74,20 @@ impl CellField {
     /// Calls `f(x, y, value)` for every pixel of a `width` x `height` image with the field
     /// sampled bilinearly, skipping the pixels whose four cells are all exactly `skip_value`
     /// (they would sample `skip_value`, for which `f` must do nothing).
-    pub fn for_each_pixel(&self, width: usize, height: usize, skip_value: f32, mut f: impl FnMut(usize, f32)) {
+    pub fn for_each_pixel(&self, width: usize, height: usize, skip_value: f32, f: impl FnMut(usize, f32)) {
+        self.for_each_pixel_within(width, height, skip_value, |_| (0, width), f);
+    }
+
+    /// [`CellField::for_each_pixel`] over the columns `span(y)` (`[start, end)`) of each row `y`
+    /// only.
+    pub fn for_each_pixel_within(
+        &self,
+        width: usize,
+        height: usize,
+        skip_value: f32,
+        span: impl Fn(usize) -> (usize, usize),
+        mut f: impl FnMut(usize, f32),
+    ) {
         let c = self.cell_px as f32;
         let cols: Vec<(usize, usize, f32)> = (0..width)
             .map(|x| {
@@ -95,8 +108,9 @@ impl CellField {
             let (Some(k0), Some(k1)) = ((0..self.w).find(live), (0..self.w).rev().find(live)) else {
                 continue;
             };
-            let first = cols.partition_point(|&(_, x1, _)| x1 < k0);
-            let last = cols.partition_point(|&(x0, _, _)| x0 <= k1);
+            let (start, end) = span(y);
+            let first = cols.partition_point(|&(_, x1, _)| x1 < k0).max(start);
+            let last = cols.partition_point(|&(x0, _, _)| x0 <= k1).min(end);
             for (x, &(x0, x1, tx)) in cols.iter().enumerate().take(last).skip(first) {
                 let a = r0[x0] + (r0[x1] - r0[x0]) * tx;
                 let b = r1[x0] + (r1[x1] - r1[x0]) * tx;
@@ -254,6 +268,7 @@ pub fn see_through(
     buf: &mut [f32],
     depth: &DepthMap,
     fov: &[f32],
+    fov_span: &[(usize, usize)],
     object_rgb: [f32; 3],
     glow_rgb: [f32; 3],
     glow: &CellField,
@@ -267,7 +282,9 @@ pub fn see_through(
         .map(|l| buf.chunks_exact(3).zip(l).map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 }).collect());
     let t_at = |i: usize| transmit.as_ref().map(|t| t[i]).unwrap_or(1.0);
     let glow_strength = 0.75;
-    glow.for_each_pixel(w, h, 0.0, |i, g| {
+    // Outside the field of view (`fov` 0) glow and object add nothing (their weight is 0).
+    let span = |y: usize| fov_span.get(y).copied().unwrap_or((0, w));
+    glow.for_each_pixel_within(w, h, 0.0, span, |i, g| {
         let a = (g * glow_strength * fov[i]).min(1.0);
         let t = t_at(i);
         for c in 0..3 {
@@ -287,6 +304,10 @@ pub fn see_through(
         let near = |d: f32| d > -gap_mm || d.is_nan();
         let (mut x0, mut x1) = (w, 0);
         for (row, out) in depth.height_mm.chunks_exact(w.max(1)).zip(field.v.chunks_exact_mut(w.max(1))) {
+            // Most rows hold no near pixel: find out without an early exit (vectorised).
+            if !row.iter().fold(false, |any, &d| any | near(d)) {
+                continue;
+            }
             let (Some(first), Some(last)) = (row.iter().position(|&d| near(d)), row.iter().rposition(|&d| near(d))) else {
                 continue;
             };
@@ -301,7 +322,8 @@ pub fn see_through(
                 if row.iter().fold(true, |none, &v| none & (v <= 0.0)) {
                     continue;
                 }
-                for (x, &v) in row.iter().enumerate() {
+                let (start, end) = span(y);
+                for (x, &v) in row.iter().enumerate().take(end).skip(start) {
                     if v <= 0.0 {
                         continue;
                     }
