@@ -6,7 +6,9 @@
 //! ([`render_depth_into`](crate::geometry::raster::render_depth_into) on a prepared mesh, in
 //! parallel) against the renderer they replaced
 //! ([`render_depth_reference`](crate::geometry::raster::render_depth_reference), one map after
-//! the other).
+//! the other); and synthesis (rig's [`Pipeline`](crate::synth::Pipeline)) against
+//! `tools/ort_pipeline.py`, the same loop in Python onnxruntime, run by the same Python when it
+//! has onnxruntime.
 //!
 //! The pair is two seeded textures of `image_px` x `image_px` px (SSIM's cost does not depend
 //! on the content). Each side is timed `loop_repeats` times per round, the rounds interleaved;
@@ -24,10 +26,19 @@ use super::knob::{BenchConfig, Knob};
 use super::plot::{Plot, Series};
 use super::table::{Column, KnobReport, Row};
 use crate::metrics::{ssim, ssim_reference};
+use crate::synth::npy::NpyArray;
 
 /// The peer's script (`tools/ssim_skimage.py`), run with `python -c`, so the bench needs no
 /// checkout beside the binary.
 const SKIMAGE_SCRIPT: &str = include_str!("../../tools/ssim_skimage.py");
+
+/// The synthesis peer's script (`tools/ort_pipeline.py`: the same loop as rig's pipeline in
+/// Python onnxruntime), run with `python -c`.
+const ORT_SCRIPT: &str = include_str!("../../tools/ort_pipeline.py");
+
+/// DDIM steps and guidance of the synthesis loop: `rig synth --fill-missing`'s defaults.
+const SYNTH_STEPS: usize = 20;
+const SYNTH_GUIDANCE: f32 = 1.0;
 
 /// Rounds of the interleaved timing.
 const ROUNDS: usize = 3;
@@ -132,6 +143,87 @@ fn control_maps(side: u32, repeats: usize) -> Result<ControlMaps, BenchError> {
     Ok(ControlMaps { rig_s: rig_s / n, previous_s: previous_s / n, max_difference })
 }
 
+/// Python onnxruntime's fastest seconds per image on the same package, control image, prompt
+/// and initial latents, and its raw decoder output; or why not.
+fn ort_python(python: &Path, model: &Path, work_dir: &Path, prompt: &str, images: usize) -> Result<(f64, Vec<f32>), String> {
+    let raw = work_dir.join("raw.npy");
+    let out = Command::new(python)
+        .args(["-c", ORT_SCRIPT])
+        .arg("--model")
+        .arg(model)
+        .arg("--control")
+        .arg(work_dir.join("control.png"))
+        .arg("--init-latents")
+        .arg(work_dir.join("latents.npy"))
+        .arg("--dump-raw")
+        .arg(&raw)
+        .args(["--prompt", prompt, "--steps", &SYNTH_STEPS.to_string(), "--guidance", &SYNTH_GUIDANCE.to_string()])
+        .args(["--images", &images.max(1).to_string(), "--json"])
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
+    if !out.status.success() {
+        let last = String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("failed").to_string();
+        return Err(format!("{}: {last}", python.display()));
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let v: serde_json::Value =
+        serde_json::from_str(stdout.lines().last().unwrap_or("")).map_err(|e| format!("the peer printed no JSON: {e}"))?;
+    let seconds = v["min_s"].as_f64().ok_or("the peer's JSON lacks min_s")?;
+    let raw = NpyArray::read(&raw).map_err(|e| format!("the peer's raw output: {e}"))?;
+    Ok((seconds, raw.data))
+}
+
+/// Seconds per image of rig's pipeline (fastest of `images` after a warm-up) and of Python
+/// onnxruntime's with the largest difference of their raw decoder outputs from the same
+/// initial latents (the reason when not measured), DDIM [`SYNTH_STEPS`] steps.
+#[allow(clippy::type_complexity)]
+fn synthesis(config: &BenchConfig, work_dir: &Path, images: usize) -> Result<(f64, Result<(f64, f64), String>), BenchError> {
+    use crate::synth::{GenerateRequest, Pipeline, RuntimeOptions, SchedulerKind};
+    let mut pipeline = Pipeline::load(&config.synth_model, &RuntimeOptions::default())?;
+    let (w, h) = pipeline.resolution();
+    let mesh = crate::geometry::shapes::object_mesh("sphere")
+        .ok_or(BenchError::Empty { knob: Knob::Loops, reason: "the library has no sphere" })?;
+    let pose = crate::pose::Pose::new(1.0, -0.5, 1.5, 30.0);
+    let depth = crate::geometry::raster::render_depth(&mesh, &pose, &crate::calibration::Calibration::default_for(w, h), w, h, 2);
+    let control = crate::geometry::control::control_image(&depth);
+    let prompt = crate::synth::prompt::mds_prompt("ViTac", &pose);
+    // Seeded initial latents, handed to both sides.
+    let shape = pipeline.latent_shape();
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
+    let latents = crate::synth::pipeline::gaussian(&mut rng, shape.iter().product());
+    let request = GenerateRequest {
+        steps: SYNTH_STEPS,
+        guidance: SYNTH_GUIDANCE,
+        scheduler: SchedulerKind::Ddim,
+        init_latents: Some(&latents),
+        ..GenerateRequest::new(&control, &prompt)
+    };
+    let ours = pipeline.generate(&request)?.raw.data;
+    let (rig_s, _) = fastest_of(images, || {
+        pipeline.generate(&request)?;
+        Ok(0.0)
+    })?;
+    let peer = match &config.peer_python {
+        None => Err("no Python given (`--python` or `$RIG_PYTHON`)".to_string()),
+        Some(python) => {
+            std::fs::create_dir_all(work_dir).map_err(|e| BenchError::io(work_dir, e))?;
+            let path = work_dir.join("control.png");
+            control.save(&path).map_err(|e| BenchError::io(&path, std::io::Error::other(e)))?;
+            let npy = NpyArray::new(shape.to_vec(), latents.clone()).map_err(|e| BenchError::io(&path, std::io::Error::other(e)))?;
+            let latents_path = work_dir.join("latents.npy");
+            npy.write(&latents_path).map_err(|e| BenchError::io(&latents_path, std::io::Error::other(e)))?;
+            ort_python(python, &config.synth_model, work_dir, &prompt, images).and_then(|(s, theirs)| {
+                if theirs.len() != ours.len() {
+                    return Err(format!("the peer's image has {} values, rig's {}", theirs.len(), ours.len()));
+                }
+                let diff = ours.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+                Ok((s, diff as f64))
+            })
+        }
+    };
+    Ok((rig_s, peer))
+}
+
 /// Measures the loops (see the module docs).
 pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, BenchError> {
     let side = config.image_px.max(16);
@@ -190,6 +282,13 @@ pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, Benc
         label: "control map: previous implementation".into(),
         values: vec![ms(maps.previous_s), maps.rig_s / maps.previous_s, maps.max_difference as f64],
     });
+    // Synthesis: rig's pipeline against the same loop in Python onnxruntime.
+    let images = if repeats >= 10 { 3 } else { 2 };
+    let (synth_rig_s, synth_peer) = synthesis(config, work_dir, images)?;
+    rows.push(Row { label: "synthesis, per image: rig".into(), values: vec![ms(synth_rig_s), 1.0, 0.0] });
+    if let Ok((peer_s, diff)) = &synth_peer {
+        rows.push(Row { label: "synthesis, per image: Python onnxruntime".into(), values: vec![ms(*peer_s), synth_rig_s / peer_s, *diff] });
+    }
     let mut notes = vec![format!(
         "SSIM of one {side} x {side} RGB pair (seeded textures), {ROUNDS} interleaved rounds of {repeats} calls per side, \
          the fastest call reported; rig on {} threads. `rig / this` is rig's time over this side's (below 1: rig is faster); \
@@ -199,6 +298,17 @@ pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, Benc
     )];
     if let Some(why) = peer_note {
         notes.push(format!("scikit-image not measured: {why}."));
+    }
+    notes.push(format!(
+        "Synthesis: one image of `{}` (DDIM {SYNTH_STEPS} steps, guidance {SYNTH_GUIDANCE}, the defaults of \
+         `rig synth --fill-missing`, a control map of the sphere at the package's resolution) by rig's pipeline and by \
+         `tools/ort_pipeline.py`, the same loop in Python onnxruntime (same tokenisation, session calls and scheduler), \
+         fastest of {images} images after a warm-up on each side, default threads, both from the same seeded initial \
+         latents; `Δ vs rig` is the largest difference of the decoder's raw output (before the 8-bit conversion).",
+        config.synth_model.display()
+    ));
+    if let Err(why) = &synth_peer {
+        notes.push(format!("Python onnxruntime not measured: {why}."));
     }
     notes.push(format!(
         "Control map: the ControlNet hint of the library sphere at {CONTROL_POSES} poses, {side} x {side} px with 2 x 2 \
@@ -230,15 +340,18 @@ mod tests {
     use super::*;
 
     fn config(peer_python: Option<std::path::PathBuf>) -> BenchConfig {
-        BenchConfig { image_px: 40, loop_repeats: 1, peer_python, ..BenchConfig::quick("unused".into()) }
+        let tiny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
+        BenchConfig { image_px: 40, loop_repeats: 1, peer_python, ..BenchConfig::quick(tiny) }
     }
 
     #[test]
     fn without_a_python_the_peer_is_left_out_and_said_so() {
         let tmp = tempfile::tempdir().unwrap();
         let r = measure(&config(None), tmp.path()).unwrap();
-        assert_eq!(r.rows.len(), 4);
+        assert_eq!(r.rows.len(), 5);
         assert!(r.rows[1].values[2] < 1e-12, "the previous code agrees: {:?}", r.rows[1]);
+        assert!(r.rows[4].values[0] > 0.0, "rig's synthesis time: {:?}", r.rows[4]);
+        assert!(r.notes.iter().any(|n| n.contains("Python onnxruntime not measured")), "{:?}", r.notes);
         assert_eq!(r.rows[2].label, "control map: rig");
         assert_eq!(r.rows[3].values[2], 0.0, "the previous renderer's maps are the same: {:?}", r.rows[3]);
         assert!(r.rows[3].values[0] > 0.0 && r.rows[3].values[1] > 0.0, "{:?}", r.rows[3]);
@@ -254,7 +367,9 @@ mod tests {
         std::fs::write(&fake, "#!/bin/sh\necho '{\"ssim\": 0.25, \"mean_s\": 0.6, \"min_s\": 0.5}'\n").unwrap();
         std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
         let r = measure(&config(Some(fake)), &tmp.path().join("work")).unwrap();
-        assert_eq!(r.rows.len(), 5, "{:?}", r.notes);
+        // The stand-in writes no raw output for the synthesis peer: a note, not a row.
+        assert_eq!(r.rows.len(), 6, "{:?}", r.notes);
+        assert!(r.notes.iter().any(|n| n.contains("Python onnxruntime not measured") && n.contains("raw output")), "{:?}", r.notes);
         let (rig, peer) = (&r.rows[0], &r.rows[2]);
         assert_eq!(peer.values[0], 500.0);
         assert!((peer.values[1] - rig.values[0] / 500.0).abs() < 1e-12);
@@ -265,7 +380,7 @@ mod tests {
         std::fs::write(&broken, "#!/bin/sh\necho 'no module named skimage' >&2\nexit 1\n").unwrap();
         std::fs::set_permissions(&broken, std::fs::Permissions::from_mode(0o755)).unwrap();
         let r = measure(&config(Some(broken)), &tmp.path().join("work2")).unwrap();
-        assert_eq!(r.rows.len(), 4);
+        assert_eq!(r.rows.len(), 5);
         assert!(r.notes.iter().any(|n| n.contains("no module named skimage")), "{:?}", r.notes);
     }
 }

@@ -33,8 +33,9 @@ pub struct Args {
     /// test package).
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
-    /// A Python with scikit-image, Pillow and numpy: the loops knob times scikit-image's SSIM
-    /// beside rig's with it (left out without one).
+    /// A Python with scikit-image, Pillow and numpy (and onnxruntime and tokenizers for the
+    /// synthesis row): the loops knob times scikit-image's SSIM and a Python onnxruntime
+    /// synthesis loop beside rig's with it (left out without one).
     #[arg(long, value_name = "PATH", env = "RIG_PYTHON")]
     pub python: Option<PathBuf>,
 }

@@ -301,6 +301,14 @@ impl Pipeline {
         (self.package.config.width_px, self.package.config.height_px)
     }
 
+    /// The shape `[1, channels, h, w]` of the initial latents of an image at the package's
+    /// resolution (what [`GenerateRequest::init_latents`] must hold).
+    pub fn latent_shape(&self) -> [usize; 4] {
+        let (w, h) = self.resolution();
+        let f = self.package.config.vae_scale_factor.max(1);
+        [1, self.latent_channels, (h / f) as usize, (w / f) as usize]
+    }
+
     /// The package (config, schedule, directory).
     pub fn package(&self) -> &ModelPackage {
         &self.package
