@@ -67,19 +67,23 @@ fn fastest_of(repeats: usize, mut f: impl FnMut() -> Result<f64, BenchError>) ->
     Ok((best, value))
 }
 
-/// scikit-image's fastest seconds and value on the pair saved as `a` and `b`, or why not.
-fn skimage(python: &Path, a: &Path, b: &Path, repeats: usize) -> Result<(f64, f64), String> {
-    let out = Command::new(python)
-        .args(["-c", SKIMAGE_SCRIPT])
-        .args([a, b])
-        .args(["--repeats", &repeats.max(1).to_string(), "--json"])
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
+/// Runs a peer script and reads the JSON object on the last line of its output; a peer that
+/// cannot run, fails or prints no JSON is a reason, not an error.
+fn run_peer(python: &Path, cmd: &mut Command) -> Result<serde_json::Value, String> {
+    let out = cmd.output().map_err(|e| format!("cannot run {}: {e}", python.display()))?;
     if !out.status.success() {
         let last = String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("failed").to_string();
         return Err(format!("{}: {last}", python.display()));
     }
-    let v: serde_json::Value = serde_json::from_slice(out.stdout.trim_ascii()).map_err(|e| format!("the peer printed no JSON: {e}"))?;
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(stdout.lines().last().unwrap_or("")).map_err(|e| format!("the peer printed no JSON: {e}"))
+}
+
+/// scikit-image's fastest seconds and value on the pair saved as `a` and `b`, or why not.
+fn skimage(python: &Path, a: &Path, b: &Path, repeats: usize) -> Result<(f64, f64), String> {
+    let mut cmd = Command::new(python);
+    cmd.args(["-c", SKIMAGE_SCRIPT]).args([a, b]).args(["--repeats", &repeats.max(1).to_string(), "--json"]);
+    let v = run_peer(python, &mut cmd)?;
     match (v["min_s"].as_f64(), v["ssim"].as_f64()) {
         (Some(s), Some(value)) => Ok((s, value)),
         _ => Err("the peer's JSON lacks min_s or ssim".into()),
@@ -147,8 +151,8 @@ fn control_maps(side: u32, repeats: usize) -> Result<ControlMaps, BenchError> {
 /// and initial latents, and its raw decoder output; or why not.
 fn ort_python(python: &Path, model: &Path, work_dir: &Path, prompt: &str, images: usize) -> Result<(f64, Vec<f32>), String> {
     let raw = work_dir.join("raw.npy");
-    let out = Command::new(python)
-        .args(["-c", ORT_SCRIPT])
+    let mut cmd = Command::new(python);
+    cmd.args(["-c", ORT_SCRIPT])
         .arg("--model")
         .arg(model)
         .arg("--control")
@@ -158,16 +162,8 @@ fn ort_python(python: &Path, model: &Path, work_dir: &Path, prompt: &str, images
         .arg("--dump-raw")
         .arg(&raw)
         .args(["--prompt", prompt, "--steps", &SYNTH_STEPS.to_string(), "--guidance", &SYNTH_GUIDANCE.to_string()])
-        .args(["--images", &images.max(1).to_string(), "--json"])
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
-    if !out.status.success() {
-        let last = String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("failed").to_string();
-        return Err(format!("{}: {last}", python.display()));
-    }
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let v: serde_json::Value =
-        serde_json::from_str(stdout.lines().last().unwrap_or("")).map_err(|e| format!("the peer printed no JSON: {e}"))?;
+        .args(["--images", &images.max(1).to_string(), "--json"]);
+    let v = run_peer(python, &mut cmd)?;
     let seconds = v["min_s"].as_f64().ok_or("the peer's JSON lacks min_s")?;
     let raw = NpyArray::read(&raw).map_err(|e| format!("the peer's raw output: {e}"))?;
     Ok((seconds, raw.data))
