@@ -144,6 +144,11 @@ mod skin {
 /// Cell size of the coarse fields at 512x512, px.
 const CELL_PX: f32 = 4.0;
 
+thread_local! {
+    /// The f32 RGB plane a frame is rendered in, kept between frames on this thread.
+    static FRAME: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 /// A simulated tactile sensor of one kind, one image size and one scene.
 pub struct SensorSim {
     kind: SensorKind,
@@ -302,7 +307,10 @@ impl SensorSim {
         self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm));
 
         let mut markers = self.fixed.markers.clone();
-        let mut buf = self.fixed.background.clone();
+        // The frame's working plane is reused from frame to frame on this thread.
+        let mut buf = FRAME.with(|f| std::mem::take(&mut *f.borrow_mut()));
+        buf.clear();
+        buf.extend_from_slice(&self.fixed.background);
         if self.look.markers.is_some() {
             self.stage(Stage::MarkerDisplacement, || {
                 if !touching {
@@ -372,6 +380,7 @@ impl SensorSim {
 
         // `as u8` saturates (and maps NaN to 0), so adding 0.5 rounds and clamps in one step.
         let bytes: Vec<u8> = buf.iter().map(|v| (v + 0.5) as u8).collect();
+        FRAME.with(|f| *f.borrow_mut() = buf);
         // The buffer has exactly w * h * 3 values by construction.
         RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_else(|| RgbImage::new(self.width, self.height))
     }

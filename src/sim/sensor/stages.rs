@@ -425,6 +425,10 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
         let row = y * width * 3..(y + 1) * width * 3;
         let (b, r) = (&buf[row.clone()], &rest[row]);
         let changed = |(b, r): (&f32, &f32)| (b - r).abs() > BLUR_IGNORE_LEVELS;
+        // Most rows are unchanged: find out without an early exit (vectorised) first.
+        if !b.iter().zip(r).fold(false, |any, p| any | changed(p)) {
+            continue;
+        }
         let first = b.iter().zip(r).position(changed);
         if let Some(f) = first {
             let last = b.iter().zip(r).rposition(changed).unwrap_or(f);
