@@ -59,7 +59,8 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
         (Knob::Calibration, 2),
         (Knob::PlanOrder, 2),
         (Knob::Sensor, sensor_rows),
-        (Knob::Loops, 2),
+        // SSIM and control maps: rig and the previous code; synthesis: rig (no peer here).
+        (Knob::Loops, 2 + 2 + 1),
     ];
     assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
     for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {
@@ -92,6 +93,7 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
     assert_eq!(control.rows.last().map(|r| r.values[1]), Some(0.0));
     let loops = &report.knobs[6];
     assert!(loops.rows[1].values[2] < 1e-12, "SSIM agrees with the code it replaced: {:?}", loops.rows[1]);
+    assert_eq!(loops.rows[3].values[2], 0.0, "control maps equal the previous renderer's: {:?}", loops.rows[3]);
     let synth = &report.knobs[0];
     assert!(synth.rows.iter().filter(|r| r.values[0] == 4.0).all(|r| r.values[1] == 1.0));
 }
