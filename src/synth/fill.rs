@@ -348,8 +348,8 @@ pub fn synthesise_poses_of(
 /// frame's contact depth, seen through its calibration at the model's resolution. Training
 /// tools (`rig render --controls-of`) use it too, so training and synthesis see the same hints.
 pub struct ControlRenderer {
-    pub mesh: Mesh,
-    /// `mesh` ready for rendering (built once).
+    /// The dataset's object mesh, ready for rendering (walls dropped, sorted top down; built
+    /// once).
     prepared: PreparedMesh,
     pub calibration: Calibration,
     /// Added to a pose's z (indentation) to place the object: the work frame's contact depth.
@@ -367,7 +367,6 @@ impl ControlRenderer {
         let mesh = object_mesh(dir, manifest)?;
         Ok(Self {
             prepared: PreparedMesh::new(&mesh).sorted_top_down(),
-            mesh,
             calibration: calibration_of(dir, manifest, width, height)?,
             contact_depth_mm: manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
             width,
@@ -410,22 +409,6 @@ impl Default for ControlScratch {
     fn default() -> Self {
         Self { raster: Default::default(), depth: crate::geometry::DepthMap::empty(0, 0) }
     }
-}
-
-/// The control image of `mesh` at the work-frame `pose` (z = indentation past contact, so the
-/// object sits `contact_depth_mm` deeper), rendered `width` x `height` through `calibration`.
-pub fn control_image_for(
-    mesh: &Mesh,
-    calibration: &Calibration,
-    contact_depth_mm: f64,
-    pose: &Pose,
-    width: u32,
-    height: u32,
-    supersample: u32,
-) -> RgbImage {
-    let object_pose = Pose { z_mm: pose.z_mm + contact_depth_mm, ..*pose };
-    let depth = crate::geometry::raster::render_depth(mesh, &object_pose, calibration, width, height, supersample);
-    crate::geometry::control::control_image(&depth)
 }
 
 /// The object mesh the dataset was collected on: its STL when the file still matches, else the

@@ -302,7 +302,7 @@ pub fn see_through(
         field.v.resize(w * h, 0.0);
         // A NaN height goes through `smoothstep`, as it always has.
         let near = |d: f32| d > -gap_mm || d.is_nan();
-        let (mut x0, mut x1) = (w, 0);
+        let mut any = false;
         for (row, out) in depth.height_mm.chunks_exact(w.max(1)).zip(field.v.chunks_exact_mut(w.max(1))) {
             // Most rows hold no near pixel: find out without an early exit (vectorised).
             if !row.iter().fold(false, |any, &d| any | near(d)) {
@@ -311,12 +311,12 @@ pub fn see_through(
             let (Some(first), Some(last)) = (row.iter().position(|&d| near(d)), row.iter().rposition(|&d| near(d))) else {
                 continue;
             };
-            (x0, x1) = (x0.min(first), x1.max(last + 1));
             for (v, &d) in out[first..=last].iter_mut().zip(&row[first..=last]) {
                 *v = if near(d) { smoothstep(-gap_mm, 0.0, d) } else { 0.0 };
+                any |= *v != 0.0;
             }
         }
-        if x0 < x1 && field.v.iter().any(|&v| v != 0.0) {
+        if any {
             field.blur(edge_blur_px.round().max(0.0) as usize, 2);
             for (y, row) in field.v.chunks_exact(w).enumerate() {
                 if row.iter().fold(true, |none, &v| none & (v <= 0.0)) {
