@@ -42,9 +42,24 @@ struct ControlRange {
 impl ControlRange {
     fn of(depth: &DepthMap) -> Self {
         let w = (depth.width as usize).max(1);
-        let rows = depth.height_mm.chunks(w).filter(|row| any_covered(row));
-        let covered = rows.flatten().copied().filter(|&h| h > DepthMap::BACKGROUND_MM && h.is_finite());
-        let (lo, hi) = covered.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), h| (lo.min(h), hi.max(h)));
+        // Eight running extremes, one per lane, so the scan vectorises (the extremes of a set
+        // do not depend on the order they are taken in).
+        let (mut lo, mut hi) = ([f32::INFINITY; 8], [f32::NEG_INFINITY; 8]);
+        let mut take = |heights: &[f32]| {
+            for (k, &h) in heights.iter().enumerate() {
+                let covered = h > DepthMap::BACKGROUND_MM && h.is_finite();
+                let (l, u) = if covered { (h, h) } else { (f32::INFINITY, f32::NEG_INFINITY) };
+                lo[k] = if l < lo[k] { l } else { lo[k] };
+                hi[k] = if u > hi[k] { u } else { hi[k] };
+            }
+        };
+        for row in depth.height_mm.chunks(w).filter(|row| any_covered(row)) {
+            let mut groups = row.chunks_exact(8);
+            groups.by_ref().for_each(&mut take);
+            take(groups.remainder());
+        }
+        let lo = lo.into_iter().fold(f32::INFINITY, f32::min);
+        let hi = hi.into_iter().fold(f32::NEG_INFINITY, f32::max);
         Self { lo, span: hi - lo }
     }
 
@@ -57,30 +72,54 @@ impl ControlRange {
             1.0
         }
     }
+
+    /// The viridis entry of height `h`: `viridis(self.value(h))`'s index, computed without
+    /// branches so that a row of them vectorises. A covered height gives a finite value in
+    /// [0, 1] (`h - lo` lies in `0..=span`), whose entry is `floor(256 t)` capped at 255; an
+    /// uncovered one gives 0 and a flat object 255, as [`ControlRange::value`] does.
+    fn index(self, h: f32) -> u8 {
+        let covered = h > DepthMap::BACKGROUND_MM && h.is_finite();
+        let t = ((h - self.lo) / self.span).clamp(0.0, 1.0);
+        let graded = ((t * 256.0) as u32).min(255) as u8;
+        if !covered {
+            0
+        } else if self.span > 1e-6 {
+            graded
+        } else {
+            255
+        }
+    }
 }
 
 /// The control image: inverted, normalised depth through viridis, RGB8.
 pub fn control_image(depth: &DepthMap) -> RgbImage {
     let range = ControlRange::of(depth);
     let (w, h) = (depth.width as usize, depth.height as usize);
-    let mut img = RgbImage::new(depth.width, depth.height);
     if w == 0 || depth.height_mm.len() != w * h {
-        return img;
+        return RgbImage::new(depth.width, depth.height);
     }
     // Rows the object does not reach are the background colour throughout.
     let background: Vec<u8> = std::iter::repeat_n(viridis(0.0), w).flatten().collect();
-    for (out, row) in img.chunks_exact_mut(3 * w).zip(depth.height_mm.chunks_exact(w)) {
-        out.copy_from_slice(&background);
+    let mut indices = vec![0u8; w];
+    let mut bytes = Vec::with_capacity(3 * w * h);
+    for row in depth.height_mm.chunks_exact(w) {
+        let start = bytes.len();
+        bytes.extend_from_slice(&background);
         if !any_covered(row) {
             continue;
         }
         let first = row.iter().position(|&h| h > DepthMap::BACKGROUND_MM).unwrap_or(0);
         let last = row.iter().rposition(|&h| h > DepthMap::BACKGROUND_MM).unwrap_or(first);
-        for (px, &h) in out[3 * first..3 * (last + 1)].chunks_exact_mut(3).zip(&row[first..=last]) {
-            px.copy_from_slice(&viridis(range.value(h)));
+        let (row, indices) = (&row[first..=last], &mut indices[first..=last]);
+        for (i, &h) in indices.iter_mut().zip(row) {
+            *i = range.index(h);
+        }
+        for (px, &i) in bytes[start + 3 * first..start + 3 * (last + 1)].chunks_exact_mut(3).zip(indices.iter()) {
+            px.copy_from_slice(&VIRIDIS[i as usize]);
         }
     }
-    img
+    // `bytes` holds exactly 3 * w * h values by construction.
+    RgbImage::from_raw(depth.width, depth.height, bytes).unwrap_or_else(|| RgbImage::new(depth.width, depth.height))
 }
 
 /// Whether any height of `row` is an object's (vectorised: no early exit).
@@ -181,6 +220,38 @@ mod tests {
         assert_eq!(control_values(&d), vec![0.0, 0.0, 1.0]);
         let img = control_image(&d);
         assert_eq!(img.get_pixel(2, 0).0, viridis(1.0));
+    }
+
+    /// The branch-free entry of a height is viridis's entry of its value, for covered and
+    /// uncovered heights, graded and flat objects.
+    #[test]
+    fn the_branch_free_index_is_viridis_of_the_value() {
+        let heights = [DepthMap::BACKGROUND_MM, -999.0, -3.0, -1.0, -0.0, 0.0, 1e-7, 0.3, 0.999_999, 1.0, 2.5, f32::NAN, f32::INFINITY];
+        for (lo, span) in [(-1.0f32, 2.0f32), (0.0, 1e-7), (0.3, 0.0), (f32::INFINITY, f32::NEG_INFINITY), (-3.0, 5.5)] {
+            let range = ControlRange { lo, span };
+            for h in heights.into_iter().chain((0..1000).map(|k| lo + span * k as f32 / 999.0)) {
+                assert_eq!(VIRIDIS[range.index(h) as usize], viridis(range.value(h)), "lo {lo} span {span} h {h}");
+            }
+        }
+    }
+
+    /// A map with rows the object does not reach, a flat top and non-finite heights: every
+    /// pixel is viridis of its value.
+    #[test]
+    fn control_image_is_viridis_of_every_value() {
+        let mut d = DepthMap::empty(13, 5);
+        for (i, h) in d.height_mm.iter_mut().enumerate().filter(|(i, _)| i / 13 % 2 == 1) {
+            *h = [0.5, -2.0, f32::NAN, 1.25, f32::INFINITY, -0.25][i % 6];
+        }
+        let values = control_values(&d);
+        let img = control_image(&d);
+        for (px, v) in img.pixels().zip(&values) {
+            assert_eq!(px.0, viridis(*v));
+        }
+        let mut flat = DepthMap::empty(4, 2);
+        flat.height_mm[5] = 0.7;
+        flat.height_mm[6] = 0.7;
+        assert_eq!(control_image(&flat).get_pixel(1, 1).0, viridis(1.0));
     }
 
     #[test]

@@ -59,15 +59,21 @@ pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width:
 /// A mesh ready to be rendered many times: the triangles that can show from above (walls,
 /// whose normal is nearly horizontal, project to slivers whose interpolated heights are
 /// ill-conditioned; the faces around them already cover those pixels) and the mesh's top.
+/// Vertices the triangles share are stored once, so a render projects each once.
 #[derive(Debug, Clone)]
 pub struct PreparedMesh {
-    triangles: Vec<[glam::Vec3; 3]>,
+    /// The distinct vertices of the kept triangles.
+    vertices: Vec<glam::Vec3>,
+    /// Each kept triangle as three indices into `vertices`.
+    triangles: Vec<[u32; 3]>,
     top_z_mm: f32,
 }
 
 impl PreparedMesh {
     /// `mesh` without its walls, in its own order.
     pub fn new(mesh: &Mesh) -> Self {
+        let mut index = std::collections::HashMap::new();
+        let mut vertices = Vec::new();
         let triangles = mesh
             .triangles
             .iter()
@@ -75,16 +81,26 @@ impl PreparedMesh {
                 let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
                 n.z.abs() > 1e-4 * n.length()
             })
-            .copied()
+            .map(|tri| {
+                // Equal bits, one vertex (a mesh holds far fewer than 2^32 vertices: three per
+                // triangle at most, and `Mesh` bounds its triangles).
+                tri.map(|v| {
+                    *index.entry(v.to_array().map(f32::to_bits)).or_insert_with(|| {
+                        vertices.push(v);
+                        (vertices.len() - 1) as u32
+                    })
+                })
+            })
             .collect();
-        Self { triangles, top_z_mm: mesh.top_z_mm() }
+        Self { vertices, triangles, top_z_mm: mesh.top_z_mm() }
     }
 
     /// Orders the triangles by their highest vertex, top first. The result of a render does not
     /// depend on the order, but the rasteriser skips a triangle that lies under what it has
     /// already drawn, so a mesh drawn many times is worth sorting once.
     pub fn sorted_top_down(mut self) -> Self {
-        let top = |t: &[glam::Vec3; 3]| t[0].z.max(t[1].z).max(t[2].z);
+        let v = &self.vertices;
+        let top = |t: &[u32; 3]| v[t[0] as usize].z.max(v[t[1] as usize].z).max(v[t[2] as usize].z);
         self.triangles.sort_by(|a, b| top(b).total_cmp(&top(a)));
         self
     }
@@ -110,6 +126,7 @@ pub fn render_depth_with(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, o
 /// thread) allocates nothing once the buffers have grown to the largest render.
 #[derive(Debug, Default)]
 pub struct RasterScratch {
+    vertices: Vec<(DVec2, f64)>,
     triangles: Vec<Projected>,
     samples: Vec<f32>,
 }
@@ -165,12 +182,13 @@ pub fn render_depth_into(
         ss -= 1;
     }
     let (sw, sh) = (width * ss, height * ss);
-    let Some(covered) = project(mesh, object_pose, &calib.scaled_to(sw, sh), sw as usize, sh as usize, &mut scratch.triangles) else {
+    let RasterScratch { vertices, triangles, samples } = scratch;
+    let Some(covered) = project(mesh, object_pose, &calib.scaled_to(sw, sh), sw as usize, sh as usize, vertices, triangles) else {
         return;
     };
     if ss == 1 {
         let all = Region { i0: 0, i1: width as usize - 1, j0: 0, j1: height as usize - 1 };
-        rasterise(&scratch.triangles, &mut out.height_mm, all);
+        rasterise(triangles, &mut out.height_mm, all);
         return;
     }
     // The covered samples, widened to whole output pixels.
@@ -178,28 +196,65 @@ pub fn render_depth_into(
     let (x0, x1, y0, y1) = (covered.i0 / ss, covered.i1 / ss, covered.j0 / ss, covered.j1 / ss);
     let region = Region { i0: x0 * ss, i1: (x1 + 1) * ss - 1, j0: y0 * ss, j1: (y1 + 1) * ss - 1 };
     let (rw, rh) = (region.i1 - region.i0 + 1, region.j1 - region.j0 + 1);
-    scratch.samples.clear();
-    scratch.samples.resize(rw * rh, DepthMap::BACKGROUND_MM);
-    rasterise(&scratch.triangles, &mut scratch.samples, region);
-    let need = (ss * ss).div_ceil(2);
+    samples.clear();
+    samples.resize(rw * rh, DepthMap::BACKGROUND_MM);
+    rasterise(triangles, samples, region);
     let w = width as usize;
-    for y in y0..=y1 {
-        let row = &mut out.height_mm[y * w..(y + 1) * w];
-        for (x, cell) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
-            let (mut sum, mut n) = (0.0f64, 0usize);
-            for dy in 0..ss {
-                let start = ((y - y0) * ss + dy) * rw + (x - x0) * ss;
-                for &v in &scratch.samples[start..start + ss] {
-                    if v > DepthMap::BACKGROUND_MM {
-                        sum += v as f64;
-                        n += 1;
-                    }
-                }
-            }
-            if n >= need {
-                *cell = (sum / n as f64) as f32;
+    for (y, block) in (y0..=y1).zip(samples.chunks_exact(ss * rw)) {
+        downsample_row(block, rw, ss, &mut out.height_mm[y * w + x0..=y * w + x1]);
+    }
+}
+
+/// Averages each `ss x ss` block of samples (`block` holds `ss` rows of `rw` samples) into the
+/// pixel below it in `out`: the mean of its covered samples, or background when fewer than half
+/// are covered. Compiled for AVX2 where the CPU has it (the same operations, more lanes).
+fn downsample_row(block: &[f32], rw: usize, ss: usize, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { downsample_row_avx2(block, rw, ss, out) };
+    }
+    downsample_row_body(block, rw, ss, out);
+}
+
+/// [`downsample_row_body`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn downsample_row_avx2(block: &[f32], rw: usize, ss: usize, out: &mut [f32]) {
+    downsample_row_body(block, rw, ss, out);
+}
+
+#[inline(always)]
+fn downsample_row_body(block: &[f32], rw: usize, ss: usize, out: &mut [f32]) {
+    let need = (ss * ss).div_ceil(2);
+    // Branch-free: an uncovered sample adds 0.0, which leaves the sum as it was (it starts at
+    // +0.0 and so never becomes -0.0), and counts 0.
+    let add = |sum: f64, n: usize, v: f32| {
+        let hit = v > DepthMap::BACKGROUND_MM;
+        (sum + if hit { v as f64 } else { 0.0 }, n + hit as usize)
+    };
+    let mean = |cell: f32, sum: f64, n: usize| if n >= need { (sum / n as f64) as f32 } else { cell };
+    if ss == 2 {
+        // The common case, unrolled so that the compiler vectorises across pixels.
+        let (top, bottom) = block.split_at(rw);
+        for ((cell, a), b) in out.iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+            let (sum, n) = add(0.0, 0, a[0]);
+            let (sum, n) = add(sum, n, a[1]);
+            let (sum, n) = add(sum, n, b[0]);
+            let (sum, n) = add(sum, n, b[1]);
+            *cell = mean(*cell, sum, n);
+        }
+        return;
+    }
+    for (x, cell) in out.iter_mut().enumerate() {
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for dy in 0..ss {
+            let start = dy * rw + x * ss;
+            for &v in &block[start..start + ss] {
+                (sum, n) = add(sum, n, v);
             }
         }
+        *cell = mean(*cell, sum, n);
     }
 }
 
@@ -218,25 +273,27 @@ pub fn object_to_pixel(object_pose: &Pose, calib: &Calibration) -> DAffine2 {
 }
 
 /// Projects the triangles that can cover a sample centre of a `width x height` image into
-/// `out`, and returns the bounding box of their samples (`None` when none can).
+/// `out` (each shared vertex once, into `vertices`), and returns the bounding box of their
+/// samples (`None` when none can).
 fn project(
     mesh: &PreparedMesh,
     object_pose: &Pose,
     calib: &Calibration,
     width: usize,
     height: usize,
+    vertices: &mut Vec<(DVec2, f64)>,
     out: &mut Vec<Projected>,
 ) -> Option<Region> {
     out.clear();
     let to_px = object_to_pixel(object_pose, calib);
     // Height of a vertex above the skin plane: the plane lies z_mm below the object's top.
     let plane_z = mesh.top_z_mm as f64 - object_pose.z_mm;
+    vertices.clear();
+    vertices.extend(mesh.vertices.iter().map(|v| (to_px.transform_point2(DVec2::new(v.x as f64, v.y as f64)), v.z as f64 - plane_z)));
     let mut covered = Region { i0: usize::MAX, i1: 0, j0: usize::MAX, j1: 0 };
     for tri in &mesh.triangles {
-        let p = tri.map(|v| {
-            let uv = to_px.transform_point2(DVec2::new(v.x as f64, v.y as f64));
-            (uv, v.z as f64 - plane_z)
-        });
+        // The indices were made by `PreparedMesh::new` from this vertex list.
+        let p = tri.map(|i| vertices[i as usize]);
         let (a, b, c) = (p[0].0, p[1].0, p[2].0);
         let area = (b - a).perp_dot(c - a);
         // Walls seen edge-on and degenerate triangles cover no pixel centre reliably: skip.
@@ -289,50 +346,172 @@ fn floor(x: f64) -> f64 {
 /// neither changes a result (the z-buffer keeps each sample's maximum, whatever the order):
 ///
 /// - a triangle whose highest possible interpolated height does not exceed any sample under its
-///   bounding box is skipped (meshes sorted top down, [`Mesh::sort_top_down`], hide most of
-///   their underside this way);
+///   bounding box is skipped (meshes sorted top down, [`PreparedMesh::sorted_top_down`], hide
+///   most of their underside this way);
 /// - each row visits only the span where the edge functions can pass, found from their values
 ///   at the row's ends and widened by two samples plus their rounding, and tests those samples
 ///   exactly as before.
+///
+/// On a CPU with AVX2 the samples of a row are tested four at a time ([`row_avx2`]), with the
+/// same operations in the same order as the scalar test ([`row_scalar`]).
 fn rasterise(triangles: &[Projected], buf: &mut [f32], region: Region) {
-    let stride = region.i1 - region.i0 + 1;
-    const EPS: f64 = -1e-9;
-    for t in triangles {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { rasterise_avx2(triangles, buf, region) };
+    }
+    rasterise_body(triangles, buf, region, |edges, x0, buf, start, len| row_scalar(edges, x0, &mut buf[start..start + len]));
+}
+
+/// [`rasterise_body`] compiled for AVX2, with the four-lane row test.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn rasterise_avx2(triangles: &[Projected], buf: &mut [f32], region: Region) {
+    // SAFETY (of the closure's call): this function runs only where AVX2 was detected.
+    rasterise_body(triangles, buf, region, |edges, x0, buf, start, len| unsafe { row_avx2(edges, x0, buf, start, len) });
+}
+
+/// The edge test of one triangle along one sample row, in the form both row tests use:
+/// barycentric weights from edge functions, normalised by the signed area so both windings
+/// work, `w_a = (row_a - cb_y * (x - b_x)) * inv_area` (and `w_b` likewise about `c`), where
+/// `row_a = cb_x * (py - b_y)`: `(c - b).perp_dot(q - b) * inv_area` term by term.
+#[derive(Debug, Clone, Copy)]
+struct RowEdges {
+    row_a: f64,
+    cb_y: f64,
+    b_x: f64,
+    row_b: f64,
+    ac_y: f64,
+    c_x: f64,
+    inv_area: f64,
+    z: [f64; 3],
+}
+
+impl RowEdges {
+    fn new(t: &Projected, py: f64) -> Self {
         let (a, b, c) = (t.a, t.b, t.c);
-        let [za, zb, zc] = t.z;
+        let (cb, ac) = (c - b, a - c);
+        Self {
+            row_a: cb.x * (py - b.y),
+            cb_y: cb.y,
+            b_x: b.x,
+            row_b: ac.x * (py - c.y),
+            ac_y: ac.y,
+            c_x: c.x,
+            inv_area: t.inv_area,
+            z: t.z,
+        }
+    }
+
+    /// The three weights at sample column `x` (its centre is `x + 0.5`).
+    #[inline(always)]
+    fn weights(&self, qx: f64) -> [f64; 3] {
+        let wa = (self.row_a - self.cb_y * (qx - self.b_x)) * self.inv_area;
+        let wb = (self.row_b - self.ac_y * (qx - self.c_x)) * self.inv_area;
+        [wa, wb, 1.0 - wa - wb]
+    }
+}
+
+/// Tolerance of the edge test: a sample on an edge, up to rounding, is inside.
+const EDGE_EPS: f64 = -1e-9;
+
+#[inline(always)]
+fn rasterise_body(
+    triangles: &[Projected],
+    buf: &mut [f32],
+    region: Region,
+    row_test: impl Fn(&RowEdges, usize, &mut [f32], usize, usize),
+) {
+    let stride = region.i1 - region.i0 + 1;
+    for t in triangles {
         if hidden(t, buf, stride, region) {
             continue;
         }
-        // Barycentric weights from edge functions, normalised by the signed area so both
-        // windings work.
-        let weights = |x: f64, py: f64| {
-            let q = DVec2::new(x, py);
-            let wa = (c - b).perp_dot(q - b) * t.inv_area;
-            let wb = (a - c).perp_dot(q - c) * t.inv_area;
-            [wa, wb, 1.0 - wa - wb]
-        };
         for j in t.j0..=t.j1 {
             let py = j as f64 + 0.5;
-            let Some((lo, hi)) = row_span(t, py, weights) else {
+            let edges = RowEdges::new(t, py);
+            let Some((lo, hi)) = row_span(t, |x| edges.weights(x)) else {
                 continue;
             };
             let start = (j - region.j0) * stride;
-            let row = &mut buf[start + lo - region.i0..=start + hi - region.i0];
-            // Branch-free, so the compiler can test two samples at a time; a NaN weight fails
-            // the test, as it did as `w < EPS || ...` followed by `z > cell`.
-            for (k, cell) in row.iter_mut().enumerate() {
-                let [wa, wb, wc] = weights((lo + k) as f64 + 0.5, py);
-                let inside = (wa >= EPS) & (wb >= EPS) & (wc >= EPS);
-                let z = (wa * za + wb * zb + wc * zc) as f32;
-                *cell = if inside & (z > *cell) { z } else { *cell };
-            }
+            row_test(&edges, lo, buf, start + lo - region.i0, hi - lo + 1);
+        }
+    }
+}
+
+/// The edge and depth test of the samples `row` (columns `x0..`): each sample inside the
+/// triangle takes the interpolated height when that is higher. Branch-free, so the compiler
+/// can test two samples at a time; a NaN weight fails the test, as it did as
+/// `w < EPS || ...` followed by `z > cell`.
+#[inline(always)]
+fn row_scalar(e: &RowEdges, x0: usize, row: &mut [f32]) {
+    let [za, zb, zc] = e.z;
+    for (k, cell) in row.iter_mut().enumerate() {
+        let [wa, wb, wc] = e.weights((x0 + k) as f64 + 0.5);
+        let inside = (wa >= EDGE_EPS) & (wb >= EDGE_EPS) & (wc >= EDGE_EPS);
+        let z = (wa * za + wb * zb + wc * zc) as f32;
+        *cell = if inside & (z > *cell) { z } else { *cell };
+    }
+}
+
+/// [`row_scalar`] on the `len` samples of `buf` from `start` (columns `x0..`), four at a time:
+/// the same operations on four lanes (no fused multiply-add, which would round differently).
+/// A group of four that runs past the row reads the samples after it and writes them back
+/// unchanged (its extra lanes never take a height); only at the end of `buf` are the extra
+/// lanes masked off instead (masked stores are slow on some CPUs).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn row_avx2(e: &RowEdges, x0: usize, buf: &mut [f32], start: usize, len: usize) {
+    use std::arch::x86_64::*;
+    assert!(start + len <= buf.len(), "row inside the buffer");
+    let [za, zb, zc] = e.z.map(|z| _mm256_set1_pd(z));
+    let (row_a, cb_y, b_x) = (_mm256_set1_pd(e.row_a), _mm256_set1_pd(e.cb_y), _mm256_set1_pd(e.b_x));
+    let (row_b, ac_y, c_x) = (_mm256_set1_pd(e.row_b), _mm256_set1_pd(e.ac_y), _mm256_set1_pd(e.c_x));
+    let (inv, one, eps, half) = (_mm256_set1_pd(e.inv_area), _mm256_set1_pd(1.0), _mm256_set1_pd(EDGE_EPS), _mm256_set1_pd(0.5));
+    let lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
+    let lane_index = _mm_set_epi32(3, 2, 1, 0);
+    for g in (0..len).step_by(4) {
+        // (x0 + k) as f64 + 0.5 per lane: integers and halves well below 2^52 add exactly.
+        let qx = _mm256_add_pd(_mm256_add_pd(_mm256_set1_pd((x0 + g) as f64), lanes), half);
+        let wa = _mm256_mul_pd(_mm256_sub_pd(row_a, _mm256_mul_pd(cb_y, _mm256_sub_pd(qx, b_x))), inv);
+        let wb = _mm256_mul_pd(_mm256_sub_pd(row_b, _mm256_mul_pd(ac_y, _mm256_sub_pd(qx, c_x))), inv);
+        let wc = _mm256_sub_pd(_mm256_sub_pd(one, wa), wb);
+        let inside = _mm256_and_pd(
+            _mm256_and_pd(_mm256_cmp_pd::<_CMP_GE_OQ>(wa, eps), _mm256_cmp_pd::<_CMP_GE_OQ>(wb, eps)),
+            _mm256_cmp_pd::<_CMP_GE_OQ>(wc, eps),
+        );
+        let z = _mm256_cvtpd_ps(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(wa, za), _mm256_mul_pd(wb, zb)), _mm256_mul_pd(wc, zc)));
+        // The 64-bit lane masks as 32-bit ones: the low half of each.
+        let (lo, hi) = (_mm256_castpd256_pd128(inside), _mm256_extractf128_pd::<1>(inside));
+        let inside = _mm_shuffle_ps::<0b10_00_10_00>(_mm_castpd_ps(lo), _mm_castpd_ps(hi));
+        let in_row = _mm_castsi128_ps(_mm_cmplt_epi32(lane_index, _mm_set1_epi32((len - g) as i32)));
+        // A lane that may not draw offers -inf; `max(offer, cell)` is `offer > cell ? offer :
+        // cell` (MAXPS returns its second operand when either is NaN), the scalar test's choice.
+        let offer = _mm_blendv_ps(_mm_set1_ps(f32::NEG_INFINITY), z, _mm_and_ps(inside, in_row));
+        let at = start + g;
+        if at + 4 <= buf.len() {
+            // SAFETY: the four f32s from `at` lie inside `buf`, checked just above.
+            let old = unsafe { _mm_loadu_ps(buf.as_ptr().add(at)) };
+            // SAFETY: as the load; lanes that do not take a height are written back as read.
+            unsafe { _mm_storeu_ps(buf.as_mut_ptr().add(at), _mm_max_ps(offer, old)) };
+        } else {
+            let valid = _mm_castps_si128(in_row);
+            // SAFETY: the mask selects the lanes of the row, which lie inside `buf` (asserted).
+            let old = unsafe { _mm_maskload_ps(buf.as_ptr().add(at), valid) };
+            // SAFETY: as the load; only lanes of the row are written.
+            unsafe { _mm_maskstore_ps(buf.as_mut_ptr().add(at), valid, _mm_max_ps(offer, old)) };
         }
     }
 }
 
 /// True when no sample under `t`'s bounding box can rise: each already holds at least the
 /// highest height the triangle can interpolate (its top vertex, plus the weights' tolerance and
-/// rounding), so the exact test would reject every sample.
+/// rounding), so the exact test would reject every sample. The samples are compared with the
+/// least `f32` at or above that bar, which for an `f32` sample is the same test as comparing
+/// it, widened, with the bar itself.
 fn hidden(t: &Projected, buf: &[f32], stride: usize, region: Region) -> bool {
     let [za, zb, zc] = t.z;
     let (top, bottom) = (za.max(zb).max(zc), za.min(zb).min(zc));
@@ -340,9 +519,12 @@ fn hidden(t: &Projected, buf: &[f32], stride: usize, region: Region) -> bool {
     if !bar.is_finite() {
         return false;
     }
+    let narrow = bar as f32;
+    let bar32 = if (narrow as f64) < bar { narrow.next_up() } else { narrow };
     (t.j0..=t.j1).all(|j| {
         let start = (j - region.j0) * stride + (t.i0 - region.i0);
-        buf[start..start + (t.i1 - t.i0 + 1)].iter().all(|&v| v as f64 >= bar)
+        // No early exit within a row: the compiler compares eight samples at a time.
+        buf[start..start + (t.i1 - t.i0 + 1)].iter().fold(true, |all, &v| all & (v >= bar32))
     })
 }
 
@@ -350,14 +532,13 @@ fn hidden(t: &Projected, buf: &[f32], stride: usize, region: Region) -> bool {
 /// is linear along the row, so its crossing of the tolerance is found from its values at the
 /// box's two ends, then widened by two samples and its rounding (a weight that barely changes
 /// along the row narrows nothing). `None` when no sample can pass.
-fn row_span(t: &Projected, py: f64, weights: impl Fn(f64, f64) -> [f64; 3]) -> Option<(usize, usize)> {
-    const EPS: f64 = -1e-9;
+fn row_span(t: &Projected, weights: impl Fn(f64) -> [f64; 3]) -> Option<(usize, usize)> {
     // A narrow box is cheaper to test whole than to narrow.
     if t.i1 - t.i0 < 8 {
         return Some((t.i0, t.i1));
     }
     let n = (t.i1 - t.i0) as f64;
-    let (first, last) = (weights(t.i0 as f64 + 0.5, py), weights(t.i1 as f64 + 0.5, py));
+    let (first, last) = (weights(t.i0 as f64 + 0.5), weights(t.i1 as f64 + 0.5));
     let (mut lo, mut hi) = (0.0f64, n);
     for (v0, v1) in first.into_iter().zip(last) {
         let per_sample = (v1 - v0) / n;
@@ -365,7 +546,7 @@ fn row_span(t: &Projected, py: f64, weights: impl Fn(f64, f64) -> [f64; 3]) -> O
         if !slack.is_finite() || slack > n {
             continue;
         }
-        let crossing = (EPS - v0) / per_sample;
+        let crossing = (EDGE_EPS - v0) / per_sample;
         if per_sample > 0.0 {
             lo = lo.max(crossing - slack);
         } else {
@@ -568,6 +749,108 @@ mod tests {
                     assert_eq!(out, render_depth_reference(&mesh, &pose, &calib, w, h, ss), "{name} {w}x{h} ss {ss} {pose:?}");
                 }
             }
+        }
+    }
+
+    /// A prepared mesh stores each shared vertex once and keeps every triangle's corners.
+    #[test]
+    fn prepared_mesh_shares_vertices() {
+        let mesh = crate::geometry::shapes::object_mesh("sphere").expect("library object");
+        let prepared = PreparedMesh::new(&mesh);
+        // A closed mesh has about half as many vertices as triangles (not three per triangle).
+        assert!(prepared.vertices.len() * 5 < prepared.triangles.len() * 3, "{} vertices", prepared.vertices.len());
+        let kept: Vec<[Vec3; 3]> = prepared.triangles.iter().map(|t| t.map(|i| prepared.vertices[i as usize])).collect();
+        let walls = mesh.triangles.len() - kept.len();
+        assert!(kept.iter().all(|t| mesh.triangles.contains(t)) && walls < mesh.triangles.len() / 100, "{walls} walls");
+    }
+
+    /// Samples compared with the `f32` bar pass exactly when, widened, they reach the `f64` bar.
+    #[test]
+    fn the_hidden_test_bar_in_f32_is_the_f64_test() {
+        let t = |z: [f64; 3]| Projected {
+            a: DVec2::ZERO,
+            b: DVec2::X,
+            c: DVec2::Y,
+            z,
+            inv_area: 1.0,
+            i0: 0,
+            i1: 0,
+            j0: 0,
+            j1: 0,
+        };
+        let region = Region { i0: 0, i1: 0, j0: 0, j1: 0 };
+        for z in [[0.1f64, 0.2, 0.3], [1.0 / 3.0, 0.0, -2.0], [-5e-7, -1e-3, -0.5], [1e30, 0.0, 0.0], [0.0; 3]] {
+            let top = z[0].max(z[1]).max(z[2]);
+            let bar = top + 1e-6 * (1.0 + top.abs() + (top - z[0].min(z[1]).min(z[2])));
+            let near = bar as f32;
+            for v in [near.next_down(), near, near.next_up(), f32::NAN, f32::INFINITY, DepthMap::BACKGROUND_MM] {
+                assert_eq!(hidden(&t(z), &[v], 1, region), v as f64 >= bar, "{z:?} {v}");
+            }
+        }
+    }
+
+    /// Triangles through the scalar row test and through the AVX2 one (where the CPU has it)
+    /// leave the same samples, including rows that end at the buffer's last sample.
+    #[test]
+    fn the_avx2_row_test_equals_the_scalar_one() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut seed = 0x9e37_79b9_u64;
+            let mut next = || {
+                seed = crate::sim::sensor::stages::mix64(seed);
+                (seed >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for _ in 0..200 {
+                let (w, h) = (1 + (next() * 40.0) as usize, 1 + (next() * 30.0) as usize);
+                let mut triangles = Vec::new();
+                for _ in 0..12 {
+                    let mut p = || DVec2::new(next() * (w as f64 + 4.0) - 2.0, next() * (h as f64 + 4.0) - 2.0);
+                    let (a, b, c) = (p(), p(), p());
+                    let area = (b - a).perp_dot(c - a);
+                    let (min, max) = (a.min(b).min(c), a.max(b).max(c));
+                    let (i0, j0) = (ceil(min.x - 0.5).max(0.0), ceil(min.y - 0.5).max(0.0));
+                    let (i1, j1) = (floor(max.x - 0.5).min(w as f64 - 1.0), floor(max.y - 0.5).min(h as f64 - 1.0));
+                    if area.abs() < 1e-12 || i0 > i1 || j0 > j1 {
+                        continue;
+                    }
+                    let z = [next() * 4.0 - 2.0, next() * 4.0 - 2.0, next() * 4.0 - 2.0];
+                    let (i0, i1, j0, j1) = (i0 as usize, i1 as usize, j0 as usize, j1 as usize);
+                    triangles.push(Projected { a, b, c, z, inv_area: 1.0 / area, i0, i1, j0, j1 });
+                }
+                let region = Region { i0: 0, i1: w - 1, j0: 0, j1: h - 1 };
+                let mut scalar = vec![DepthMap::BACKGROUND_MM; w * h];
+                rasterise_body(&triangles, &mut scalar, region, |e, x0, buf, start, len| row_scalar(e, x0, &mut buf[start..start + len]));
+                let mut wide = vec![DepthMap::BACKGROUND_MM; w * h];
+                rasterise(&triangles, &mut wide, region);
+                assert_eq!(wide, scalar, "{w}x{h}");
+            }
+        }
+    }
+
+    /// The downsampling of 2 x 2 blocks (unrolled) and of other factors, compiled either way,
+    /// equals the straightforward average of the covered samples.
+    #[test]
+    fn downsampling_equals_the_straightforward_average() {
+        let mut seed = 7u64;
+        for ss in 1..4usize {
+            let (w, rw) = (9, 9 * ss);
+            let block: Vec<f32> = (0..ss * rw)
+                .map(|_| {
+                    seed = crate::sim::sensor::stages::mix64(seed);
+                    if seed.is_multiple_of(3) { DepthMap::BACKGROUND_MM } else { (seed % 1000) as f32 / 7.0 - 60.0 }
+                })
+                .collect();
+            let expected: Vec<f32> = (0..w)
+                .map(|x| {
+                    let hits: Vec<f32> = (0..ss * ss).map(|k| block[(k / ss) * rw + x * ss + k % ss]).filter(|&v| v > DepthMap::BACKGROUND_MM).collect();
+                    if hits.len() >= (ss * ss).div_ceil(2) { (hits.iter().map(|&v| v as f64).sum::<f64>() / hits.len() as f64) as f32 } else { -1.0 }
+                })
+                .collect();
+            let (mut fast, mut plain) = (vec![-1.0f32; w], vec![-1.0f32; w]);
+            downsample_row(&block, rw, ss, &mut fast);
+            downsample_row_body(&block, rw, ss, &mut plain);
+            assert_eq!(fast, expected, "ss {ss}");
+            assert_eq!(plain, expected, "ss {ss}");
         }
     }
 
