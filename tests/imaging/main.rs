@@ -9,6 +9,7 @@ mod geometry_fit_metrics;
 mod geometry_raster;
 mod sensor_camera;
 mod sensor_fuzz;
+mod sensor_golden;
 mod sensor_look;
 mod sensor_stages;
 mod sensor_support;
