@@ -416,12 +416,7 @@ impl RowEdges {
 const EDGE_EPS: f64 = -1e-9;
 
 #[inline(always)]
-fn rasterise_body(
-    triangles: &[Projected],
-    buf: &mut [f32],
-    region: Region,
-    row_test: impl Fn(&RowEdges, usize, &mut [f32], usize, usize),
-) {
+fn rasterise_body(triangles: &[Projected], buf: &mut [f32], region: Region, row_test: impl Fn(&RowEdges, usize, &mut [f32], usize, usize)) {
     let stride = region.i1 - region.i0 + 1;
     for t in triangles {
         if hidden(t, buf, stride, region) {
@@ -767,17 +762,7 @@ mod tests {
     /// Samples compared with the `f32` bar pass exactly when, widened, they reach the `f64` bar.
     #[test]
     fn the_hidden_test_bar_in_f32_is_the_f64_test() {
-        let t = |z: [f64; 3]| Projected {
-            a: DVec2::ZERO,
-            b: DVec2::X,
-            c: DVec2::Y,
-            z,
-            inv_area: 1.0,
-            i0: 0,
-            i1: 0,
-            j0: 0,
-            j1: 0,
-        };
+        let t = |z: [f64; 3]| Projected { a: DVec2::ZERO, b: DVec2::X, c: DVec2::Y, z, inv_area: 1.0, i0: 0, i1: 0, j0: 0, j1: 0 };
         let region = Region { i0: 0, i1: 0, j0: 0, j1: 0 };
         for z in [[0.1f64, 0.2, 0.3], [1.0 / 3.0, 0.0, -2.0], [-5e-7, -1e-3, -0.5], [1e30, 0.0, 0.0], [0.0; 3]] {
             let top = z[0].max(z[1]).max(z[2]);
@@ -842,8 +827,13 @@ mod tests {
                 .collect();
             let expected: Vec<f32> = (0..w)
                 .map(|x| {
-                    let hits: Vec<f32> = (0..ss * ss).map(|k| block[(k / ss) * rw + x * ss + k % ss]).filter(|&v| v > DepthMap::BACKGROUND_MM).collect();
-                    if hits.len() >= (ss * ss).div_ceil(2) { (hits.iter().map(|&v| v as f64).sum::<f64>() / hits.len() as f64) as f32 } else { -1.0 }
+                    let hits: Vec<f32> =
+                        (0..ss * ss).map(|k| block[(k / ss) * rw + x * ss + k % ss]).filter(|&v| v > DepthMap::BACKGROUND_MM).collect();
+                    if hits.len() >= (ss * ss).div_ceil(2) {
+                        (hits.iter().map(|&v| v as f64).sum::<f64>() / hits.len() as f64) as f32
+                    } else {
+                        -1.0
+                    }
                 })
                 .collect();
             let (mut fast, mut plain) = (vec![-1.0f32; w], vec![-1.0f32; w]);
