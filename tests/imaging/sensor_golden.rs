@@ -2,7 +2,8 @@
 //! sweep (each kind; every preset scene, every stage alone and the full scene without each
 //! stage; several sizes; contacts in the middle, at the image's edges, with NaN heights, of
 //! another size; still and moving; drawn and measured looks) against
-//! `tests/golden/sensor-frames.txt`. Any change to what a simulated sensor shows changes a
+//! `tests/golden/sensor-frames.txt`, drawn by the AVX2 row code where the CPU has it and by the
+//! portable row code. Any change to what a simulated sensor shows changes a
 //! line; `RIG_BLESS=1` rewrites the file after a deliberate change.
 
 use std::fmt::Write as _;
@@ -104,9 +105,21 @@ fn sweep() -> String {
 
 #[test]
 fn simulated_frames_match_the_golden_digests() {
-    let got = sweep();
+    check_against_golden(sweep(), true);
+}
+
+/// The portable row code gives the same frames as the AVX2 copy the CPU may run.
+#[test]
+fn the_portable_row_code_matches_the_golden_digests() {
+    rig::sim::sensor::use_portable_rows(true);
+    check_against_golden(sweep(), false);
+}
+
+/// Compares `got` with the golden file, after writing it there first when `bless` and
+/// `RIG_BLESS` is set.
+fn check_against_golden(got: String, bless: bool) {
     let golden: PathBuf = [env!("CARGO_MANIFEST_DIR"), "tests", "golden", "sensor-frames.txt"].iter().collect();
-    if std::env::var_os("RIG_BLESS").is_some() {
+    if bless && std::env::var_os("RIG_BLESS").is_some() {
         std::fs::write(&golden, &got).expect("writing golden file");
     }
     let expected = std::fs::read_to_string(&golden).unwrap_or_else(|e| panic!("golden {}: {e} (RIG_BLESS=1 writes it)", golden.display()));

@@ -42,6 +42,13 @@ pub struct MarkerLook {
     pub halo: f32,
 }
 
+impl MarkerLook {
+    /// How the markers are drawn at pixel scale `scale` (relative to 512x512).
+    pub fn style(&self, scale: f32) -> super::stages::MarkerStyle {
+        super::stages::MarkerStyle { rgb: self.rgb, opacity: self.opacity, radius_px: self.radius_px * scale, halo: self.halo }
+    }
+}
+
 /// Appearance constants of one sensor kind.
 #[derive(Debug, Clone)]
 pub struct Look {
@@ -278,7 +285,7 @@ impl StaticLook {
         let markers = marker_lattice(width, height);
         let mut rest_frame = background.clone();
         if let Some(m) = look.markers {
-            super::stages::draw_markers(&mut rest_frame, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
+            super::stages::draw_markers(&mut rest_frame, w, h, &markers, &m.style(s));
         }
         let fov_span = fov
             .chunks_exact(w.max(1))

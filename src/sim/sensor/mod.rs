@@ -10,6 +10,11 @@
 //!   ─► shading ─► motion_blur ─► vignetting ─► noise ─► 8-bit image
 //! ```
 //!
+//! Each stage first works out what it needs on the coarse cells or on the band of rows the
+//! contact reaches ([`stages`]); then every pixel row goes through all the stages while it is
+//! in cache, and becomes bytes. Motion blur moves pixels across rows: when it has something to
+//! blur, the rows before it fill a whole frame, it blurs that, and the rows after it follow.
+//!
 //! A stage runs only when the scene lists it and it applies to the kind (TacTip has an opaque
 //! skin, so no see-through; ViTac has no markers, so no marker displacement). Every run of a
 //! stage is counted ([`SensorSim::stage_counts`]), so tests can show that a scene without a
@@ -35,9 +40,10 @@ pub use camera::{DepthSource, SimCamera};
 pub use scene::{Scene, SceneError, SceneLoadError, Stage};
 
 use crate::geometry::DepthMap;
+use crate::imaging::RowBand;
 use crate::sensor::SensorKind;
 use look::{Look, StaticLook};
-use stages::CellField;
+use stages::{CellColumn, CellField, MarkerRows, RowSampler};
 
 impl Stage {
     /// True when this stage has any effect on `kind` (TacTip's skin is opaque: nothing is seen
@@ -95,7 +101,8 @@ impl StageCounts {
     pub fn get(&self, stage: Stage) -> u64 {
         self.counts[stage.index()]
     }
-    /// Mean wall time of one run of `stage`, ms (0 when it never ran).
+    /// Mean wall time of one run of `stage`, ms (0 when it never ran, or when stage timing is
+    /// off: [`SensorSim::with_stage_timing`]).
     pub fn mean_ms(&self, stage: Stage) -> f64 {
         let i = stage.index();
         if self.counts[i] == 0 { 0.0 } else { self.nanos[i] as f64 / self.counts[i] as f64 * 1e-6 }
@@ -145,8 +152,53 @@ mod skin {
 const CELL_PX: f32 = 4.0;
 
 thread_local! {
-    /// The f32 RGB plane a frame is rendered in, kept between frames on this thread.
-    static FRAME: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The buffers frames are rendered in, kept between frames on this thread.
+    static SCRATCH: std::cell::RefCell<FrameScratch> = std::cell::RefCell::new(FrameScratch::default());
+}
+
+thread_local! {
+    /// Set by [`use_portable_rows`]: this thread draws its rows with the portable code.
+    static PORTABLE_ROWS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Makes this thread draw its frames' rows with the portable code even where the CPU has AVX2
+/// (the AVX2 copy runs the same operations on wider registers and gives the same bytes); the
+/// tests check the portable code with it.
+#[doc(hidden)]
+pub fn use_portable_rows(on: bool) {
+    PORTABLE_ROWS.set(on);
+}
+
+/// Buffers reused from frame to frame on one thread.
+#[derive(Default)]
+struct FrameScratch {
+    /// One f32 RGB row, or the whole frame when motion blur moves pixels across rows.
+    buf: Vec<f32>,
+    /// A measured look's transmission along the current row.
+    transmit: Vec<f32>,
+    /// The see-through glow sampled along the rows.
+    glow: RowSampler,
+    /// The see-through visibility band, and its blur's intermediate band.
+    visibility: RowBand,
+    visibility_scratch: RowBand,
+}
+
+/// What one frame's stages worked out before the pixel rows.
+struct FramePlan {
+    /// Where each pixel column samples the frame's cell fields.
+    cols: Vec<CellColumn>,
+    /// Skin displacement of a measured look, per cell (x, y).
+    warp: Option<[CellField; 2]>,
+    /// Marker positions to draw (a drawn look).
+    markers: Option<Vec<[f32; 2]>>,
+    /// See-through: the glow on cells, and whether the visibility band holds anything.
+    see_through: Option<(CellField, bool)>,
+    /// Shading factor per cell.
+    shading: Option<CellField>,
+    /// Length of the motion-blur streak, px, when it blurs anything.
+    blur_px: Option<f32>,
+    vignette: bool,
+    noise_key: Option<u64>,
 }
 
 /// A simulated tactile sensor of one kind, one image size and one scene.
@@ -160,6 +212,8 @@ pub struct SensorSim {
     look: Look,
     fixed: StaticLook,
     active: [bool; Stage::COUNT],
+    /// Whether each stage's wall time is measured ([`SensorSim::with_stage_timing`]).
+    timing: bool,
     counts: [AtomicU64; Stage::COUNT],
     nanos: [AtomicU64; Stage::COUNT],
 }
@@ -207,6 +261,7 @@ impl SensorSim {
             look,
             fixed,
             active,
+            timing: false,
             counts: std::array::from_fn(|_| AtomicU64::new(0)),
             nanos: std::array::from_fn(|_| AtomicU64::new(0)),
         }
@@ -275,15 +330,32 @@ impl SensorSim {
         self.counts[stage.index()].fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Runs `stage` if active, counting it and timing it (wall time, for the benchmark; it
-    /// has no effect on the image).
+    /// The same simulator measuring the wall time of each stage ([`StageCounts::mean_ms`]).
+    /// The stages run on each pixel row in turn, so this reads the clock several times a row:
+    /// it slows rendering, and is meant for the stage benchmark.
+    pub fn with_stage_timing(mut self) -> Self {
+        self.timing = true;
+        self
+    }
+
+    /// Runs `f` as part of `stage`, timing it when stage timing is on (it has no effect on the
+    /// image).
+    fn timed<T>(&self, stage: Stage, f: impl FnOnce() -> T) -> T {
+        if !self.timing {
+            return f();
+        }
+        let t = std::time::Instant::now();
+        let out = f();
+        let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
+        out
+    }
+
+    /// Runs `stage`'s work on the whole frame if the stage is active, counting the run.
     fn stage(&self, stage: Stage, f: impl FnOnce()) {
         if self.runs(stage) {
             self.count(stage);
-            let t = std::time::Instant::now();
-            f();
-            let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
-            self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
+            self.timed(stage, f);
         }
     }
 
@@ -297,20 +369,92 @@ impl SensorSim {
     /// map, motion, `frame_key` and seed always give the same image.
     pub fn render(&self, depth: &DepthMap, motion: &MotionState, frame_key: u64) -> RgbImage {
         let (w, h) = (self.width as usize, self.height as usize);
+        let row_len = w * 3;
+        let mut bytes = vec![0u8; row_len * h];
+        SCRATCH.with(|scratch| {
+            let scratch = &mut *scratch.borrow_mut();
+            let plan = self.plan(depth, motion, frame_key, &mut scratch.visibility, &mut scratch.visibility_scratch);
+            scratch.glow.reset();
+            #[cfg(target_arch = "x86_64")]
+            if !PORTABLE_ROWS.get() && std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2, checked just above.
+                unsafe { self.draw_rows_avx2(&plan, motion, &mut bytes, scratch) };
+                return;
+            }
+            self.draw_rows(&plan, motion, &mut bytes, scratch);
+        });
+        // The buffer has exactly w * h * 3 values by construction.
+        RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_else(|| RgbImage::new(self.width, self.height))
+    }
+
+    /// [`SensorSim::draw_rows`] compiled for AVX2: the row functions it calls are
+    /// `#[inline(always)]`, so they are compiled into it, on four or eight lanes where the
+    /// portable code has four (no fused multiply-add, so the arithmetic is the same).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn draw_rows_avx2(&self, plan: &FramePlan, motion: &MotionState, bytes: &mut [u8], scratch: &mut FrameScratch) {
+        self.draw_rows(plan, motion, bytes, scratch);
+    }
+
+    /// Every pixel row through the stages, into `bytes`.
+    #[inline(always)]
+    fn draw_rows(&self, plan: &FramePlan, motion: &MotionState, bytes: &mut [u8], scratch: &mut FrameScratch) {
+        let FrameScratch { buf, transmit, glow, visibility, .. } = scratch;
+        let (w, h) = (self.width as usize, self.height as usize);
+        let row_len = w * 3;
+        let style = self.look.markers.map(|m| m.style(look::scale(self.width, self.height)));
+        let mut markers = plan.markers.as_ref().zip(style.as_ref()).map(|(m, style)| (m, style, MarkerRows::new(m, w, h, style)));
+        let mut compose = |y: usize, row: &mut [f32]| {
+            self.compose_row(plan, y, row, transmit, glow, visibility);
+            if let Some((m, style, rows)) = markers.as_mut() {
+                rows.draw(row, y, m, style);
+            }
+            if let Some(factor) = &plan.shading {
+                self.timed(Stage::Shading, || stages::shade_row(row, y, factor, &plan.cols));
+            }
+        };
+        match plan.blur_px {
+            Some(len) => {
+                buf.clear();
+                buf.extend_from_slice(&self.fixed.background);
+                for (y, row) in buf.chunks_exact_mut(row_len).enumerate() {
+                    compose(y, row);
+                }
+                self.timed(Stage::MotionBlur, || stages::contact_motion_blur(buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad));
+                for (y, (row, out)) in buf.chunks_exact_mut(row_len).zip(bytes.chunks_exact_mut(row_len)).enumerate() {
+                    self.finish_row(plan, y, row, out);
+                }
+            }
+            None => {
+                buf.clear();
+                buf.resize(row_len, 0.0);
+                let rows = self.fixed.background.chunks_exact(row_len).zip(bytes.chunks_exact_mut(row_len));
+                for (y, (background, out)) in rows.enumerate() {
+                    buf.copy_from_slice(background);
+                    compose(y, buf);
+                    self.finish_row(plan, y, buf, out);
+                }
+            }
+        }
+    }
+
+    /// The per-frame work of the stages, before any pixel row: the coarse fields, the markers'
+    /// positions, the see-through visibility band (into `visibility`). Counts each active stage.
+    fn plan(&self, depth: &DepthMap, motion: &MotionState, frame_key: u64, visibility: &mut RowBand, scratch: &mut RowBand) -> FramePlan {
         let s = look::scale(self.width, self.height);
         let depth = self.fit_depth(depth);
         let cell = (CELL_PX * s).round().max(1.0) as usize;
-        let raw = CellField::from_depth(&depth, cell, |d| d.max(0.0));
+        // Every positive height is also near the skin for see-through: one scan finds the rows
+        // both look at.
+        let near_rows = stages::near_rows(&depth, skin::SEE_THROUGH_GAP_MM);
+        let raw = CellField::indentation(&depth, cell, near_rows.clone());
         let touching = raw.max() > 0.0;
 
         let mut indent = raw.clone();
         self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm));
 
         let mut markers = self.fixed.markers.clone();
-        // The frame's working plane is reused from frame to frame on this thread.
-        let mut buf = FRAME.with(|f| std::mem::take(&mut *f.borrow_mut()));
-        buf.clear();
-        buf.extend_from_slice(&self.fixed.background);
+        let mut warp = None;
         if self.look.markers.is_some() {
             self.stage(Stage::MarkerDisplacement, || {
                 if !touching {
@@ -329,14 +473,15 @@ impl SensorSim {
                     skin::MAX_TRAVEL_MM,
                 );
                 if self.fixed.measured {
-                    stages::warp_skin(&mut buf, w, h, &u);
+                    warp = Some(u);
                 } else {
                     stages::marker_displacement(&mut markers, &u);
                 }
             });
         }
 
-        if let Some(object_rgb) = self.look.object_rgb {
+        let mut see_through = None;
+        if self.look.object_rgb.is_some() {
             self.stage(Stage::SeeThrough, || {
                 let mut near = raw.clone();
                 for v in &mut near.v {
@@ -351,38 +496,86 @@ impl SensorSim {
                         *g = (1.0 - (-(2.5 * n + 3.5 * *g)).exp()).min(1.0);
                     }
                 }
-                stages::see_through(
-                    &mut buf,
+                let seen = stages::visibility(
                     &depth,
-                    &self.fixed.fov,
-                    &self.fixed.fov_span,
-                    object_rgb,
-                    self.look.glow_rgb,
-                    &glow,
                     skin::SEE_THROUGH_GAP_MM,
                     skin::SEE_THROUGH_BLUR_PX * s,
-                    self.fixed.skin_lum.as_deref(),
+                    near_rows.clone(),
+                    visibility,
+                    scratch,
                 );
+                see_through = Some((glow, seen));
             });
         }
 
-        if let Some(m) = self.look.markers.filter(|_| !self.fixed.measured) {
-            stages::draw_markers(&mut buf, w, h, &markers, m.rgb, m.opacity, m.radius_px * s, m.halo);
-        }
-
-        self.stage(Stage::Shading, || stages::shading(&mut buf, w, h, &indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain));
-        self.stage(Stage::MotionBlur, || {
-            let len = motion.streak_px().min(self.scene.max_blur_px);
-            stages::contact_motion_blur(&mut buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad)
+        let mut shading = None;
+        self.stage(Stage::Shading, || {
+            shading = Some(stages::shading_factor(&indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain));
         });
-        self.stage(Stage::Vignetting, || stages::vignetting(&mut buf, &self.fixed.vignette));
-        self.stage(Stage::Noise, || stages::noise(&mut buf, self.scene.noise_sigma_levels, stages::mix64(self.seed) ^ frame_key));
+        let mut blur_px = None;
+        self.stage(Stage::MotionBlur, || {
+            // A streak under half a pixel blurs nothing.
+            blur_px = Some(motion.streak_px().min(self.scene.max_blur_px)).filter(|&len| len >= 0.5);
+        });
+        let mut vignette = false;
+        self.stage(Stage::Vignetting, || vignette = true);
+        let mut noise_key = None;
+        self.stage(Stage::Noise, || noise_key = Some(stages::mix64(self.seed) ^ frame_key));
+        FramePlan {
+            cols: raw.columns(self.width as usize),
+            warp,
+            markers: self.look.markers.filter(|_| !self.fixed.measured).map(|_| markers),
+            see_through,
+            shading,
+            blur_px,
+            vignette,
+            noise_key,
+        }
+    }
 
-        // `as u8` saturates (and maps NaN to 0), so adding 0.5 rounds and clamps in one step.
-        let bytes: Vec<u8> = buf.iter().map(|v| (v + 0.5) as u8).collect();
-        FRAME.with(|f| *f.borrow_mut() = buf);
-        // The buffer has exactly w * h * 3 values by construction.
-        RgbImage::from_raw(self.width, self.height, bytes).unwrap_or_else(|| RgbImage::new(self.width, self.height))
+    /// The stages before the markers on pixel row `y`: a measured look's skin displacement, then
+    /// see-through.
+    #[inline(always)]
+    fn compose_row(
+        &self,
+        plan: &FramePlan,
+        y: usize,
+        row: &mut [f32],
+        transmit: &mut Vec<f32>,
+        sampler: &mut RowSampler,
+        visibility: &RowBand,
+    ) {
+        let (w, h) = (self.width as usize, self.height as usize);
+        if let Some(u) = &plan.warp {
+            self.timed(Stage::MarkerDisplacement, || stages::warp_skin_row(row, y, &self.fixed.background, w, h, u));
+        }
+        if let (Some((glow, seen)), Some(object_rgb)) = (&plan.see_through, self.look.object_rgb) {
+            self.timed(Stage::SeeThrough, || {
+                let lum = self.fixed.skin_lum.as_deref().filter(|l| l.len() == w * h);
+                let transmit = lum.map(|lum| {
+                    stages::transmit_row(row, &lum[y * w..(y + 1) * w], transmit);
+                    &transmit[..]
+                });
+                let span = self.fixed.fov_span.get(y).copied().unwrap_or((0, w));
+                let vis = if *seen { visibility.row(y) } else { None };
+                let fov = &self.fixed.fov[y * w..(y + 1) * w];
+                stages::see_through_row(row, y, glow, &plan.cols, sampler, vis, fov, span, object_rgb, self.look.glow_rgb, transmit);
+            });
+        }
+    }
+
+    /// The stages after motion blur on pixel row `y` (vignetting, noise), then its bytes into
+    /// `out`.
+    #[inline(always)]
+    fn finish_row(&self, plan: &FramePlan, y: usize, row: &mut [f32], out: &mut [u8]) {
+        let w = self.width as usize;
+        if plan.vignette {
+            self.timed(Stage::Vignetting, || stages::vignetting(row, &self.fixed.vignette[y * w..(y + 1) * w]));
+        }
+        if let Some(key) = plan.noise_key {
+            self.timed(Stage::Noise, || stages::noise(row, y * w, self.scene.noise_sigma_levels, key));
+        }
+        stages::to_bytes(row, out);
     }
 
     /// The depth map at the sensor's size (nearest-neighbour resampling when it differs).

@@ -1,4 +1,7 @@
-//! The effect stages, each a separate function over the frame buffer.
+//! The effect stages. Each works out what it needs once per frame (on the coarse cells, or on
+//! the band of rows a contact reaches), then changes the frame one pixel row at a time, so the
+//! renderer runs every stage on a row while that row is in cache. Only motion blur, which
+//! moves pixels across rows, works on the whole frame.
 //!
 //! The frame buffer is RGB interleaved `f32` on the 8-bit scale (0..255, unclamped until the
 //! end). Slowly varying quantities (skin indentation, glow) live on a coarse [`CellField`]
@@ -6,7 +9,7 @@
 //! blurs cheap.
 
 use crate::geometry::DepthMap;
-use crate::imaging::{BoxBorder, box_blur_repeated, luma};
+use crate::imaging::{BoxBorder, RowBand, box_blur_repeated, luma};
 
 /// A coarse scalar field over the image, one value per square cell of `cell_px` pixels.
 #[derive(Debug, Clone)]
@@ -18,23 +21,35 @@ pub struct CellField {
 }
 
 impl CellField {
-    /// Mean of `f(depth)` over each cell of an image of `depth.width` x `depth.height`.
-    pub fn from_depth(depth: &DepthMap, cell_px: usize, f: impl Fn(f32) -> f32) -> Self {
+    /// Mean indentation, `max(height, 0)`, over each cell of an image of `depth.width` x
+    /// `depth.height` (a NaN height counts as 0). Only `rows` can hold a positive height
+    /// ([`near_rows`] of any gap gives them); the others count as 0.
+    pub fn indentation(depth: &DepthMap, cell_px: usize, rows: std::ops::Range<usize>) -> Self {
         let (iw, ih) = (depth.width as usize, depth.height as usize);
         let cell_px = cell_px.max(1);
         let (w, h) = (iw.div_ceil(cell_px).max(1), ih.div_ceil(cell_px).max(1));
         let mut sum = vec![0.0f32; w * h];
-        let mut n = vec![0u32; w * h];
-        for y in 0..ih {
-            let row = &depth.height_mm[y * iw..(y + 1) * iw];
-            let cy = y / cell_px;
-            for (cx, chunk) in row.chunks(cell_px).enumerate() {
-                let k = cy * w + cx;
-                sum[k] += chunk.iter().map(|&d| f(d)).sum::<f32>();
-                n[k] += chunk.len() as u32;
+        let lines = depth.height_mm.chunks_exact(iw.max(1)).take(ih).enumerate();
+        for (y, row) in lines.skip(rows.start).take(rows.end.saturating_sub(rows.start)) {
+            // A row without a positive height adds 0 to every cell: most rows of a contact.
+            if !row.iter().fold(false, |any, &d| any | (d > 0.0)) {
+                continue;
+            }
+            let sums = &mut sum[(y / cell_px) * w..(y / cell_px + 1) * w];
+            for (s, chunk) in sums.iter_mut().zip(row.chunks(cell_px)) {
+                *s += chunk.iter().map(|&d| d.max(0.0)).sum::<f32>();
             }
         }
-        let v = sum.iter().zip(&n).map(|(s, &c)| if c > 0 { s / c as f32 } else { 0.0 }).collect();
+        // Pixels per cell: whole cells, fewer along the right and bottom edges.
+        let span = |k: usize, n: usize| n.min((k + 1) * cell_px).saturating_sub(k * cell_px);
+        let v = sum
+            .iter()
+            .enumerate()
+            .map(|(k, s)| match span(k % w, iw) * span(k / w, ih) {
+                0 => 0.0,
+                n => s / n as f32,
+            })
+            .collect();
         Self { w, h, cell_px, v }
     }
 
@@ -65,59 +80,157 @@ impl CellField {
         ]
     }
 
+    /// [`CellField::gradient_per_px`] at the centre of every cell, to `f(cx, cy, gradient)` in
+    /// row order. One cell either way from a centre is the next centre, where bilinear sampling
+    /// weighs that cell by exactly 1 (the centres' coordinates are exact in `f32`), so for a
+    /// field of finite values the differences read the cells directly: the same gradients, up
+    /// to the sign of a zero. A field holding an infinity or NaN is sampled as before, since
+    /// there the weight-0 neighbour would leak into the sample.
+    pub fn for_each_cell_gradient(&self, mut f: impl FnMut(usize, usize, [f32; 2])) {
+        let c = self.cell_px as f32;
+        if !self.v.iter().fold(true, |all, v| all & v.is_finite()) {
+            for cy in 0..self.h {
+                for cx in 0..self.w {
+                    f(cx, cy, self.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c));
+                }
+            }
+            return;
+        }
+        let w = self.w;
+        let at = |x: usize, y: usize| self.v[y * w + x];
+        for cy in 0..self.h {
+            let (up, down) = (cy.saturating_sub(1), (cy + 1).min(self.h - 1));
+            for cx in 0..w {
+                let (left, right) = (cx.saturating_sub(1), (cx + 1).min(w - 1));
+                f(cx, cy, [(at(right, cy) - at(left, cy)) / (2.0 * c), (at(cx, down) - at(cx, up)) / (2.0 * c)]);
+            }
+        }
+    }
+
     /// Approximately Gaussian blur: `passes` separable box blurs of radius `radius_cells`,
     /// the edge cells repeated ([`BoxBorder::Replicate`]).
     pub fn blur(&mut self, radius_cells: usize, passes: usize) {
         box_blur_repeated(&mut self.v, self.w, self.h, radius_cells, passes, BoxBorder::Replicate);
     }
 
-    /// Calls `f(x, y, value)` for every pixel of a `width` x `height` image with the field
-    /// sampled bilinearly, skipping the pixels whose four cells are all exactly `skip_value`
-    /// (they would sample `skip_value`, for which `f` must do nothing).
-    pub fn for_each_pixel(&self, width: usize, height: usize, skip_value: f32, f: impl FnMut(usize, f32)) {
-        self.for_each_pixel_within(width, height, skip_value, |_| (0, width), f);
-    }
-
-    /// [`CellField::for_each_pixel`] over the columns `span(y)` (`[start, end)`) of each row `y`
-    /// only.
-    pub fn for_each_pixel_within(
-        &self,
-        width: usize,
-        height: usize,
-        skip_value: f32,
-        span: impl Fn(usize) -> (usize, usize),
-        mut f: impl FnMut(usize, f32),
-    ) {
+    /// Where each pixel column of a `width`-pixel row samples this field (the bilinear
+    /// columns of [`CellField::sample`] at the pixel centres). Every field of one frame has the
+    /// same cells, so one table serves them all.
+    pub fn columns(&self, width: usize) -> Vec<CellColumn> {
         let c = self.cell_px as f32;
-        let cols: Vec<(usize, usize, f32)> = (0..width)
+        (0..width)
             .map(|x| {
                 let fx = ((x as f32 + 0.5) / c - 0.5).clamp(0.0, (self.w - 1) as f32);
                 let x0 = fx as usize;
-                (x0, (x0 + 1).min(self.w - 1), fx - x0 as f32)
+                CellColumn { x0, x1: (x0 + 1).min(self.w - 1), tx: fx - x0 as f32 }
             })
-            .collect();
-        for y in 0..height {
-            let fy = ((y as f32 + 0.5) / c - 0.5).clamp(0.0, (self.h - 1) as f32);
-            let y0 = fy as usize;
-            let y1 = (y0 + 1).min(self.h - 1);
-            let ty = fy - y0 as f32;
-            let (r0, r1) = (&self.v[y0 * self.w..(y0 + 1) * self.w], &self.v[y1 * self.w..(y1 + 1) * self.w]);
-            // The cells of these two rows that are not `skip_value`; a pixel between two
-            // cells outside them samples exactly `skip_value`.
-            let live = |k: &usize| r0[*k] != skip_value || r1[*k] != skip_value;
-            let (Some(k0), Some(k1)) = ((0..self.w).find(live), (0..self.w).rev().find(live)) else {
-                continue;
-            };
-            let (start, end) = span(y);
-            let first = cols.partition_point(|&(_, x1, _)| x1 < k0).max(start);
-            let last = cols.partition_point(|&(x0, _, _)| x0 <= k1).min(end);
-            for (x, &(x0, x1, tx)) in cols.iter().enumerate().take(last).skip(first) {
-                let a = r0[x0] + (r0[x1] - r0[x0]) * tx;
-                let b = r1[x0] + (r1[x1] - r1[x0]) * tx;
-                f(y * width + x, a + (b - a) * ty);
-            }
+            .collect()
+    }
+
+    /// Calls `f(x, value)` for the pixels of row `y` in columns `start..end` (`cols` from
+    /// [`CellField::columns`]) with the field sampled bilinearly, skipping the pixels whose four
+    /// cells are all exactly `skip_value` (they would sample `skip_value`, for which `f` must do
+    /// nothing).
+    pub fn for_each_pixel_in_row(&self, cols: &[CellColumn], y: usize, skip_value: f32, span: (usize, usize), mut f: impl FnMut(usize, f32)) {
+        let Some(PixelRow { y0, y1, ty, first, last }) = self.pixel_row(cols, y, skip_value, span) else {
+            return;
+        };
+        let (r0, r1) = (&self.v[y0 * self.w..(y0 + 1) * self.w], &self.v[y1 * self.w..(y1 + 1) * self.w]);
+        for (x, c) in cols.iter().enumerate().take(last).skip(first) {
+            let a = r0[c.x0] + (r0[c.x1] - r0[c.x0]) * c.tx;
+            let b = r1[c.x0] + (r1[c.x1] - r1[c.x0]) * c.tx;
+            f(x, a + (b - a) * ty);
         }
     }
+
+    /// Where pixel row `y` lies between the cell rows, and which of its pixels in
+    /// `start..end` have a cell that is not `skip_value` (the others sample exactly
+    /// `skip_value`). `None` when none has.
+    fn pixel_row(&self, cols: &[CellColumn], y: usize, skip_value: f32, (start, end): (usize, usize)) -> Option<PixelRow> {
+        let fy = ((y as f32 + 0.5) / self.cell_px as f32 - 0.5).clamp(0.0, (self.h - 1) as f32);
+        let y0 = fy as usize;
+        let y1 = (y0 + 1).min(self.h - 1);
+        let (r0, r1) = (&self.v[y0 * self.w..(y0 + 1) * self.w], &self.v[y1 * self.w..(y1 + 1) * self.w]);
+        let live = |k: &usize| r0[*k] != skip_value || r1[*k] != skip_value;
+        let (k0, k1) = ((0..self.w).find(live)?, (0..self.w).rev().find(live)?);
+        let first = cols.partition_point(|c| c.x1 < k0).max(start);
+        let last = cols.partition_point(|c| c.x0 <= k1).min(end);
+        (first < last).then_some(PixelRow { y0, y1, ty: fy - y0 as f32, first, last })
+    }
+}
+
+/// Pixel row `y` of a [`CellField`] ([`CellField::pixel_row`]): between cell rows `y0` and `y1`
+/// with weight `ty` on the second; its pixels `first..last` are the ones to visit.
+#[derive(Debug, Clone, Copy)]
+struct PixelRow {
+    y0: usize,
+    y1: usize,
+    ty: f32,
+    first: usize,
+    last: usize,
+}
+
+/// Where a pixel column samples a [`CellField`]: the cells either side and the weight of the
+/// second.
+#[derive(Debug, Clone, Copy)]
+pub struct CellColumn {
+    x0: usize,
+    x1: usize,
+    tx: f32,
+}
+
+/// A [`CellField`] sampled along pixel rows as [`CellField::for_each_pixel_in_row`] does, with
+/// the interpolation along x of the two cell rows a pixel row lies between kept while the next
+/// pixel rows lie between the same two (a cell is several pixels high), so each pixel costs
+/// one interpolation between two values in memory order.
+#[derive(Debug, Default)]
+pub struct RowSampler {
+    /// The cell rows `top` and `bottom` interpolate, when they are current.
+    cells: Option<(usize, usize)>,
+    top: Vec<f32>,
+    bottom: Vec<f32>,
+}
+
+impl RowSampler {
+    /// Forgets the rows kept (call it when the field changes).
+    pub fn reset(&mut self) {
+        self.cells = None;
+    }
+
+    /// The pixels of row `y` in `span` that [`CellField::for_each_pixel_in_row`] visits, and
+    /// how to sample them ([`SampledRow`]). `None` when no pixel is visited.
+    #[inline(always)]
+    pub fn row<'a>(
+        &'a mut self,
+        field: &CellField,
+        cols: &[CellColumn],
+        y: usize,
+        skip_value: f32,
+        span: (usize, usize),
+    ) -> Option<SampledRow<'a>> {
+        let PixelRow { y0, y1, ty, first, last } = field.pixel_row(cols, y, skip_value, span)?;
+        let (r0, r1) = (&field.v[y0 * field.w..(y0 + 1) * field.w], &field.v[y1 * field.w..(y1 + 1) * field.w]);
+        if self.cells != Some((y0, y1)) {
+            let lerp = |r: &[f32], c: &CellColumn| r[c.x0] + (r[c.x1] - r[c.x0]) * c.tx;
+            self.top.clear();
+            self.top.extend(cols.iter().map(|c| lerp(r0, c)));
+            self.bottom.clear();
+            self.bottom.extend(cols.iter().map(|c| lerp(r1, c)));
+            self.cells = Some((y0, y1));
+        }
+        Some(SampledRow { first, last, ty, top: &self.top, bottom: &self.bottom })
+    }
+}
+
+/// A pixel row of a [`CellField`] ([`RowSampler::row`]): the pixels `first..last` are visited,
+/// and pixel `x`'s value is `top[x] + (bottom[x] - top[x]) * ty`.
+#[derive(Debug)]
+pub struct SampledRow<'a> {
+    pub first: usize,
+    pub last: usize,
+    pub ty: f32,
+    pub top: &'a [f32],
+    pub bottom: &'a [f32],
 }
 
 fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
@@ -159,18 +272,15 @@ pub fn displacement_field(
     // slope * lateral_mm * px_per_mm.
     let k = lateral_mm * px_per_mm * px_per_mm;
     let cap_px = max_travel_mm * px_per_mm;
-    for cy in 0..indent.h {
-        for cx in 0..indent.w {
-            let g = smooth.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
-            let (mut dx, mut dy) = (-k * g[0], -k * g[1]);
-            let len = (dx * dx + dy * dy).sqrt();
-            if len > cap_px && len > 0.0 {
-                (dx, dy) = (dx * cap_px / len, dy * cap_px / len);
-            }
-            ux.v[cy * indent.w + cx] = dx;
-            uy.v[cy * indent.w + cx] = dy;
+    smooth.for_each_cell_gradient(|cx, cy, g| {
+        let (mut dx, mut dy) = (-k * g[0], -k * g[1]);
+        let len = (dx * dx + dy * dy).sqrt();
+        if len > cap_px && len > 0.0 {
+            (dx, dy) = (dx * cap_px / len, dy * cap_px / len);
         }
-    }
+        ux.v[cy * indent.w + cx] = dx;
+        uy.v[cy * indent.w + cx] = dy;
+    });
     // Pins are rigid: each moves as a whole with the skin around it, so the field is averaged
     // over `rigid_px` (about half a pin pitch). Without this, a pin straddling the middle of
     // an edge-like dent is torn in two; with it, pins right under the object stay put.
@@ -190,179 +300,294 @@ pub fn marker_displacement(markers: &mut [[f32; 2]], displacement: &[CellField; 
     }
 }
 
-/// Skin displacement of a measured image: everything printed on or seen in the skin (pins,
-/// texture) moves with it, so the image is resampled backwards along the displacement,
-/// `out(p) = src(p - u(p))`, bilinearly. Pixels moved by less than a hundredth of a pixel are
-/// left as they are.
-pub fn warp_skin(buf: &mut [f32], width: usize, height: usize, displacement: &[CellField; 2]) {
-    if buf.len() != width * height * 3 || width == 0 || height == 0 {
+/// Skin displacement of a measured image, row `y` of it: everything printed on or seen in the
+/// skin (pins, texture) moves with it, so the image is resampled backwards along the
+/// displacement, `out(p) = src(p - u(p))`, bilinearly from `src` (the undisplaced frame).
+/// Pixels moved by less than a hundredth of a pixel are left as they are.
+#[inline(always)]
+pub fn warp_skin_row(row: &mut [f32], y: usize, src: &[f32], width: usize, height: usize, displacement: &[CellField; 2]) {
+    if src.len() != width * height * 3 || row.len() != width * 3 || width == 0 || y >= height {
         return;
     }
-    let src = buf.to_vec();
     let at = |x: usize, y: usize, c: usize| src[(y * width + x) * 3 + c];
-    for y in 0..height {
-        for x in 0..width {
-            let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
-            let (dx, dy) = (displacement[0].sample(px, py), displacement[1].sample(px, py));
-            if dx.abs() < 0.01 && dy.abs() < 0.01 {
-                continue;
-            }
-            let fx = (px - dx - 0.5).clamp(0.0, (width - 1) as f32);
-            let fy = (py - dy - 0.5).clamp(0.0, (height - 1) as f32);
-            let (x0, y0) = (fx as usize, fy as usize);
-            let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
-            let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-            for c in 0..3 {
-                let a = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * tx;
-                let b = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * tx;
-                buf[(y * width + x) * 3 + c] = a + (b - a) * ty;
+    let py = y as f32 + 0.5;
+    for x in 0..width {
+        let px = x as f32 + 0.5;
+        let (dx, dy) = (displacement[0].sample(px, py), displacement[1].sample(px, py));
+        if dx.abs() < 0.01 && dy.abs() < 0.01 {
+            continue;
+        }
+        let fx = (px - dx - 0.5).clamp(0.0, (width - 1) as f32);
+        let fy = (py - dy - 0.5).clamp(0.0, (height - 1) as f32);
+        let (x0, y0) = (fx as usize, fy as usize);
+        let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        for c in 0..3 {
+            let a = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * tx;
+            let b = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * tx;
+            row[x * 3 + c] = a + (b - a) * ty;
+        }
+    }
+}
+
+/// How markers are drawn: discs with soft edges and a halo ring.
+#[derive(Debug, Clone, Copy)]
+pub struct MarkerStyle {
+    pub rgb: [f32; 3],
+    pub opacity: f32,
+    pub radius_px: f32,
+    /// Relative brightness change of the ring just outside the marker.
+    pub halo: f32,
+}
+
+/// Draws `markers` on a whole `width` x `height` frame.
+pub fn draw_markers(buf: &mut [f32], width: usize, height: usize, markers: &[[f32; 2]], style: &MarkerStyle) {
+    let mut rows = MarkerRows::new(markers, width, height, style);
+    for (y, row) in buf.chunks_exact_mut(width * 3).take(height).enumerate() {
+        rows.draw(row, y, markers, style);
+    }
+}
+
+/// Markers drawn row by row: each marker's pixel box, and as the rows go down, the markers whose
+/// box reaches the row, in marker order (a pixel two markers reach gets them in that order, as
+/// when they are drawn one after the other).
+#[derive(Debug)]
+pub struct MarkerRows {
+    /// Per marker, `[x0, x1, y0, y1)`.
+    boxes: Vec<[usize; 4]>,
+    /// Marker indices by first row.
+    by_top: Vec<usize>,
+    next: usize,
+    active: Vec<usize>,
+    width: usize,
+    /// One marker's weights along the current row: halo gain, cover and fall-off.
+    weights: Vec<[f32; 3]>,
+}
+
+impl MarkerRows {
+    pub fn new(markers: &[[f32; 2]], width: usize, height: usize, style: &MarkerStyle) -> Self {
+        let reach = style.radius_px + halo_width(style.radius_px) + 1.0;
+        let span = |c: f32, n: usize| [(c - reach).floor().max(0.0) as usize, ((c + reach).ceil().max(0.0) as usize).min(n)];
+        let boxes: Vec<[usize; 4]> = markers
+            .iter()
+            .map(|m| {
+                let ([x0, x1], [y0, y1]) = (span(m[0], width), span(m[1], height));
+                [x0, x1, y0, y1]
+            })
+            .collect();
+        let mut by_top: Vec<usize> = (0..markers.len()).collect();
+        by_top.sort_by_key(|&k| boxes[k][2]);
+        Self { boxes, by_top, next: 0, active: Vec::new(), width, weights: Vec::new() }
+    }
+
+    /// Draws the markers that reach row `y` (rows must come in increasing order) on `row`.
+    #[inline(always)]
+    pub fn draw(&mut self, row: &mut [f32], y: usize, markers: &[[f32; 2]], style: &MarkerStyle) {
+        let mut added = false;
+        while let Some(&k) = self.by_top.get(self.next).filter(|&&k| self.boxes[k][2] <= y) {
+            self.active.push(k);
+            self.next += 1;
+            added = true;
+        }
+        let boxes = &self.boxes;
+        self.active.retain(|&k| boxes[k][3] > y);
+        if added {
+            self.active.sort_unstable();
+        }
+        let halo_w = halo_width(style.radius_px);
+        let r = style.radius_px;
+        let MarkerRows { active, boxes, weights, width, .. } = self;
+        for &k in active.iter() {
+            let (m, [x0, x1, ..]) = (markers[k], boxes[k]);
+            let x1 = x1.min(*width).max(x0);
+            // The marker's weights along the row first (a loop the compiler vectorises), then
+            // the blend: the same operations per pixel as drawing it pixel by pixel.
+            weights.clear();
+            weights.extend((x0..x1).map(|x| {
+                let (dx, dy) = (x as f32 + 0.5 - m[0], y as f32 + 0.5 - m[1]);
+                let d = (dx * dx + dy * dy).sqrt();
+                let cover = smoothstep(r + 0.8, r - 0.8, d) * style.opacity;
+                let ring = smoothstep(r + halo_w + 0.5, r + 0.5, d) - cover;
+                let fall = 1.0 - 0.12 * (d / r).min(1.0).powi(2);
+                [1.0 + style.halo * ring.max(0.0), cover, fall]
+            }));
+            for (px, &[gain, cover, fall]) in row[3 * x0..3 * x1].chunks_exact_mut(3).zip(weights.iter()) {
+                for (v, &rgb) in px.iter_mut().zip(&style.rgb) {
+                    let p = *v * gain;
+                    *v = p + (rgb * fall - p) * cover;
+                }
             }
         }
     }
 }
 
-/// Draws disc markers with soft edges and a halo ring.
-#[allow(clippy::too_many_arguments)]
-pub fn draw_markers(
-    buf: &mut [f32],
-    width: usize,
-    height: usize,
-    markers: &[[f32; 2]],
-    rgb: [f32; 3],
-    opacity: f32,
-    radius_px: f32,
-    halo: f32,
-) {
-    let halo_w = (radius_px * 0.35).max(1.0);
-    let reach = radius_px + halo_w + 1.0;
-    for m in markers {
-        let (x0, x1) = ((m[0] - reach).floor().max(0.0) as usize, ((m[0] + reach).ceil().max(0.0) as usize).min(width));
-        let (y0, y1) = ((m[1] - reach).floor().max(0.0) as usize, ((m[1] + reach).ceil().max(0.0) as usize).min(height));
-        for y in y0..y1 {
-            for x in x0..x1 {
-                let (dx, dy) = (x as f32 + 0.5 - m[0], y as f32 + 0.5 - m[1]);
-                let d = (dx * dx + dy * dy).sqrt();
-                let i = (y * width + x) * 3;
-                let cover = smoothstep(radius_px + 0.8, radius_px - 0.8, d) * opacity;
-                let ring = smoothstep(radius_px + halo_w + 0.5, radius_px + 0.5, d) - cover;
-                let fall = 1.0 - 0.12 * (d / radius_px).min(1.0).powi(2);
-                for c in 0..3 {
-                    let p = buf[i + c] * (1.0 + halo * ring.max(0.0));
-                    buf[i + c] = p + (rgb[c] * fall - p) * cover;
-                }
-            }
-        }
-    }
+/// Width of the halo ring around a marker of `radius_px`, px.
+fn halo_width(radius_px: f32) -> f32 {
+    (radius_px * 0.35).max(1.0)
 }
 
 /// See-through: the object under a transparent skin, bright where it presses, faint where a
-/// small gap is left, with the glow it scatters into the skin (`glow` is 0..1 on cells).
+/// small gap is left, with the glow it scatters into the skin. This is row `y` of it: first the
+/// glow (`glow` is 0..1 on cells), then the object itself with its visibility `vis` (the row of
+/// [`visibility`], `None` where it is zero).
 ///
 /// The object is seen through about a millimetre of elastomer, which scatters: its outline is
-/// softened over `edge_blur_px`. `skin_lum`, when given, is the skin's luminance smoothed over
-/// a few marker widths (a measured look): whatever sits in front of the object in the skin
-/// (markers, dust) keeps its share `lum / skin_lum` of the light, so dark pins stay visible
-/// over the object as they do on the real sensors.
+/// softened (see [`visibility`]). `transmit`, for a measured look, is the share of light that
+/// whatever sits in front of the object in the skin (markers, dust) lets through, per pixel
+/// ([`transmit_row`]): dark pins stay visible over the object as they do on the real sensors.
+/// Outside the field of view (`fov_row` 0, and outside `span`) glow and object add nothing.
 #[allow(clippy::too_many_arguments)]
-pub fn see_through(
-    buf: &mut [f32],
-    depth: &DepthMap,
-    fov: &[f32],
-    fov_span: &[(usize, usize)],
+#[inline(always)]
+pub fn see_through_row(
+    row: &mut [f32],
+    y: usize,
+    glow: &CellField,
+    cols: &[CellColumn],
+    sampler: &mut RowSampler,
+    vis: Option<&[f32]>,
+    fov_row: &[f32],
+    span: (usize, usize),
     object_rgb: [f32; 3],
     glow_rgb: [f32; 3],
-    glow: &CellField,
-    gap_mm: f32,
-    edge_blur_px: f32,
-    skin_lum: Option<&[f32]>,
+    transmit: Option<&[f32]>,
 ) {
-    let (w, h) = (depth.width as usize, depth.height as usize);
-    let transmit: Option<Vec<f32>> = skin_lum
-        .filter(|l| l.len() == w * h)
-        .map(|l| buf.chunks_exact(3).zip(l).map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 }).collect());
-    let t_at = |i: usize| transmit.as_ref().map(|t| t[i]).unwrap_or(1.0);
+    let t_at = |x: usize| transmit.map_or(1.0, |t| t[x]);
     let glow_strength = 0.75;
-    // Outside the field of view (`fov` 0) glow and object add nothing (their weight is 0).
-    let span = |y: usize| fov_span.get(y).copied().unwrap_or((0, w));
-    glow.for_each_pixel_within(w, h, 0.0, span, |i, g| {
-        let a = (g * glow_strength * fov[i]).min(1.0);
-        let t = t_at(i);
-        for c in 0..3 {
-            let p = &mut buf[i * 3 + c];
-            *p += (glow_rgb[c] * t - *p) * a;
-        }
-    });
-    // Visibility of the object per pixel, then softened by the scattering of the skin.
-    VIS.with(|vis| {
-        let mut vis = vis.borrow_mut();
-        let mut field = CellField { w, h, cell_px: 1, v: std::mem::take(&mut *vis) };
-        // Visibility is 0 wherever the object is farther than the gap: fill, then compute
-        // only the rows and columns of the nearer pixels.
-        field.v.clear();
-        field.v.resize(w * h, 0.0);
-        // A NaN height goes through `smoothstep`, as it always has.
-        let near = |d: f32| d > -gap_mm || d.is_nan();
-        let mut any = false;
-        for (row, out) in depth.height_mm.chunks_exact(w.max(1)).zip(field.v.chunks_exact_mut(w.max(1))) {
-            // Most rows hold no near pixel: find out without an early exit (vectorised).
-            if !row.iter().fold(false, |any, &d| any | near(d)) {
-                continue;
-            }
-            let (Some(first), Some(last)) = (row.iter().position(|&d| near(d)), row.iter().rposition(|&d| near(d))) else {
-                continue;
-            };
-            for (v, &d) in out[first..=last].iter_mut().zip(&row[first..=last]) {
-                *v = if near(d) { smoothstep(-gap_mm, 0.0, d) } else { 0.0 };
-                any |= *v != 0.0;
-            }
-        }
-        if any {
-            field.blur(edge_blur_px.round().max(0.0) as usize, 2);
-            for (y, row) in field.v.chunks_exact(w).enumerate() {
-                if row.iter().fold(true, |none, &v| none & (v <= 0.0)) {
-                    continue;
-                }
-                let (start, end) = span(y);
-                for (x, &v) in row.iter().enumerate().take(end).skip(start) {
-                    if v <= 0.0 {
-                        continue;
-                    }
-                    let i = y * w + x;
-                    let a = v * v * 0.97 * fov[i];
-                    let t = t_at(i);
+    if let Some(SampledRow { first, last, ty, top, bottom }) = sampler.row(glow, cols, y, 0.0, span) {
+        let pixels =
+            row[3 * first..3 * last].chunks_exact_mut(3).zip(&top[first..last]).zip(&bottom[first..last]).zip(&fov_row[first..last]);
+        match transmit {
+            // Without a measured look every pixel lets all light through (t = 1): the same
+            // blend, in a loop the compiler vectorises.
+            None => {
+                for (((p, &a), &b), &fov) in pixels {
+                    let g = a + (b - a) * ty;
+                    let alpha = (g * glow_strength * fov).min(1.0);
                     for c in 0..3 {
-                        let p = &mut buf[i * 3 + c];
-                        *p += (object_rgb[c] * (0.8 + 0.2 * v) * t - *p) * a;
+                        p[c] += (glow_rgb[c] - p[c]) * alpha;
                     }
                 }
             }
-        }
-        *vis = field.v;
-    });
-}
-
-thread_local! {
-    /// The see-through visibility plane, reused from frame to frame on this thread.
-    static VIS: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
-}
-
-/// Shading: brightness follows the slope of the skin towards the light. `indent` is in mm,
-/// `px_per_mm` converts its gradient to a slope.
-pub fn shading(buf: &mut [f32], width: usize, height: usize, indent: &CellField, px_per_mm: f32, light: [f32; 2], gain: f32) {
-    // Precompute the shading factor per cell, then sample it per pixel.
-    let c = indent.cell_px as f32;
-    let mut factor = indent.clone();
-    for cy in 0..indent.h {
-        for cx in 0..indent.w {
-            let g = indent.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
-            let slope = [g[0] * px_per_mm, g[1] * px_per_mm];
-            factor.v[cy * indent.w + cx] = (gain * (slope[0] * light[0] + slope[1] * light[1])).clamp(-0.3, 0.3);
+            Some(t) => {
+                for ((((p, &a), &b), &fov), &t) in pixels.zip(&t[first..last]) {
+                    let g = a + (b - a) * ty;
+                    let alpha = (g * glow_strength * fov).min(1.0);
+                    for c in 0..3 {
+                        p[c] += (glow_rgb[c] * t - p[c]) * alpha;
+                    }
+                }
+            }
         }
     }
-    factor.for_each_pixel(width, height, 0.0, |i, f| {
+    let Some(vis) = vis else { return };
+    // The pixels the object shows through: visibility above 0 (or NaN, which is not below).
+    let shows = |v: &f32| v.is_nan() || *v > 0.0;
+    let (start, end) = (span.0, span.1.min(vis.len()));
+    let (Some(first), Some(last)) = (vis[start.min(end)..end].iter().position(shows), vis[start.min(end)..end].iter().rposition(shows))
+    else {
+        return;
+    };
+    let (first, last) = (start + first, start + last + 1);
+    // Branch-free: a pixel that does not show keeps its value (the blend's result is dropped).
+    let pixels = row[3 * first..3 * last].chunks_exact_mut(3).zip(&vis[first..last]).zip(&fov_row[first..last]);
+    for (x, ((p, &v), &fov)) in (first..).zip(pixels) {
+        let a = v * v * 0.97 * fov;
+        let t = t_at(x);
+        let seen = shows(&v);
+        for c in 0..3 {
+            let blended = p[c] + (object_rgb[c] * (0.8 + 0.2 * v) * t - p[c]) * a;
+            p[c] = if seen { blended } else { p[c] };
+        }
+    }
+}
+
+/// For a measured look: the share of light each pixel of `row` keeps over the skin's smoothed
+/// luminance `skin_lum` (its pins and dust darker than the skin), into `out`.
+#[inline(always)]
+pub fn transmit_row(row: &[f32], skin_lum: &[f32], out: &mut Vec<f32>) {
+    out.clear();
+    out.extend(row.chunks_exact(3).zip(skin_lum).map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 }));
+}
+
+/// The visibility of the object through the skin per pixel, into `band`: 1 where it presses,
+/// falling to 0 at `gap_mm` below the skin, blurred over `edge_blur_px` by the scattering of
+/// the skin (two box passes with the edge repeated). Only the rows near the object are worked
+/// on ([`RowBand`]). False when the object is nowhere near the skin (then `band` holds nothing
+/// of use). `band` and `scratch` are buffers reused from frame to frame.
+pub fn visibility(
+    depth: &DepthMap,
+    gap_mm: f32,
+    edge_blur_px: f32,
+    near_rows: std::ops::Range<usize>,
+    band: &mut RowBand,
+    scratch: &mut RowBand,
+) -> bool {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    if w == 0 || depth.height_mm.len() != w * h || near_rows.is_empty() {
+        return false;
+    }
+    let near = |d: f32| is_near(d, gap_mm);
+    let lines = || depth.height_mm.chunks_exact(w);
+    let top = near_rows.start;
+    let rows = band.reset(w, h, top, near_rows.len());
+    let mut any = false;
+    for (row, out) in lines().skip(top).zip(rows.chunks_exact_mut(w)) {
+        let (Some(first), Some(last)) = (row.iter().position(|&d| near(d)), row.iter().rposition(|&d| near(d))) else {
+            continue;
+        };
+        for (v, &d) in out[first..=last].iter_mut().zip(&row[first..=last]) {
+            *v = if near(d) { smoothstep(-gap_mm, 0.0, d) } else { 0.0 };
+            any |= *v != 0.0;
+        }
+    }
+    if any {
+        band.blur_replicate(edge_blur_px.round().max(0.0) as usize, 2, scratch);
+    }
+    any
+}
+
+/// True for a height less than `gap_mm` below the skin (a NaN height too: it goes through the
+/// stages as it always has).
+fn is_near(d: f32, gap_mm: f32) -> bool {
+    d > -gap_mm || d.is_nan()
+}
+
+/// The rows of `depth` holding a height less than `gap_mm` (at least 0) below the skin, as
+/// `first..last + 1` (empty when there is none): every positive height lies in them. The one
+/// scan of the whole depth map a frame makes.
+pub fn near_rows(depth: &DepthMap, gap_mm: f32) -> std::ops::Range<usize> {
+    let w = depth.width as usize;
+    if w == 0 || depth.height_mm.len() != w * depth.height as usize {
+        return 0..0;
+    }
+    // Most rows hold no near pixel: find out without an early exit (vectorised).
+    let has_near = |row: &[f32]| row.iter().fold(false, |any, &d| any | is_near(d, gap_mm));
+    let mut lines = depth.height_mm.chunks_exact(w);
+    match (lines.position(has_near), lines.rposition(has_near)) {
+        (Some(first), Some(last)) => first..first + last + 2,
+        (Some(first), None) => first..first + 1,
+        _ => 0..0,
+    }
+}
+
+/// Shading: brightness follows the slope of the skin towards the light. The factor per cell
+/// (added to 1) from `indent` (mm); `px_per_mm` converts its gradient to a slope.
+pub fn shading_factor(indent: &CellField, px_per_mm: f32, light: [f32; 2], gain: f32) -> CellField {
+    let mut factor = indent.clone();
+    indent.for_each_cell_gradient(|cx, cy, g| {
+        let slope = [g[0] * px_per_mm, g[1] * px_per_mm];
+        factor.v[cy * indent.w + cx] = (gain * (slope[0] * light[0] + slope[1] * light[1])).clamp(-0.3, 0.3);
+    });
+    factor
+}
+
+/// Shading of row `y`: each pixel times one plus the factor sampled there.
+#[inline(always)]
+pub fn shade_row(row: &mut [f32], y: usize, factor: &CellField, cols: &[CellColumn]) {
+    factor.for_each_pixel_in_row(cols, y, 0.0, (0, cols.len()), |x, f| {
         let k = 1.0 + f;
         for ch in 0..3 {
-            buf[i * 3 + ch] *= k;
+            row[x * 3 + ch] *= k;
         }
     });
 }
@@ -460,12 +685,28 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
     }
 }
 
-/// Vignetting: multiply by the precomputed radial gain.
-pub fn vignetting(buf: &mut [f32], gain: &[f32]) {
-    for (px, &g) in buf.chunks_exact_mut(3).zip(gain) {
-        px[0] *= g;
-        px[1] *= g;
-        px[2] *= g;
+/// Vignetting: multiply each pixel of `px` by its precomputed radial gain.
+#[inline(always)]
+pub fn vignetting(px: &mut [f32], gain: &[f32]) {
+    for (p, &g) in px.chunks_exact_mut(3).zip(gain) {
+        p[0] *= g;
+        p[1] *= g;
+        p[2] *= g;
+    }
+}
+
+/// The 8-bit values of `px` into `out`: `(v + 0.5) as u8`, which rounds and saturates (NaN to
+/// 0), written as a clamp to `[0, 255]` and a truncation so that it vectorises (the same bytes
+/// for every `f32`).
+#[inline(always)]
+pub fn to_bytes(px: &[f32], out: &mut [u8]) {
+    for (o, &v) in out.iter_mut().zip(px) {
+        let x = v + 0.5;
+        // Both comparisons are false for NaN, which becomes 0.
+        let x = if x >= 0.0 { x } else { 0.0 };
+        let x = if x <= 255.0 { x } else { 255.0 };
+        // SAFETY: `x` lies in [0, 255], where the conversion is exact truncation.
+        *o = unsafe { x.to_int_unchecked::<i32>() } as u8;
     }
 }
 
@@ -478,14 +719,17 @@ pub fn mix64(mut z: u64) -> u64 {
 }
 
 /// Sensor noise: luminance noise with a read floor and a shot part growing with brightness,
-/// plus a smaller independent part per channel. Deterministic in `key`.
-pub fn noise(buf: &mut [f32], sigma_levels: f32, key: u64) {
+/// plus a smaller independent part per channel. Deterministic in `key` and each pixel's index
+/// in the frame; `px` holds the pixels from index `first_pixel` on.
+#[inline(always)]
+pub fn noise(px: &mut [f32], first_pixel: usize, sigma_levels: f32, key: u64) {
     // The sum of four uniform bytes has mean 510 and standard deviation ~147.8: a cheap,
     // nearly Gaussian variate.
     const MEAN: f32 = 510.0;
     const INV_SD: f32 = 1.0 / 147.8;
     let base = mix64(key);
-    for (i, px) in buf.chunks_exact_mut(3).enumerate() {
+    for (k, px) in px.chunks_exact_mut(3).enumerate() {
+        let i = first_pixel + k;
         let r = mix64(base ^ (i as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
         let b = r.to_le_bytes();
         let l = (b[0] as f32 + b[1] as f32 + b[2] as f32 + b[3] as f32 - MEAN) * INV_SD;
@@ -550,13 +794,14 @@ mod tests {
     fn noise_is_deterministic_and_zero_mean() {
         let mut a = vec![100.0f32; 3 * 10_000];
         let mut b = a.clone();
-        noise(&mut a, 3.0, 7);
-        noise(&mut b, 3.0, 7);
+        noise(&mut a, 0, 3.0, 7);
+        noise(&mut b[..3 * 4000], 0, 3.0, 7);
+        noise(&mut b[3 * 4000..], 4000, 3.0, 7);
         assert_eq!(a, b);
         let mean = a.iter().sum::<f32>() / a.len() as f32;
         assert!((mean - 100.0).abs() < 0.2, "{mean}");
         let mut c = vec![100.0f32; 3 * 10_000];
-        noise(&mut c, 3.0, 8);
+        noise(&mut c, 0, 3.0, 8);
         assert_ne!(a, c);
     }
 }
