@@ -183,6 +183,15 @@ struct FrameScratch {
     visibility_scratch: RowBand,
 }
 
+/// The buffers and state the rows of one frame share: a measured look's transmission along the
+/// row, the glow sampled along the rows, the visibility band, the markers drawn row by row.
+struct RowWork<'a> {
+    transmit: &'a mut Vec<f32>,
+    sampler: &'a mut RowSampler,
+    visibility: &'a RowBand,
+    markers: Option<&'a mut (&'a Vec<[f32; 2]>, &'a stages::MarkerStyle, MarkerRows)>,
+}
+
 /// What one frame's stages worked out before the pixel rows.
 struct FramePlan {
     /// Where each pixel column samples the frame's cell fields.
@@ -341,14 +350,27 @@ impl SensorSim {
     /// Runs `f` as part of `stage`, timing it when stage timing is on (it has no effect on the
     /// image).
     fn timed<T>(&self, stage: Stage, f: impl FnOnce() -> T) -> T {
-        if !self.timing {
-            return f();
-        }
-        let t = std::time::Instant::now();
+        let t = self.clock();
         let out = f();
-        let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
-        self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
+        self.clocked(stage, t);
         out
+    }
+
+    /// The time now, when stage timing is on. The row code times itself with this and
+    /// [`SensorSim::clocked`] rather than through a closure: a closure is compiled on its own,
+    /// without the AVX2 of the copy of the rows that calls it.
+    #[inline(always)]
+    fn clock(&self) -> Option<std::time::Instant> {
+        self.timing.then(std::time::Instant::now)
+    }
+
+    /// Adds the time since `start` ([`SensorSim::clock`]) to `stage`.
+    #[inline(always)]
+    fn clocked(&self, stage: Stage, start: Option<std::time::Instant>) {
+        if let Some(t) = start {
+            let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            self.nanos[stage.index()].fetch_add(ns, Ordering::Relaxed);
+        }
     }
 
     /// Runs `stage`'s work on the whole frame if the stage is active, counting the run.
@@ -404,21 +426,13 @@ impl SensorSim {
         let row_len = w * 3;
         let style = self.look.markers.map(|m| m.style(look::scale(self.width, self.height)));
         let mut markers = plan.markers.as_ref().zip(style.as_ref()).map(|(m, style)| (m, style, MarkerRows::new(m, w, h, style)));
-        let mut compose = |y: usize, row: &mut [f32]| {
-            self.compose_row(plan, y, row, transmit, glow, visibility);
-            if let Some((m, style, rows)) = markers.as_mut() {
-                rows.draw(row, y, m, style);
-            }
-            if let Some(factor) = &plan.shading {
-                self.timed(Stage::Shading, || stages::shade_row(row, y, factor, &plan.cols));
-            }
-        };
+        let mut rows = RowWork { transmit, sampler: glow, visibility, markers: markers.as_mut() };
         match plan.blur_px {
             Some(len) => {
                 buf.clear();
                 buf.extend_from_slice(&self.fixed.background);
                 for (y, row) in buf.chunks_exact_mut(row_len).enumerate() {
-                    compose(y, row);
+                    self.compose_row(plan, y, row, &mut rows);
                 }
                 self.timed(Stage::MotionBlur, || stages::contact_motion_blur(buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad));
                 for (y, (row, out)) in buf.chunks_exact_mut(row_len).zip(bytes.chunks_exact_mut(row_len)).enumerate() {
@@ -428,10 +442,10 @@ impl SensorSim {
             None => {
                 buf.clear();
                 buf.resize(row_len, 0.0);
-                let rows = self.fixed.background.chunks_exact(row_len).zip(bytes.chunks_exact_mut(row_len));
-                for (y, (background, out)) in rows.enumerate() {
+                let lines = self.fixed.background.chunks_exact(row_len).zip(bytes.chunks_exact_mut(row_len));
+                for (y, (background, out)) in lines.enumerate() {
                     buf.copy_from_slice(background);
-                    compose(y, buf);
+                    self.compose_row(plan, y, buf, &mut rows);
                     self.finish_row(plan, y, buf, out);
                 }
             }
@@ -533,34 +547,39 @@ impl SensorSim {
         }
     }
 
-    /// The stages before the markers on pixel row `y`: a measured look's skin displacement, then
-    /// see-through.
+    /// The stages before motion blur on pixel row `y`: a measured look's skin displacement,
+    /// see-through, the markers, shading.
     #[inline(always)]
-    fn compose_row(
-        &self,
-        plan: &FramePlan,
-        y: usize,
-        row: &mut [f32],
-        transmit: &mut Vec<f32>,
-        sampler: &mut RowSampler,
-        visibility: &RowBand,
-    ) {
+    fn compose_row(&self, plan: &FramePlan, y: usize, row: &mut [f32], work: &mut RowWork<'_>) {
         let (w, h) = (self.width as usize, self.height as usize);
         if let Some(u) = &plan.warp {
-            self.timed(Stage::MarkerDisplacement, || stages::warp_skin_row(row, y, &self.fixed.background, w, h, u));
+            let t = self.clock();
+            stages::warp_skin_row(row, y, &self.fixed.background, w, h, u);
+            self.clocked(Stage::MarkerDisplacement, t);
         }
         if let (Some((glow, seen)), Some(object_rgb)) = (&plan.see_through, self.look.object_rgb) {
-            self.timed(Stage::SeeThrough, || {
-                let lum = self.fixed.skin_lum.as_deref().filter(|l| l.len() == w * h);
-                let transmit = lum.map(|lum| {
-                    stages::transmit_row(row, &lum[y * w..(y + 1) * w], transmit);
-                    &transmit[..]
-                });
-                let span = self.fixed.fov_span.get(y).copied().unwrap_or((0, w));
-                let vis = if *seen { visibility.row(y) } else { None };
-                let fov = &self.fixed.fov[y * w..(y + 1) * w];
-                stages::see_through_row(row, y, glow, &plan.cols, sampler, vis, fov, span, object_rgb, self.look.glow_rgb, transmit);
-            });
+            let t = self.clock();
+            let lum = self.fixed.skin_lum.as_deref().filter(|l| l.len() == w * h);
+            let transmit = match lum {
+                Some(lum) => {
+                    stages::transmit_row(row, &lum[y * w..(y + 1) * w], work.transmit);
+                    Some(&work.transmit[..])
+                }
+                None => None,
+            };
+            let span = self.fixed.fov_span.get(y).copied().unwrap_or((0, w));
+            let vis = if *seen { work.visibility.row(y) } else { None };
+            let fov = &self.fixed.fov[y * w..(y + 1) * w];
+            stages::see_through_row(row, y, glow, &plan.cols, work.sampler, vis, fov, span, object_rgb, self.look.glow_rgb, transmit);
+            self.clocked(Stage::SeeThrough, t);
+        }
+        if let Some((m, style, markers)) = work.markers.as_mut() {
+            markers.draw(row, y, m, style);
+        }
+        if let Some(factor) = &plan.shading {
+            let t = self.clock();
+            stages::shade_row(row, y, factor, &plan.cols);
+            self.clocked(Stage::Shading, t);
         }
     }
 
@@ -570,10 +589,14 @@ impl SensorSim {
     fn finish_row(&self, plan: &FramePlan, y: usize, row: &mut [f32], out: &mut [u8]) {
         let w = self.width as usize;
         if plan.vignette {
-            self.timed(Stage::Vignetting, || stages::vignetting(row, &self.fixed.vignette[y * w..(y + 1) * w]));
+            let t = self.clock();
+            stages::vignetting(row, &self.fixed.vignette[y * w..(y + 1) * w]);
+            self.clocked(Stage::Vignetting, t);
         }
         if let Some(key) = plan.noise_key {
-            self.timed(Stage::Noise, || stages::noise(row, y * w, self.scene.noise_sigma_levels, key));
+            let t = self.clock();
+            stages::noise(row, y * w, self.scene.noise_sigma_levels, key);
+            self.clocked(Stage::Noise, t);
         }
         stages::to_bytes(row, out);
     }

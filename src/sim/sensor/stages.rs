@@ -180,21 +180,20 @@ pub struct CellColumn {
 }
 
 /// A [`CellField`] sampled along pixel rows as [`CellField::for_each_pixel_in_row`] does, with
-/// the interpolation along x of the two cell rows a pixel row lies between kept while the next
-/// pixel rows lie between the same two (a cell is several pixels high), so each pixel costs
-/// one interpolation between two values in memory order.
+/// each cell row interpolated along x once a frame (a cell is several pixels high, and each
+/// pixel row lies between two cell rows), so each pixel costs one interpolation between two
+/// values in memory order.
 #[derive(Debug, Default)]
 pub struct RowSampler {
-    /// The cell rows `top` and `bottom` interpolate, when they are current.
-    cells: Option<(usize, usize)>,
-    top: Vec<f32>,
-    bottom: Vec<f32>,
+    /// Per cell row, its values interpolated at every pixel column, once worked out.
+    along_x: Vec<f32>,
+    done: Vec<bool>,
 }
 
 impl RowSampler {
     /// Forgets the rows kept (call it when the field changes).
     pub fn reset(&mut self) {
-        self.cells = None;
+        self.done.clear();
     }
 
     /// The pixels of row `y` in `span` that [`CellField::for_each_pixel_in_row`] visits, and
@@ -209,16 +208,22 @@ impl RowSampler {
         span: (usize, usize),
     ) -> Option<SampledRow<'a>> {
         let PixelRow { y0, y1, ty, first, last } = field.pixel_row(cols, y, skip_value, span)?;
-        let (r0, r1) = (&field.v[y0 * field.w..(y0 + 1) * field.w], &field.v[y1 * field.w..(y1 + 1) * field.w]);
-        if self.cells != Some((y0, y1)) {
-            let lerp = |r: &[f32], c: &CellColumn| r[c.x0] + (r[c.x1] - r[c.x0]) * c.tx;
-            self.top.clear();
-            self.top.extend(cols.iter().map(|c| lerp(r0, c)));
-            self.bottom.clear();
-            self.bottom.extend(cols.iter().map(|c| lerp(r1, c)));
-            self.cells = Some((y0, y1));
+        let n = cols.len();
+        if self.done.is_empty() {
+            self.done.resize(field.h, false);
+            self.along_x.resize(field.h * n, 0.0);
         }
-        Some(SampledRow { first, last, ty, top: &self.top, bottom: &self.bottom })
+        for cy in [y0, y1] {
+            if !self.done[cy] {
+                let r = &field.v[cy * field.w..(cy + 1) * field.w];
+                for (v, c) in self.along_x[cy * n..(cy + 1) * n].iter_mut().zip(cols) {
+                    *v = r[c.x0] + (r[c.x1] - r[c.x0]) * c.tx;
+                }
+                self.done[cy] = true;
+            }
+        }
+        let (top, bottom) = (&self.along_x[y0 * n..(y0 + 1) * n], &self.along_x[y1 * n..(y1 + 1) * n]);
+        Some(SampledRow { first, last, ty, top, bottom })
     }
 }
 
@@ -233,6 +238,7 @@ pub struct SampledRow<'a> {
     pub bottom: &'a [f32],
 }
 
+#[inline(always)]
 fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
     let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
@@ -403,14 +409,17 @@ impl MarkerRows {
             // The marker's weights along the row first (a loop the compiler vectorises), then
             // the blend: the same operations per pixel as drawing it pixel by pixel.
             weights.clear();
-            weights.extend((x0..x1).map(|x| {
-                let (dx, dy) = (x as f32 + 0.5 - m[0], y as f32 + 0.5 - m[1]);
+            weights.resize(x1 - x0, [0.0; 3]);
+            let dy = y as f32 + 0.5 - m[1];
+            for (k, w) in weights.iter_mut().enumerate() {
+                // Pixel columns are far below 2^24: as i32 they convert exactly, and vectorise.
+                let dx = ((x0 + k) as i32) as f32 + 0.5 - m[0];
                 let d = (dx * dx + dy * dy).sqrt();
                 let cover = smoothstep(r + 0.8, r - 0.8, d) * style.opacity;
                 let ring = smoothstep(r + halo_w + 0.5, r + 0.5, d) - cover;
                 let fall = 1.0 - 0.12 * (d / r).min(1.0).powi(2);
-                [1.0 + style.halo * ring.max(0.0), cover, fall]
-            }));
+                *w = [1.0 + style.halo * ring.max(0.0), cover, fall];
+            }
             for (px, &[gain, cover, fall]) in row[3 * x0..3 * x1].chunks_exact_mut(3).zip(weights.iter()) {
                 for (v, &rgb) in px.iter_mut().zip(&style.rgb) {
                     let p = *v * gain;
