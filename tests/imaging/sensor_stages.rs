@@ -60,6 +60,28 @@ fn a_scene_with_one_stage_runs_only_that_stage() {
     }
 }
 
+/// Stage timing is off unless asked for, and then times every stage that runs (and only
+/// those), without changing the frame.
+#[test]
+fn stage_timing_times_the_stages_that_run() {
+    let depth = pressed(256, 256, PX_PER_MM / 2.0);
+    let plain = sim(SensorKind::ViTacTip, &Stage::ALL);
+    let timed = sim(SensorKind::ViTacTip, &Stage::ALL).with_stage_timing();
+    for key in 0..3 {
+        assert_eq!(plain.render(&depth, &moving(), key), timed.render(&depth, &moving(), key));
+    }
+    let (p, t) = (plain.stage_counts(), timed.stage_counts());
+    for st in Stage::ALL {
+        assert_eq!(p.mean_ms(st), 0.0, "{st} timed without stage timing");
+        assert_eq!(p.get(st), t.get(st), "{st}");
+        if st == Stage::StaleFrame {
+            assert_eq!(t.mean_ms(st), 0.0);
+        } else {
+            assert!(t.mean_ms(st) > 0.0, "{st} ran ({}) but took no time", t.get(st));
+        }
+    }
+}
+
 #[test]
 fn presets_run_what_they_list() {
     let s = SensorSim::new(SensorKind::ViTacTip, Scene::preset("fast").unwrap(), 128, 128, 4.0, 1);

@@ -131,7 +131,14 @@ impl CellField {
     /// [`CellField::columns`]) with the field sampled bilinearly, skipping the pixels whose four
     /// cells are all exactly `skip_value` (they would sample `skip_value`, for which `f` must do
     /// nothing).
-    pub fn for_each_pixel_in_row(&self, cols: &[CellColumn], y: usize, skip_value: f32, span: (usize, usize), mut f: impl FnMut(usize, f32)) {
+    pub fn for_each_pixel_in_row(
+        &self,
+        cols: &[CellColumn],
+        y: usize,
+        skip_value: f32,
+        span: (usize, usize),
+        mut f: impl FnMut(usize, f32),
+    ) {
         let Some(PixelRow { y0, y1, ty, first, last }) = self.pixel_row(cols, y, skip_value, span) else {
             return;
         };
