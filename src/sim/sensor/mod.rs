@@ -176,6 +176,8 @@ struct FrameScratch {
     buf: Vec<f32>,
     /// A measured look's transmission along the current row.
     transmit: Vec<f32>,
+    /// Motion blur's change from the rest frame, and its blur.
+    motion: [Vec<f32>; 2],
     /// The see-through glow sampled along the rows.
     glow: RowSampler,
     /// The see-through visibility band, and its blur's intermediate band.
@@ -421,7 +423,7 @@ impl SensorSim {
     /// Every pixel row through the stages, into `bytes`.
     #[inline(always)]
     fn draw_rows(&self, plan: &FramePlan, motion: &MotionState, bytes: &mut [u8], scratch: &mut FrameScratch) {
-        let FrameScratch { buf, transmit, glow, visibility, .. } = scratch;
+        let FrameScratch { buf, transmit, glow, visibility, motion: blur_scratch, .. } = scratch;
         let (w, h) = (self.width as usize, self.height as usize);
         let row_len = w * 3;
         let style = self.look.markers.map(|m| m.style(look::scale(self.width, self.height)));
@@ -434,7 +436,9 @@ impl SensorSim {
                 for (y, row) in buf.chunks_exact_mut(row_len).enumerate() {
                     self.compose_row(plan, y, row, &mut rows);
                 }
-                self.timed(Stage::MotionBlur, || stages::contact_motion_blur(buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad));
+                self.timed(Stage::MotionBlur, || {
+                    stages::contact_motion_blur(buf, &self.fixed.rest_frame, w, h, len, motion.direction_rad, blur_scratch)
+                });
                 for (y, (row, out)) in buf.chunks_exact_mut(row_len).zip(bytes.chunks_exact_mut(row_len)).enumerate() {
                     self.finish_row(plan, y, row, out);
                 }

@@ -610,12 +610,22 @@ pub fn shade_row(row: &mut [f32], y: usize, factor: &CellField, cols: &[CellColu
 
 /// Motion blur: the mean of the image shifted along `direction_rad` over `length_px`.
 pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f32, direction_rad: f32) {
-    if length_px.is_nan() || length_px < 0.5 || width == 0 || height == 0 {
-        return;
+    let mut out = Vec::new();
+    if motion_blur_into(buf, &mut out, width, height, length_px, direction_rad) {
+        *buf = out;
+    }
+}
+
+/// [`motion_blur`] of `buf` into `out` (resized; its buffer reused). False, and `out` left as it
+/// was, when there is nothing to blur.
+fn motion_blur_into(buf: &[f32], out: &mut Vec<f32>, width: usize, height: usize, length_px: f32, direction_rad: f32) -> bool {
+    if length_px.is_nan() || length_px < 0.5 || width == 0 || height == 0 || buf.len() < width * height * 3 {
+        return false;
     }
     let taps = (length_px.ceil() as usize + 1).clamp(2, 64);
     let (s, c) = direction_rad.sin_cos();
-    let mut out = vec![0.0f32; buf.len()];
+    out.clear();
+    out.resize(buf.len(), 0.0);
     let norm = 1.0 / taps as f32;
     for k in 0..taps {
         let t = (k as f32 / (taps - 1) as f32 - 0.5) * length_px;
@@ -643,7 +653,7 @@ pub fn motion_blur(buf: &mut Vec<f32>, width: usize, height: usize, length_px: f
             }
         }
     }
-    *buf = out;
+    true
 }
 
 /// Changes from the no-contact frame below this many 8-bit levels do not widen the region
@@ -656,7 +666,16 @@ pub const BLUR_IGNORE_LEVELS: f32 = 0.5;
 /// only the box around the change (grown by the streak) is touched. Changes under
 /// [`BLUR_IGNORE_LEVELS`] (the far tails of the glow) do not widen the box: they are too faint
 /// to streak visibly.
-pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: usize, length_px: f32, direction_rad: f32) {
+/// `scratch` holds the change and its blur, reused from frame to frame.
+pub fn contact_motion_blur(
+    buf: &mut [f32],
+    rest: &[f32],
+    width: usize,
+    height: usize,
+    length_px: f32,
+    direction_rad: f32,
+    scratch: &mut [Vec<f32>; 2],
+) {
     if length_px.is_nan() || length_px < 0.5 || rest.len() != buf.len() || buf.len() != width * height * 3 {
         return;
     }
@@ -683,7 +702,9 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
     let m = (length_px / 2.0).ceil() as usize + 1;
     let (x0, y0, x1, y1) = (x0.saturating_sub(m), y0.saturating_sub(m), (x1 + m + 1).min(width), (y1 + m + 1).min(height));
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let mut delta = vec![0.0f32; cw * ch * 3];
+    let [delta, blurred] = scratch;
+    delta.clear();
+    delta.resize(cw * ch * 3, 0.0);
     for y in 0..ch {
         let src = ((y0 + y) * width + x0) * 3..((y0 + y) * width + x1) * 3;
         for ((d, b), r) in delta[y * cw * 3..(y + 1) * cw * 3].iter_mut().zip(&buf[src.clone()]).zip(&rest[src]) {
@@ -692,7 +713,7 @@ pub fn contact_motion_blur(buf: &mut [f32], rest: &[f32], width: usize, height: 
     }
     // The box has a margin of zero change at least half a streak wide wherever it is inside
     // the image, so clamping at its edges reads the same as clamping at the image's.
-    motion_blur(&mut delta, cw, ch, length_px, direction_rad);
+    let delta = if motion_blur_into(delta, blurred, cw, ch, length_px, direction_rad) { blurred } else { delta };
     for y in 0..ch {
         let dst = ((y0 + y) * width + x0) * 3..((y0 + y) * width + x1) * 3;
         for ((b, d), r) in buf[dst.clone()].iter_mut().zip(&delta[y * cw * 3..(y + 1) * cw * 3]).zip(&rest[dst]) {
@@ -801,7 +822,7 @@ mod tests {
             motion_blur(&mut delta, w, h, 9.0, dir);
             let expected: Vec<f32> = rest.iter().zip(&delta).map(|(r, d)| r + d).collect();
             let mut got = buf.clone();
-            contact_motion_blur(&mut got, &rest, w, h, 9.0, dir);
+            contact_motion_blur(&mut got, &rest, w, h, 9.0, dir, &mut Default::default());
             assert!(got.iter().zip(&expected).all(|(a, b)| (a - b).abs() < 1e-3), "direction {dir}");
         }
     }
