@@ -535,7 +535,7 @@ fn sim_calibration(
 /// The depth maps of `object` a simulated sensor renders.
 fn sim_depth_source(object: &ObjectChoice, calib: Calibration, width: u32, height: u32) -> crate::sim::sensor::DepthSource {
     use crate::geometry::raster::{PreparedMesh, RasterScratch, render_depth_into};
-    let mesh = PreparedMesh::new(&object.mesh).sorted_top_down();
+    let mesh = PreparedMesh::for_many_renders(&object.mesh);
     Box::new(move |object_pose: &Pose| {
         let mut depth = crate::geometry::DepthMap::empty(0, 0);
         render_depth_into(&mesh, object_pose, &calib, width, height, 1, &mut RasterScratch::default(), &mut depth);

@@ -109,7 +109,7 @@ fn control_maps(side: u32, repeats: usize) -> Result<ControlMaps, BenchError> {
     use crate::pose::Pose;
     use rayon::prelude::*;
     let mesh = object_mesh("sphere").ok_or(BenchError::Empty { knob: Knob::Loops, reason: "the library has no sphere" })?;
-    let prepared = PreparedMesh::new(&mesh).sorted_top_down();
+    let prepared = PreparedMesh::for_many_renders(&mesh);
     let calib = crate::calibration::Calibration::default_for(side, side);
     let poses: Vec<Pose> = (0..CONTROL_POSES)
         .map(|k| {

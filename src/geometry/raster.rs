@@ -56,13 +56,13 @@ pub fn render_depth(mesh: &Mesh, object_pose: &Pose, calib: &Calibration, width:
     out
 }
 
-/// A mesh ready to be rendered many times: the triangles that can show from above (walls,
-/// whose normal is nearly horizontal, project to slivers whose interpolated heights are
-/// ill-conditioned; the faces around them already cover those pixels) and the mesh's top.
-/// Vertices the triangles share are stored once, so a render projects each once.
+/// A mesh ready to be rendered: the triangles that can show from above (walls, whose normal is
+/// nearly horizontal, project to slivers whose interpolated heights are ill-conditioned; the
+/// faces around them already cover those pixels) and the mesh's top.
+/// [`PreparedMesh::for_many_renders`] also sorts them and stores the vertices they share once.
 #[derive(Debug, Clone)]
 pub struct PreparedMesh {
-    /// The distinct vertices of the kept triangles.
+    /// The corners of the kept triangles.
     vertices: Vec<glam::Vec3>,
     /// Each kept triangle as three indices into `vertices`.
     triangles: Vec<[u32; 3]>,
@@ -70,29 +70,45 @@ pub struct PreparedMesh {
 }
 
 impl PreparedMesh {
-    /// `mesh` without its walls, in its own order.
+    /// `mesh` without its walls, in its own order, each triangle with its own three corners
+    /// (cheap to build: what a single render wants).
     pub fn new(mesh: &Mesh) -> Self {
+        let kept = mesh.triangles.iter().filter(|tri| {
+            let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+            n.z.abs() > 1e-4 * n.length()
+        });
+        let vertices: Vec<glam::Vec3> = kept.flatten().copied().collect();
+        // `Mesh` bounds its triangles far below 2^32 / 3.
+        let triangles = (0..vertices.len() as u32 / 3).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+        Self { vertices, triangles, top_z_mm: mesh.top_z_mm() }
+    }
+
+    /// `mesh` prepared to be drawn many times (the control maps of a dataset, a simulated
+    /// sensor's frames): [`PreparedMesh::new`], sorted top down, with each vertex the triangles
+    /// share stored once, so that a render projects it once. The renders are the same.
+    pub fn for_many_renders(mesh: &Mesh) -> Self {
+        Self::new(mesh).sorted_top_down().with_shared_vertices()
+    }
+
+    /// The same triangles, each vertex they share (equal bits) stored once.
+    fn with_shared_vertices(self) -> Self {
         let mut index = std::collections::HashMap::new();
         let mut vertices = Vec::new();
-        let triangles = mesh
+        let triangles = self
             .triangles
             .iter()
-            .filter(|tri| {
-                let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
-                n.z.abs() > 1e-4 * n.length()
-            })
             .map(|tri| {
-                // Equal bits, one vertex (a mesh holds far fewer than 2^32 vertices: three per
-                // triangle at most, and `Mesh` bounds its triangles).
-                tri.map(|v| {
+                tri.map(|i| {
+                    let v = self.vertices[i as usize];
                     *index.entry(v.to_array().map(f32::to_bits)).or_insert_with(|| {
                         vertices.push(v);
+                        // At most as many as the corners, which fit in u32.
                         (vertices.len() - 1) as u32
                     })
                 })
             })
             .collect();
-        Self { vertices, triangles, top_z_mm: mesh.top_z_mm() }
+        Self { vertices, triangles, top_z_mm: self.top_z_mm }
     }
 
     /// Orders the triangles by their highest vertex, top first. The result of a render does not
@@ -735,7 +751,7 @@ mod tests {
         let mut out = DepthMap::empty(0, 0);
         for name in crate::geometry::shapes::OBJECT_NAMES {
             let mesh = crate::geometry::shapes::object_mesh(name).expect("library object");
-            let prepared = PreparedMesh::new(&mesh).sorted_top_down();
+            let prepared = PreparedMesh::for_many_renders(&mesh);
             for (k, (w, h, ss)) in [(96u32, 80u32, 1u32), (64, 64, 2), (50, 70, 3)].into_iter().enumerate() {
                 let calib = Calibration::default_for(w, h);
                 for pose in [Pose::new(0.0, 0.0, 1.0, 0.0), Pose::new(-3.5, 2.0, 2.5, 37.0 + k as f64), Pose::new(9.0, -1.0, -0.5, -120.0)]
@@ -751,7 +767,7 @@ mod tests {
     #[test]
     fn prepared_mesh_shares_vertices() {
         let mesh = crate::geometry::shapes::object_mesh("sphere").expect("library object");
-        let prepared = PreparedMesh::new(&mesh);
+        let prepared = PreparedMesh::for_many_renders(&mesh);
         // A closed mesh has about half as many vertices as triangles (not three per triangle).
         assert!(prepared.vertices.len() * 5 < prepared.triangles.len() * 3, "{} vertices", prepared.vertices.len());
         let kept: Vec<[Vec3; 3]> = prepared.triangles.iter().map(|t| t.map(|i| prepared.vertices[i as usize])).collect();
@@ -865,7 +881,7 @@ mod tests {
             let expected = render_depth_reference(&mesh, &pose, &calib, size.0, size.1, ss);
             proptest::prop_assert_eq!(&render_depth(&mesh, &pose, &calib, size.0, size.1, ss), &expected);
             let mut out = DepthMap::empty(3, 3);
-            render_depth_into(&PreparedMesh::new(&mesh).sorted_top_down(), &pose, &calib, size.0, size.1, ss, &mut RasterScratch::default(), &mut out);
+            render_depth_into(&PreparedMesh::for_many_renders(&mesh), &pose, &calib, size.0, size.1, ss, &mut RasterScratch::default(), &mut out);
             proptest::prop_assert_eq!(&out, &expected);
         }
     }

@@ -366,7 +366,7 @@ impl ControlRenderer {
     pub fn for_dataset(dir: &Path, manifest: &Manifest, width: u32, height: u32, supersample: u32) -> Result<Self, FillError> {
         let mesh = object_mesh(dir, manifest)?;
         Ok(Self {
-            prepared: PreparedMesh::new(&mesh).sorted_top_down(),
+            prepared: PreparedMesh::for_many_renders(&mesh),
             calibration: calibration_of(dir, manifest, width, height)?,
             contact_depth_mm: manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
             width,
