@@ -191,7 +191,7 @@ struct RowWork<'a> {
     transmit: &'a mut Vec<f32>,
     sampler: &'a mut RowSampler,
     visibility: &'a RowBand,
-    markers: Option<&'a mut (&'a Vec<[f32; 2]>, &'a stages::MarkerStyle, MarkerRows)>,
+    markers: Option<MarkerRows<'a>>,
 }
 
 /// What one frame's stages worked out before the pixel rows.
@@ -427,8 +427,8 @@ impl SensorSim {
         let (w, h) = (self.width as usize, self.height as usize);
         let row_len = w * 3;
         let style = self.look.markers.map(|m| m.style(look::scale(self.width, self.height)));
-        let mut markers = plan.markers.as_ref().zip(style.as_ref()).map(|(m, style)| (m, style, MarkerRows::new(m, w, h, style)));
-        let mut rows = RowWork { transmit, sampler: glow, visibility, markers: markers.as_mut() };
+        let markers = plan.markers.as_deref().zip(style).map(|(m, style)| MarkerRows::new(m, w, h, style));
+        let mut rows = RowWork { transmit, sampler: glow, visibility, markers };
         match plan.blur_px {
             Some(len) => {
                 buf.clear();
@@ -577,8 +577,8 @@ impl SensorSim {
             stages::see_through_row(row, y, glow, &plan.cols, work.sampler, vis, fov, span, object_rgb, self.look.glow_rgb, transmit);
             self.clocked(Stage::SeeThrough, t);
         }
-        if let Some((m, style, markers)) = work.markers.as_mut() {
-            markers.draw(row, y, m, style);
+        if let Some(markers) = work.markers.as_mut() {
+            markers.draw(row, y);
         }
         if let Some(factor) = &plan.shading {
             let t = self.clock();

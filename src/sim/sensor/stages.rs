@@ -355,9 +355,9 @@ pub struct MarkerStyle {
 
 /// Draws `markers` on a whole `width` x `height` frame.
 pub fn draw_markers(buf: &mut [f32], width: usize, height: usize, markers: &[[f32; 2]], style: &MarkerStyle) {
-    let mut rows = MarkerRows::new(markers, width, height, style);
+    let mut rows = MarkerRows::new(markers, width, height, *style);
     for (y, row) in buf.chunks_exact_mut(width * 3).take(height).enumerate() {
-        rows.draw(row, y, markers, style);
+        rows.draw(row, y);
     }
 }
 
@@ -365,7 +365,9 @@ pub fn draw_markers(buf: &mut [f32], width: usize, height: usize, markers: &[[f3
 /// box reaches the row, in marker order (a pixel two markers reach gets them in that order, as
 /// when they are drawn one after the other).
 #[derive(Debug)]
-pub struct MarkerRows {
+pub struct MarkerRows<'a> {
+    markers: &'a [[f32; 2]],
+    style: MarkerStyle,
     /// Per marker, `[x0, x1, y0, y1)`.
     boxes: Vec<[usize; 4]>,
     /// Marker indices by first row.
@@ -377,8 +379,9 @@ pub struct MarkerRows {
     weights: Vec<[f32; 3]>,
 }
 
-impl MarkerRows {
-    pub fn new(markers: &[[f32; 2]], width: usize, height: usize, style: &MarkerStyle) -> Self {
+impl<'a> MarkerRows<'a> {
+    /// `markers` drawn in `style` on rows of a `width` x `height` frame.
+    pub fn new(markers: &'a [[f32; 2]], width: usize, height: usize, style: MarkerStyle) -> Self {
         let reach = style.radius_px + halo_width(style.radius_px) + 1.0;
         let span = |c: f32, n: usize| [(c - reach).floor().max(0.0) as usize, ((c + reach).ceil().max(0.0) as usize).min(n)];
         let boxes: Vec<[usize; 4]> = markers
@@ -390,12 +393,12 @@ impl MarkerRows {
             .collect();
         let mut by_top: Vec<usize> = (0..markers.len()).collect();
         by_top.sort_by_key(|&k| boxes[k][2]);
-        Self { boxes, by_top, next: 0, active: Vec::new(), width, weights: Vec::new() }
+        Self { markers, style, boxes, by_top, next: 0, active: Vec::new(), width, weights: Vec::new() }
     }
 
     /// Draws the markers that reach row `y` (rows must come in increasing order) on `row`.
     #[inline(always)]
-    pub fn draw(&mut self, row: &mut [f32], y: usize, markers: &[[f32; 2]], style: &MarkerStyle) {
+    pub fn draw(&mut self, row: &mut [f32], y: usize) {
         let mut added = false;
         while let Some(&k) = self.by_top.get(self.next).filter(|&&k| self.boxes[k][2] <= y) {
             self.active.push(k);
@@ -407,9 +410,9 @@ impl MarkerRows {
         if added {
             self.active.sort_unstable();
         }
+        let MarkerRows { markers, style, active, boxes, weights, width, .. } = self;
         let halo_w = halo_width(style.radius_px);
         let r = style.radius_px;
-        let MarkerRows { active, boxes, weights, width, .. } = self;
         for &k in active.iter() {
             let (m, [x0, x1, ..]) = (markers[k], boxes[k]);
             let x1 = x1.min(*width).max(x0);
@@ -782,6 +785,77 @@ pub fn noise(px: &mut [f32], first_pixel: usize, sigma_levels: f32, key: u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn values(seed: &mut u64, n: usize) -> Vec<f32> {
+        (0..n)
+            .map(|_| {
+                *seed = mix64(*seed);
+                (*seed % 2001) as f32 / 1000.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// Gradients read from the neighbouring cells equal those sampled one cell either side of
+    /// each centre, for cell sizes and field shapes of every kind, and a field holding a NaN or
+    /// an infinity is sampled.
+    #[test]
+    fn cell_gradients_equal_the_sampled_ones() {
+        let mut seed = 3u64;
+        for (w, h, cell_px) in [(1, 1, 1), (5, 3, 4), (7, 9, 3), (16, 12, 5), (40, 30, 4), (3, 8, 7), (2, 2, 2)] {
+            let mut fields = vec![CellField { w, h, cell_px, v: values(&mut seed, w * h) }];
+            for odd in [f32::NAN, f32::INFINITY] {
+                let mut f = fields[0].clone();
+                f.v[(w * h) / 2] = odd;
+                fields.push(f);
+            }
+            for f in &fields {
+                let c = cell_px as f32;
+                f.for_each_cell_gradient(|cx, cy, g| {
+                    let expected = f.gradient_per_px((cx as f32 + 0.5) * c, (cy as f32 + 0.5) * c);
+                    for k in 0..2 {
+                        assert!(
+                            g[k] == expected[k] || (g[k].is_nan() && expected[k].is_nan()),
+                            "{w}x{h} cell {cell_px} ({cx}, {cy}): {g:?} {expected:?}"
+                        );
+                    }
+                });
+            }
+        }
+    }
+
+    /// The indentation field equals the plain mean of `max(height, 0)` per cell over every row,
+    /// given only the near rows, with NaN and negative heights and sizes that do not divide
+    /// into cells.
+    #[test]
+    fn the_indentation_field_is_the_mean_positive_height_per_cell() {
+        let mut seed = 11u64;
+        for (w, h, cell_px) in [(13usize, 9usize, 4usize), (8, 8, 2), (17, 5, 3), (1, 1, 1), (30, 21, 5)] {
+            let mut height_mm = values(&mut seed, w * h);
+            for (i, v) in height_mm.iter_mut().enumerate() {
+                if i % 7 == 0 {
+                    *v = f32::NAN;
+                } else if i / w < h / 3 {
+                    *v = -2.0;
+                }
+            }
+            let depth = DepthMap { width: w as u32, height: h as u32, height_mm };
+            let (cw, ch) = (w.div_ceil(cell_px), h.div_ceil(cell_px));
+            let mut expected = vec![0.0f32; cw * ch];
+            let mut count = vec![0u32; cw * ch];
+            for (y, row) in depth.height_mm.chunks(w).enumerate() {
+                for (cx, chunk) in row.chunks(cell_px).enumerate() {
+                    expected[(y / cell_px) * cw + cx] += chunk.iter().map(|&d| d.max(0.0)).sum::<f32>();
+                    count[(y / cell_px) * cw + cx] += chunk.len() as u32;
+                }
+            }
+            for (e, &n) in expected.iter_mut().zip(&count) {
+                *e /= n as f32;
+            }
+            let got = CellField::indentation(&depth, cell_px, near_rows(&depth, 0.6));
+            assert_eq!((got.w, got.h), (cw, ch));
+            assert_eq!(got.v, expected, "{w}x{h} cell {cell_px}");
+        }
+    }
 
     #[test]
     fn blur_keeps_the_mean_of_a_flat_field() {
