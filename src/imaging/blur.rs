@@ -1,6 +1,11 @@
 //! Box blur of a scalar map: the mean over a `(2r + 1)`-square window, rows then columns. A
 //! few passes approximate a Gaussian (three passes of radius `r` spread a point by
 //! `sqrt(r (r + 1))`).
+//!
+//! With the edge values repeated ([`BoxBorder::Replicate`]) the map is blurred as a
+//! [`RowBand`]: the zero rows above what is not zero and the run of equal rows below it are not
+//! summed, since the running sums give zeros above and stop changing below; the values are the
+//! whole map's.
 
 /// What the window does where it reaches past the map's edge. The two differ near the edges
 /// and in their rounding; each caller keeps its own so its numbers stay what they were.
@@ -74,11 +79,12 @@ thread_local! {
 
 /// One replicating box pass of radius `r` along each `n`-value line of `src`, into `dst`: `d[i]`
 /// is the mean of the line over `i - r ..= i + r` with its end values repeated, as a running
-/// sum (`acc += s[in] - s[out]`), at the cost of the lines' non-zero parts. An all-zero line is written as zeros. Left of a line's first non-zero value
-/// by more than `r` its sums are 0; right of its last by more than `r` they no longer change
-/// (each step adds and removes a zero): those parts are filled, not summed. A line's running
-/// sum is a chain of dependent additions, so eight lines are summed in lockstep, over the span
-/// any of them needs, each with exactly its own operations.
+/// sum (`acc += s[in] - s[out]`), at the cost of the lines' non-zero parts. An all-zero line is
+/// written as zeros. Left of a line's first non-zero value by more than `r` its sums are 0;
+/// right of its last by more than `r` they no longer change (each step adds and removes a
+/// zero): those parts are filled, not summed. A line's running sum is a chain of dependent
+/// additions, so eight lines are summed in lockstep, over the span any of them needs, each with
+/// exactly its own operations.
 fn replicate_lines(src: &[f32], dst: &mut [f32], n: usize, r: usize) {
     if n == 0 {
         return;
