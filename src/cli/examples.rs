@@ -89,6 +89,11 @@ Examples:
   rig synth one --model models/default --control control.png --sensor TacTip --pose 0,0,1,30 --out tactip.png
   rig synth one --model mymodel --control hint.png --prompt hello --init-latents x_T.npy --dump-raw raw.npy --out one.png";
 
+/// `rig synth bench`.
+pub const SYNTH_BENCH: &str = "\
+Examples:
+  rig synth bench --model models/default --control hint.png --prompt \"a tactile image\" --guidance 9 --images 16 --batch 4";
+
 /// `rig synth info`.
 pub const SYNTH_INFO: &str = "\
 Examples:

@@ -145,6 +145,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
     };
     crate::jobs::fill::run(&request, &targets, &mut pipeline, &observer, &mut |_| {}, &mut print)?;
     progress.finish_and_clear();
+    println!("timing: {}", pipeline.timing().line());
     Ok(())
 }
 

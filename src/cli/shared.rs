@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args as ClapArgs;
 
+use crate::synth::runtime::{ArenaExtend, ConvSearch, CudaOptions};
 use crate::synth::{ExecutionProviderKind, ImageRange, RuntimeOptions, SchedulerKind};
 
 /// Sampling settings, the same flags in every synth mode. Each one left out takes the model
@@ -49,11 +50,49 @@ pub struct RuntimeArgs {
     /// CPU threads per model (default: ONNX Runtime's choice).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// GPU index for --provider cuda or tensorrt.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub device_id: i32,
+    /// cuDNN's convolution algorithm search (cuda): exhaustive (ONNX Runtime's default; the
+    /// slowest first step), heuristic, or default (no search, least memory).
+    #[arg(long, value_enum, value_name = "SEARCH")]
+    pub cudnn_conv_search: Option<ConvSearch>,
+    /// How the CUDA memory arena grows: next-power-of-two (ONNX Runtime's default) or
+    /// same-as-requested.
+    #[arg(long, value_enum, value_name = "STRATEGY")]
+    pub arena_extend: Option<ArenaExtend>,
+    /// Limit of the CUDA memory arena, MiB.
+    #[arg(long, value_name = "MIB")]
+    pub gpu_mem_limit_mib: Option<usize>,
+    /// Folder for TensorRT's engine and timing caches (--provider tensorrt; untested).
+    #[arg(long, value_name = "DIR")]
+    pub trt_engine_cache: Option<PathBuf>,
+    /// Run classifier-free guidance as two passes a step (unconditioned, conditioned) instead
+    /// of one batch of two (what a package whose graphs take a fixed batch of 1 gets anyway).
+    #[arg(long)]
+    pub two_pass_guidance: bool,
+    /// Copy every tensor in and out of each model call instead of binding them (I/O binding
+    /// keeps the ControlNet's residuals on the device); for comparisons.
+    #[arg(long)]
+    pub no_io_binding: bool,
 }
 
 impl RuntimeArgs {
     pub fn options(&self) -> RuntimeOptions {
-        RuntimeOptions { ort_lib: self.ort_lib.clone(), provider: self.provider, intra_threads: self.threads }
+        RuntimeOptions {
+            ort_lib: self.ort_lib.clone(),
+            provider: self.provider,
+            intra_threads: self.threads,
+            cuda: CudaOptions {
+                device_id: self.device_id,
+                conv_search: self.cudnn_conv_search,
+                arena_extend: self.arena_extend,
+                mem_limit_bytes: self.gpu_mem_limit_mib.map(|m| m.saturating_mul(1 << 20)),
+            },
+            trt_engine_cache: self.trt_engine_cache.clone(),
+            force_two_pass: self.two_pass_guidance,
+            without_io_binding: self.no_io_binding,
+        }
     }
 }
 

@@ -6,7 +6,6 @@
 //! integrator wires it on top of [`rig::synth`](crate::synth), the dataset and geometry modules.
 
 use std::path::PathBuf;
-use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::{Args as ClapArgs, Subcommand};
@@ -36,7 +35,43 @@ pub enum SynthCommand {
     /// Show a model package: config, tensors, hash.
     #[command(after_help = crate::cli::examples::SYNTH_INFO)]
     Info(InfoArgs),
+    /// Time a package: load, warm-up (first step) and steady state per image, over N images
+    /// made in batches as a fill makes them (scripts/gpu-bench-rig.sh runs it per guidance).
+    #[command(after_help = crate::cli::examples::SYNTH_BENCH)]
+    Bench(Box<BenchArgs>),
 }
+
+/// `rig synth bench`.
+#[derive(Debug, ClapArgs)]
+pub struct BenchArgs {
+    /// Model package directory.
+    #[arg(long, value_name = "DIR")]
+    pub model: PathBuf,
+    /// Control (hint) image.
+    #[arg(long, value_name = "PNG")]
+    pub control: PathBuf,
+    #[arg(long)]
+    pub prompt: String,
+    #[command(flatten)]
+    pub sampling: SamplingArgs,
+    /// Initial latents for every image, float32 .npy [1, C, H/8, W/8] (default: seeds 0, 1, ...).
+    #[arg(long, value_name = "FILE.npy")]
+    pub init_latents: Option<PathBuf>,
+    /// Images to make.
+    #[arg(long, default_value_t = 8)]
+    pub images: usize,
+    /// Images per model call, as `--fill-missing --batch`.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Also print the timing as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub runtime: RuntimeArgs,
+}
+
+/// Most images one `rig synth bench` makes.
+const MAX_BENCH_IMAGES: usize = 1024;
 
 /// `rig synth one`.
 #[derive(Debug, ClapArgs)]
@@ -102,6 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
         Some(SynthCommand::One(one)) => run_one(*one),
         Some(SynthCommand::Info(info)) => run_info(info),
+        Some(SynthCommand::Bench(bench)) => run_bench(*bench),
         None => super::fill::run(args.fill),
     }
 }
@@ -137,9 +173,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
         None => None,
     };
-    let t0 = Instant::now();
     let mut pipeline = load(&args.model, &args.runtime)?;
-    let load_s = t0.elapsed().as_secs_f64();
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
     let s = &args.sampling;
     let Sampling { steps, guidance, sampler: scheduler, eta } =
@@ -158,9 +192,8 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         size: args.size,
         keep_step_latents: false,
     };
-    let t1 = Instant::now();
     let out = pipeline.generate(&request).context("synthesising the image")?;
-    let gen_s = t1.elapsed().as_secs_f64();
+    let timing = pipeline.timing();
     out.to_rgb8(s.image_range).save(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
     if let Some(path) = &args.dump_raw {
         out.raw.write(path).with_context(|| format!("writing {}", path.display()))?;
@@ -168,8 +201,10 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let (w, h) = out.image.dimensions();
     println!("prompt: {prompt}");
     println!(
-        "wrote {} ({w}x{h}) in {gen_s:.2} s (+{load_s:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}{}",
+        "wrote {} ({w}x{h}) in {:.2} s (+{:.2} s loading): {} steps {}, guidance {}, eta {}, seed {}{}",
         args.out.display(),
+        timing.generate_s,
+        timing.load_s,
         steps,
         scheduler,
         guidance,
@@ -180,6 +215,7 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.dump_raw {
         println!("raw decoder output (NHWC float32): {}", path.display());
     }
+    println!("timing: {}", timing.line());
     println!(
         "package {} sha256 {}; ONNX Runtime {} ({})",
         pipeline.package().config.name,
@@ -187,6 +223,80 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         pipeline.library().display(),
         args.runtime.provider
     );
+    Ok(())
+}
+
+fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
+    if args.images == 0 || args.images > MAX_BENCH_IMAGES {
+        bail!(crate::cli::usage(&format!("--images must be 1 to {MAX_BENCH_IMAGES}; got {}", args.images)));
+    }
+    crate::synth::limits::check_batch(args.batch)?;
+    if let Some(g) = args.sampling.guidance {
+        crate::synth::limits::check_guidance(g)?;
+    }
+    if let Some(eta) = args.sampling.eta {
+        crate::synth::limits::check_eta(eta)?;
+    }
+    crate::synth::limits::check_conditioning_scale(args.sampling.conditioning_scale)?;
+    let control = crate::dataset::durable::decode_image(
+        &crate::untrusted::read_bytes(&args.control, crate::dataset::durable::MAX_IMAGE_BYTES)
+            .with_context(|| format!("reading control image {}", args.control.display()))?,
+    )
+    .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?
+    .to_rgb8();
+    let init = match &args.init_latents {
+        Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
+        None => None,
+    };
+    let mut pipeline = load(&args.model, &args.runtime)?;
+    let s = &args.sampling;
+    let Sampling { steps, guidance, sampler, eta } = pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, s.eta, ONE_FALLBACK);
+    let requests: Vec<GenerateRequest> = (0..args.images)
+        .map(|i| GenerateRequest {
+            control: &control,
+            prompt: &args.prompt,
+            negative_prompt: "",
+            steps,
+            guidance,
+            eta,
+            seed: i as u64,
+            scheduler: sampler,
+            conditioning_scale: s.conditioning_scale,
+            init_latents: init.as_ref().map(|a| a.data.as_slice()),
+            size: None,
+            keep_step_latents: false,
+        })
+        .collect();
+    for chunk in requests.chunks(args.batch) {
+        pipeline.generate_batch(chunk).context("synthesising")?;
+    }
+    let t = pipeline.timing();
+    let (w, h) = pipeline.resolution();
+    println!(
+        "{} images {w}x{h} in batches of {}, {steps} steps {sampler}, guidance {guidance}, provider {}: {}",
+        args.images,
+        args.batch,
+        args.runtime.provider,
+        t.line()
+    );
+    println!("guidance     {}", pipeline.guidance_passes());
+    if args.json {
+        let json = serde_json::json!({
+            "model": pipeline.package().dir.display().to_string(),
+            "provider": args.runtime.provider.to_string(),
+            "size_px": [w, h],
+            "steps": steps,
+            "guidance": guidance,
+            "images": t.images,
+            "batch": args.batch,
+            "io_binding": pipeline.io_binding(),
+            "load_s": t.load_s,
+            "warmup_s": t.warmup_s,
+            "generate_s": t.generate_s,
+            "steady_s_per_image": t.steady_per_image_s(),
+        });
+        println!("{json}");
+    }
     Ok(())
 }
 
@@ -210,6 +320,15 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
     println!("sha256       {}", pipeline.package_hash());
     println!("runtime      {} (from {}; provider {})", pipeline.library().display(), pipeline.library_origin(), args.runtime.provider);
     println!("sizes        multiples of {} px, at most {} px a side", pipeline.size_multiple(), crate::synth::limits::MAX_SIDE_PX);
+    println!("guidance     {}", pipeline.guidance_passes());
+    println!(
+        "step tensors {}",
+        if pipeline.io_binding() {
+            "I/O binding: embeddings and control image bound once a batch, the ControlNet's residuals passed to the UNet on the device, latents copied each step"
+        } else {
+            "copied in and out of every model call (--no-io-binding)"
+        }
+    );
     Ok(())
 }
 

@@ -38,7 +38,7 @@ pub mod text;
 
 use std::path::PathBuf;
 
-pub use pipeline::{GenerateOutput, GenerateRequest, ImageRange, Pipeline};
+pub use pipeline::{GenerateOutput, GenerateRequest, ImageRange, Pipeline, SynthTiming};
 pub use runtime::{ExecutionProviderKind, RuntimeOptions};
 pub use scheduler::SchedulerKind;
 

@@ -17,17 +17,21 @@
 //! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`. [`raw_to_rgb8`] also
 //! maps it the way MultiDiffSense saves images ([`ImageRange::MinMax`]).
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use image::RgbImage;
-use ort::session::Session;
+use ort::session::{IoBinding, Session};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::{Rng, SeedableRng};
 
 use super::SynthError;
 use super::npy::NpyArray;
 use super::package::{Accept, ModelIo, ModelPackage, TensorSpec};
-use super::runtime::{Inputs, Runtime, RuntimeOptions, f32_value, init_runtime, number_value, run_f32};
+use super::runtime::{
+    Inputs, Runtime, RuntimeOptions, device_memory, f32_tensor, f32_value, host_memory, init_runtime, number_tensor, number_value, run_f32,
+};
 use super::scheduler::{Scheduler, SchedulerKind};
 use super::text::TextEncoder;
 
@@ -165,6 +169,79 @@ pub struct Pipeline {
     /// Width and height must be multiples of this many pixels (see [`Pipeline::size_multiple`]).
     size_multiple: u32,
     hash: String,
+    /// The batch the ControlNet's and UNet's `sample` inputs declare, where fixed.
+    fixed_batch: Option<usize>,
+    opts: RuntimeOptions,
+    timing: SynthTiming,
+}
+
+/// Where the time of a process's synthesis went: loading, the first step's extra cost, and
+/// the steady state per image.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SynthTiming {
+    /// [`Pipeline::load`]: the library, the four sessions, the checks, the package hash, s.
+    pub load_s: f64,
+    /// What the process's first denoising step cost beyond the median of the other steps of
+    /// its batch (kernel selection, memory arenas, cuDNN's algorithm search), s.
+    pub warmup_s: f64,
+    /// Images made so far.
+    pub images: usize,
+    /// Wall time of all generate calls so far (warm-up included), s.
+    pub generate_s: f64,
+}
+
+impl SynthTiming {
+    /// The steady-state time per image: all generating time less the warm-up, per image.
+    pub fn steady_per_image_s(&self) -> Option<f64> {
+        (self.images > 0).then(|| (self.generate_s - self.warmup_s).max(0.0) / self.images as f64)
+    }
+
+    /// `load 1.23 s, warm-up 0.40 s (first step), 0.50 s an image steady state (16 images)`.
+    pub fn line(&self) -> String {
+        let steady = match self.steady_per_image_s() {
+            Some(s) => format!("{s:.3} s an image steady state ({} image{})", self.images, if self.images == 1 { "" } else { "s" }),
+            None => "no image yet".to_string(),
+        };
+        format!("load {:.2} s, warm-up {:.3} s (first step), {steady}", self.load_s, self.warmup_s)
+    }
+}
+
+/// The inputs one step's session calls share: text embeddings `[batch, seq_len, hidden]` and
+/// control images `[batch, 3, h, w]`, and the sizes.
+struct StepShape<'a> {
+    ehs: &'a [f32],
+    hint: &'a [f32],
+    seq_len: usize,
+    hidden: usize,
+    channels: usize,
+    latent_hw: (usize, usize),
+    image_hw: (usize, usize),
+    conditioning_scale: f32,
+}
+
+impl StepShape<'_> {
+    fn latent_len(&self) -> usize {
+        self.channels * self.latent_hw.0 * self.latent_hw.1
+    }
+    fn latent_shape(&self, rows: usize) -> [usize; 4] {
+        [rows, self.channels, self.latent_hw.0, self.latent_hw.1]
+    }
+    fn ehs_rows(&self, r: &Range<usize>) -> &[f32] {
+        let len = self.seq_len * self.hidden;
+        &self.ehs[r.start * len..r.end * len]
+    }
+    fn hint_rows(&self, r: &Range<usize>) -> &[f32] {
+        let len = 3 * self.image_hw.0 * self.image_hw.1;
+        &self.hint[r.start * len..r.end * len]
+    }
+}
+
+/// One call's I/O bindings: text embeddings, control image and conditioning scale bound once
+/// per batch; the ControlNet's residuals stay where the ControlNet wrote them (the device)
+/// and are bound straight into the UNet; the UNet's noise estimate comes back to the host.
+struct BoundCall {
+    controlnet: IoBinding,
+    unet: IoBinding,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -183,6 +260,7 @@ impl Pipeline {
     /// Opens the package at `model_dir`, loads ONNX Runtime and the four models, and checks
     /// every model against the package contract.
     pub fn load(model_dir: &Path, opts: &RuntimeOptions) -> Result<Pipeline, SynthError> {
+        let started = Instant::now();
         let package = ModelPackage::open(model_dir)?;
         let runtime = init_runtime(opts)?;
 
@@ -193,6 +271,7 @@ impl Pipeline {
         let controlnet = ModelSession::open(&runtime, &package, "controlnet/model.onnx", opts)?;
         let io = &controlnet.io;
         let sample = io.expect("input", "sample", Accept::Float32, &[4])?;
+        let controlnet_batch = sample.shape[0];
         let latent_channels = if sample.shape[1] > 0 { sample.shape[1] as usize } else { 4 };
         let controlnet_timestep = io.expect("input", "timestep", Accept::Number, &[0, 1])?.clone();
         io.expect("input", "encoder_hidden_states", Accept::Float32, &[3])?;
@@ -212,7 +291,7 @@ impl Pipeline {
 
         let unet = ModelSession::open(&runtime, &package, "unet/model.onnx", opts)?;
         let io = &unet.io;
-        io.expect("input", "sample", Accept::Float32, &[4])?;
+        let unet_batch = io.expect("input", "sample", Accept::Float32, &[4])?.shape[0];
         let unet_timestep = io.expect("input", "timestep", Accept::Number, &[0, 1])?.clone();
         io.expect("input", "encoder_hidden_states", Accept::Float32, &[3])?;
         let n_unet = io.count_numbered("input", "down_block_additional_residual_");
@@ -258,7 +337,20 @@ impl Pipeline {
             });
         }
 
+        // A graph exported with a fixed batch (dimension 0 a number, not a name) takes only
+        // that many rows a call: guidance then runs as two passes.
+        let fixed_batch = [controlnet_batch, unet_batch].into_iter().filter(|&b| b > 0).min().map(|b| b as usize);
+        if let Some(b) = fixed_batch {
+            tracing::info!(
+                controlnet = %controlnet.file.display(),
+                unet = %unet.file.display(),
+                batch = b,
+                "the ControlNet and UNet take a fixed batch: classifier-free guidance runs as two passes a step"
+            );
+        }
+
         let hash = package.content_hash()?;
+        let timing = SynthTiming { load_s: started.elapsed().as_secs_f64(), ..SynthTiming::default() };
         Ok(Pipeline {
             package,
             runtime,
@@ -274,7 +366,37 @@ impl Pipeline {
             latent_channels,
             size_multiple,
             hash,
+            fixed_batch,
+            opts: opts.clone(),
+            timing,
         })
+    }
+
+    /// How classifier-free guidance runs: one batch of two per step, or two passes (where the
+    /// graphs take a fixed batch of 1, or `--two-pass-guidance` asks); `rig synth info` prints it.
+    pub fn guidance_passes(&self) -> String {
+        match (self.fixed_batch, self.opts.force_two_pass) {
+            (Some(1), _) => "two passes a step (the ControlNet and UNet graphs take a fixed batch of 1)".to_string(),
+            (Some(b), _) => format!("calls of {b} rows (the ControlNet and UNet graphs take a fixed batch of {b})"),
+            (None, true) => "two passes a step (--two-pass-guidance)".to_string(),
+            (None, false) => "one batch of two a step, [unconditioned, conditioned] (the graphs' batch is dynamic)".to_string(),
+        }
+    }
+
+    /// Whether the step loop binds its tensors (I/O binding) rather than copying them in and
+    /// out of every session call.
+    pub fn io_binding(&self) -> bool {
+        !self.opts.without_io_binding
+    }
+
+    /// Load, warm-up and steady-state time of this process's synthesis so far.
+    pub fn timing(&self) -> SynthTiming {
+        self.timing
+    }
+
+    /// Rows per ControlNet/UNet call for a step batch of `batch` rows (`2n` with guidance).
+    fn rows_per_call(&self, batch: usize, guided: bool) -> Result<usize, SynthError> {
+        rows_per_call(self.fixed_batch, self.opts.force_two_pass, batch, guided)
     }
 
     /// Width and height of a synthesised image must be multiples of this many pixels: the VAE
@@ -406,8 +528,142 @@ impl Pipeline {
         }
     }
 
+    fn scale_tensor(&self, scale: f32) -> Result<ort::value::Tensor<f32>, SynthError> {
+        if self.conditioning_scale.shape.is_empty() { f32_tensor(&[], &[scale]) } else { f32_tensor(&[1], &[scale]) }
+    }
+
+    fn timestep_tensor(&self, spec: &TensorSpec, t: i64, batch: usize) -> Result<ort::value::DynValue, SynthError> {
+        match spec.shape.as_slice() {
+            [] => number_tensor(spec.ty, &[], &[t as f64]),
+            [1] => number_tensor(spec.ty, &[1], &[t as f64]),
+            _ => number_tensor(spec.ty, &[batch], &vec![t as f64; batch]),
+        }
+    }
+
+    /// The UNet's noise estimate for `rows` rows, checked against their latent shape.
+    fn check_noise(&self, rows: usize, shape: &StepShape, found: Vec<i64>, noise: Vec<f32>) -> Result<Vec<f32>, SynthError> {
+        if noise.len() != rows * shape.latent_len() {
+            return Err(SynthError::UnexpectedOutputShape {
+                file: self.unet.file.clone(),
+                tensor: "out_sample".to_string(),
+                found,
+                expected: shape.latent_shape(rows).iter().map(|&d| d as i64).collect(),
+            });
+        }
+        Ok(noise)
+    }
+
+    /// One step for rows `r` of the batch, every input copied in and every output copied out.
+    fn step_plain(&mut self, shape: &StepShape, r: &Range<usize>, sample: &[f32], t: i64) -> Result<Vec<f32>, SynthError> {
+        let n = r.len();
+        let latent_shape = shape.latent_shape(n);
+        let ehs_shape = [n, shape.seq_len, shape.hidden];
+        let inputs: Inputs = vec![
+            ("sample".into(), f32_value(&latent_shape, sample.to_vec())?),
+            ("timestep".into(), self.timestep_value(&self.controlnet_timestep, t, n)?),
+            ("encoder_hidden_states".into(), f32_value(&ehs_shape, shape.ehs_rows(r).to_vec())?),
+            ("controlnet_cond".into(), f32_value(&[n, 3, shape.image_hw.0, shape.image_hw.1], shape.hint_rows(r).to_vec())?),
+            ("conditioning_scale".into(), self.scale_tensor(shape.conditioning_scale)?.into()),
+        ];
+        let residuals = run_f32(&mut self.controlnet.session, &self.controlnet.file, inputs, &self.down_names)?;
+
+        let mut inputs: Inputs = vec![
+            ("sample".into(), f32_value(&latent_shape, sample.to_vec())?),
+            ("timestep".into(), self.timestep_value(&self.unet_timestep, t, n)?),
+            ("encoder_hidden_states".into(), f32_value(&ehs_shape, shape.ehs_rows(r).to_vec())?),
+        ];
+        for (name, (shape, data)) in self.residual_names.iter().zip(residuals) {
+            let shape: Vec<usize> = shape.iter().map(|&d| d.max(0) as usize).collect();
+            inputs.push((name.clone(), f32_value(&shape, data)?));
+        }
+        let mut out = run_f32(&mut self.unet.session, &self.unet.file, inputs, &["out_sample".to_string()])?;
+        let (found, noise) = out.pop().unwrap_or_default();
+        self.check_noise(n, shape, found, noise)
+    }
+
+    /// Binds what stays the same for every step of a batch (rows `r`): the text embeddings and
+    /// the control image are copied to the device here, once; the ControlNet's outputs are
+    /// left on the device, the UNet's comes back to the host.
+    fn bind_constants(&self, shape: &StepShape, r: &Range<usize>) -> Result<BoundCall, SynthError> {
+        let n = r.len();
+        let on = |file: &Path| {
+            let context = format!("binding the inputs and outputs of {}", file.display());
+            move |source| SynthError::Ort { context, source }
+        };
+        let ehs = f32_tensor(&[n, shape.seq_len, shape.hidden], shape.ehs_rows(r))?;
+        let hint = f32_tensor(&[n, 3, shape.image_hw.0, shape.image_hw.1], shape.hint_rows(r))?;
+        let device = device_memory(&self.opts)?;
+
+        let file = &self.controlnet.file;
+        let mut controlnet = self.controlnet.session.create_binding().map_err(on(file))?;
+        controlnet.bind_input("encoder_hidden_states", &ehs).map_err(on(file))?;
+        controlnet.bind_input("controlnet_cond", &hint).map_err(on(file))?;
+        controlnet.bind_input("conditioning_scale", &self.scale_tensor(shape.conditioning_scale)?).map_err(on(file))?;
+        for name in &self.down_names {
+            controlnet.bind_output_to_device(name.as_str(), &device).map_err(on(file))?;
+        }
+
+        let file = &self.unet.file;
+        let mut unet = self.unet.session.create_binding().map_err(on(file))?;
+        unet.bind_input("encoder_hidden_states", &ehs).map_err(on(file))?;
+        unet.bind_output_to_device("out_sample", &host_memory()?).map_err(on(file))?;
+        Ok(BoundCall { controlnet, unet })
+    }
+
+    /// One step for `n` rows through their bindings: the latents go in (the one per-step copy
+    /// to the device), the residuals pass from ControlNet to UNet where they are, the noise
+    /// estimate comes back.
+    fn step_bound(&mut self, b: &mut BoundCall, shape: &StepShape, n: usize, sample: &[f32], t: i64) -> Result<Vec<f32>, SynthError> {
+        let on = |file: &Path| {
+            let context = format!("running {} with bound inputs", file.display());
+            move |source| SynthError::Ort { context, source }
+        };
+        let sample = f32_tensor(&shape.latent_shape(n), sample)?;
+        let controlnet_t = self.timestep_tensor(&self.controlnet_timestep, t, n)?;
+        let unet_t = self.timestep_tensor(&self.unet_timestep, t, n)?;
+        let (cn_file, unet_file) = (&self.controlnet.file, &self.unet.file);
+        b.controlnet.bind_input("sample", &sample).map_err(on(cn_file))?;
+        b.controlnet.bind_input("timestep", &controlnet_t).map_err(on(cn_file))?;
+        {
+            let mut outputs = self.controlnet.session.run_binding(&b.controlnet).map_err(on(cn_file))?;
+            for (down, residual) in self.down_names.iter().zip(&self.residual_names) {
+                let available: Vec<String> = outputs.keys().map(|k| k.to_string()).collect();
+                let value = outputs.remove(down.as_str()).ok_or_else(|| SynthError::MissingTensor {
+                    file: cn_file.clone(),
+                    direction: "output",
+                    tensor: down.clone(),
+                    available,
+                })?;
+                b.unet.bind_input(residual.as_str(), &value).map_err(on(unet_file))?;
+            }
+        }
+        b.unet.bind_input("sample", &sample).map_err(on(unet_file))?;
+        b.unet.bind_input("timestep", &unet_t).map_err(on(unet_file))?;
+        let outputs = self.unet.session.run_binding(&b.unet).map_err(on(unet_file))?;
+        let value = outputs.get("out_sample").ok_or_else(|| SynthError::MissingTensor {
+            file: unet_file.clone(),
+            direction: "output",
+            tensor: "out_sample".to_string(),
+            available: outputs.keys().map(|k| k.to_string()).collect(),
+        })?;
+        let (found, noise) = value
+            .try_extract_tensor::<f32>()
+            .map_err(|source| SynthError::Ort { context: format!("reading output `out_sample` of {}", unet_file.display()), source })?;
+        let (found, noise) = (found.to_vec(), noise.to_vec());
+        drop(outputs);
+        self.check_noise(n, shape, found, noise)
+    }
+
     /// Runs requests that share a [`BatchKey`] as one batch.
     fn run_group(&mut self, reqs: &[&GenerateRequest]) -> Result<Vec<GenerateOutput>, SynthError> {
+        let started = Instant::now();
+        let out = self.run_group_untimed(reqs)?;
+        self.timing.generate_s += started.elapsed().as_secs_f64();
+        self.timing.images += out.len();
+        Ok(out)
+    }
+
+    fn run_group_untimed(&mut self, reqs: &[&GenerateRequest]) -> Result<Vec<GenerateOutput>, SynthError> {
         let first = reqs[0];
         let size = first.size.unwrap_or(self.resolution());
         for r in reqs {
@@ -462,46 +718,41 @@ impl Pipeline {
         let timesteps = schedulers[0].timesteps().to_vec();
         let mut step_latents: Vec<Vec<NpyArray>> = vec![Vec::new(); n];
 
+        let shape = StepShape {
+            ehs: &ehs,
+            hint: &hint,
+            seq_len,
+            hidden,
+            channels: c,
+            latent_hw: (lh, lw),
+            image_hw: (h, w),
+            conditioning_scale: first.conditioning_scale,
+        };
+        let rows = self.rows_per_call(batch, guided)?;
+        let calls: Vec<Range<usize>> = (0..batch).step_by(rows.max(1)).map(|r| r..(r + rows).min(batch)).collect();
+        let mut bound: Vec<BoundCall> = if self.io_binding() {
+            calls.iter().map(|r| self.bind_constants(&shape, r)).collect::<Result<_, _>>()?
+        } else {
+            Vec::new()
+        };
+        let first_batch = self.timing.images == 0 && self.timing.warmup_s == 0.0;
+        let mut step_s: Vec<f64> = Vec::with_capacity(timesteps.len());
+
         for &t in &timesteps {
+            // cancellation check goes here
+            let step_started = Instant::now();
             let mut sample: Vec<f32> = latents.concat();
             if guided {
                 sample.extend_from_within(..);
             }
-            let latent_shape = [batch, c, lh, lw];
-            let inputs: Inputs = vec![
-                ("sample".into(), f32_value(&latent_shape, sample.clone())?),
-                ("timestep".into(), self.timestep_value(&self.controlnet_timestep, t, batch)?),
-                ("encoder_hidden_states".into(), f32_value(&[batch, seq_len, hidden], ehs.clone())?),
-                ("controlnet_cond".into(), f32_value(&[batch, 3, h, w], hint.clone())?),
-                (
-                    "conditioning_scale".into(),
-                    if self.conditioning_scale.shape.is_empty() {
-                        f32_value(&[], vec![first.conditioning_scale])?
-                    } else {
-                        f32_value(&[1], vec![first.conditioning_scale])?
-                    },
-                ),
-            ];
-            let residuals = run_f32(&mut self.controlnet.session, &self.controlnet.file, inputs, &self.down_names)?;
-
-            let mut inputs: Inputs = vec![
-                ("sample".into(), f32_value(&latent_shape, sample)?),
-                ("timestep".into(), self.timestep_value(&self.unet_timestep, t, batch)?),
-                ("encoder_hidden_states".into(), f32_value(&[batch, seq_len, hidden], ehs.clone())?),
-            ];
-            for (name, (shape, data)) in self.residual_names.iter().zip(residuals) {
-                let shape: Vec<usize> = shape.iter().map(|&d| d.max(0) as usize).collect();
-                inputs.push((name.clone(), f32_value(&shape, data)?));
-            }
-            let mut out = run_f32(&mut self.unet.session, &self.unet.file, inputs, &["out_sample".to_string()])?;
-            let (shape, noise_pred) = out.pop().unwrap_or_default();
-            if noise_pred.len() != batch * latent_len {
-                return Err(SynthError::UnexpectedOutputShape {
-                    file: self.unet.file.clone(),
-                    tensor: "out_sample".to_string(),
-                    found: shape,
-                    expected: latent_shape.iter().map(|&d| d as i64).collect(),
-                });
+            let mut noise_pred: Vec<f32> = Vec::with_capacity(batch * latent_len);
+            for (i, r) in calls.iter().enumerate() {
+                let rows = &sample[r.start * latent_len..r.end * latent_len];
+                let out = match bound.get_mut(i) {
+                    Some(b) => self.step_bound(b, &shape, r.len(), rows, t)?,
+                    None => self.step_plain(&shape, r, rows, t)?,
+                };
+                noise_pred.extend_from_slice(&out);
             }
 
             for k in 0..n {
@@ -519,6 +770,12 @@ impl Pipeline {
                     step_latents[k].push(NpyArray { shape: vec![1, c, lh, lw], data: latents[k].clone() });
                 }
             }
+            step_s.push(step_started.elapsed().as_secs_f64());
+        }
+        if first_batch && step_s.len() > 1 {
+            let mut rest = step_s[1..].to_vec();
+            rest.sort_by(f64::total_cmp);
+            self.timing.warmup_s = (step_s[0] - rest[rest.len() / 2]).max(0.0);
         }
 
         // Decode all at once.
@@ -551,6 +808,21 @@ impl Pipeline {
                 }
             })
             .collect())
+    }
+}
+
+/// Rows per ControlNet/UNet call: the graphs' fixed batch where they declare one (it must
+/// divide the `batch` rows of a step), half the batch for forced two-pass guidance, else all.
+fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize, guided: bool) -> Result<usize, SynthError> {
+    match fixed_batch {
+        Some(b) if b > 0 && batch % b == 0 => Ok(b),
+        Some(b) => Err(SynthError::BadRequest {
+            field: "batch",
+            value: batch.to_string(),
+            reason: format!("the package's ControlNet and UNet take a fixed batch of {b}, which does not divide {batch} rows"),
+        }),
+        None if force_two_pass && guided && batch >= 2 => Ok(batch / 2),
+        None => Ok(batch),
     }
 }
 
@@ -665,6 +937,28 @@ mod tests {
         assert_eq!(raw_to_rgb8(&[0.3; 3], 1, 1, ImageRange::MinMax).as_raw(), &vec![0, 0, 0]);
         // A short slice reads as NaN, which maps to 0 rather than panicking.
         assert_eq!(raw_to_rgb8(&[0.0], 1, 1, ImageRange::Clamp).as_raw(), &vec![128, 0, 0]);
+    }
+
+    #[test]
+    fn a_fixed_batch_of_one_runs_guidance_as_one_row_a_call() {
+        // Dynamic graphs: [uncond, cond] of 2 images in one call; forced: two calls of 2.
+        assert_eq!(rows_per_call(None, false, 4, true).unwrap(), 4);
+        assert_eq!(rows_per_call(None, true, 4, true).unwrap(), 2);
+        assert_eq!(rows_per_call(None, true, 3, false).unwrap(), 3, "nothing to split without guidance");
+        // Graphs fixed at batch 1: every row its own call, guided or not.
+        assert_eq!(rows_per_call(Some(1), false, 4, true).unwrap(), 1);
+        assert_eq!(rows_per_call(Some(1), false, 1, false).unwrap(), 1);
+        assert_eq!(rows_per_call(Some(2), false, 4, true).unwrap(), 2);
+        let e = rows_per_call(Some(2), false, 3, false).unwrap_err();
+        assert!(e.to_string().contains("fixed batch of 2"), "{e}");
+    }
+
+    #[test]
+    fn steady_state_is_the_time_past_warm_up_per_image() {
+        let t = SynthTiming { load_s: 3.0, warmup_s: 2.0, images: 4, generate_s: 10.0 };
+        assert_eq!(t.steady_per_image_s(), Some(2.0));
+        assert_eq!(t.line(), "load 3.00 s, warm-up 2.000 s (first step), 2.000 s an image steady state (4 images)");
+        assert_eq!(SynthTiming::default().steady_per_image_s(), None);
     }
 
     #[test]

@@ -74,6 +74,72 @@ pub struct RuntimeOptions {
     pub provider: ExecutionProviderKind,
     /// Threads per session for the CPU provider; `None` lets ONNX Runtime choose.
     pub intra_threads: Option<usize>,
+    /// Settings of the CUDA provider (also what TensorRT hands its leftover nodes to).
+    pub cuda: CudaOptions,
+    /// TensorRT's engine cache folder (`--trt-engine-cache`): built engines are kept there and
+    /// reused by the next process with the same models and shapes.
+    pub trt_engine_cache: Option<PathBuf>,
+    /// Run guidance as two passes per step (unconditioned, then conditioned) even where the
+    /// graphs take a batch of two: what a package with a fixed batch of 1 gets anyway.
+    pub force_two_pass: bool,
+    /// Feed each session call from host copies (`Session::run`) instead of I/O binding: the
+    /// ControlNet's residuals then travel through host memory every step (for comparison).
+    pub without_io_binding: bool,
+}
+
+/// cuDNN's search for convolution algorithms (the CUDA provider's `cudnn_conv_algo_search`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ConvSearch {
+    /// Time every algorithm on the first run of each shape (ONNX Runtime's default): the
+    /// fastest steady state, the slowest first step.
+    Exhaustive,
+    /// cuDNN's heuristics: no timing runs, a cheaper first step.
+    Heuristic,
+    /// The one implicit-GEMM algorithm: least memory, no search.
+    Default,
+}
+
+/// How the CUDA provider's memory arena grows (`arena_extend_strategy`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ArenaExtend {
+    /// By doubling (ONNX Runtime's default).
+    NextPowerOfTwo,
+    /// By what is asked for: less memory held, more allocations.
+    SameAsRequested,
+}
+
+/// The CUDA provider's options rig exposes; `None` leaves ONNX Runtime's default.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct CudaOptions {
+    /// The GPU's index (0: the first).
+    pub device_id: i32,
+    pub conv_search: Option<ConvSearch>,
+    pub arena_extend: Option<ArenaExtend>,
+    /// The memory arena's limit, bytes.
+    pub mem_limit_bytes: Option<usize>,
+}
+
+impl CudaOptions {
+    fn provider(&self) -> ort::ep::CUDA {
+        let mut ep = ort::ep::CUDA::default().with_device_id(self.device_id);
+        if let Some(search) = self.conv_search {
+            ep = ep.with_conv_algorithm_search(match search {
+                ConvSearch::Exhaustive => ort::ep::cuda::ConvAlgorithmSearch::Exhaustive,
+                ConvSearch::Heuristic => ort::ep::cuda::ConvAlgorithmSearch::Heuristic,
+                ConvSearch::Default => ort::ep::cuda::ConvAlgorithmSearch::Default,
+            });
+        }
+        if let Some(arena) = self.arena_extend {
+            ep = ep.with_arena_extend_strategy(match arena {
+                ArenaExtend::NextPowerOfTwo => ort::ep::ArenaExtendStrategy::NextPowerOfTwo,
+                ArenaExtend::SameAsRequested => ort::ep::ArenaExtendStrategy::SameAsRequested,
+            });
+        }
+        if let Some(limit) = self.mem_limit_bytes {
+            ep = ep.with_memory_limit(limit);
+        }
+        ep
+    }
 }
 
 /// The loaded runtime: the library it came from and the shared environment.
@@ -225,9 +291,16 @@ impl Runtime {
                 return Err(SynthError::ProviderUnavailable { provider: opts.provider, library: self.library.clone() });
             }
             let providers = match opts.provider {
-                ExecutionProviderKind::Cuda => vec![ort::ep::CUDA::default().build().error_on_failure()],
+                ExecutionProviderKind::Cuda => vec![opts.cuda.provider().build().error_on_failure()],
                 // TensorRT hands the nodes it cannot run to CUDA.
-                _ => vec![ort::ep::TensorRT::default().build().error_on_failure(), ort::ep::CUDA::default().build()],
+                _ => {
+                    let mut trt = ort::ep::TensorRT::default().with_device_id(opts.cuda.device_id);
+                    if let Some(dir) = &opts.trt_engine_cache {
+                        let dir = dir.display().to_string();
+                        trt = trt.with_engine_cache(true).with_engine_cache_path(&dir).with_timing_cache(true).with_timing_cache_path(dir);
+                    }
+                    vec![trt.build().error_on_failure(), opts.cuda.provider().build()]
+                }
             };
             builder = builder.with_execution_providers(providers).map_err(err("registering the provider for"))?;
         }
@@ -244,6 +317,11 @@ pub(crate) type Inputs = Vec<(String, ort::session::SessionInputValue<'static>)>
 /// A float32 tensor value, in memory from ONNX Runtime's allocator (aligned as its kernels
 /// prefer) rather than wrapping the Rust `Vec`.
 pub(crate) fn f32_value(shape: &[usize], data: Vec<f32>) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
+    f32_tensor(shape, &data).map(Into::into)
+}
+
+/// [`f32_value`] as a tensor (to bind to a session input with I/O binding).
+pub(crate) fn f32_tensor(shape: &[usize], data: &[f32]) -> Result<ort::value::Tensor<f32>, SynthError> {
     let err = |source| SynthError::Ort { context: "making a float32 tensor".to_string(), source };
     let dims: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
     let mut tensor = ort::value::Tensor::<f32>::new(&ort::memory::Allocator::default(), dims).map_err(err)?;
@@ -255,8 +333,8 @@ pub(crate) fn f32_value(shape: &[usize], data: Vec<f32>) -> Result<ort::session:
             reason: format!("shape {shape:?} holds {}", dst.len()),
         });
     }
-    dst.copy_from_slice(&data);
-    Ok(tensor.into())
+    dst.copy_from_slice(data);
+    Ok(tensor)
 }
 
 /// A tensor of `ty` (float32, float64, int32 or int64) holding `values`, converted from f64.
@@ -265,15 +343,40 @@ pub(crate) fn number_value(
     shape: &[usize],
     values: &[f64],
 ) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
+    number_tensor(ty, shape, values).map(Into::into)
+}
+
+/// [`number_value`] as a value (to bind to a session input with I/O binding).
+pub(crate) fn number_tensor(ty: ort::value::TensorElementType, shape: &[usize], values: &[f64]) -> Result<ort::value::DynValue, SynthError> {
     use ort::value::{Tensor, TensorElementType as T};
     let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
     let made = match ty {
-        T::Float64 => Tensor::from_array((shape, values.to_vec())).map(Into::into),
-        T::Int64 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i64).collect::<Vec<_>>())).map(Into::into),
-        T::Int32 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i32).collect::<Vec<_>>())).map(Into::into),
-        _ => Tensor::from_array((shape, values.iter().map(|&v| v as f32).collect::<Vec<_>>())).map(Into::into),
+        T::Float64 => Tensor::from_array((shape, values.to_vec())).map(|t| t.into_dyn()),
+        T::Int64 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i64).collect::<Vec<_>>())).map(|t| t.into_dyn()),
+        T::Int32 => Tensor::from_array((shape, values.iter().map(|&v| v.round() as i32).collect::<Vec<_>>())).map(|t| t.into_dyn()),
+        _ => Tensor::from_array((shape, values.iter().map(|&v| v as f32).collect::<Vec<_>>())).map(|t| t.into_dyn()),
     };
     made.map_err(|source| SynthError::Ort { context: format!("making a {ty:?} tensor"), source })
+}
+
+/// Where a model's outputs stay between session calls under I/O binding: the GPU's memory
+/// for CUDA and TensorRT, host memory for the CPU provider.
+pub(crate) fn device_memory(opts: &RuntimeOptions) -> Result<ort::memory::MemoryInfo<'static>, SynthError> {
+    use ort::memory::{AllocationDevice, AllocatorType, MemoryInfo, MemoryType};
+    let made = match opts.provider {
+        ExecutionProviderKind::Cpu => MemoryInfo::new(AllocationDevice::CPU, 0, AllocatorType::Device, MemoryType::Default),
+        ExecutionProviderKind::Cuda | ExecutionProviderKind::TensorRt => {
+            MemoryInfo::new(AllocationDevice::CUDA, opts.cuda.device_id, AllocatorType::Device, MemoryType::Default)
+        }
+    };
+    made.map_err(|source| SynthError::Ort { context: format!("describing {} memory", opts.provider), source })
+}
+
+/// Host memory, for an output that must come back to the CPU (the UNet's noise estimate).
+pub(crate) fn host_memory() -> Result<ort::memory::MemoryInfo<'static>, SynthError> {
+    use ort::memory::{AllocationDevice, AllocatorType, MemoryInfo, MemoryType};
+    MemoryInfo::new(AllocationDevice::CPU, 0, AllocatorType::Device, MemoryType::CPUOutput)
+        .map_err(|source| SynthError::Ort { context: "describing host memory".to_string(), source })
 }
 
 /// A float32 output: its shape and its values (C order).

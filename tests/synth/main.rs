@@ -5,6 +5,7 @@
 
 mod eval;
 mod mds_parity;
+mod synth_device;
 mod synth_errors;
 mod synth_fill;
 mod synth_parity;
