@@ -765,7 +765,7 @@ impl Pipeline {
                     noise_pred[k * latent_len..(k + 1) * latent_len].to_vec()
                 };
                 let noise = schedulers[k].needs_noise().then(|| gaussian(&mut rngs[k], latent_len));
-                latents[k] = schedulers[k].step(schedule, &eps, &latents[k], noise.as_deref());
+                latents[k] = schedulers[k].step(&self.package.schedule, &eps, &latents[k], noise.as_deref());
                 if reqs[k].keep_step_latents {
                     step_latents[k].push(NpyArray { shape: vec![1, c, lh, lw], data: latents[k].clone() });
                 }
