@@ -815,7 +815,7 @@ impl Pipeline {
 /// divide the `batch` rows of a step), half the batch for forced two-pass guidance, else all.
 fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize, guided: bool) -> Result<usize, SynthError> {
     match fixed_batch {
-        Some(b) if b > 0 && batch % b == 0 => Ok(b),
+        Some(b) if b > 0 && batch.is_multiple_of(b) => Ok(b),
         Some(b) => Err(SynthError::BadRequest {
             field: "batch",
             value: batch.to_string(),
