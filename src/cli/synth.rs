@@ -250,7 +250,8 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     };
     let mut pipeline = load(&args.model, &args.runtime)?;
     let s = &args.sampling;
-    let Sampling { steps, guidance, sampler, eta } = pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, s.eta, ONE_FALLBACK);
+    let Sampling { steps, guidance, sampler, eta } =
+        pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, s.eta, ONE_FALLBACK);
     let requests: Vec<GenerateRequest> = (0..args.images)
         .map(|i| GenerateRequest {
             control: &control,

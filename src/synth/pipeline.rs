@@ -730,11 +730,8 @@ impl Pipeline {
         };
         let rows = self.rows_per_call(batch, guided)?;
         let calls: Vec<Range<usize>> = (0..batch).step_by(rows.max(1)).map(|r| r..(r + rows).min(batch)).collect();
-        let mut bound: Vec<BoundCall> = if self.io_binding() {
-            calls.iter().map(|r| self.bind_constants(&shape, r)).collect::<Result<_, _>>()?
-        } else {
-            Vec::new()
-        };
+        let mut bound: Vec<BoundCall> =
+            if self.io_binding() { calls.iter().map(|r| self.bind_constants(&shape, r)).collect::<Result<_, _>>()? } else { Vec::new() };
         let first_batch = self.timing.images == 0 && self.timing.warmup_s == 0.0;
         let mut step_s: Vec<f64> = Vec::with_capacity(timesteps.len());
 

@@ -347,7 +347,11 @@ pub(crate) fn number_value(
 }
 
 /// [`number_value`] as a value (to bind to a session input with I/O binding).
-pub(crate) fn number_tensor(ty: ort::value::TensorElementType, shape: &[usize], values: &[f64]) -> Result<ort::value::DynValue, SynthError> {
+pub(crate) fn number_tensor(
+    ty: ort::value::TensorElementType,
+    shape: &[usize],
+    values: &[f64],
+) -> Result<ort::value::DynValue, SynthError> {
     use ort::value::{Tensor, TensorElementType as T};
     let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
     let made = match ty {

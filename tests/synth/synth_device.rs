@@ -40,7 +40,9 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
 fn two_pass_guidance_gives_the_batched_images() {
     let batched = RuntimeOptions::default();
     let two_pass = RuntimeOptions { force_two_pass: true, ..RuntimeOptions::default() };
-    for (guidance, scheduler, eta) in [(9.0, SchedulerKind::Ddim, 0.0), (7.5, SchedulerKind::Ddim, 0.5), (4.0, SchedulerKind::DpmSolverPp2m, 0.0)] {
+    for (guidance, scheduler, eta) in
+        [(9.0, SchedulerKind::Ddim, 0.0), (7.5, SchedulerKind::Ddim, 0.5), (4.0, SchedulerKind::DpmSolverPp2m, 0.0)]
+    {
         let a = run(&tiny(), &batched, guidance, scheduler, eta);
         let b = run(&tiny(), &two_pass, guidance, scheduler, eta);
         assert_eq!(a.len(), 2);
