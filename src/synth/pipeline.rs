@@ -8,6 +8,20 @@
 //! conditioning scale, size and guided-ness run in one batch ([`Pipeline::generate_batch`]);
 //! each keeps its own seed stream, so a batched image equals the unbatched one.
 //!
+//! Where a package's ControlNet or UNet declares a fixed batch (a number, not a name, in
+//! dimension 0 of `sample`), each call takes that many rows: with a fixed batch of 1, guidance
+//! runs as two passes a step ([`Pipeline::guidance_passes`] says which; a log line at load).
+//!
+//! Tensors between calls (I/O binding, unless [`RuntimeOptions::without_io_binding`]): the
+//! text embeddings and control image are bound once per batch; the ControlNet's residuals stay
+//! where it wrote them (the GPU's memory under CUDA) and are bound straight into the UNet;
+//! the UNet's noise estimate comes back to the host. The guidance combination and the
+//! scheduler step stay on the CPU, so the latents (64 KB an image at 512 px) make one small
+//! round trip a step: a fraction of a millisecond at PCIe speeds against the 27 MB of
+//! residuals per image that no longer cross, and one scheduler implementation (the one
+//! checked against diffusers) rather than a second one as an ONNX graph. On the CPU provider
+//! the output is bit-identical with and without binding (tests/synth/synth_device.rs).
+//!
 //! Determinism: the initial latents come from ChaCha8 seeded with the request's seed
 //! (`seed_from_u64`), turned into standard normals by Box–Muller (53-bit uniforms, both outputs
 //! used); DDIM's eta noise continues the same stream. `--init-latents` replaces the first part
