@@ -139,11 +139,14 @@ def repack_package(out_dir, fp16=False, external="auto"):
     report = {}
     for name in MODEL_DIRS:
         path = os.path.join(out_dir, name, "model.onnx")
+        folder = os.path.dirname(path)
+        if not fp16 and external == "auto" and os.listdir(folder) == ["model.onnx"] and os.path.getsize(path) <= PROTOBUF_LIMIT_BYTES:
+            report[name] = (os.path.getsize(path), False)  # nothing to change: left as written
+            continue
         model = onnx.load(path, load_external_data=True)
         if fp16:
             model = to_float16(model)
         outside = save_model(model, path, external)
-        folder = os.path.dirname(path)
         report[name] = (sum(os.path.getsize(os.path.join(folder, f)) for f in os.listdir(folder)), outside)
     return report
 
