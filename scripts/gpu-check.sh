@@ -36,9 +36,12 @@ done
 stage() { echo; echo "== gpu-check: $*"; }
 die() { echo "gpu-check: error: $*" >&2; exit "${2:-1}"; }
 now() { date +%s.%N; }
+# diffusers' and transformers' advice about optional packages, not about this run
+quiet() { tr '\r' '\n' | grep -v "should be kept in float32\|^Loading\|accelerate\|^\`\`\`\|^\.$\|requires torchvision" || true; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 
 py=${RIG_PYTHON:-$repo/.venv/bin/python}
+export HF_HUB_DISABLE_PROGRESS_BARS=1 DIFFUSERS_VERBOSITY=error TRANSFORMERS_VERBOSITY=error HF_HUB_OFFLINE=1
 shared=${RIG_SHARED:-$repo/../shared}
 kit=$shared/multidiffsense-cldm-kit
 work=${GPU_CHECK_DIR:-$repo/.rig/gpu-check}
@@ -118,7 +121,7 @@ for variant in fp32 fp16; do
   stage "package $variant: exporting to $pkg"
   t=$(now)
   flags=(); [ "$variant" = fp16 ] && flags=(--fp16)
-  "$py" tools/export_package.py --diffusers "$pipe" --resolution "$size" --out "$pkg" "${flags[@]}" 2>&1 | grep -v "should be kept in float32\|Loading"
+  "$py" tools/export_package.py --diffusers "$pipe" --resolution "$size" --out "$pkg" "${flags[@]}" 2>&1 | quiet
   timing[export_$variant]=$(since "$t")
   "$rig" synth info --model "$pkg" --provider "$provider" "${ort_args[@]}" | sed 's/^/  /'
 done
@@ -139,10 +142,10 @@ PY
 stage "diffusers ($device): warm-up, then guidance 1 and 9"
 "$py" tools/diffusers_anchor.py "$pipe" --control "$work/control.png" --prompt "$prompt" --latents "$work/x_T.npy" \
   --out-prefix "$work/diffusers" --steps "$steps" --guidance 1,9 --device "$device" $([ "$tiny" = 0 ] && echo --fp16) \
-  2>&1 | grep -v "should be kept in float32\|Loading" | tee "$work/diffusers.log"
+  2>&1 | quiet | tee "$work/diffusers.log"
 for g in 1 9; do
   for dtype in float32 float16; do
-    timing[diffusers_${dtype}_g$g]=$(awk -v g="$g" -v d="$dtype" '$3 == d && $5 == g":" {print $8}' "$work/diffusers.log")
+    timing[diffusers_${dtype}_g$g]=$(awk -v g="$g" -v d="$dtype" '$3 == d && $5 == g":" {print $9}' "$work/diffusers.log")
   done
 done
 
@@ -162,7 +165,8 @@ rig_one() {
 # rig_fill: a fill of $images poses of a simulated dataset, as a lab fills (pipeline loaded once);
 # sets fill_s (seconds an image, the fill's time over its images).
 rig_fill() {
-  local pkg=$1 g=$2 tag=$3 data=$work/fill-$tag
+  local pkg=$1 g=$2 tag=$3
+  local data=$work/fill-$tag
   rm -rf "$data"
   "$rig" collect --object edge --sensor ViTacTip --plan "$work/plan.toml" --out "$data" >"$work/collect-$tag.log" 2>&1 \
     || { cat "$work/collect-$tag.log"; die "rig collect failed"; }
@@ -173,7 +177,7 @@ rig_fill() {
 }
 # A plan of 1 + $images poses: one collected, the rest for the fill.
 {
-  echo "sampling = \"random\""; echo "n_poses = 1"; echo "seed = 3"
+  echo "sampling = \"random\""; echo "n_poses = 1"; echo "seed = 3"; echo "order = \"optimised\""
   printf '[x_mm]\nmin = -4.0\nmax = 4.0\nstep = %s\n' "$(awk -v n="$images" 'BEGIN { printf "%.6f", 8.0 / n }')"
   printf '[y_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n'
 } >"$work/plan.toml"
@@ -208,9 +212,9 @@ gpu="CPU ($(nproc) cores)"
 [ "$tiny" = 0 ] && gpu=$("$py" -c 'import torch; print(torch.cuda.get_device_name(0))')
 v=$("$py" -c 'import diffusers, torch, onnxruntime; print(f"diffusers {diffusers.__version__}, torch {torch.__version__}, onnxruntime (Python) {onnxruntime.__version__}")')
 echo "device: $gpu; $size x $size px, $steps DDIM steps, one image; $v; $(date -u +%Y-%m-%d)"
-echo "build pipeline ${timing[build]:-kept} s, export fp32 ${timing[export_fp32]:-kept} s, export fp16 ${timing[export_fp16]:-kept} s"
-echo
 cell() { [ -n "${1:-}" ] && echo "$1 s" || echo "n/a"; }
+echo "build pipeline $(cell "${timing[build]:-}"), export fp32 $(cell "${timing[export_fp32]:-}"), export fp16 $(cell "${timing[export_fp16]:-}") (n/a: kept from an earlier run)"
+echo
 echo "| | guidance 1 | guidance 9 |"
 echo "|---|---|---|"
 echo "| diffusers, PyTorch fp32 | $(cell "${timing[diffusers_float32_g1]}") | $(cell "${timing[diffusers_float32_g9]}") |"

@@ -31,8 +31,8 @@ fail() { echo "export-test: FAIL: $*" >&2; echo "export-test: files kept in $wor
 
 # The float16 package's bound against the float32 one (rig's raw decoder output, about [-1.7, 1.8],
 # and its 8-bit PNG); docs/src/bring-your-model.md#float16-packages gives the measured differences.
-FP16_MAX_ABS=0.05
-FP16_MAX_LEVELS=6
+FP16_MAX_ABS=0.03
+FP16_MAX_LEVELS=3
 
 if [ -n "${RIG_BIN:-}" ]; then
   rig="$(cd "$(dirname "$RIG_BIN")" && pwd)/$(basename "$RIG_BIN")"
