@@ -29,15 +29,12 @@ PROTOBUF_LIMIT_BYTES = 2**31 - 1
 FP32_OPS = ("InstanceNormalization", "LayerNormalization")
 
 
-def save_model(model, path, external="auto"):
+def save_model(model, path, external):
     """Writes `model` (an onnx ModelProto, external weights already loaded) to `path`, replacing
-    whatever its folder held. external: "always" puts every weight in one `model.onnx.data` file
-    beside it (size_threshold 0), "auto" only when the model would not fit a 2 GiB protobuf,
-    "never" keeps everything in model.onnx. Returns whether the weights went outside."""
+    whatever its folder held: with external, every weight goes to one file `model.onnx.data`
+    beside it (size_threshold 0), else everything stays in model.onnx."""
     import onnx
 
-    if external not in ("auto", "always", "never"):
-        raise ValueError(f"external must be auto, always or never, not {external!r}")
     folder = os.path.dirname(path)
     for name in os.listdir(folder):
         full = os.path.join(folder, name)
@@ -45,13 +42,18 @@ def save_model(model, path, external="auto"):
             shutil.rmtree(full)
         else:
             os.remove(full)
-    outside = external == "always" or (external == "auto" and model.ByteSize() > PROTOBUF_LIMIT_BYTES)
-    if outside:
+    if external:
         onnx.save_model(model, path, save_as_external_data=True, all_tensors_to_one_file=True, location=EXTERNAL_DATA,
                         size_threshold=0, convert_attribute=False)
     else:
         onnx.save_model(model, path)
-    return outside
+
+
+def is_large(path):
+    """Whether the model at `path` is over the protobuf limit: torch wrote its weights outside
+    (files beside model.onnx), or model.onnx itself is over 2 GB."""
+    folder = os.path.dirname(path)
+    return os.listdir(folder) != ["model.onnx"] or os.path.getsize(path) > PROTOBUF_LIMIT_BYTES
 
 
 def timestep_embedding_nodes(graph, input_name="timestep"):
@@ -77,18 +79,28 @@ def timestep_embedding_nodes(graph, input_name="timestep"):
     return names
 
 
-def to_float16(model):
-    """A float16 copy of `model` (onnx ModelProto, external weights loaded): weights and
+def to_float16(path):
+    """A float16 copy of the model at `path` (an onnx ModelProto, weights loaded): weights and
     activations float16, except FP32_OPS and the timestep embedding, which stay float32 with casts
     around them. Inputs and outputs stay float32 (casts at the boundary), so the package contract
-    is unchanged."""
+    is unchanged. The converter needs every tensor's type: they are inferred from the file
+    (infer_shapes_path, which also works over 2 GB), next to it so external data resolves."""
+    import onnx
+    from onnx.shape_inference import infer_shapes_path
     from onnxruntime.transformers.float16 import DEFAULT_OP_BLOCK_LIST, convert_float_to_float16
 
+    inferred = os.path.join(os.path.dirname(path), "model.inferred.onnx")
+    try:
+        infer_shapes_path(path, inferred)
+        model = onnx.load(inferred, load_external_data=True)
+    finally:
+        if os.path.exists(inferred):
+            os.remove(inferred)
     for i, node in enumerate(model.graph.node):
         if not node.name:
             node.name = f"node_{i}_{node.op_type}"
     blocked = timestep_embedding_nodes(model.graph)
-    model = convert_float_to_float16(model, keep_io_types=True, disable_shape_infer=model.ByteSize() > PROTOBUF_LIMIT_BYTES,
+    model = convert_float_to_float16(model, keep_io_types=True, disable_shape_infer=True,
                                      op_block_list=list(DEFAULT_OP_BLOCK_LIST) + list(FP32_OPS),
                                      node_block_list=sorted(blocked))
     _join_float32_runs(model.graph)
@@ -136,17 +148,21 @@ def repack_package(out_dir, fp16=False, external="auto"):
     float16 when fp16. Returns {model: (bytes of its folder, whether external)}."""
     import onnx
 
+    if external not in ("auto", "always", "never"):
+        raise ValueError(f"external must be auto, always or never, not {external!r}")
     report = {}
     for name in MODEL_DIRS:
         path = os.path.join(out_dir, name, "model.onnx")
         folder = os.path.dirname(path)
-        if not fp16 and external == "auto" and os.listdir(folder) == ["model.onnx"] and os.path.getsize(path) <= PROTOBUF_LIMIT_BYTES:
+        large = is_large(path)
+        outside = external == "always" or (external == "auto" and large)
+        if large and external == "never" and not fp16:
+            raise ValueError(f"{path} is over 2 GB: it cannot be written without external data")
+        if not fp16 and not large and not outside:
             report[name] = (os.path.getsize(path), False)  # nothing to change: left as written
             continue
-        model = onnx.load(path, load_external_data=True)
-        if fp16:
-            model = to_float16(model)
-        outside = save_model(model, path, external)
+        model = to_float16(path) if fp16 else onnx.load(path, load_external_data=True)
+        save_model(model, path, outside)
         report[name] = (sum(os.path.getsize(os.path.join(folder, f)) for f in os.listdir(folder)), outside)
     return report
 
@@ -169,7 +185,11 @@ def main():
             sys.exit(f"error: {out} exists and is not a model package; refusing to replace it")
         shutil.rmtree(out)
     shutil.copytree(src, out)
-    for name, (size, outside) in repack_package(out, fp16=args.fp16, external=args.external_data).items():
+    try:
+        report = repack_package(out, fp16=args.fp16, external=args.external_data)
+    except ValueError as e:
+        sys.exit(f"error: {e}")
+    for name, (size, outside) in report.items():
         print(f"{name:13}{size / 1e6:8.1f} MB{'  (weights in model.onnx.data)' if outside else ''}")
     print(f"wrote {out}{' (float16)' if args.fp16 else ''}")
 

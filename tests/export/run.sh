@@ -11,7 +11,9 @@
 #    model (--external-data always, the layout a model over 2 GB gets). Each model folder must hold
 #    exactly model.onnx and model.onnx.data; `rig synth info` must accept it; `rig synth one` must
 #    give the same raw output, bit for bit, as from the package it came from; without its
-#    unet/model.onnx.data the package must be refused, naming the UNet.
+#    unet/model.onnx.data the package must be refused, naming the UNet. A UNet saved one file per
+#    tensor (as torch writes a model over 2 GB) is joined into one model.onnx.data by default,
+#    with the same output bit for bit.
 # 3. Float16: tests/data/mds-small-package (exported from a MultiDiffSense-built checkpoint)
 #    rewritten with --fp16. `rig synth info` must accept it, and `rig synth one` from the same
 #    x_T must stay within FP16_MAX_ABS of the float32 package's raw output and FP16_MAX_LEVELS of
@@ -94,6 +96,20 @@ one tests/data/tiny-package tiny-inline 4 9
 one "$ext" tiny-external 4 9
 "$py" tests/export/compare.py "external data against inline" "$work/tiny-inline.npy" "$work/tiny-external.npy" \
   "$work/tiny-inline.png" "$work/tiny-external.png" --identical || fail "external data changed the output"
+# The layout torch writes for a model over 2 GB, one file per tensor (here the UNet's), becomes
+# one model.onnx.data by default (--external-data auto); the other models stay as they were.
+cp -r tests/data/tiny-package "$work/tiny-per-tensor"
+"$py" -c 'import onnx, sys; m = onnx.load(sys.argv[1]); onnx.save_model(m, sys.argv[1], save_as_external_data=True, all_tensors_to_one_file=False, size_threshold=0)' \
+  "$work/tiny-per-tensor/unet/model.onnx"
+[ "$(ls "$work/tiny-per-tensor/unet" | wc -l)" -gt 10 ] || fail "the per-tensor layout was not made"
+"$py" tools/repack_package.py "$work/tiny-per-tensor" --out "$work/tiny-joined" >"$work/repack.log" 2>&1 \
+  || { cat "$work/repack.log"; fail "repack_package.py on one file per tensor"; }
+listing=$(cd "$work/tiny-joined/unet" && ls | tr '\n' ' ')
+[ "$listing" = "model.onnx model.onnx.data " ] || fail "unet/ of the joined package holds: $listing"
+cmp -s tests/data/tiny-package/vae_decoder/model.onnx "$work/tiny-joined/vae_decoder/model.onnx" || fail "a small model was rewritten"
+one "$work/tiny-joined" tiny-joined 4 9
+"$py" tests/export/compare.py "one file per tensor, joined, against inline" "$work/tiny-inline.npy" "$work/tiny-joined.npy" \
+  "$work/tiny-inline.png" "$work/tiny-joined.png" --identical || fail "joining the external data changed the output"
 mv "$ext/unet/model.onnx.data" "$work/unet.data"
 if "$rig" synth info --model "$ext" --ort-lib "$ort_lib" >"$work/missing.log" 2>&1; then
   fail "a package without unet/model.onnx.data was accepted"
