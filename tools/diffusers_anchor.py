@@ -5,7 +5,7 @@ initial latents as rig: its time per image and its images (scripts/gpu-check.sh)
         --out-prefix PREFIX [--steps 50] [--guidance 1,9] [--device auto|cpu|cuda] [--fp16]
 
 DDIM as the pipeline's scheduler config says, eta 0, negative prompt "" (diffusers' default).
-One untimed warm-up image, then one timed image per guidance scale (CUDA synchronised around
+One untimed warm-up image per guidance scale, then one timed image per scale (CUDA synchronised around
 it). Prints `diffusers DEVICE DTYPE guidance G: S steps in T s` per scale and saves
 PREFIX_gG.png (float32 only; 8-bit, rounded as rig rounds). --fp16 also times float16 (CUDA).
 """
@@ -53,7 +53,8 @@ def main():
     dtypes = [torch.float32] + ([torch.float16] if args.fp16 and device == "cuda" else [])
     for dtype in dtypes:
         pipe.to(dtype=dtype)
-        run(scales[0], dtype)  # warm-up: kernels, allocator
+        for g in scales:
+            run(g, dtype)  # warm-up at each batch size (1 unguided, 2 guided): kernels, allocator
         for g in scales:
             seconds, image = run(g, dtype)
             print(f"diffusers {device} {str(dtype).removeprefix('torch.')} guidance {g:g}: {args.steps} steps in {seconds:.3f} s",
