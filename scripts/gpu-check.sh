@@ -34,7 +34,7 @@ for arg in "$@"; do
 done
 
 stage() { echo; echo "== gpu-check: $*"; }
-die() { echo "gpu-check: error: $*" >&2; exit "${2:-1}"; }
+die() { echo "gpu-check: error: $1" >&2; exit "${2:-1}"; }
 now() { date +%s.%N; }
 # diffusers' and transformers' advice about optional packages, not about this run
 quiet() { tr '\r' '\n' | grep -v "should be kept in float32\|^Loading\|accelerate\|^\`\`\`\|^\.$\|requires torchvision" || true; }
@@ -54,7 +54,7 @@ fi
 # --- prerequisites -------------------------------------------------------------------------------
 stage "prerequisites"
 [ -x "$py" ] || die "no Python at $py: make one (python3 -m venv .venv && .venv/bin/pip install -r tools/requirements.txt) or set RIG_PYTHON" 2
-"$py" - "$device" <<'PY' || die "the Python tools are missing or of other versions (see above); install tools/requirements.txt" 2
+"$py" - "$device" <<'PY' || die "prerequisites not met (see above): tools/requirements.txt in RIG_PYTHON, and for a GPU run a torch that sees the GPU" 2
 import sys, importlib
 bad = []
 for name in ("torch", "diffusers", "transformers", "onnx", "onnxruntime", "numpy", "PIL"):
