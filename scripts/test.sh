@@ -2,7 +2,8 @@
 # The test command: installs what the tests need, checks the guide's links, runs the whole
 # suite, runs the SLURM example on a private single-node SLURM (tests/slurm/run.sh, as root;
 # RIG_SKIP_SLURM=1 skips it), checks the LeRobot export with pyarrow (tests/lerobot/run.sh;
-# RIG_SKIP_LEROBOT=1 skips it), checks that the API docs build without warnings, then smoke-runs
+# RIG_SKIP_LEROBOT=1 skips it), checks model-package rewrites (tests/export/run.sh;
+# RIG_SKIP_EXPORT=1 skips it), checks that the API docs build without warnings, then smoke-runs
 # every fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
@@ -35,6 +36,12 @@ fi
 # against the datasets it came from; RIG_LEROBOT_PYTHON=<python with lerobot> adds LeRobotDataset.
 if [ "${RIG_SKIP_LEROBOT:-0}" != 1 ]; then
   RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/lerobot/run.sh
+fi
+# Package rewrites (tools/repack_package.py: one model.onnx.data per model, float16) checked with
+# rig (a venv in .rig/exportcheck); RIG_EXPORT_PYTHON=<python with tools/requirements.txt> adds the
+# kit checkpoint's export. RIG_SKIP_EXPORT=1 skips it.
+if [ "${RIG_SKIP_EXPORT:-0}" != 1 ]; then
+  RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/export/run.sh
 fi
 # The API docs must build without warnings (broken intra-doc links, bad HTML in comments).
 RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --no-deps --locked

@@ -22,8 +22,10 @@ Two sources, both read from local files only (nothing is downloaded):
        python tools/export_package.py --diffusers path/to/pipeline [--controlnet path/to/controlnet] --out models/mine
 
 Writes model.toml, tokenizer/tokenizer.json, {text_encoder,controlnet,unet,vae_decoder}/model.onnx
-(float32; models over 2 GB get an external-data file beside model.onnx) and
-scheduler/scheduler_config.json, then runs each ONNX model in onnxruntime against PyTorch.
+and scheduler/scheduler_config.json, then runs each ONNX model in onnxruntime against PyTorch.
+A model over 2 GB (the full-size UNet) keeps its weights in one file, model.onnx.data, beside its
+model.onnx (--external-data always: every model does). --fp16 writes float16 weights and
+activations with float32 inputs and outputs (tools/repack_package.py says what stays float32).
 Check the result with `rig synth info --model OUT`.
 """
 
@@ -37,6 +39,7 @@ import warnings
 import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from repack_package import repack_package  # noqa: E402
 from rig_export import check_onnx, export_models, write_model_toml, write_scheduler_config  # noqa: E402
 
 # MultiDiffSense's generate.py and test.py call ControlLDM.log_images with its defaults and save
@@ -108,6 +111,11 @@ def main():
     ap.add_argument("--sampling-steps", type=int, default=None)
     ap.add_argument("--eta", type=float, default=None)
     ap.add_argument("--guidance", type=float, default=None)
+    ap.add_argument("--fp16", action="store_true",
+                    help="float16 weights and activations (inputs and outputs stay float32; GroupNorm and LayerNorm "
+                         "statistics and the timestep embedding stay float32)")
+    ap.add_argument("--external-data", choices=["auto", "always", "never"], default="auto",
+                    help="weights in one model.onnx.data per model: auto (models over 2 GB), always, never")
     args = ap.parse_args()
 
     t0 = time.time()
@@ -157,6 +165,14 @@ def main():
     worst = max(diffs.values())
     if not worst < 1e-3:
         sys.exit(f"error: an exported model differs from PyTorch by {worst:.2e}")
+    # torch writes a model over 2 GB as one file per tensor: one model.onnx.data per model instead,
+    # and float16 if asked (checked against PyTorch's float32 below, for information).
+    for name, (size, outside) in repack_package(out, fp16=args.fp16, external=args.external_data).items():
+        print(f"{name:13}{size / 1e6:9.1f} MB{' float16' if args.fp16 else ''}"
+              f"{', weights in model.onnx.data' if outside else ''}")
+    if args.fp16:
+        diffs = check_onnx(out, text_encoder, controlnet, unet, vae, ids, resolution, resolution, vae_scale_factor)
+        print("fp16 check   max |onnxruntime float16 - torch float32|: " + ", ".join(f"{k} {v:.1e}" for k, v in diffs.items()))
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
     print(f"wrote {out} ({total / 1e6:.1f} MB) in {time.time() - t0:.0f} s (load and convert {t_load:.0f} s, "
           f"export {t_export:.0f} s); check it with: rig synth info --model {out}")

@@ -11,6 +11,8 @@
 //!                                   down_block_additional_residual_0..N-1, mid_block_additional_residual -> out_sample
 //! vae_decoder/model.onnx            latent_sample (already divided by the latent scale) -> sample in [-1, 1]
 //! scheduler/scheduler_config.json   diffusers scheduler config
+//! */model.onnx.data                 optional: all of that model's weights, beside its model.onnx
+//!                                   (ONNX Runtime reads it; needed over 2 GB; hashed like every file)
 //! ```
 //!
 //! Element types and shapes are read from the sessions ([`TensorSpec`]), never assumed: ids may
