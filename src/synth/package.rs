@@ -238,9 +238,32 @@ pub struct ModelPackage {
 }
 
 impl ModelPackage {
-    /// Opens `dir`: all of [`PACKAGE_FILES`] must exist (the error lists every missing one).
+    /// Opens `dir`: all of [`PACKAGE_FILES`] must exist (the error lists every missing one), each
+    /// a regular file reached without a symlink below `dir` ([`crate::confine`]): a package
+    /// from a colleague cannot make rig read, hash or hand ONNX Runtime a file elsewhere.
     pub fn open(dir: &Path) -> Result<Self, SynthError> {
-        let missing: Vec<PathBuf> = PACKAGE_FILES.iter().map(|f| dir.join(f)).filter(|p| !p.is_file()).collect();
+        use crate::confine::{ConfineError, EntryKind, RootDir};
+        // A folder that is not there (or not a folder) lists every file as missing, as before.
+        let root = match RootDir::open(dir) {
+            Ok(root) => Some(root),
+            Err(ConfineError::Missing { .. } | ConfineError::NotFolder { .. }) => None,
+            Err(e) => return Err(e.into()),
+        };
+        let mut missing = Vec::new();
+        for f in PACKAGE_FILES {
+            let found = match &root {
+                Some(root) => root.stat(f)?,
+                None => None,
+            };
+            match found {
+                None => missing.push(dir.join(f)),
+                Some(info) if info.kind == EntryKind::File => {}
+                Some(info) if info.kind == EntryKind::Symlink => {
+                    return Err(ConfineError::Symlink { root: dir.to_path_buf(), path: dir.join(f) }.into());
+                }
+                Some(info) => return Err(ConfineError::NotRegular { path: dir.join(f), found: info.kind.describe() }.into()),
+            }
+        }
         if !missing.is_empty() {
             return Err(SynthError::MissingFiles { dir: dir.to_path_buf(), missing });
         }
@@ -261,15 +284,19 @@ impl ModelPackage {
     /// contributes its relative path, a NUL, its length as 8 little-endian bytes, and its
     /// bytes), hex. Identifies the exact weights a synthetic image came from.
     pub fn content_hash(&self) -> Result<String, SynthError> {
+        // Through the opener: every file found below the package folder is a regular file
+        // reached without a symlink (a FIFO would block the hash forever; a link would hash,
+        // and so reveal, a file elsewhere).
+        let root = crate::confine::RootDir::open(&self.dir)?;
         let mut files = Vec::new();
-        collect_files(&self.dir, &self.dir, &mut files)?;
+        collect_files(&root, Path::new(""), &mut files)?;
         files.sort();
         let mut hasher = Sha256::new();
         let mut buf = vec![0u8; 1 << 20];
         for rel in files {
             let path = self.dir.join(&rel);
             let io = |source| SynthError::Io { path: path.clone(), source };
-            let mut f = std::fs::File::open(&path).map_err(io)?;
+            let mut f = root.open_file(&rel)?;
             let len = f.metadata().map_err(io)?.len();
             hasher.update(rel.to_string_lossy().replace('\\', "/").as_bytes());
             hasher.update([0u8]);
@@ -286,15 +313,17 @@ impl ModelPackage {
     }
 }
 
-fn collect_files(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), SynthError> {
-    let entries = std::fs::read_dir(dir).map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
-    for entry in entries {
-        let entry = entry.map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
-        let path = entry.path();
-        if path.is_dir() {
-            collect_files(root, &path, out)?;
-        } else if let Ok(rel) = path.strip_prefix(root) {
-            out.push(rel.to_path_buf());
+/// The files below `rel` of the package, relative to it; a symlink anywhere is refused, as is
+/// anything that is neither a file nor a folder.
+fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathBuf>) -> Result<(), SynthError> {
+    use crate::confine::{ConfineError, EntryKind};
+    for entry in root.entries(rel)? {
+        let path = rel.join(&entry.name);
+        match entry.kind {
+            EntryKind::Folder => collect_files(root, &path, out)?,
+            EntryKind::File => out.push(path),
+            EntryKind::Symlink => return Err(ConfineError::Symlink { root: root.path().to_path_buf(), path: root.path().join(path) }.into()),
+            EntryKind::Other => return Err(ConfineError::NotRegular { path: root.path().join(path), found: entry.kind.describe() }.into()),
         }
     }
     Ok(())
