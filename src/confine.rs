@@ -91,12 +91,6 @@ impl ConfineError {
     }
 }
 
-impl crate::report::Classify for ConfineError {
-    fn exit(&self) -> crate::report::Exit {
-        if self.is_bad_input() { crate::report::Exit::BadInput } else { crate::report::Exit::Failure }
-    }
-}
-
 /// What an entry is, read without following a symlink.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EntryKind {
@@ -486,11 +480,12 @@ pub fn read_bounded(file: File, path: &Path, max_bytes: u64) -> Result<Vec<u8>, 
 /// the operator's, the file name must not be one.
 pub fn open_parent(path: &Path) -> Result<(RootDir, OsString), ConfineError> {
     let name = path.file_name().ok_or_else(|| ConfineError::NotRegular { path: path.to_path_buf(), found: EntryKind::Folder.describe() })?;
-    let parent = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => RootDir::open(p)?,
+        // A bare file name: the working folder, shown as nothing so messages name `name` alone.
+        _ => RootDir { path: PathBuf::new(), ..RootDir::open(Path::new("."))? },
     };
-    Ok((RootDir::open(parent)?, name.to_os_string()))
+    Ok((dir, name.to_os_string()))
 }
 
 /// Reads the regular file the operator named at `path` (its folder may be reached through the

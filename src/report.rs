@@ -398,6 +398,21 @@ impl Classify for crate::sensor::SensorKindParseError {
     }
 }
 
+impl Classify for crate::confine::ConfineError {
+    fn exit(&self) -> Exit {
+        if self.is_bad_input() { Exit::BadInput } else { Exit::Failure }
+    }
+}
+
+impl Classify for crate::dataset::named::NamedFileError {
+    fn exit(&self) -> Exit {
+        match self {
+            crate::dataset::named::NamedFileError::Outside { .. } => Exit::BadInput,
+            crate::dataset::named::NamedFileError::Confined { source, .. } => source.exit(),
+        }
+    }
+}
+
 impl Classify for crate::roots::PathError {
     fn exit(&self) -> Exit {
         Exit::BadInput

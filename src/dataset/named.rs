@@ -44,15 +44,6 @@ pub enum NamedFileError {
     },
 }
 
-impl crate::report::Classify for NamedFileError {
-    fn exit(&self) -> crate::report::Exit {
-        match self {
-            NamedFileError::Outside { .. } => crate::report::Exit::BadInput,
-            NamedFileError::Confined { source, .. } => source.exit(),
-        }
-    }
-}
-
 /// The bytes of the file the manifest of the dataset at `dataset` names as `named` (`field`
 /// says which, for messages), at most `max_bytes`; `Ok(None)` when a plain relative path names
 /// no file in either place. `sha256` (hex) is the manifest's hash of the file, if it has one.

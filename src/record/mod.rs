@@ -81,6 +81,12 @@ pub enum RecordError {
     ObjectName { path: PathBuf },
 }
 
+/// Whether `name` can be a folder name: not empty, at most 100 bytes, no leading dot, no path
+/// separator or control character (the rule a job request's object name follows).
+fn is_plain_name(name: &str) -> bool {
+    !name.is_empty() && name.len() <= 100 && !name.starts_with('.') && !name.chars().any(|c| c == '/' || c == '\\' || c.is_control())
+}
+
 /// Largest recording file read (it is read whole; a long run with full-size frames fits).
 pub const MAX_RECORDING_BYTES: u64 = 4 << 30;
 
@@ -147,7 +153,7 @@ impl Recording {
         let raw = format::decode(bytes).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })?;
         let header: RecordingHeader =
             serde_json::from_str(&raw.header_json).map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
-        if crate::jobs::request::check_plain_name("object.name", &header.object.name).is_err() {
+        if !is_plain_name(&header.object.name) {
             return Err(RecordError::ObjectName { path: path.to_path_buf() });
         }
         for (record, e) in raw.events.iter().enumerate() {
