@@ -330,9 +330,8 @@ impl RootDir {
         let mut file = File::from(fd);
         let written = file.write_all(bytes).and_then(|()| file.sync_all());
         drop(file);
-        let renamed = written.and_then(|()| {
-            rustix::fs::renameat(&dir.fd, tmp_name.as_os_str(), &dir.fd, name.as_os_str()).map_err(std::io::Error::from)
-        });
+        let renamed = written
+            .and_then(|()| rustix::fs::renameat(&dir.fd, tmp_name.as_os_str(), &dir.fd, name.as_os_str()).map_err(std::io::Error::from));
         if let Err(e) = renamed {
             let _ = rustix::fs::unlinkat(&dir.fd, tmp_name.as_os_str(), AtFlags::empty());
             return Err(ConfineError::Io { op: "writing", path: self.path.join(rel), source: e });
@@ -394,7 +393,8 @@ impl RootDir {
         #[cfg(target_os = "linux")]
         if self.resolution == Resolution::Kernel && !OPENAT2_MISSING.load(Ordering::Relaxed) {
             let joined: PathBuf = parts.iter().collect();
-            let resolve = rustix::fs::ResolveFlags::BENEATH | rustix::fs::ResolveFlags::NO_SYMLINKS | rustix::fs::ResolveFlags::NO_MAGICLINKS;
+            let resolve =
+                rustix::fs::ResolveFlags::BENEATH | rustix::fs::ResolveFlags::NO_SYMLINKS | rustix::fs::ResolveFlags::NO_MAGICLINKS;
             // EAGAIN: a rename raced the lookup; the kernel asks to try again.
             for _ in 0..8 {
                 match rustix::fs::openat2(&self.fd, joined.as_path(), flags | OFlags::NOFOLLOW | OFlags::CLOEXEC, Mode::empty(), resolve) {
@@ -444,7 +444,9 @@ impl RootDir {
         match rustix::fs::statat(at, part, AtFlags::SYMLINK_NOFOLLOW) {
             Ok(st) if FileType::from_raw_mode(st.st_mode) == FileType::Symlink => ConfineError::Symlink { root: self.path.clone(), path },
             Ok(_) if e == Errno::NOTDIR && want_folder => ConfineError::NotFolder { path },
-            Ok(st) if e == Errno::NOTDIR => ConfineError::NotRegular { path, found: EntryKind::of(FileType::from_raw_mode(st.st_mode)).describe() },
+            Ok(st) if e == Errno::NOTDIR => {
+                ConfineError::NotRegular { path, found: EntryKind::of(FileType::from_raw_mode(st.st_mode)).describe() }
+            }
             _ => self.open_error(done, e),
         }
     }
@@ -468,7 +470,11 @@ pub fn read_bounded(file: File, path: &Path, max_bytes: u64) -> Result<Vec<u8>, 
         return Err(ConfineError::TooLarge { path: path.to_path_buf(), max_bytes });
     }
     let mut bytes = Vec::with_capacity(len as usize);
-    file.take(max_bytes + 1).read_to_end(&mut bytes).map_err(|e| ConfineError::Io { op: "reading", path: path.to_path_buf(), source: e })?;
+    file.take(max_bytes + 1).read_to_end(&mut bytes).map_err(|e| ConfineError::Io {
+        op: "reading",
+        path: path.to_path_buf(),
+        source: e,
+    })?;
     if bytes.len() as u64 > max_bytes {
         return Err(ConfineError::TooLarge { path: path.to_path_buf(), max_bytes });
     }
@@ -479,7 +485,8 @@ pub fn read_bounded(file: File, path: &Path, max_bytes: u64) -> Result<Vec<u8>, 
 /// the folder it lives in, opened as a root, and its file name: the folder's own symlinks are
 /// the operator's, the file name must not be one.
 pub fn open_parent(path: &Path) -> Result<(RootDir, OsString), ConfineError> {
-    let name = path.file_name().ok_or_else(|| ConfineError::NotRegular { path: path.to_path_buf(), found: EntryKind::Folder.describe() })?;
+    let name =
+        path.file_name().ok_or_else(|| ConfineError::NotRegular { path: path.to_path_buf(), found: EntryKind::Folder.describe() })?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => RootDir::open(p)?,
         // A bare file name: the working folder, shown as nothing so messages name `name` alone.
@@ -549,7 +556,9 @@ mod tests {
         symlink(top.join("root/file.txt"), top.join("root/a/inner.txt")).expect("symlink");
         symlink("../../outside/file.txt", top.join("root/a/relative.txt")).expect("symlink");
         for root in roots(&top) {
-            for rel in ["link.txt", "la/file.txt", "la/b/file.txt", "a/b/deep/file.txt", "a/b/deep/b/file.txt", "a/inner.txt", "a/relative.txt"] {
+            for rel in
+                ["link.txt", "la/file.txt", "la/b/file.txt", "a/b/deep/file.txt", "a/b/deep/b/file.txt", "a/inner.txt", "a/relative.txt"]
+            {
                 let e = root.read(rel, 100).expect_err(rel);
                 assert!(matches!(e, ConfineError::Symlink { .. }), "{rel}: {e}");
                 assert!(!e.to_string().contains("sentinel") && !e.to_string().contains("outside"), "{e}");

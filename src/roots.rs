@@ -184,7 +184,11 @@ impl DataRoots {
             return Err(PathError::DanglingSymlink { field: field.into(), given: given.into() });
         }
         let resolved = tail.iter().rev().fold(canonical, |path, name| path.join(name));
-        if self.contains(&resolved) { self.no_symlink_below_root(field, given, &absolute, resolved) } else { Err(self.outside(field, given)) }
+        if self.contains(&resolved) {
+            self.no_symlink_below_root(field, given, &absolute, resolved)
+        } else {
+            Err(self.outside(field, given))
+        }
     }
 
     /// `resolved` (inside a root) when the path as given reached it without a symlink below the
@@ -198,7 +202,11 @@ impl DataRoots {
             if self.roots.contains(&root) {
                 let below = lexical.strip_prefix(ancestor).unwrap_or(Path::new(""));
                 let expected = if below.as_os_str().is_empty() { root } else { root.join(below) };
-                return if expected == resolved { Ok(resolved) } else { Err(PathError::Symlink { field: field.into(), given: given.into() }) };
+                return if expected == resolved {
+                    Ok(resolved)
+                } else {
+                    Err(PathError::Symlink { field: field.into(), given: given.into() })
+                };
             }
         }
         Ok(resolved)

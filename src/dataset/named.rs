@@ -101,7 +101,8 @@ mod tests {
         let existing = top.join("secret.stl").display().to_string();
         let missing = top.join("missing.stl").display().to_string();
         let mut messages = Vec::new();
-        for (named, sha) in [(existing.as_str(), None), (missing.as_str(), None), ("../secret.stl", None), (existing.as_str(), Some("00"))] {
+        for (named, sha) in [(existing.as_str(), None), (missing.as_str(), None), ("../secret.stl", None), (existing.as_str(), Some("00"))]
+        {
             let e = read_named(&ds, "calibration", named, sha, 100).expect_err(named);
             assert!(matches!(e, NamedFileError::Outside { .. }), "{named}: {e}");
             assert!(!e.to_string().contains("SECRET"), "{e}");

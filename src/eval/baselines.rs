@@ -102,7 +102,13 @@ impl Collected {
             let (object, sensor) = d.key();
             let entry = by_sensor.entry(sensor).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
             for r in d.captured_rows() {
-                entry.poses.push(CollectedPose { object: object.clone(), pose: r.commanded(), dir: d.dir.clone(), image: r.image.clone(), dataset: index });
+                entry.poses.push(CollectedPose {
+                    object: object.clone(),
+                    pose: r.commanded(),
+                    dir: d.dir.clone(),
+                    image: r.image.clone(),
+                    dataset: index,
+                });
             }
         }
         let mut images = 0;

@@ -62,7 +62,10 @@ impl<'a> DatasetJudge<'a> {
         let size = settings.size_px;
         // Through the dataset rules: a symlinked or missing reference is not "no reference".
         let reference = match load_image(&real.dir, REFERENCE_FILE) {
-            Err(EvalError::Dataset { source: crate::dataset::DatasetError::Confined(crate::confine::ConfineError::Missing { .. }), .. }) => {
+            Err(EvalError::Dataset {
+                source: crate::dataset::DatasetError::Confined(crate::confine::ConfineError::Missing { .. }),
+                ..
+            }) => {
                 return Err(EvalError::NoReference { dir: real.dir.clone() });
             }
             other => other?,

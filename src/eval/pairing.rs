@@ -176,7 +176,8 @@ pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) 
     let calib = match info.manifest.calibration.as_deref() {
         None | Some("default") | Some("none") => Calibration::default_for(native.0, native.1),
         Some(named) => {
-            let bytes = crate::dataset::named::read_named(&info.dir, "calibration", named, None, crate::untrusted::MAX_CONFIG_BYTES).ok()??;
+            let bytes =
+                crate::dataset::named::read_named(&info.dir, "calibration", named, None, crate::untrusted::MAX_CONFIG_BYTES).ok()??;
             Calibration::from_toml(std::str::from_utf8(&bytes).ok()?, named).ok()?
         }
     };

@@ -227,7 +227,11 @@ impl CollectOutcome {
 /// /elsewhere`) would put the dataset outside what was approved. `<out>` itself is the
 /// operator's path (or a request's, confined to the data roots).
 fn confine_dataset_dir(setup: &CollectSetup, sensor: SensorKind) -> Result<(), crate::dataset::DatasetError> {
-    std::fs::create_dir_all(&setup.out).map_err(|e| crate::dataset::DatasetError::Io { op: "creating", path: setup.out.clone(), source: e })?;
+    std::fs::create_dir_all(&setup.out).map_err(|e| crate::dataset::DatasetError::Io {
+        op: "creating",
+        path: setup.out.clone(),
+        source: e,
+    })?;
     let out = crate::confine::RootDir::open(&setup.out)?;
     out.create_dir_all(std::path::Path::new(&setup.object.name).join(sensor.name()))?;
     Ok(())

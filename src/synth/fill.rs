@@ -429,7 +429,8 @@ fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
 
 /// The calibration named in the manifest ("default": the default for the image size).
 fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> Result<Calibration, FillError> {
-    let failed = |calibration: &str, reason: String| FillError::Calibration { dir: dir.to_path_buf(), calibration: calibration.to_string(), reason };
+    let failed =
+        |calibration: &str, reason: String| FillError::Calibration { dir: dir.to_path_buf(), calibration: calibration.to_string(), reason };
     match manifest.calibration.as_deref() {
         // An uncalibrated collection: the calibration `rig calibrate` saved since, if any (rig's
         // own file, not one the manifest names).

@@ -322,7 +322,9 @@ fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathB
         match entry.kind {
             EntryKind::Folder => collect_files(root, &path, out)?,
             EntryKind::File => out.push(path),
-            EntryKind::Symlink => return Err(ConfineError::Symlink { root: root.path().to_path_buf(), path: root.path().join(path) }.into()),
+            EntryKind::Symlink => {
+                return Err(ConfineError::Symlink { root: root.path().to_path_buf(), path: root.path().join(path) }.into());
+            }
             EntryKind::Other => return Err(ConfineError::NotRegular { path: root.path().join(path), found: entry.kind.describe() }.into()),
         }
     }

@@ -788,9 +788,9 @@ fn replay_refuses_object_paths_and_non_regular_recordings() {
 /// rules: no symlink, no FIFO, and an image's pixel count bounded before decoding.
 #[test]
 fn eval_and_calibrate_read_images_by_the_dataset_rules() {
-    use std::os::unix::fs::symlink;
     use rig::dataset::Source;
     use rig::pose::Pose;
+    use std::os::unix::fs::symlink;
     let sb = Sandbox::new();
     let w = sb.work();
     let poses = [(1, Pose::new(0.0, 0.0, 0.0, 0.0)), (2, Pose::new(2.0, -1.0, 0.5, 30.0))];
