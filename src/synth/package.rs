@@ -267,6 +267,15 @@ impl ModelPackage {
         if !missing.is_empty() {
             return Err(SynthError::MissingFiles { dir: dir.to_path_buf(), missing });
         }
+        if let Some(root) = &root {
+            // Nothing anywhere in the package is a symlink, FIFO or device (ONNX Runtime opens
+            // the model files and their external data itself, by path), and every external-data
+            // file a model names is a plain relative path to a regular file beside it.
+            collect_files(root, Path::new(""), &mut Vec::new())?;
+            for f in PACKAGE_FILES.iter().filter(|f| f.ends_with(".onnx")) {
+                check_external_data(root, Path::new(f))?;
+            }
+        }
         let config = ModelConfig::read(&dir.join("model.toml"))?;
         let sched_path = dir.join("scheduler/scheduler_config.json");
         let sched_config =
@@ -311,6 +320,25 @@ impl ModelPackage {
         }
         Ok(hex::encode(hasher.finalize()))
     }
+}
+
+/// The external data `model` (a package file) names must lie beside or below it, as regular
+/// files reached without a symlink.
+fn check_external_data(root: &crate::confine::RootDir, model: &Path) -> Result<(), SynthError> {
+    let file = root.path().join(model);
+    let bad = |reason: String| SynthError::BadModelFile { file: file.clone(), reason };
+    let locations =
+        super::onnx_graph::external_data_locations(&file).map_err(|e| bad(format!("cannot read its external-data table: {e}")))?;
+    let folder = model.parent().unwrap_or(Path::new(""));
+    for location in locations {
+        match root.open_dir(folder)?.stat(&location) {
+            Ok(Some(info)) if info.kind == crate::confine::EntryKind::File => {}
+            Ok(Some(info)) => return Err(bad(format!("its external data {location:?} is {}, not a regular file", info.kind.describe()))),
+            Ok(None) => return Err(bad(format!("its external data {location:?} is missing"))),
+            Err(e) => return Err(bad(format!("its external data {location:?}: {e}"))),
+        }
+    }
+    Ok(())
 }
 
 /// The files below `rel` of the package, relative to it; a symlink anywhere is refused, as is
@@ -523,5 +551,44 @@ mod tests {
             other => panic!("unexpected {other}"),
         }
         assert!(e.to_string().contains("unet/model.onnx"), "{e}");
+    }
+
+    /// A copy of the tiny test package in a temp folder, with `outside/secret` beside it.
+    fn package_copy() -> (tempfile::TempDir, PathBuf) {
+        let tmp = tempfile::tempdir().unwrap();
+        let pkg = tmp.path().join("pkg");
+        let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
+        for f in PACKAGE_FILES {
+            std::fs::create_dir_all(pkg.join(f).parent().unwrap()).unwrap();
+            std::fs::copy(tiny.join(f), pkg.join(f)).unwrap();
+        }
+        std::fs::create_dir(tmp.path().join("outside")).unwrap();
+        std::fs::write(tmp.path().join("outside/secret"), "sentinel").unwrap();
+        (tmp, pkg)
+    }
+
+    #[test]
+    fn symlinks_and_escaping_external_data_in_a_package_are_refused() {
+        let (tmp, pkg) = package_copy();
+        ModelPackage::open(&pkg).expect("the copy opens");
+        // Any symlink in the package, not only at a file the loader names.
+        std::os::unix::fs::symlink(tmp.path().join("outside/secret"), pkg.join("unet/weights.bin")).unwrap();
+        let e = ModelPackage::open(&pkg).unwrap_err();
+        assert!(matches!(e, SynthError::Confined(crate::confine::ConfineError::Symlink { .. })), "{e}");
+        std::fs::remove_file(pkg.join("unet/weights.bin")).unwrap();
+
+        // A model whose initializer keeps its data in a file outside the package.
+        let ld = |field: u8, bytes: &[u8]| [vec![(field << 3) | 2, bytes.len() as u8], bytes.to_vec()].concat();
+        let entry = |k: &str, v: &str| ld(13, &[ld(1, k.as_bytes()), ld(2, v.as_bytes())].concat());
+        let model = |location: &str| ld(7, &ld(5, &[ld(8, b"w"), entry("location", location)].concat()));
+        for (location, phrase) in [("../../outside/secret", "not a path below"), ("absent.bin", "missing")] {
+            std::fs::write(pkg.join("unet/model.onnx"), model(location)).unwrap();
+            let e = ModelPackage::open(&pkg).unwrap_err();
+            assert!(matches!(e, SynthError::BadModelFile { .. }) && e.to_string().contains(phrase), "{location}: {e}");
+            assert!(!e.to_string().contains("sentinel"), "{e}");
+        }
+        std::fs::write(pkg.join("unet/weights.bin"), [0u8; 16]).unwrap();
+        std::fs::write(pkg.join("unet/model.onnx"), model("weights.bin")).unwrap();
+        ModelPackage::open(&pkg).expect("external data beside the model is fine (ONNX Runtime checks the rest)");
     }
 }
