@@ -66,9 +66,9 @@ pub fn count_stride2_convs(path: &Path) -> Result<usize, GraphScanError> {
 /// | `TensorProto` | `external_data` (repeated `StringStringEntryProto`) | 13 | length-delimited |
 /// | `StringStringEntryProto` | `key`, `value` | 1, 2 | length-delimited (UTF-8) |
 ///
-/// An initializer larger than 1 MiB holds its data inline and is skipped unread.
-pub fn external_data_locations(path: &Path) -> Result<Vec<String>, GraphScanError> {
-    let file = std::fs::File::open(path).map_err(|_| GraphScanError("cannot open the model file"))?;
+/// An initializer larger than 1 MiB holds its data inline and is skipped unread. `file` is the
+/// model, opened by the caller (the package loader opens it through the opener).
+pub fn external_data_locations(file: std::fs::File) -> Result<Vec<String>, GraphScanError> {
     let len = file.metadata().map_err(|_| GraphScanError("cannot read the model file"))?.len();
     let mut reader = BufReader::with_capacity(1 << 16, file);
     let mut locations = Vec::new();
@@ -328,10 +328,11 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("m.onnx");
         std::fs::write(&path, &model).expect("write");
-        assert_eq!(external_data_locations(&path), Ok(vec!["../../outside/secret".to_string(), "weights.bin".to_string()]));
+        let open = |p: &Path| std::fs::File::open(p).expect("open");
+        assert_eq!(external_data_locations(open(&path)), Ok(vec!["../../outside/secret".to_string(), "weights.bin".to_string()]));
         std::fs::write(&path, &model[..model.len() - 3]).expect("write");
-        assert!(external_data_locations(&path).is_err(), "truncated");
-        assert_eq!(external_data_locations(&tiny("unet")), Ok(vec![]));
+        assert!(external_data_locations(open(&path)).is_err(), "truncated");
+        assert_eq!(external_data_locations(open(&tiny("unet"))), Ok(vec![]));
     }
 
     fn tiny(model: &str) -> std::path::PathBuf {

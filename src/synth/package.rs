@@ -327,8 +327,8 @@ impl ModelPackage {
 fn check_external_data(root: &crate::confine::RootDir, model: &Path) -> Result<(), SynthError> {
     let file = root.path().join(model);
     let bad = |reason: String| SynthError::BadModelFile { file: file.clone(), reason };
-    let locations =
-        super::onnx_graph::external_data_locations(&file).map_err(|e| bad(format!("cannot read its external-data table: {e}")))?;
+    let locations = super::onnx_graph::external_data_locations(root.open_file(model)?)
+        .map_err(|e| bad(format!("cannot read its external-data table: {e}")))?;
     let folder = model.parent().unwrap_or(Path::new(""));
     for location in locations {
         match root.open_dir(folder)?.stat(&location) {
