@@ -14,6 +14,7 @@ pub mod cli;
 pub mod clock;
 pub mod collect;
 pub mod config;
+pub mod confine;
 pub mod daemon;
 pub mod dataset;
 pub mod eval;

@@ -134,6 +134,8 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::arm::profile::ProfileLookupError,
         crate::record::replay::ReplayError,
         crate::eval::compare_real::CompareRealError,
+        crate::confine::ConfineError,
+        crate::dataset::named::NamedFileError,
     );
     None
 }
@@ -263,6 +265,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::Encode { .. }
             | D::Locked { .. }
             | D::CsvWrite { .. } => Exit::Failure,
+            D::Confined(e) => e.exit(),
         }
     }
 }
@@ -310,6 +313,7 @@ impl Classify for crate::synth::SynthError {
             | S::OrtLoad { .. }
             | S::Npy(_) => Exit::BadInput,
             S::Scheduler { source, .. } => source.exit(),
+            S::Confined(e) => e.exit(),
             // Set-up (scripts/setup.sh not run), or a failure while running a loaded model.
             S::OrtLibraryNotFound { .. }
             | S::ProviderUnavailable { .. }
@@ -391,6 +395,21 @@ impl Classify for crate::geometry::objects::ObjectError {
 impl Classify for crate::sensor::SensorKindParseError {
     fn exit(&self) -> Exit {
         Exit::BadInput
+    }
+}
+
+impl Classify for crate::confine::ConfineError {
+    fn exit(&self) -> Exit {
+        if self.is_bad_input() { Exit::BadInput } else { Exit::Failure }
+    }
+}
+
+impl Classify for crate::dataset::named::NamedFileError {
+    fn exit(&self) -> Exit {
+        match self {
+            crate::dataset::named::NamedFileError::Outside { .. } => Exit::BadInput,
+            crate::dataset::named::NamedFileError::Confined { source, .. } => source.exit(),
+        }
     }
 }
 

@@ -58,6 +58,8 @@ pub enum PathError {
     ParentDir { field: String, given: PathBuf },
     #[error("{field} {given}: a symlink to nothing (rig does not write through symlinks)")]
     DanglingSymlink { field: String, given: PathBuf },
+    #[error("{field} {given}: goes through a symlink below the data root (rig follows no symlink below a root)")]
+    Symlink { field: String, given: PathBuf },
     #[error("{field} {given}: cannot be resolved ({kind})")]
     Unresolvable { field: String, given: PathBuf, kind: std::io::ErrorKind },
 }
@@ -71,6 +73,7 @@ impl PathError {
             | PathError::Missing { given, .. }
             | PathError::ParentDir { given, .. }
             | PathError::DanglingSymlink { given, .. }
+            | PathError::Symlink { given, .. }
             | PathError::Unresolvable { given, .. } => Some(given),
         }
     }
@@ -136,7 +139,7 @@ impl DataRoots {
     pub fn input(&self, field: &str, given: &Path) -> Result<PathBuf, PathError> {
         let absolute = self.absolute(field, given)?;
         match absolute.canonicalize() {
-            Ok(canonical) if self.contains(&canonical) => Ok(canonical),
+            Ok(canonical) if self.contains(&canonical) => self.no_symlink_below_root(field, given, &absolute, canonical),
             Ok(_) => Err(self.outside(field, given)),
             // Only a path lexically inside a root may say it is missing: elsewhere that would
             // tell a caller which files exist outside the roots.
@@ -181,7 +184,32 @@ impl DataRoots {
             return Err(PathError::DanglingSymlink { field: field.into(), given: given.into() });
         }
         let resolved = tail.iter().rev().fold(canonical, |path, name| path.join(name));
-        if self.contains(&resolved) { Ok(resolved) } else { Err(self.outside(field, given)) }
+        if self.contains(&resolved) {
+            self.no_symlink_below_root(field, given, &absolute, resolved)
+        } else {
+            Err(self.outside(field, given))
+        }
+    }
+
+    /// `resolved` (inside a root) when the path as given reached it without a symlink below the
+    /// root: the given path, `..` applied, is a root (or the operator's own symlink to one)
+    /// followed by components that resolve to exactly themselves. A path that reaches a root
+    /// from outside every root (a link elsewhere pointing in) is not below a root and is kept.
+    fn no_symlink_below_root(&self, field: &str, given: &Path, absolute: &Path, resolved: PathBuf) -> Result<PathBuf, PathError> {
+        let lexical = lexical(absolute);
+        for ancestor in lexical.ancestors() {
+            let Ok(root) = ancestor.canonicalize() else { continue };
+            if self.roots.contains(&root) {
+                let below = lexical.strip_prefix(ancestor).unwrap_or(Path::new(""));
+                let expected = if below.as_os_str().is_empty() { root } else { root.join(below) };
+                return if expected == resolved {
+                    Ok(resolved)
+                } else {
+                    Err(PathError::Symlink { field: field.into(), given: given.into() })
+                };
+            }
+        }
+        Ok(resolved)
     }
 
     fn absolute(&self, field: &str, given: &Path) -> Result<PathBuf, PathError> {
@@ -277,8 +305,16 @@ mod tests {
         assert!(matches!(e, PathError::Outside { .. }), "{e}");
         assert!(!e.to_string().contains("secret"), "the resolved target is not named: {e}");
         assert!(matches!(f.roots.input("plan", Path::new("root/out/escape/secret.txt")), Err(PathError::Outside { .. })));
-        // A symlink that stays inside is fine, and resolves to its target.
-        assert_eq!(f.roots.input("plan", Path::new("root/out/inner.toml")).expect("inside"), f.top.join("root/data/plan.toml"));
+        // A symlink below a root is refused even when it stays inside: it is not the path named.
+        let e = f.roots.input("plan", Path::new("root/out/inner.toml")).expect_err("a symlink below the root");
+        assert!(matches!(e, PathError::Symlink { .. }), "{e}");
+        symlink(f.top.join("root/data"), f.top.join("root/out/data-link")).expect("symlink");
+        for through in ["root/out/data-link/plan.toml", "root/out/data-link/../data/plan.toml"] {
+            assert!(matches!(f.roots.input("plan", Path::new(through)), Err(PathError::Symlink { .. })), "{through}");
+        }
+        for out in ["root/out/data-link/new.toml", "root/out/data-link/a/b", "root/out/data-link"] {
+            assert!(matches!(f.roots.output("out", Path::new(out)), Err(PathError::Symlink { .. })), "{out}");
+        }
         // Outputs through a symlinked folder, existing or not yet, are refused.
         for out in ["root/out/escape/new.toml", "root/out/escape/a/b/c", "root/out/escape", "root/data/link.toml"] {
             assert!(matches!(f.roots.output("out", Path::new(out)), Err(PathError::Outside { .. })), "{out}");

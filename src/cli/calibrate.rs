@@ -346,12 +346,12 @@ type KnownFrames = (Vec<(String, Pose, RgbImage)>, RgbImage);
 
 /// A rig dataset: captured rows, real or simulated (measured pose when logged), `reference.png`.
 fn rig_dataset_frames(dir: &Path) -> anyhow::Result<KnownFrames> {
-    let reference = load_rgb(&dir.join("reference.png"))?;
+    let reference = dataset_rgb(dir, crate::dataset::REFERENCE_FILE)?;
     let rows = crate::dataset::read_rows(dir).with_context(|| format!("reading {}", dir.display()))?;
     let mut frames = Vec::new();
     for row in rows.iter().filter(|r| r.source.is_captured()) {
         let pose = row.measured().unwrap_or_else(|| row.commanded());
-        frames.push((row.image.clone(), pose, load_rgb(&dir.join(&row.image))?));
+        frames.push((row.image.clone(), pose, dataset_rgb(dir, &row.image)?));
     }
     Ok((frames, reference))
 }
@@ -368,6 +368,11 @@ fn multidiffsense_frames(dir: &Path, kind: SensorKind) -> anyhow::Result<KnownFr
     Ok((sample.posed_frames(kind, crate::eval::compare_real::RealSample::work_pose)?, reference))
 }
 
-fn load_rgb(path: &Path) -> anyhow::Result<RgbImage> {
-    Ok(image::open(path).with_context(|| format!("reading {}", path.display()))?.to_rgb8())
+/// An image of the dataset at `dir` by the dataset rules: below it with no symlink, a regular
+/// file, bounded, its pixel count bounded before decoding.
+fn dataset_rgb(dir: &Path, rel: &str) -> anyhow::Result<RgbImage> {
+    use crate::dataset::{DatasetError, durable};
+    let bytes = durable::read_below(dir, Path::new(rel), durable::MAX_IMAGE_BYTES)?;
+    let image = durable::decode_image(&bytes).map_err(|reason| DatasetError::BadImage { path: dir.join(rel), reason })?;
+    Ok(image.to_rgb8())
 }

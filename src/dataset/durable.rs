@@ -30,6 +30,11 @@ pub const MAX_CSV_LINE_BYTES: usize = 64 << 10;
 pub const MAX_IMAGE_BYTES: u64 = 64 << 20;
 /// Largest image side decoded, px.
 pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
+/// Most pixels decoded in one image (4096 x 4096; a tactile frame is under 2 Mpx): checked
+/// from the header before decoding, so an 8192 x 8192 16-bit PNG is refused, not decoded.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+/// Most memory the decoder may take for one image (16 Mpx of 16-bit RGBA is 128 MiB).
+const MAX_DECODE_BYTES: u64 = 256 << 20;
 
 /// What an entry of a dataset must be.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,13 +98,26 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, DatasetError
     Ok(bytes)
 }
 
+/// Reads `rel` (a path a dataset's own files name, such as a row's `images/3.png`) below the
+/// dataset folder `dir` through [`crate::confine`]: no symlink in any component (`images/`
+/// included), a regular file, at most `max_bytes`.
+pub fn read_below(dir: &Path, rel: &Path, max_bytes: u64) -> Result<Vec<u8>, DatasetError> {
+    Ok(crate::confine::RootDir::open(dir)?.read(rel, max_bytes)?)
+}
+
 /// Decodes image bytes with bounds on the side and the memory the decoder may take.
 pub fn decode_image(bytes: &[u8]) -> Result<image::DynamicImage, String> {
-    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string())?;
+    let reader = || image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string());
+    // The header alone: the pixel count is bounded before anything is allocated for pixels.
+    let (width, height) = reader()?.into_dimensions().map_err(|e| e.to_string())?;
+    if u64::from(width) * u64::from(height) > MAX_IMAGE_PIXELS {
+        return Err(format!("{width}x{height} px is more than the {MAX_IMAGE_PIXELS} pixels rig decodes"));
+    }
+    let mut reader = reader()?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE_PX);
     limits.max_image_height = Some(MAX_IMAGE_SIDE_PX);
-    limits.max_alloc = Some(1 << 30);
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
     reader.limits(limits);
     reader.decode().map_err(|e| e.to_string())
 }

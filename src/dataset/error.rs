@@ -93,6 +93,10 @@ pub enum DatasetError {
         "refusing to mix real and simulated frames: {real} has real rows, {simulated} has simulated rows (pass --allow-mixed to merge them anyway)"
     )]
     MixedSources { real: PathBuf, simulated: PathBuf },
+    /// A path below the dataset (or the folder holding datasets) broke the opener's rules: a
+    /// symlink on the way, not a regular file, too large ([`crate::confine`]).
+    #[error(transparent)]
+    Confined(#[from] crate::confine::ConfineError),
 }
 
 impl DatasetError {

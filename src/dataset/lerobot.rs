@@ -203,7 +203,7 @@ fn check_out(out: &Path) -> Result<(), LerobotError> {
 /// Reads the datasets under `root`, grouped into episodes by object, and checks that they fit
 /// one LeRobot dataset.
 fn load_episodes(root: &Path) -> Result<Vec<EpisodeData>, LerobotError> {
-    let dirs = find_datasets(root);
+    let dirs = find_datasets(root)?;
     if dirs.is_empty() {
         return Err(LerobotError::NoDatasets { root: root.to_path_buf() });
     }
@@ -697,12 +697,15 @@ struct EpisodeOut {
 /// decoded image for the stats.
 fn frame_image(
     pose_id: u32,
-    path: &Path,
+    dir: &Path,
+    image: &str,
     expected: Option<[u32; 2]>,
     reencoded: &mut usize,
 ) -> Result<(Vec<u8>, image::RgbImage), LerobotError> {
-    let bytes = match durable::read_regular(path, durable::MAX_IMAGE_BYTES) {
-        Err(DatasetError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+    let path = &dir.join(image);
+    // Through the opener: a symlinked `images/` (or image) is refused, not read.
+    let bytes = match durable::read_below(dir, Path::new(image), durable::MAX_IMAGE_BYTES) {
+        Err(DatasetError::Confined(crate::confine::ConfineError::Missing { .. })) => {
             return Err(DatasetError::MissingImage { pose_id, path: path.to_path_buf() }.into());
         }
         other => other?,
@@ -793,8 +796,7 @@ fn write_all(
                 let row = s.rows.get(&pose_id).ok_or_else(|| LerobotError::Layout {
                     reason: format!("object {:?}: {} has no pose {pose_id}", episode.object, s.dir.display()),
                 })?;
-                let path = s.dir.join(&row.image);
-                let (bytes, rgb) = frame_image(pose_id, &path, image_shapes.get(&s.sensor).copied(), &mut reencoded)?;
+                let (bytes, rgb) = frame_image(pose_id, &s.dir, &row.image, image_shapes.get(&s.sensor).copied(), &mut reencoded)?;
                 image_shapes.insert(s.sensor, [rgb.width(), rgb.height()]);
                 if let Some(h) = stats.images.get_mut(&image_key(s.sensor)) {
                     h.push(&rgb);

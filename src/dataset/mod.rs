@@ -26,6 +26,7 @@ pub mod export;
 pub mod lerobot;
 pub mod manifest;
 pub mod merge;
+pub mod named;
 pub mod verify;
 pub mod writer;
 
@@ -282,26 +283,48 @@ pub fn image_rel_path(pose_id: u32) -> String {
 }
 
 /// Dataset directories under `root`: `root` itself when it holds a manifest, else its
-/// subfolders that do, and theirs (two levels: `<object>/<sensor>`), sorted.
-pub fn find_datasets(root: &std::path::Path) -> Vec<PathBuf> {
-    if root.join(MANIFEST_FILE).is_file() {
-        return vec![root.to_path_buf()];
+/// subfolders that do, and theirs (two levels: `<object>/<sensor>`), sorted. `root` is the
+/// operator's (or a request's, already confined to the data roots); below it nothing is
+/// followed through a symlink ([`crate::confine`]): a symlinked folder or manifest where a
+/// dataset could be is an error, not a dataset somewhere else.
+pub fn find_datasets(root: &std::path::Path) -> Result<Vec<PathBuf>, DatasetError> {
+    use crate::confine::{EntryKind, RootDir};
+    let dir = RootDir::open(root)?;
+    let has_manifest = |rel: &std::path::Path| -> Result<bool, DatasetError> {
+        match dir.stat(rel.join(MANIFEST_FILE))? {
+            None => Ok(false),
+            Some(info) if info.kind == EntryKind::File => Ok(true),
+            Some(info) if info.kind == EntryKind::Symlink => Err(DatasetError::Symlink { path: root.join(rel).join(MANIFEST_FILE) }),
+            Some(_) => Err(DatasetError::NotRegular { path: root.join(rel).join(MANIFEST_FILE), expected: "a regular file" }),
+        }
+    };
+    if has_manifest(std::path::Path::new(""))? {
+        return Ok(vec![root.to_path_buf()]);
     }
-    let children = |d: &std::path::Path| -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> =
-            std::fs::read_dir(d).map(|it| it.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect()).unwrap_or_default();
-        v.sort();
-        v
+    let children = |rel: &std::path::Path| -> Result<Vec<PathBuf>, DatasetError> {
+        let mut v = Vec::new();
+        for entry in dir.entries(rel)? {
+            match entry.kind {
+                EntryKind::Folder => v.push(rel.join(&entry.name)),
+                EntryKind::Symlink => return Err(DatasetError::Symlink { path: root.join(rel).join(&entry.name) }),
+                EntryKind::File | EntryKind::Other => {}
+            }
+        }
+        Ok(v)
     };
     let mut found = Vec::new();
-    for a in children(root) {
-        if a.join(MANIFEST_FILE).is_file() {
-            found.push(a);
+    for a in children(std::path::Path::new(""))? {
+        if has_manifest(&a)? {
+            found.push(root.join(a));
             continue;
         }
-        found.extend(children(&a).into_iter().filter(|b| b.join(MANIFEST_FILE).is_file()));
+        for b in children(&a)? {
+            if has_manifest(&b)? {
+                found.push(root.join(b));
+            }
+        }
     }
-    found
+    Ok(found)
 }
 
 /// Reads every row of `dir/poses.csv`, failing on a malformed or duplicated row (a torn last

@@ -68,7 +68,9 @@ pub fn warp_to_pose(image: &RgbImage, reference: &RgbImage, from: &Pose, to: &Po
 pub(super) struct CollectedPose {
     object: String,
     pose: Pose,
-    path: PathBuf,
+    /// The dataset folder and the image's path below it.
+    dir: PathBuf,
+    image: String,
     /// Index into the collected datasets (for their reference frames).
     dataset: usize,
 }
@@ -96,18 +98,24 @@ impl Collected {
         let mut by_sensor: BTreeMap<String, CollectedSensor> = BTreeMap::new();
         let mut references = Vec::new();
         for (index, d) in sets.iter().enumerate() {
-            references.push(load_at(&d.dir.join(REFERENCE_FILE), size).ok());
+            references.push(load_at(&d.dir, REFERENCE_FILE, size).ok());
             let (object, sensor) = d.key();
             let entry = by_sensor.entry(sensor).or_insert_with(|| CollectedSensor { poses: Vec::new(), mean: None });
             for r in d.captured_rows() {
-                entry.poses.push(CollectedPose { object: object.clone(), pose: r.commanded(), path: d.dir.join(&r.image), dataset: index });
+                entry.poses.push(CollectedPose {
+                    object: object.clone(),
+                    pose: r.commanded(),
+                    dir: d.dir.clone(),
+                    image: r.image.clone(),
+                    dataset: index,
+                });
             }
         }
         let mut images = 0;
         for sensor in by_sensor.values_mut() {
             let mut mean = MeanImage::new(size, size);
             for p in &sensor.poses {
-                mean.add(&load_at(&p.path, size)?);
+                mean.add(&load_at(&p.dir, &p.image, size)?);
             }
             images += sensor.poses.len();
             sensor.mean = mean.image();
@@ -142,7 +150,7 @@ impl CollectedSensor {
         references: &[Option<RgbImage>],
     ) -> Result<Option<RgbImage>, EvalError> {
         let (Some(nn), Some(mean)) = (self.nearest(object, pose), &self.mean) else { return Ok(None) };
-        let img = load_at(&nn.path, size)?;
+        let img = load_at(&nn.dir, &nn.image, size)?;
         let nn_reference = references.get(nn.dataset).cloned().flatten().unwrap_or_else(|| mean.clone());
         Ok(Some(warp_to_pose(&img, &nn_reference, &nn.pose, pose, calib)))
     }

@@ -159,9 +159,12 @@ impl RealSample {
             let mut list: Vec<(usize, RgbImage)> = Vec::new();
             for i in indices {
                 let path = target.join(format!("{prefix}{i}.png"));
-                let bytes = crate::dataset::durable::read_regular(&path, crate::dataset::durable::MAX_IMAGE_BYTES)?;
-                let img =
-                    image::load_from_memory(&bytes).map_err(|source| CompareRealError::Image { path: path.clone(), source })?.to_rgb8();
+                // Below the sample folder with no symlink, bounded, pixel count checked first.
+                let rel = format!("tactile/{id}/{name}/target/{prefix}{i}.png");
+                let bytes = crate::dataset::durable::read_below(dir, Path::new(&rel), crate::dataset::durable::MAX_IMAGE_BYTES)?;
+                let img = crate::dataset::durable::decode_image(&bytes)
+                    .map_err(|reason| crate::dataset::DatasetError::BadImage { path: path.clone(), reason })?
+                    .to_rgb8();
                 // The per-pixel statistics need one size per sensor.
                 if let Some((_, first)) = list.first()
                     && first.dimensions() != img.dimensions()

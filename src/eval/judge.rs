@@ -9,7 +9,7 @@ use super::contact::{
     ContactEstimate, ContactEstimator, axis_difference_deg, contact_mask, estimate_contact_with, geometric_contact, yaw_observable,
 };
 use super::error::EvalError;
-use super::pairing::{DatasetInfo, calibration_at, load_at, mesh_of};
+use super::pairing::{DatasetInfo, calibration_at, load_image, mesh_of, resized};
 use super::records::{EvalCounts, Method, PairRecord};
 use crate::calibration::model::Calibration;
 use crate::dataset::{PoseRow, REFERENCE_FILE};
@@ -60,13 +60,18 @@ impl<'a> DatasetJudge<'a> {
     ) -> Result<Self, EvalError> {
         let (object, sensor) = key;
         let size = settings.size_px;
-        let reference_path = real.dir.join(REFERENCE_FILE);
-        if !reference_path.is_file() {
-            return Err(EvalError::NoReference { dir: real.dir.clone() });
-        }
-        let native =
-            image::image_dimensions(&reference_path).map_err(|source| EvalError::Image { path: reference_path.clone(), source })?;
-        let reference = load_at(&reference_path, size)?;
+        // Through the dataset rules: a symlinked or missing reference is not "no reference".
+        let reference = match load_image(&real.dir, REFERENCE_FILE) {
+            Err(EvalError::Dataset {
+                source: crate::dataset::DatasetError::Confined(crate::confine::ConfineError::Missing { .. }),
+                ..
+            }) => {
+                return Err(EvalError::NoReference { dir: real.dir.clone() });
+            }
+            other => other?,
+        };
+        let native = reference.dimensions();
+        let reference = resized(reference, size);
         let calib = calibration_at(real, native, size).unwrap_or_else(|| {
             counts.default_calibration_for.push(format!("{object}/{sensor}"));
             Calibration::default_for(size, size)
@@ -79,7 +84,7 @@ impl<'a> DatasetJudge<'a> {
             settings,
             reference,
             calib,
-            mesh: mesh_of(&real.manifest),
+            mesh: mesh_of(&real.dir, &real.manifest),
             contact_depth_mm: real.manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
             collected: collected.by_sensor.get(sensor),
             collected_references: &collected.references,
@@ -95,10 +100,9 @@ impl<'a> DatasetJudge<'a> {
     /// what it lacks, and appends one record per method to `pairs`.
     pub fn judge(&self, row: &PoseRow, twin: &PoseRow, counts: &mut EvalCounts, pairs: &mut Vec<PairRecord>) -> Result<(), EvalError> {
         let (size, pose, estimator) = (self.settings.size_px, row.commanded(), &self.settings.estimator);
-        let real_path = self.real.dir.join(&row.image);
-        let synth_path = self.synthetic.dir.join(&twin.image);
-        let rd = image::image_dimensions(&real_path).map_err(|source| EvalError::Image { path: real_path.clone(), source })?;
-        let sd = image::image_dimensions(&synth_path).map_err(|source| EvalError::Image { path: synth_path.clone(), source })?;
+        let truth = load_image(&self.real.dir, &row.image)?;
+        let model = load_image(&self.synthetic.dir, &twin.image)?;
+        let (rd, sd) = (truth.dimensions(), model.dimensions());
         // Both sides are resized to `size` square; only the shape must agree (twins come at
         // the model's resolution by default).
         if u64::from(rd.0) * u64::from(sd.1) != u64::from(sd.0) * u64::from(rd.1) {
@@ -112,8 +116,7 @@ impl<'a> DatasetJudge<'a> {
                 synthetic_height: sd.1,
             });
         }
-        let truth = load_at(&real_path, size)?;
-        let model = load_at(&synth_path, size)?;
+        let (truth, model) = (resized(truth, size), resized(model, size));
         counts.pairs += 1;
 
         let mask = contact_mask(&truth, &self.reference, self.settings.mask_threshold, self.settings.mask_dilate_px);

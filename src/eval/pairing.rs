@@ -8,7 +8,7 @@ use image::RgbImage;
 
 use super::error::EvalError;
 use crate::calibration::model::Calibration;
-use crate::dataset::{Manifest, PoseRow, Source, read_rows};
+use crate::dataset::{DatasetError, Manifest, PoseRow, Source, read_rows};
 use crate::geometry::stl::Mesh;
 use crate::pose::Pose;
 
@@ -56,7 +56,7 @@ impl DatasetInfo {
 
 /// Datasets under `root` keyed by (object, sensor); a key twice is an error.
 fn load_side(root: &Path, side: &'static str) -> Result<BTreeMap<(String, String), DatasetInfo>, EvalError> {
-    let dirs = crate::dataset::find_datasets(root);
+    let dirs = crate::dataset::find_datasets(root).map_err(|source| EvalError::Dataset { dir: root.to_path_buf(), source })?;
     if dirs.is_empty() {
         return Err(EvalError::NoDatasets { side, dir: root.to_path_buf() });
     }
@@ -94,7 +94,7 @@ impl Sides {
         } else {
             let mut v = Vec::new();
             for root in collected {
-                let dirs = crate::dataset::find_datasets(root);
+                let dirs = crate::dataset::find_datasets(root).map_err(|source| EvalError::Dataset { dir: root.clone(), source })?;
                 if dirs.is_empty() {
                     return Err(EvalError::NoDatasets { side: "collected", dir: root.clone() });
                 }
@@ -145,32 +145,55 @@ pub(super) fn pair_rows<'a>(real: &'a DatasetInfo, synthetic: &'a DatasetInfo) -
     let unpaired_synthetic = synthetic_rows.iter().zip(&used).filter(|(_, u)| !**u).map(|(r, _)| *r).collect();
     RowPairs { twins, unpaired_real, unpaired_synthetic }
 }
-/// Reads a PNG and resizes it to `size` x `size` (bilinear) when it is not already.
-pub(super) fn load_at(path: &Path, size: u32) -> Result<RgbImage, EvalError> {
-    let img = image::open(path).map_err(|source| EvalError::Image { path: path.to_path_buf(), source })?.to_rgb8();
-    Ok(resize_square(img, size))
+/// Reads the image `rel` of the dataset at `dir` by the dataset rules (below the dataset with
+/// no symlink, a regular file, bounded, its pixel count bounded before decoding).
+pub(super) fn load_image(dir: &Path, rel: &str) -> Result<RgbImage, EvalError> {
+    use crate::dataset::durable;
+    let dataset = |source| EvalError::Dataset { dir: dir.to_path_buf(), source };
+    let bytes = durable::read_below(dir, Path::new(rel), durable::MAX_IMAGE_BYTES).map_err(dataset)?;
+    let image = durable::decode_image(&bytes).map_err(|reason| dataset(DatasetError::BadImage { path: dir.join(rel), reason }))?;
+    Ok(image.to_rgb8())
+}
+
+/// [`load_image`], resized to `size` x `size` (bilinear) when it is not already.
+pub(super) fn load_at(dir: &Path, rel: &str, size: u32) -> Result<RgbImage, EvalError> {
+    Ok(resize_square(load_image(dir, rel)?, size))
+}
+
+/// `img` at `size` x `size`.
+pub(super) fn resized(img: RgbImage, size: u32) -> RgbImage {
+    resize_square(img, size)
 }
 
 fn resize_square(img: RgbImage, size: u32) -> RgbImage {
     if img.dimensions() == (size, size) { img } else { image::imageops::resize(&img, size, size, image::imageops::FilterType::Triangle) }
 }
 
-/// The dataset's calibration at `size` x `size`: the file its manifest names, else (none or
-/// `default`) the default for its image size, which is what `rig collect` renders with then.
+/// The dataset's calibration at `size` x `size`: the file its manifest names (read only where
+/// [`crate::dataset::named`] allows), else (none, `default`, or a file that cannot be used) the
+/// default for its image size, which is what `rig collect` renders with then.
 pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) -> Option<Calibration> {
     let calib = match info.manifest.calibration.as_deref() {
         None | Some("default") | Some("none") => Calibration::default_for(native.0, native.1),
-        Some(path) => Calibration::load(Path::new(path)).ok()?,
+        Some(named) => {
+            let bytes =
+                crate::dataset::named::read_named(&info.dir, "calibration", named, None, crate::untrusted::MAX_CONFIG_BYTES).ok()??;
+            Calibration::from_toml(std::str::from_utf8(&bytes).ok()?, named).ok()?
+        }
     };
     Some(calib.scaled_to(size, size))
 }
 
-/// The object's mesh: its STL when the file is there, else the library object of that name.
-pub(super) fn mesh_of(manifest: &Manifest) -> Option<Mesh> {
-    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file())
-        && let Ok(mesh) = Mesh::load(&path)
-    {
-        return Some(mesh);
+/// The object's mesh: its STL when the manifest names one rig may read and it is there, else
+/// the library object of that name.
+pub(super) fn mesh_of(dir: &Path, manifest: &Manifest) -> Option<Mesh> {
+    if let Some(named) = manifest.object.stl_path.as_deref() {
+        let sha = manifest.object.stl_sha256.as_deref();
+        if let Ok(Some(bytes)) = crate::dataset::named::read_named(dir, "object.stl_path", named, sha, crate::geometry::stl::MAX_STL_BYTES)
+            && let Ok(mesh) = Mesh::from_bytes(&bytes)
+        {
+            return Some(mesh);
+        }
     }
     crate::geometry::objects::load_object(&manifest.object.name).ok()
 }

@@ -222,6 +222,21 @@ impl CollectOutcome {
     }
 }
 
+/// Creates `<out>/<object>/<sensor>/` (or finds it) with no symlink below `<out>`: the object
+/// and sensor folders come from the request, and a symlink planted there (`<out>/sphere ->
+/// /elsewhere`) would put the dataset outside what was approved. `<out>` itself is the
+/// operator's path (or a request's, confined to the data roots).
+fn confine_dataset_dir(setup: &CollectSetup, sensor: SensorKind) -> Result<(), crate::dataset::DatasetError> {
+    std::fs::create_dir_all(&setup.out).map_err(|e| crate::dataset::DatasetError::Io {
+        op: "creating",
+        path: setup.out.clone(),
+        source: e,
+    })?;
+    let out = crate::confine::RootDir::open(&setup.out)?;
+    out.create_dir_all(std::path::Path::new(&setup.object.name).join(sensor.name()))?;
+    Ok(())
+}
+
 /// Runs a collection: opens (or resumes) one dataset per camera and drives the arm through
 /// `setup.poses`. The one place a [`CollectJob`] is built: `rig collect`, the daemon, `rig
 /// replay` and `rig bench` all come here. `stop_after` stops as if cancelled after that many
@@ -244,6 +259,7 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
     }
     for feed in cameras {
         let dir = setup.dataset_dir(feed.sensor);
+        confine_dataset_dir(setup, feed.sensor).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
         let manifest = setup.manifest(feed.sensor, &feed.calibration, &arm_part, &parts);
         let writer = DatasetWriter::start(&dir, manifest, setup.resume)
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?

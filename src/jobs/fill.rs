@@ -55,7 +55,7 @@ impl FillRequest {
             let Some(out) = &self.out else {
                 return Err(bad("out", "twins (--poses-of) need an output folder (--out): where the synthetic twin datasets go".into()));
             };
-            let datasets = find_datasets(source);
+            let datasets = find_datasets(source).map_err(|source_err| JobError::Dataset { dir: source.clone(), source: source_err })?;
             if datasets.is_empty() {
                 return Err(no_dataset(source));
             }
@@ -71,7 +71,7 @@ impl FillRequest {
         if self.shard.is_some() && self.out.is_none() {
             return Err(bad("shard", "a shard needs its own output dataset (--out): shards are joined by `rig dataset merge`".into()));
         }
-        let datasets = find_datasets(&self.dataset);
+        let datasets = find_datasets(&self.dataset).map_err(|source| JobError::Dataset { dir: self.dataset.clone(), source })?;
         if datasets.is_empty() {
             return Err(no_dataset(&self.dataset));
         }

@@ -71,7 +71,24 @@ pub enum RecordError {
     UnknownCamera { path: PathBuf, record: usize, camera: u8, cameras: usize },
     #[error("recording {path}: closed before its header was written")]
     NoHeader { path: PathBuf },
+    /// The file is not one rig reads as a recording: a FIFO or device (which would block or
+    /// never end), a symlink, larger than [`MAX_RECORDING_BYTES`].
+    #[error("recording: {0}")]
+    Confined(#[from] crate::confine::ConfineError),
+    /// The header names an object that is not a plain name: it becomes a folder name, and a
+    /// path there (`/abs`, `../..`) would put the replayed dataset anywhere.
+    #[error("recording {path}: the header's object.name is not a plain name (no `/`, `\\`, `..`, leading dot or control character)")]
+    ObjectName { path: PathBuf },
 }
+
+/// Whether `name` can be a folder name: not empty, at most 100 bytes, no leading dot, no path
+/// separator or control character (the rule a job request's object name follows).
+fn is_plain_name(name: &str) -> bool {
+    !name.is_empty() && name.len() <= 100 && !name.starts_with('.') && !name.chars().any(|c| c == '/' || c == '\\' || c.is_control())
+}
+
+/// Largest recording file read (it is read whole; a long run with full-size frames fits).
+pub const MAX_RECORDING_BYTES: u64 = 4 << 30;
 
 /// One camera of the recorded run, in the order of the job's sensor list.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -126,7 +143,8 @@ pub struct Recording {
 impl Recording {
     /// Reads and checks a recording file.
     pub fn read(path: &Path) -> Result<Self, RecordError> {
-        let bytes = std::fs::read(path).map_err(|source| RecordError::Io { path: path.to_path_buf(), source })?;
+        // A regular file (not a FIFO, device or symlink), its size bounded before reading.
+        let bytes = crate::confine::read_named_file(path, MAX_RECORDING_BYTES)?;
         Self::decode(&bytes, path)
     }
 
@@ -135,6 +153,9 @@ impl Recording {
         let raw = format::decode(bytes).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })?;
         let header: RecordingHeader =
             serde_json::from_str(&raw.header_json).map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
+        if !is_plain_name(&header.object.name) {
+            return Err(RecordError::ObjectName { path: path.to_path_buf() });
+        }
         for (record, e) in raw.events.iter().enumerate() {
             if let Event::Frame(f) = e
                 && usize::from(f.camera) >= header.sensors.len()

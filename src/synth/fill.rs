@@ -130,7 +130,7 @@ pub fn default_model() -> PathBuf {
 }
 
 /// Dataset directories under `root` (itself, or up to two levels below).
-pub fn find_datasets(root: &Path) -> Vec<PathBuf> {
+pub fn find_datasets(root: &Path) -> Result<Vec<PathBuf>, DatasetError> {
     crate::dataset::find_datasets(root)
 }
 
@@ -411,39 +411,45 @@ impl Default for ControlScratch {
     }
 }
 
-/// The object mesh the dataset was collected on: its STL when the file still matches, else the
-/// library object of that name.
+/// The object mesh the dataset was collected on: its STL when the manifest names one rig may
+/// read ([`crate::dataset::named`]) and it is there, else the library object of that name.
 fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
     let name = manifest.object.name.clone();
     let err = |reason: String| FillError::Object { dir: dir.to_path_buf(), object: name.clone(), reason };
-    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file()) {
-        return Mesh::load(&path).map_err(|e| err(e.to_string()));
+    if let Some(named) = manifest.object.stl_path.as_deref() {
+        let sha = manifest.object.stl_sha256.as_deref();
+        let found = crate::dataset::named::read_named(dir, "object.stl_path", named, sha, crate::geometry::stl::MAX_STL_BYTES)
+            .map_err(|e| err(e.to_string()))?;
+        if let Some(bytes) = found {
+            return Mesh::from_bytes(&bytes).map_err(|e| err(format!("{named}: {e}")));
+        }
     }
     load_object(&name).map_err(|e| err(e.to_string()))
 }
 
 /// The calibration named in the manifest ("default": the default for the image size).
 fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> Result<Calibration, FillError> {
+    let failed =
+        |calibration: &str, reason: String| FillError::Calibration { dir: dir.to_path_buf(), calibration: calibration.to_string(), reason };
     match manifest.calibration.as_deref() {
-        // An uncalibrated collection: the calibration `rig calibrate` saved since, if any.
+        // An uncalibrated collection: the calibration `rig calibrate` saved since, if any (rig's
+        // own file, not one the manifest names).
         None | Some("default") => {
             let saved = manifest.sensor.calibration_path();
             if saved.is_file() {
-                return calibration_of(
-                    dir,
-                    &Manifest { calibration: Some(saved.display().to_string()), ..manifest.clone() },
-                    width,
-                    height,
-                );
+                let shown = saved.display().to_string();
+                return Calibration::load(&saved).map(|c| c.scaled_to(width, height)).map_err(|e| failed(&shown, e.to_string()));
             }
             Ok(Calibration::default_for(width, height))
         }
         // A fitted calibration belongs to the frames' size; the hint is rendered at the model's.
-        Some(path) => Calibration::load(Path::new(path)).map(|c| c.scaled_to(width, height)).map_err(|e| FillError::Calibration {
-            dir: dir.to_path_buf(),
-            calibration: path.to_string(),
-            reason: e.to_string(),
-        }),
+        Some(named) => {
+            let bytes = crate::dataset::named::read_named(dir, "calibration", named, None, crate::untrusted::MAX_CONFIG_BYTES)
+                .map_err(|e| failed(named, e.to_string()))?
+                .ok_or_else(|| failed(named, "no such file below the dataset folder or the working folder".into()))?;
+            let text = String::from_utf8(bytes).map_err(|_| failed(named, "not UTF-8 text".into()))?;
+            Calibration::from_toml(&text, named).map(|c| c.scaled_to(width, height)).map_err(|e| failed(named, e.to_string()))
+        }
     }
 }
 

@@ -73,6 +73,10 @@ pub enum SynthError {
     BadModelFile { file: PathBuf, reason: String },
     #[error("not a complete model package: missing {}", missing.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))]
     MissingFiles { dir: PathBuf, missing: Vec<PathBuf> },
+    /// A file of the package broke the opener's rules ([`crate::confine`]): a symlink on the
+    /// way, a FIFO or device, too large.
+    #[error("model package: {0}")]
+    Confined(#[from] crate::confine::ConfineError),
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: {source}")]

@@ -56,6 +56,72 @@ pub fn count_stride2_convs(path: &Path) -> Result<usize, GraphScanError> {
     Ok(count)
 }
 
+/// The `location`s of the external data the main graph's initializers name (tensors stored in
+/// a file beside the model instead of inside it): ONNX Runtime opens each, relative to the
+/// model's folder, so the package loader checks them through [`crate::confine`] first.
+///
+/// | message | field | number | wire type |
+/// |---|---|---|---|
+/// | `GraphProto` | `initializer` (repeated `TensorProto`) | 5 | length-delimited |
+/// | `TensorProto` | `external_data` (repeated `StringStringEntryProto`) | 13 | length-delimited |
+/// | `StringStringEntryProto` | `key`, `value` | 1, 2 | length-delimited (UTF-8) |
+///
+/// An initializer larger than 1 MiB holds its data inline and is skipped unread. `file` is the
+/// model, opened by the caller (the package loader opens it through the opener).
+pub fn external_data_locations(file: std::fs::File) -> Result<Vec<String>, GraphScanError> {
+    let len = file.metadata().map_err(|_| GraphScanError("cannot read the model file"))?.len();
+    let mut reader = BufReader::with_capacity(1 << 16, file);
+    let mut locations = Vec::new();
+    let mut at = 0u64;
+    while at < len {
+        let (field, wire) = read_tag(&mut reader, &mut at)?;
+        if (field, wire) != (7, 2) {
+            skip(&mut reader, &mut at, wire, len)?;
+            continue;
+        }
+        let graph_len = read_varint(&mut reader, &mut at)?;
+        let end = at.checked_add(graph_len).filter(|&e| e <= len).ok_or(GraphScanError("graph longer than the file"))?;
+        while at < end {
+            let (field, wire) = read_tag(&mut reader, &mut at)?;
+            if (field, wire) != (5, 2) {
+                skip(&mut reader, &mut at, wire, end)?;
+                continue;
+            }
+            let tensor_len = read_varint(&mut reader, &mut at)?;
+            if tensor_len > end - at {
+                return Err(GraphScanError("initializer longer than its graph"));
+            }
+            if tensor_len > MAX_NODE_BYTES {
+                seek(&mut reader, &mut at, tensor_len)?;
+                continue;
+            }
+            let mut tensor = vec![0u8; tensor_len as usize];
+            reader.read_exact(&mut tensor).map_err(|_| GraphScanError("truncated initializer"))?;
+            at += tensor_len;
+            for (f, v) in Fields::new(&tensor) {
+                if let (13, Value::Bytes(entry)) = (f, v?) {
+                    let (mut key, mut value) = (None, None);
+                    for (ef, ev) in Fields::new(entry) {
+                        match (ef, ev?) {
+                            (1, Value::Bytes(k)) => key = Some(k),
+                            (2, Value::Bytes(v)) => value = Some(v),
+                            _ => {}
+                        }
+                    }
+                    if key == Some(b"location".as_slice())
+                        && let Some(v) = value
+                    {
+                        locations.push(String::from_utf8_lossy(v).into_owned());
+                    }
+                }
+            }
+        }
+    }
+    locations.sort();
+    locations.dedup();
+    Ok(locations)
+}
+
 fn scan_graph<R: Read + Seek>(r: &mut R, at: &mut u64, end: u64) -> Result<usize, GraphScanError> {
     let mut count = 0;
     while *at < end {
@@ -233,6 +299,41 @@ fn skip<R: Read + Seek>(r: &mut R, at: &mut u64, wire: u64, end: u64) -> Result<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A protobuf length-delimited field.
+    fn ld(field: u64, bytes: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for mut v in [(field << 3) | 2, bytes.len() as u64] {
+            loop {
+                let b = (v & 0x7f) as u8;
+                v >>= 7;
+                if v == 0 {
+                    out.push(b);
+                    break;
+                }
+                out.push(b | 0x80);
+            }
+        }
+        out.extend_from_slice(bytes);
+        out
+    }
+
+    #[test]
+    fn external_data_locations_are_found() {
+        let entry = |k: &str, v: &str| ld(13, &[ld(1, k.as_bytes()), ld(2, v.as_bytes())].concat());
+        let tensor = [ld(8, b"w"), entry("location", "../../outside/secret"), entry("offset", "0")].concat();
+        let other = [ld(8, b"b"), entry("location", "weights.bin")].concat();
+        let graph = [ld(1, b"node"), ld(5, &tensor), ld(5, &other), ld(5, &ld(8, b"inline"))].concat();
+        let model = [ld(2, b"producer"), ld(7, &graph)].concat();
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("m.onnx");
+        std::fs::write(&path, &model).expect("write");
+        let open = |p: &Path| std::fs::File::open(p).expect("open");
+        assert_eq!(external_data_locations(open(&path)), Ok(vec!["../../outside/secret".to_string(), "weights.bin".to_string()]));
+        std::fs::write(&path, &model[..model.len() - 3]).expect("write");
+        assert!(external_data_locations(open(&path)).is_err(), "truncated");
+        assert_eq!(external_data_locations(open(&tiny("unet"))), Ok(vec![]));
+    }
 
     fn tiny(model: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package").join(model).join("model.onnx")

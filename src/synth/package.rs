@@ -240,11 +240,43 @@ pub struct ModelPackage {
 }
 
 impl ModelPackage {
-    /// Opens `dir`: all of [`PACKAGE_FILES`] must exist (the error lists every missing one).
+    /// Opens `dir`: all of [`PACKAGE_FILES`] must exist (the error lists every missing one), each
+    /// a regular file reached without a symlink below `dir` ([`crate::confine`]): a package
+    /// from a colleague cannot make rig read, hash or hand ONNX Runtime a file elsewhere.
     pub fn open(dir: &Path) -> Result<Self, SynthError> {
-        let missing: Vec<PathBuf> = PACKAGE_FILES.iter().map(|f| dir.join(f)).filter(|p| !p.is_file()).collect();
+        use crate::confine::{ConfineError, EntryKind, RootDir};
+        // A folder that is not there (or not a folder) lists every file as missing, as before.
+        let root = match RootDir::open(dir) {
+            Ok(root) => Some(root),
+            Err(ConfineError::Missing { .. } | ConfineError::NotFolder { .. }) => None,
+            Err(e) => return Err(e.into()),
+        };
+        let mut missing = Vec::new();
+        for f in PACKAGE_FILES {
+            let found = match &root {
+                Some(root) => root.stat(f)?,
+                None => None,
+            };
+            match found {
+                None => missing.push(dir.join(f)),
+                Some(info) if info.kind == EntryKind::File => {}
+                Some(info) if info.kind == EntryKind::Symlink => {
+                    return Err(ConfineError::Symlink { root: dir.to_path_buf(), path: dir.join(f) }.into());
+                }
+                Some(info) => return Err(ConfineError::NotRegular { path: dir.join(f), found: info.kind.describe() }.into()),
+            }
+        }
         if !missing.is_empty() {
             return Err(SynthError::MissingFiles { dir: dir.to_path_buf(), missing });
+        }
+        if let Some(root) = &root {
+            // Nothing anywhere in the package is a symlink, FIFO or device (ONNX Runtime opens
+            // the model files and their external data itself, by path), and every external-data
+            // file a model names is a plain relative path to a regular file beside it.
+            collect_files(root, Path::new(""), &mut Vec::new())?;
+            for f in PACKAGE_FILES.iter().filter(|f| f.ends_with(".onnx")) {
+                check_external_data(root, Path::new(f))?;
+            }
         }
         let config = ModelConfig::read(&dir.join("model.toml"))?;
         let sched_path = dir.join("scheduler/scheduler_config.json");
@@ -263,15 +295,19 @@ impl ModelPackage {
     /// contributes its relative path, a NUL, its length as 8 little-endian bytes, and its
     /// bytes), hex. Identifies the exact weights a synthetic image came from.
     pub fn content_hash(&self) -> Result<String, SynthError> {
+        // Through the opener: every file found below the package folder is a regular file
+        // reached without a symlink (a FIFO would block the hash forever; a link would hash,
+        // and so reveal, a file elsewhere).
+        let root = crate::confine::RootDir::open(&self.dir)?;
         let mut files = Vec::new();
-        collect_files(&self.dir, &self.dir, &mut files)?;
+        collect_files(&root, Path::new(""), &mut files)?;
         files.sort();
         let mut hasher = Sha256::new();
         let mut buf = vec![0u8; 1 << 20];
         for rel in files {
             let path = self.dir.join(&rel);
             let io = |source| SynthError::Io { path: path.clone(), source };
-            let mut f = std::fs::File::open(&path).map_err(io)?;
+            let mut f = root.open_file(&rel)?;
             let len = f.metadata().map_err(io)?.len();
             hasher.update(rel.to_string_lossy().replace('\\', "/").as_bytes());
             hasher.update([0u8]);
@@ -288,15 +324,38 @@ impl ModelPackage {
     }
 }
 
-fn collect_files(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), SynthError> {
-    let entries = std::fs::read_dir(dir).map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
-    for entry in entries {
-        let entry = entry.map_err(|source| SynthError::Io { path: dir.to_path_buf(), source })?;
-        let path = entry.path();
-        if path.is_dir() {
-            collect_files(root, &path, out)?;
-        } else if let Ok(rel) = path.strip_prefix(root) {
-            out.push(rel.to_path_buf());
+/// The external data `model` (a package file) names must lie beside or below it, as regular
+/// files reached without a symlink.
+fn check_external_data(root: &crate::confine::RootDir, model: &Path) -> Result<(), SynthError> {
+    let file = root.path().join(model);
+    let bad = |reason: String| SynthError::BadModelFile { file: file.clone(), reason };
+    let locations = super::onnx_graph::external_data_locations(root.open_file(model)?)
+        .map_err(|e| bad(format!("cannot read its external-data table: {e}")))?;
+    let folder = model.parent().unwrap_or(Path::new(""));
+    for location in locations {
+        match root.open_dir(folder)?.stat(&location) {
+            Ok(Some(info)) if info.kind == crate::confine::EntryKind::File => {}
+            Ok(Some(info)) => return Err(bad(format!("its external data {location:?} is {}, not a regular file", info.kind.describe()))),
+            Ok(None) => return Err(bad(format!("its external data {location:?} is missing"))),
+            Err(e) => return Err(bad(format!("its external data {location:?}: {e}"))),
+        }
+    }
+    Ok(())
+}
+
+/// The files below `rel` of the package, relative to it; a symlink anywhere is refused, as is
+/// anything that is neither a file nor a folder.
+fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathBuf>) -> Result<(), SynthError> {
+    use crate::confine::{ConfineError, EntryKind};
+    for entry in root.entries(rel)? {
+        let path = rel.join(&entry.name);
+        match entry.kind {
+            EntryKind::Folder => collect_files(root, &path, out)?,
+            EntryKind::File => out.push(path),
+            EntryKind::Symlink => {
+                return Err(ConfineError::Symlink { root: root.path().to_path_buf(), path: root.path().join(path) }.into());
+            }
+            EntryKind::Other => return Err(ConfineError::NotRegular { path: root.path().join(path), found: entry.kind.describe() }.into()),
         }
     }
     Ok(())
@@ -494,5 +553,44 @@ mod tests {
             other => panic!("unexpected {other}"),
         }
         assert!(e.to_string().contains("unet/model.onnx"), "{e}");
+    }
+
+    /// A copy of the tiny test package in a temp folder, with `outside/secret` beside it.
+    fn package_copy() -> (tempfile::TempDir, PathBuf) {
+        let tmp = tempfile::tempdir().unwrap();
+        let pkg = tmp.path().join("pkg");
+        let tiny = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package");
+        for f in PACKAGE_FILES {
+            std::fs::create_dir_all(pkg.join(f).parent().unwrap()).unwrap();
+            std::fs::copy(tiny.join(f), pkg.join(f)).unwrap();
+        }
+        std::fs::create_dir(tmp.path().join("outside")).unwrap();
+        std::fs::write(tmp.path().join("outside/secret"), "sentinel").unwrap();
+        (tmp, pkg)
+    }
+
+    #[test]
+    fn symlinks_and_escaping_external_data_in_a_package_are_refused() {
+        let (tmp, pkg) = package_copy();
+        ModelPackage::open(&pkg).expect("the copy opens");
+        // Any symlink in the package, not only at a file the loader names.
+        std::os::unix::fs::symlink(tmp.path().join("outside/secret"), pkg.join("unet/weights.bin")).unwrap();
+        let e = ModelPackage::open(&pkg).unwrap_err();
+        assert!(matches!(e, SynthError::Confined(crate::confine::ConfineError::Symlink { .. })), "{e}");
+        std::fs::remove_file(pkg.join("unet/weights.bin")).unwrap();
+
+        // A model whose initializer keeps its data in a file outside the package.
+        let ld = |field: u8, bytes: &[u8]| [vec![(field << 3) | 2, bytes.len() as u8], bytes.to_vec()].concat();
+        let entry = |k: &str, v: &str| ld(13, &[ld(1, k.as_bytes()), ld(2, v.as_bytes())].concat());
+        let model = |location: &str| ld(7, &ld(5, &[ld(8, b"w"), entry("location", location)].concat()));
+        for (location, phrase) in [("../../outside/secret", "not a path below"), ("absent.bin", "missing")] {
+            std::fs::write(pkg.join("unet/model.onnx"), model(location)).unwrap();
+            let e = ModelPackage::open(&pkg).unwrap_err();
+            assert!(matches!(e, SynthError::BadModelFile { .. }) && e.to_string().contains(phrase), "{location}: {e}");
+            assert!(!e.to_string().contains("sentinel"), "{e}");
+        }
+        std::fs::write(pkg.join("unet/weights.bin"), [0u8; 16]).unwrap();
+        std::fs::write(pkg.join("unet/model.onnx"), model("weights.bin")).unwrap();
+        ModelPackage::open(&pkg).expect("external data beside the model is fine (ONNX Runtime checks the rest)");
     }
 }

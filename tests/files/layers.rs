@@ -45,6 +45,9 @@ const LAYERS: &[Layer] = &[
     // [`FOUNDATION`]: every row reads files through it. `roots` (the folders a daemon job may
     // touch) is used by the jobs that confine their paths.
     Layer { name: "untrusted", prefixes: &["untrusted"], may_use: &[] },
+    // `confine` (the one opener for paths that requests, datasets, manifests, packages and
+    // recordings name) is in [`FOUNDATION`] too: every row that reads such a path uses it.
+    Layer { name: "confine", prefixes: &["confine"], may_use: &[] },
     Layer { name: "roots", prefixes: &["roots"], may_use: &[] },
     Layer { name: "pose", prefixes: &["pose"], may_use: &[] },
     // Time as a value (STYLE.md 5): the bottom row with `pose`.
@@ -613,7 +616,7 @@ fn row_of(path: &[String]) -> Option<&'static Layer> {
 }
 
 /// Rows every row may use (below them all in [`LAYERS`]).
-const FOUNDATION: &[&str] = &["untrusted"];
+const FOUNDATION: &[&str] = &["untrusted", "confine"];
 
 /// Row name -> every row it may use (transitively), itself included.
 fn allowed_rows() -> BTreeMap<&'static str, BTreeSet<&'static str>> {

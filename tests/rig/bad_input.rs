@@ -84,6 +84,15 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         .expect("running rig collect");
     assert!(made.status.success(), "setup collect failed: {}", String::from_utf8_lossy(&made.stderr));
 
+    // A dataset whose images/ is a symlink, and a recording "file" that is a FIFO.
+    let made = rig(dir).args(["collect", "--poses", "1", "--sensor", "tactip", "--out", "linked"]).output().expect("running rig collect");
+    assert!(made.status.success(), "setup collect failed: {}", String::from_utf8_lossy(&made.stderr));
+    std::fs::rename(dir.join("linked/sphere/tactip/images"), dir.join("elsewhere")).expect("mv");
+    std::os::unix::fs::symlink(dir.join("elsewhere"), dir.join("linked/sphere/tactip/images")).expect("symlink");
+    let fifo = std::ffi::CString::new(dir.join("fifo.rec").to_str().expect("utf-8")).expect("c string");
+    // SAFETY: mkfifo on a NUL-terminated path in the test's temp folder.
+    assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
+
     let cases = vec![
         case("unknown subcommand", &["frobnicate"], 2, "unrecognized subcommand"),
         case("a number flag given a word", &["collect", "--poses", "many"], 2, "invalid value"),
@@ -134,6 +143,13 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "refusing to overwrite",
         ),
         case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "missing"),
+        case(
+            "a dataset whose images/ is a symlink",
+            &["dataset", "export", "linked/sphere/tactip", "--format", "lerobot", "--out", "lr"],
+            2,
+            "symlink",
+        ),
+        case("a recording that is a FIFO", &["replay", "fifo.rec", "--info"], 2, "not a regular file"),
         case(
             "synthetic twins on the daemon",
             &["synth", "--poses-of", "ds", "--out", "twins", "--daemon", "http://127.0.0.1:9"],

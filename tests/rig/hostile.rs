@@ -638,3 +638,269 @@ fn the_daemon_survives_ten_bad_jobs_in_a_row() {
     }
     assert!(!w.join("cal.toml").exists());
 }
+
+// ---------------------------------------------------------------------------------------
+// Off the walked path (the trust items of the issue of that name): every path a request,
+// dataset, manifest, model package or recording names goes through `rig::confine`.
+
+/// Waits for `child` at most `deadline` (a FIFO used to block forever); kills it past that.
+fn wait_or_kill(mut child: Child, deadline: Duration) -> Output {
+    let t0 = Instant::now();
+    while child.try_wait().expect("try_wait").is_none() {
+        if t0.elapsed() > deadline {
+            let _ = child.kill();
+            let out = child.wait_with_output().expect("output");
+            panic!("still running after {deadline:?} (killed):\n{}", text(&out));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().expect("output")
+}
+
+/// `rig args...` in `cwd`, given at most 60 s.
+fn run_bounded(cwd: &Path, args: &[&str]) -> Output {
+    let child = rig(cwd).args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("spawn");
+    wait_or_kill(child, Duration::from_secs(60))
+}
+
+fn mkfifo(path: &Path) {
+    let c = std::ffi::CString::new(path.to_str().expect("utf-8")).expect("c string");
+    // SAFETY: mkfifo on a NUL-terminated path the test owns.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo {}", path.display());
+}
+
+/// Every file below `dir`, relative, with its bytes (a snapshot to compare before and after).
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).expect("list") {
+            let path = entry.expect("entry").path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                out.push((path.strip_prefix(dir).expect("below").to_path_buf(), std::fs::read(&path).expect("read")));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// (Item 1.) A symlink below an approved path is never followed: a daemon collection into an
+/// `out` whose object folder is a symlink, a synth job over a folder of datasets holding a
+/// symlinked one (with an orphan image a fill would delete), a model package whose
+/// model.toml or tokenizer.json is a symlink.
+#[test]
+fn symlinks_below_an_approved_path_are_never_followed() {
+    use std::os::unix::fs::symlink;
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let victim = sb.top.join("outside/victim");
+    std::fs::create_dir(&victim).expect("mkdir");
+    std::fs::create_dir(w.join("coll")).expect("mkdir");
+    symlink(&victim, w.join("coll/sphere")).expect("symlink");
+
+    let daemon = DaemonProcess::start(&w, &[], &[]);
+    let id = daemon.submit(&serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": "coll"}));
+    let job = daemon.wait_final(id);
+    assert_eq!(job["state"], "failed", "{job}");
+    assert_eq!(job["exit_code"], 2, "{job}");
+    assert!(job["error"].as_str().is_some_and(|e| e.contains("symlink")), "{job}");
+    assert_eq!(std::fs::read_dir(&victim).expect("list").count(), 0, "a dataset was written through the symlink");
+    drop(daemon);
+
+    // A dataset outside with an image no row names: opening it for a fill would delete it.
+    let vds = sb.top.join("outside/vds");
+    dataset(&vds, 2);
+    image(9).save(vds.join("images/777.png")).expect("orphan");
+    let before = snapshot(&vds);
+    std::fs::create_dir(w.join("multi")).expect("mkdir");
+    symlink(&vds, w.join("multi/obj")).expect("symlink");
+    let tiny = tiny_package();
+    let tiny = tiny.to_str().expect("utf-8");
+    let out = run(&w, &["synth", "--fill-missing", "--dataset", "multi", "--model", tiny, "--steps", "1", "--limit", "1"]);
+    expect(&out, 2, "symlink");
+    assert!(snapshot(&vds) == before, "the dataset outside changed");
+
+    // Package files that are symlinks are not read.
+    let pkg = copy_package(&w.join("pkg"));
+    std::fs::remove_file(pkg.join("model.toml")).expect("rm");
+    symlink(sb.secret(), pkg.join("model.toml")).expect("symlink");
+    expect(&run(&w, &["synth", "info", "--model", "pkg"]), 2, "symlink");
+    let pkg = copy_package(&w.join("pkg2"));
+    std::fs::rename(pkg.join("tokenizer"), sb.top.join("outside/tokenizer")).expect("mv");
+    symlink(sb.top.join("outside/tokenizer"), pkg.join("tokenizer")).expect("symlink");
+    expect(&run(&w, &["synth", "info", "--model", "pkg2"]), 2, "symlink");
+    sb.assert_no_copy_of_the_secret();
+}
+
+/// (Item 5.) The LeRobot export refuses a dataset whose `images/` is a symlink, as MDS export
+/// and fill do, and writes nothing.
+#[test]
+fn lerobot_export_does_not_read_through_a_symlinked_images_folder() {
+    use std::os::unix::fs::symlink;
+    let sb = Sandbox::new();
+    let w = sb.work();
+    dataset(&w.join("ds"), 2);
+    let outside_images = sb.top.join("outside/images");
+    std::fs::rename(w.join("ds/images"), &outside_images).expect("mv");
+    symlink(&outside_images, w.join("ds/images")).expect("symlink");
+    let out = run(&w, &["dataset", "export", "ds", "--format", "lerobot", "--out", "lr"]);
+    expect(&out, 2, "symlink");
+    assert!(!w.join("lr").exists(), "an export was written");
+    let leftovers: Vec<_> = std::fs::read_dir(&w).expect("list").map(|e| e.expect("entry").file_name()).collect();
+    assert_eq!(leftovers.len(), 1, "only ds: {leftovers:?}");
+}
+
+/// (Item 6.) `rig replay` refuses a recording whose header names an object that is a path
+/// (absolute or climbing out), and a recording "file" that is a FIFO, at once.
+#[test]
+fn replay_refuses_object_paths_and_non_regular_recordings() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    expect(&run(&w, &["collect", "--object", "sphere", "--sensor", "tactip", "--poses", "1", "--out", "o", "--record", "r.rec"]), 0, "");
+    let recording = rig::record::Recording::read(&w.join("r.rec")).expect("a recording");
+    let target = sb.top.join("outside/made-by-replay");
+    for (i, name) in [target.to_str().expect("utf-8").to_string(), "../../outside/climbed".to_string()].into_iter().enumerate() {
+        let mut header = recording.header.clone();
+        header.object.name = name.clone();
+        let mut bytes = rig::record::format::encode_preamble(&serde_json::to_string(&header).expect("json"));
+        for e in &recording.events {
+            bytes.extend(rig::record::format::encode_event(e));
+        }
+        bytes.extend(rig::record::format::encode_end(recording.events.len() as u64));
+        let file = w.join(format!("evil{i}.rec"));
+        std::fs::write(&file, bytes).expect("write");
+        let file = file.to_str().expect("utf-8");
+        expect(&run(&w, &["replay", file, "--out", "replayed/a/b"]), 2, "object.name");
+        expect(&run(&w, &["replay", file, "--info"]), 2, "object.name");
+    }
+    assert!(!target.exists() && !sb.top.join("outside/climbed").exists() && !w.join("replayed").exists());
+    assert_eq!(std::fs::read_dir(sb.top.join("outside")).expect("list").count(), 1, "only the sentinel");
+
+    let fifo = w.join("fifo.rec");
+    mkfifo(&fifo);
+    expect(&run_bounded(&w, &["replay", "fifo.rec", "--info"]), 2, "not a regular file");
+}
+
+/// (Item 7.) `rig eval` and `rig calibrate --from-dataset` read a dataset's images by the dataset
+/// rules: no symlink, no FIFO, and an image's pixel count bounded before decoding.
+#[test]
+fn eval_and_calibrate_read_images_by_the_dataset_rules() {
+    use rig::dataset::Source;
+    use rig::pose::Pose;
+    use std::os::unix::fs::symlink;
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let poses = [(1, Pose::new(0.0, 0.0, 0.0, 0.0)), (2, Pose::new(2.0, -1.0, 0.5, 30.0))];
+    let write = |dir: &Path, source: Source| {
+        let mut manifest = Manifest::new(SensorKind::TacTip, ObjectInfo::named("sphere"), None);
+        manifest.calibration = Some("default".into());
+        let mut w = DatasetWriter::create(dir, manifest).expect("create");
+        w.write_reference(&image(0)).expect("reference");
+        for (id, pose) in poses {
+            let row = match source {
+                Source::Synthetic => PoseRow::synthetic(id, pose, "m", 0, 1, 1.0),
+                other => PoseRow::commanded_only(id, pose, other),
+            };
+            w.append(row, &image(id as u8)).expect("append");
+        }
+        w.finish().expect("finish");
+    };
+    write(&w.join("real"), Source::Real);
+    write(&w.join("syn"), Source::Synthetic);
+    image(200).save(sb.top.join("outside/ref.png")).expect("png");
+    std::fs::remove_file(w.join("real/reference.png")).expect("rm");
+    symlink(sb.top.join("outside/ref.png"), w.join("real/reference.png")).expect("symlink");
+    expect(&run_bounded(&w, &["eval", "--real", "real", "--synthetic", "syn"]), 2, "symlink");
+    std::fs::remove_file(w.join("real/reference.png")).expect("rm");
+    image(0).save(w.join("real/reference.png")).expect("png");
+    std::fs::remove_file(w.join("syn/images/2.png")).expect("rm");
+    mkfifo(&w.join("syn/images/2.png"));
+    expect(&run_bounded(&w, &["eval", "--real", "real", "--synthetic", "syn"]), 2, "not a regular file");
+
+    // calibrate --from-dataset: a symlinked images/, a FIFO, an 8192 x 8192 16-bit PNG.
+    let cal = |ds: &str| run_bounded(&w, &["calibrate", "--sensor", "tactip", "--from-dataset", ds, "--out", "cal.toml"]);
+    write(&w.join("c1"), Source::Real);
+    std::fs::rename(w.join("c1/images"), sb.top.join("outside/c1-images")).expect("mv");
+    symlink(sb.top.join("outside/c1-images"), w.join("c1/images")).expect("symlink");
+    expect(&cal("c1"), 2, "symlink");
+    write(&w.join("c2"), Source::Real);
+    std::fs::remove_file(w.join("c2/images/1.png")).expect("rm");
+    mkfifo(&w.join("c2/images/1.png"));
+    expect(&cal("c2"), 2, "not a regular file");
+    write(&w.join("c3"), Source::Real);
+    std::fs::write(w.join("c3/images/1.png"), png_claiming(8192, 8192)).expect("write");
+    expect(&cal("c3"), 2, "pixels");
+    assert!(!w.join("cal.toml").exists());
+}
+
+/// A small 16-bit RGB PNG whose header says `width` x `height` (CRC fixed; the pixel data is
+/// that of a 2 x 2 image, so only a decoder that trusts the header allocates for the claim).
+fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+    let small = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_pixel(2, 2, image::Rgb([1, 2, 3]));
+    let mut png = Vec::new();
+    small.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("encode");
+    png[16..20].copy_from_slice(&width.to_be_bytes());
+    png[20..24].copy_from_slice(&height.to_be_bytes());
+    let crc = crc32(&png[12..29]);
+    png[29..33].copy_from_slice(&crc.to_be_bytes());
+    png
+}
+
+/// CRC-32 (IEEE), as PNG chunks use.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 != 0 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+        }
+    }
+    c ^ 0xFFFF_FFFF
+}
+
+/// (Item 8.) An STL or calibration path in a manifest that leads outside the dataset is refused
+/// in the same words whether or not a file is there, and nothing of such a file is shown.
+#[test]
+fn manifest_paths_outside_the_dataset_reveal_nothing() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let stl = sb.top.join("outside/part.stl");
+    let mut bytes = b"NOT-AN-STL-HEADER ".to_vec();
+    bytes.resize(200, b'x');
+    std::fs::write(&stl, &bytes).expect("write");
+    let tiny = tiny_package();
+    let tiny = tiny.to_str().expect("utf-8");
+    let fill = |ds: &str| run(&w, &["synth", "--fill-missing", "--dataset", ds, "--model", tiny, "--steps", "1", "--limit", "1"]);
+    let with_manifest = |ds: &str, edit: &dyn Fn(String) -> String| {
+        dataset(&w.join(ds), 1);
+        let manifest = std::fs::read_to_string(w.join(ds).join("manifest.toml")).expect("manifest");
+        let edited = edit(manifest.clone());
+        assert_ne!(edited, manifest, "the edit applied");
+        std::fs::write(w.join(ds).join("manifest.toml"), edited).expect("write");
+    };
+    let mut messages = Vec::new();
+    for (ds, path) in [("s1", stl.clone()), ("s2", sb.top.join("outside/missing.stl"))] {
+        let path = path.display().to_string();
+        with_manifest(ds, &|m| m.replace("[object]\nname = \"sphere\"", &format!("[object]\nname = \"sphere\"\nstl_path = \"{path}\"")));
+        let all = expect(&fill(ds), 2, "not a path below the dataset folder");
+        assert!(!all.contains("200") && !all.contains("NOT-AN-STL"), "{all}");
+        messages.push(all.replace(&path, "P").replace(ds, "D"));
+    }
+    let secret = sb.secret().display().to_string();
+    let missing = sb.top.join("outside/missing.toml").display().to_string();
+    for (ds, path) in [("c1", secret.as_str()), ("c2", missing.as_str())] {
+        with_manifest(ds, &|m| {
+            let mut lines: Vec<String> = m.lines().map(|l| l.to_string()).collect();
+            lines.insert(0, format!("calibration = \"{path}\""));
+            lines.join("\n") + "\n"
+        });
+        let all = expect(&fill(ds), 2, "not a path below the dataset folder");
+        messages.push(all.replace(path, "P").replace(ds, "D"));
+    }
+    assert_eq!(messages[0], messages[1], "an STL outside: the same words whether it exists or not");
+    assert_eq!(messages[2], messages[3], "a calibration outside: the same words whether it exists or not");
+    sb.assert_no_copy_of_the_secret();
+}

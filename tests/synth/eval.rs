@@ -433,7 +433,7 @@ fn synth_poses_of_twins_exactly_the_real_poses_and_resumes() {
 
 /// Rewrites every row of the datasets under `root` from `source=real` to `source=simulated`.
 fn mark_simulated(root: &Path) {
-    for dir in rig::dataset::find_datasets(root) {
+    for dir in rig::dataset::find_datasets(root).expect("datasets") {
         let csv = dir.join("poses.csv");
         let text = std::fs::read_to_string(&csv).expect("read csv");
         assert!(text.contains(",real,"), "{}", csv.display());
