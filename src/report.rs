@@ -240,6 +240,9 @@ impl Classify for crate::dataset::DatasetError {
         match self {
             D::NotEmpty { .. }
             | D::NotADataset { .. }
+            | D::StlMissing { .. }
+            | D::FolderMissing { .. }
+            | D::StlChanged { .. }
             | D::ManifestMismatch { .. }
             | D::ManifestParse { .. }
             | D::ManifestPlan { .. }

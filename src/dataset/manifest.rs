@@ -20,7 +20,11 @@ use crate::sensor::SensorKind;
 pub struct ObjectInfo {
     /// Short name used in paths (`datasets/<name>/...`).
     pub name: String,
-    /// STL file the control images are rendered from, as given by the user.
+    /// STL file the control images are rendered from: relative to the dataset folder when the
+    /// file lies inside it, else absolute ([`ObjectInfo::stored_stl_path`]), so it resolves from
+    /// wherever the dataset is used. Manifests written before this rule hold the path as the
+    /// user gave it, relative to where `rig collect` ran; [`ObjectInfo::stl_file`] still reads
+    /// those where they resolve.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stl_path: Option<String>,
     /// Hex sha256 of the STL file's bytes.
@@ -34,9 +38,63 @@ impl ObjectInfo {
         Self { name: name.to_string(), stl_path: None, stl_sha256: None }
     }
 
-    /// An object with its STL file, hashing the file.
-    pub fn with_stl(name: &str, stl: &Path) -> Result<Self, DatasetError> {
-        Ok(Self { name: name.to_string(), stl_path: Some(stl.display().to_string()), stl_sha256: Some(sha256_file(stl)?) })
+    /// An object with its STL file, for the dataset at `dataset_dir`, hashing the file.
+    pub fn with_stl(name: &str, stl: &Path, dataset_dir: &Path) -> Result<Self, DatasetError> {
+        Ok(Self {
+            name: name.to_string(),
+            stl_path: Some(Self::stored_stl_path(stl, dataset_dir)),
+            stl_sha256: Some(sha256_file(stl)?),
+        })
+    }
+
+    /// How a manifest of the dataset at `dataset_dir` names the STL file `stl` (a path as the
+    /// user gave it, relative to the working directory or absolute): relative to the dataset
+    /// folder when the file lies inside it (the dataset can move with its STL), else absolute.
+    /// Symlinks in either path are resolved first where the path exists, so the two compare.
+    pub fn stored_stl_path(stl: &Path, dataset_dir: &Path) -> String {
+        let absolute = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
+        let stl_abs = absolute(stl);
+        // The dataset folder may not exist yet: resolve its nearest existing ancestor.
+        let mut existing = dataset_dir.to_path_buf();
+        let mut rest = Vec::new();
+        while !existing.exists() {
+            match (existing.parent(), existing.file_name()) {
+                (Some(parent), Some(name)) => {
+                    rest.push(name.to_os_string());
+                    existing = parent.to_path_buf();
+                }
+                _ => break,
+            }
+        }
+        let mut dir_abs = absolute(if existing.as_os_str().is_empty() { Path::new(".") } else { &existing });
+        dir_abs.extend(rest.iter().rev());
+        match stl_abs.strip_prefix(&dir_abs) {
+            Ok(inside) => inside.display().to_string(),
+            Err(_) => stl_abs.display().to_string(),
+        }
+    }
+
+    /// The STL file this manifest names, for the dataset at `dataset_dir` whose manifest is
+    /// `manifest`: `None` when it names none; else the file, checked against `stl_sha256`.
+    ///
+    /// A relative `stl_path` is looked up beside the dataset first, then (manifests written
+    /// before paths were stored that way) relative to the working directory. A path that
+    /// resolves nowhere is [`DatasetError::StlMissing`] naming it and the manifest, and a file
+    /// whose bytes differ from the recorded hash is [`DatasetError::StlChanged`].
+    pub fn stl_file(&self, dataset_dir: &Path, manifest: &Path) -> Result<Option<PathBuf>, DatasetError> {
+        let Some(stored) = self.stl_path.as_deref() else { return Ok(None) };
+        let named = Path::new(stored);
+        let candidates =
+            if named.is_absolute() { vec![named.to_path_buf()] } else { vec![dataset_dir.join(named), named.to_path_buf()] };
+        let Some(found) = candidates.into_iter().find(|p| p.is_file()) else {
+            return Err(DatasetError::StlMissing { path: stored.to_string(), manifest: manifest.to_path_buf() });
+        };
+        if let Some(expected) = &self.stl_sha256
+            && !sha256_file(&found)?.eq_ignore_ascii_case(expected)
+        {
+            return Err(DatasetError::StlChanged { path: found, manifest: manifest.to_path_buf() });
+        }
+        Ok(Some(found))
     }
 }
 
@@ -270,6 +328,7 @@ impl Manifest {
     /// [`MAX_MANIFEST_BYTES`](super::durable::MAX_MANIFEST_BYTES)) and validates its plan, so
     /// no manifest can make a reader enumerate a grid beyond [`crate::plan::MAX_GRID_POINTS`].
     pub fn load(dir: &Path) -> Result<Self, DatasetError> {
+        super::require_folder(dir)?;
         let path = dir.join(super::MANIFEST_FILE);
         let bytes = super::durable::read_regular(&path, super::durable::MAX_MANIFEST_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| DatasetError::ManifestParse {

@@ -165,9 +165,11 @@ pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) 
     Some(calib.scaled_to(size, size))
 }
 
-/// The object's mesh: its STL when the file is there, else the library object of that name.
-pub(super) fn mesh_of(manifest: &Manifest) -> Option<Mesh> {
-    if let Some(path) = manifest.object.stl_path.as_deref().map(PathBuf::from).filter(|p| p.is_file())
+/// The object's mesh: the STL its manifest names when it resolves from the dataset `dir` and
+/// matches its sha256 ([`crate::dataset::ObjectInfo::stl_file`]), else the library object of
+/// that name.
+pub(super) fn mesh_of(dir: &Path, manifest: &Manifest) -> Option<Mesh> {
+    if let Ok(Some(path)) = manifest.object.stl_file(dir, &dir.join(crate::dataset::MANIFEST_FILE))
         && let Ok(mesh) = Mesh::load(&path)
     {
         return Some(mesh);
