@@ -3,7 +3,7 @@
 
     scripts/check-docs.py [ROOT]        check the repository (default: this script's ../)
     scripts/check-docs.py --self-test   check the checker on a tiny book with known faults
-    scripts/check-docs.py --tour RIG    run the README's tour with the rig binary RIG (below)
+    scripts/check-docs.py --tour RIG [ROOT]   run the README's tour with the rig binary RIG (below)
 
 Files checked: README.md, CHANGELOG.md, TESTING.md and docs/src/**/*.md. For each link,
 image and link reference definition (and <a href>/<img src> in raw HTML):
@@ -444,6 +444,10 @@ def run_tour(root, rig_bin):
                     job[2].kill()
                     rc = job[2].wait()
                     failures.append(f"{where}: the job did not end within 30 s of SIGTERM")
+                try:
+                    os.killpg(job[2].pid, signal.SIGKILL)  # anything it left behind
+                except ProcessLookupError:
+                    pass
                 out = log_of(job)
                 if rc != 0:
                     failures.append(f"{where}: `{job[1]}` exited {rc}:\n{out}")
@@ -454,7 +458,8 @@ def run_tour(root, rig_bin):
                 continue
             if command.endswith("&"):
                 log = os.path.join(work, f".tour-job-{len(background) + 1}.log")
-                proc = subprocess.Popen(command[:-1].strip(), shell=True, cwd=work, env=env,
+                # `exec`: the signal of `kill %N` goes to the command, not to a shell around it.
+                proc = subprocess.Popen("exec " + command[:-1].strip(), shell=True, cwd=work, env=env,
                                         stdout=open(log, "w"), stderr=subprocess.STDOUT,
                                         start_new_session=True)
                 job = (line_no, command[:-1].strip(), proc, log, expected)
@@ -480,7 +485,10 @@ def run_tour(root, rig_bin):
         for job in background:
             if job is not None:
                 failures.append(f"README.md:{job[0]}: background job `{job[1]}` was never stopped by the tour")
-                os.killpg(job[2].pid, signal.SIGKILL)
+                try:
+                    os.killpg(job[2].pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
                 job[2].wait()
     for f in failures:
         print(f"check-docs --tour: {f}", file=sys.stderr)
@@ -495,10 +503,11 @@ def main(argv):
     if argv[1:2] == ["--self-test"]:
         return self_test()
     if argv[1:2] == ["--tour"]:
-        if len(argv) != 3:
-            print("usage: scripts/check-docs.py --tour PATH/TO/rig", file=sys.stderr)
+        if len(argv) not in (3, 4):
+            print("usage: scripts/check-docs.py --tour PATH/TO/rig [ROOT]", file=sys.stderr)
             return 2
-        return run_tour(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."), argv[2])
+        root = argv[3] if len(argv) == 4 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+        return run_tour(root, argv[2])
     root = argv[1] if len(argv) > 1 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
     errors = check(root)
     for e in errors:

@@ -221,9 +221,22 @@ impl CollectOutcome {
                 s.captured,
                 s.skipped,
                 s.recovered_faults,
-                self.root.display()
+                relative_to_working_folder(&self.root).display()
             )
         }
+    }
+}
+
+/// `path` relative to the working folder when it lies inside it, else as it is: a daemon job,
+/// whose paths were resolved against the daemon's working folder, reports `out/tour/edge` as the
+/// standalone command does.
+fn relative_to_working_folder(path: &Path) -> PathBuf {
+    match std::env::current_dir() {
+        Ok(cwd) if path.is_absolute() => match path.strip_prefix(&cwd) {
+            Ok(inside) if !inside.as_os_str().is_empty() => inside.to_path_buf(),
+            _ => path.to_path_buf(),
+        },
+        _ => path.to_path_buf(),
     }
 }
 

@@ -188,7 +188,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         table.push(format!(
             "| {} | `rig {}` | {} | {} |",
             c.input,
-            c.args.join(" "),
+            c.args.join(" ").replace(env!("CARGO_MANIFEST_DIR"), "<repo>"),
             // As the guide prints it: the checkout as <repo>, angle brackets escaped for Markdown.
             msg.replace(env!("CARGO_MANIFEST_DIR"), "<repo>").replace('<', "&lt;").replace('>', "&gt;").replace('|', "\\|"),
             code.map_or("signal".to_string(), |c| c.to_string())
