@@ -214,7 +214,11 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
     println!("name         {}", c.name);
     println!("resolution   {}x{} px (latents /{})", c.width_px, c.height_px, c.vae_scale_factor);
     println!("modalities   {}", c.modalities.join(", "));
-    println!("prompt       {} (e.g. {})", c.prompt_template, crate::synth::prompt::mds_prompt(crate::sensor::SensorKind::ViTac, &Pose::new(0.12, -0.34, 1.5, 15.0)));
+    println!(
+        "prompt       {} (e.g. {})",
+        c.prompt_template,
+        crate::synth::prompt::mds_prompt(crate::sensor::SensorKind::ViTac, &Pose::new(0.12, -0.34, 1.5, 15.0))
+    );
     println!("latent scale {}", c.latent_scale);
     println!("hint         {:?}", c.hint_encoding);
     let s = &p.schedule.config;

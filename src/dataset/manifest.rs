@@ -40,11 +40,7 @@ impl ObjectInfo {
 
     /// An object with its STL file, for the dataset at `dataset_dir`, hashing the file.
     pub fn with_stl(name: &str, stl: &Path, dataset_dir: &Path) -> Result<Self, DatasetError> {
-        Ok(Self {
-            name: name.to_string(),
-            stl_path: Some(Self::stored_stl_path(stl, dataset_dir)),
-            stl_sha256: Some(sha256_file(stl)?),
-        })
+        Ok(Self { name: name.to_string(), stl_path: Some(Self::stored_stl_path(stl, dataset_dir)), stl_sha256: Some(sha256_file(stl)?) })
     }
 
     /// How a manifest of the dataset at `dataset_dir` names the STL file `stl` (a path as the
@@ -84,8 +80,7 @@ impl ObjectInfo {
     pub fn stl_file(&self, dataset_dir: &Path, manifest: &Path) -> Result<Option<PathBuf>, DatasetError> {
         let Some(stored) = self.stl_path.as_deref() else { return Ok(None) };
         let named = Path::new(stored);
-        let candidates =
-            if named.is_absolute() { vec![named.to_path_buf()] } else { vec![dataset_dir.join(named), named.to_path_buf()] };
+        let candidates = if named.is_absolute() { vec![named.to_path_buf()] } else { vec![dataset_dir.join(named), named.to_path_buf()] };
         let Some(found) = candidates.into_iter().find(|p| p.is_file()) else {
             return Err(DatasetError::StlMissing { path: stored.to_string(), manifest: manifest.to_path_buf() });
         };

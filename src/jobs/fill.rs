@@ -50,9 +50,10 @@ impl FillRequest {
         let bad = |field, reason: String| JobError::bad_option(field, reason);
         let no_dataset = |root: &Path| match crate::dataset::require_folder(root) {
             Err(missing) => JobError::Dataset { dir: root.to_path_buf(), source: missing },
-            Ok(()) => {
-                bad("dataset", format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()))
-            }
+            Ok(()) => bad(
+                "dataset",
+                format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()),
+            ),
         };
         if let Some(source) = &self.poses_of {
             let Some(out) = &self.out else {

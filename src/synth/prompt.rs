@@ -118,7 +118,8 @@ mod tests {
              'object_pose': {'x': -3.06, 'y': -2.04, 'z': 0.8, 'yaw': -89.79}}"
         );
         assert!(
-            mds_prompt(SensorKind::ViTacTip, &p).starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'")
+            mds_prompt(SensorKind::ViTacTip, &p)
+                .starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'")
         );
     }
 

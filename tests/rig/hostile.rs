@@ -601,10 +601,7 @@ fn an_stl_named_by_a_dataset_resolves_from_anywhere_or_is_named() {
 
     let tiny = tiny_package();
     let fill = || {
-        run(
-            &w,
-            &["synth", "--fill-missing", "--dataset", "lab/ds/mypart/tactip", "--model", tiny.to_str().expect("utf-8"), "--steps", "1"],
-        )
+        run(&w, &["synth", "--fill-missing", "--dataset", "lab/ds/mypart/tactip", "--model", tiny.to_str().expect("utf-8"), "--steps", "1"])
     };
     std::fs::rename(lab.join("mypart.stl"), w.join("moved.stl")).expect("move the STL away");
     let all = expect(&fill(), 2, "does not exist");
@@ -614,8 +611,11 @@ fn an_stl_named_by_a_dataset_resolves_from_anywhere_or_is_named() {
     );
     assert!(!all.contains("unknown object"), "{all}");
     // Another file at that path is not the STL the dataset was made with.
-    std::fs::write(lab.join("mypart.stl"), std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/objects/edge.stl")).expect("edge"))
-        .expect("write");
+    std::fs::write(
+        lab.join("mypart.stl"),
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/objects/edge.stl")).expect("edge"),
+    )
+    .expect("write");
     expect(&fill(), 2, "sha256 differs");
     std::fs::rename(w.join("moved.stl"), lab.join("mypart.stl")).expect("move the STL back");
     expect(&fill(), 0, "synthesised 1 poses");
