@@ -78,7 +78,7 @@ fn main() {
             return;
         }
     };
-    let prompt = rig::synth::prompt::mds_prompt("ViTac", &rig::pose::Pose::new(0.12, -0.34, 1.5, 15.0));
+    let prompt = rig::synth::prompt::mds_prompt(rig::sensor::SensorKind::ViTac, &rig::pose::Pose::new(0.12, -0.34, 1.5, 15.0));
     let threads: Option<usize> = std::env::var("RIG_BENCH_THREADS").ok().and_then(|t| t.parse().ok());
     let opts = RuntimeOptions { intra_threads: threads, ..Default::default() };
     let mut pipeline = match Pipeline::load(&model, &opts) {

@@ -3,6 +3,7 @@
 
     scripts/check-docs.py [ROOT]        check the repository (default: this script's ../)
     scripts/check-docs.py --self-test   check the checker on a tiny book with known faults
+    scripts/check-docs.py --tour RIG [ROOT]   run the README's tour with the rig binary RIG (below)
 
 Files checked: README.md, CHANGELOG.md, TESTING.md and docs/src/**/*.md. For each link,
 image and link reference definition (and <a href>/<img src> in raw HTML):
@@ -22,6 +23,14 @@ SUMMARY entry exists.
 Links in fenced or indented code blocks and in `code spans` are not links and are skipped.
 Exits 1 with one `file:line: broken link ...` line per fault; 0 when every link resolves.
 Python 3 standard library only.
+
+--tour RIG runs the console block of README.md's "A five-minute tour" as a new user would, with
+RIG's folder first on PATH, in a new temp folder holding a copy of plans/ and models/ (the files
+the tour names): each `$ command` must exit 0 and print its key output lines, the lines shown
+under it, in order (a `...` line skips any number of lines; decimals such as timings and fitted
+values match any decimal, every other character must be equal). `command &` starts a background
+job (its lines must appear while it runs; the next step waits up to 60 s for the first), and
+`kill %N` stops the Nth background job with SIGTERM and checks it exits 0 with its lines.
 """
 
 import os
@@ -335,9 +344,170 @@ def self_test():
     return 0
 
 
+TOUR_HEADING = "## A five-minute tour on the simulated rig"
+DECIMAL = re.compile(r"-?\d+\.\d+")
+
+
+def tour_steps(readme_text):
+    """The README tour's console block as [(line_no, command, [expected lines])]."""
+    lines = readme_text.splitlines()
+    try:
+        start = lines.index(TOUR_HEADING)
+    except ValueError:
+        raise SystemExit(f"check-docs --tour: README.md has no {TOUR_HEADING!r} section")
+    i = start
+    while i < len(lines) and lines[i].strip() != "```console":
+        i += 1
+    steps = []
+    for j in range(i + 1, len(lines)):
+        line = lines[j]
+        if line.strip() == "```":
+            break
+        if line.startswith("$ "):
+            command = re.sub(r"\s+#.*$", "", line[2:]).strip()
+            steps.append((j + 1, command, []))
+        elif line.strip() and steps:
+            steps[-1][2].append(line)
+    if not steps:
+        raise SystemExit("check-docs --tour: the tour has no `$ command` lines")
+    return steps
+
+
+def line_pattern(expected):
+    """A regex for one expected output line: decimals match any decimal, the rest literally."""
+    parts, last = [], 0
+    for m in DECIMAL.finditer(expected):
+        parts.append(re.escape(expected[last:m.start()]))
+        parts.append(r"-?\d+\.\d+")
+        last = m.end()
+    parts.append(re.escape(expected[last:]))
+    return re.compile("^" + "".join(parts) + "$")
+
+
+def missing_lines(expected, output):
+    """The expected lines not found in `output`, in order ('...' skips any lines)."""
+    got = [l.rstrip() for l in output.splitlines()]
+    at = 0
+    for k, want in enumerate(expected):
+        if want.strip() == "...":
+            continue
+        pattern = line_pattern(want.rstrip())
+        while at < len(got) and not pattern.match(got[at]):
+            at += 1
+        if at == len(got):
+            return expected[k:]
+        at += 1
+    return []
+
+
+def run_tour(root, rig_bin):
+    import shutil
+    import signal
+    import subprocess
+    import time
+
+    rig_bin = os.path.abspath(rig_bin)
+    if not os.access(rig_bin, os.X_OK):
+        print(f"check-docs --tour: {rig_bin} is not an executable rig binary", file=sys.stderr)
+        return 1
+    with open(os.path.join(root, "README.md"), encoding="utf-8") as f:
+        steps = tour_steps(f.read())
+    failures = []
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="rig-tour-") as work:
+        for folder in ("plans", "models"):
+            shutil.copytree(os.path.join(root, folder), os.path.join(work, folder))
+        env = dict(os.environ)
+        env["PATH"] = os.path.dirname(rig_bin) + os.pathsep + env.get("PATH", "")
+        for var in ("RIG_CONFIG", "RIG_DAEMON_TOKEN"):
+            env.pop(var, None)
+        background = []  # (line_no, command, Popen, log path, expected)
+
+        def log_of(job):
+            with open(job[3], encoding="utf-8", errors="replace") as f:
+                return f.read()
+
+        for line_no, command, expected in steps:
+            where = f"README.md:{line_no}: $ {command}"
+            kill = re.fullmatch(r"kill %(\d+)", command)
+            if kill:
+                n = int(kill.group(1))
+                if not 1 <= n <= len(background) or background[n - 1] is None:
+                    failures.append(f"{where}: no background job %{n}")
+                    continue
+                job = background[n - 1]
+                background[n - 1] = None
+                job[2].send_signal(signal.SIGTERM)
+                try:
+                    rc = job[2].wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    job[2].kill()
+                    rc = job[2].wait()
+                    failures.append(f"{where}: the job did not end within 30 s of SIGTERM")
+                try:
+                    os.killpg(job[2].pid, signal.SIGKILL)  # anything it left behind
+                except ProcessLookupError:
+                    pass
+                out = log_of(job)
+                if rc != 0:
+                    failures.append(f"{where}: `{job[1]}` exited {rc}:\n{out}")
+                lost = missing_lines(job[4] + expected, out)
+                if lost:
+                    failures.append(f"{where}: `{job[1]}` did not print {lost[0]!r}; it printed:\n{out}")
+                print(f"tour: {where} ok ({time.monotonic() - t0:.0f} s)")
+                continue
+            if command.endswith("&"):
+                log = os.path.join(work, f".tour-job-{len(background) + 1}.log")
+                # `exec`: the signal of `kill %N` goes to the command, not to a shell around it.
+                proc = subprocess.Popen("exec " + command[:-1].strip(), shell=True, cwd=work, env=env,
+                                        stdout=open(log, "w"), stderr=subprocess.STDOUT,
+                                        start_new_session=True)
+                job = (line_no, command[:-1].strip(), proc, log, expected)
+                background.append(job)
+                # The next step needs it up: wait for its first line.
+                first = [l for l in expected if l.strip() != "..."][:1]
+                deadline = time.monotonic() + 60
+                while first and missing_lines(first, log_of(job)) and proc.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.2)
+                if first and missing_lines(first, log_of(job)):
+                    failures.append(f"{where}: did not print {first[0]!r} within 60 s; it printed:\n{log_of(job)}")
+                print(f"tour: {where} started ({time.monotonic() - t0:.0f} s)")
+                continue
+            done = subprocess.run(command, shell=True, cwd=work, env=env, stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True, errors="replace")
+            if done.returncode != 0:
+                failures.append(f"{where}: exited {done.returncode}:\n{done.stdout}")
+            else:
+                lost = missing_lines(expected, done.stdout)
+                if lost:
+                    failures.append(f"{where}: did not print {lost[0]!r}; it printed:\n{done.stdout}")
+            print(f"tour: {where} {'ok' if done.returncode == 0 else 'FAILED'} ({time.monotonic() - t0:.0f} s)")
+        for job in background:
+            if job is not None:
+                failures.append(f"README.md:{job[0]}: background job `{job[1]}` was never stopped by the tour")
+                try:
+                    os.killpg(job[2].pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                job[2].wait()
+    for f in failures:
+        print(f"check-docs --tour: {f}", file=sys.stderr)
+    if failures:
+        print(f"check-docs --tour: {len(failures)} step(s) of the README tour failed", file=sys.stderr)
+        return 1
+    print(f"check-docs --tour: the README tour ran as written ({len(steps)} steps, {time.monotonic() - t0:.0f} s)")
+    return 0
+
+
 def main(argv):
     if argv[1:2] == ["--self-test"]:
         return self_test()
+    if argv[1:2] == ["--tour"]:
+        if len(argv) not in (3, 4):
+            print("usage: scripts/check-docs.py --tour PATH/TO/rig [ROOT]", file=sys.stderr)
+            return 2
+        root = argv[3] if len(argv) == 4 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+        return run_tour(root, argv[2])
     root = argv[1] if len(argv) > 1 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
     errors = check(root)
     for e in errors:

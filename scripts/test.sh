@@ -5,6 +5,7 @@
 # RIG_SKIP_LEROBOT=1 skips it), checks model-package rewrites (tests/export/run.sh;
 # RIG_SKIP_EXPORT=1 skips it), checks that the API docs build without warnings, then smoke-runs
 # every fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
+# RIG_DOCS_TOUR=1 also runs the README tour as written after the test build.
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
@@ -27,6 +28,12 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
 echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs about 3 GiB)"
 cargo test --all-targets --locked
+# The README tour, run as written with the binary just built (scripts/check-docs.py --tour): every
+# step's exit status and key output lines. It collects and synthesises for minutes (11 min 44 s
+# on a busy 2-core machine), so it runs only with RIG_DOCS_TOUR=1.
+if [ "${RIG_DOCS_TOUR:-0}" = 1 ]; then
+  python3 scripts/check-docs.py --tour "${CARGO_TARGET_DIR:-target}/debug/rig"
+fi
 # examples/slurm end to end on a single-node SLURM it starts and stops (installs slurm-wlm and
 # munge with apt when missing), with the rig binary the tests above just built.
 if [ "${RIG_SKIP_SLURM:-0}" != 1 ]; then

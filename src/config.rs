@@ -422,7 +422,17 @@ impl RigConfig {
             return Err(invalid("collect.move_timeout_s", format!("must be above 0 s, got {}", collect.move_timeout_s)));
         }
         let mut sensors = Vec::new();
-        for (name, s) in raw.sensors {
+        for (key, s) in raw.sensors {
+            // `[sensors.TacTip]` and `[sensors.tactip]` are one sensor: the one parser, the
+            // canonical name kept (the rig matches sensors by it).
+            let name = key
+                .parse::<crate::sensor::SensorKind>()
+                .map_err(|e| invalid("sensors.<name>", format!("[sensors.{key}]: {e}")))?
+                .name()
+                .to_string();
+            if sensors.iter().any(|c: &SensorConfig| c.name == name) {
+                return Err(invalid("sensors.<name>", format!("[sensors.{key}]: sensor {name} is configured twice")));
+            }
             let backend = match s.backend.as_deref().unwrap_or("sim") {
                 "sim" | "simulated" => SensorBackend::Simulated,
                 "v4l2" => SensorBackend::V4l2 {
@@ -639,6 +649,18 @@ mod tests {
         let c = RigConfig::parse("[arm]\nbackend = \"magician\"\nserial_port = \"/dev/ttyUSB0\"\n", Path::new("x")).unwrap();
         assert_eq!(c.arm.backend, ArmBackend::Magician { serial_port: "/dev/ttyUSB0".into() });
         assert!(RigConfig::parse("[arm]\nbackend = \"magician\"\n", Path::new("x")).is_err());
+    }
+
+    /// Sensor sections go through the one sensor parser: any case names the sensor, a name
+    /// that is none of the three is refused listing the valid ones.
+    #[test]
+    fn sensor_sections_take_any_case() {
+        let c = RigConfig::parse("[sensors.ViTac]\nscene = \"full\"\n", Path::new("x")).unwrap();
+        assert_eq!(c.sensors.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), vec!["vitac"]);
+        let e = RigConfig::parse("[sensors.gelsight]\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("gelsight") && e.to_string().contains("tactip, vitac or vitactip"), "{e}");
+        let e = RigConfig::parse("[sensors.tactip]\n[sensors.TacTip]\n", Path::new("x")).unwrap_err();
+        assert!(e.to_string().contains("twice"), "{e}");
     }
 
     #[test]

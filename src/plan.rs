@@ -230,6 +230,28 @@ pub enum PlanError {
     },
 }
 
+/// The dotted name of the key set on 1-based `line` of a TOML `text` (`x_mm.step` inside
+/// `[x_mm]`), when the key and its table are plain names (letters, digits, `_`, `-`, at most
+/// 64 characters): a typo's own name, without echoing anything else the file holds.
+fn key_on_line(text: &str, line: usize) -> Option<String> {
+    let plain = |s: &str| {
+        let s = s.trim();
+        (!s.is_empty() && s.len() <= 64 && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')).then(|| s.to_string())
+    };
+    let lines: Vec<&str> = text.lines().collect();
+    let here = lines.get(line.checked_sub(1)?)?;
+    let key = plain(here.split_once('=')?.0)?;
+    let table = lines[..line - 1]
+        .iter()
+        .rev()
+        .find_map(|l| l.trim().strip_prefix('[').and_then(|l| l.split_once(']')).map(|(name, _)| plain(name)))
+        .flatten();
+    Some(match table {
+        Some(table) => format!("{table}.{key}"),
+        None => key,
+    })
+}
+
 /// One pose of a plan: its stable grid id and its work-frame pose.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PlannedPose {
@@ -251,8 +273,15 @@ impl PlanSpec {
     pub fn load(path: &Path) -> Result<Self, PlanError> {
         let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
             .map_err(|source| PlanError::Io { path: path.to_path_buf(), source })?;
-        let spec = Self::from_toml_str(&text)
-            .map_err(|e| PlanError::Parse { path: path.to_path_buf(), source: crate::untrusted::SyntaxError::from_toml(&e, &text) })?;
+        let spec = Self::from_toml_str(&text).map_err(|e| {
+            let mut source = crate::untrusted::SyntaxError::from_toml(&e, &text);
+            // Name the key the error is on (`x_mm.stp`, `samplng`): a plan's own schema words,
+            // never a value from the file.
+            if let Some(key) = key_on_line(&text, source.line) {
+                source.reason = format!("{} (key `{key}`)", source.reason);
+            }
+            PlanError::Parse { path: path.to_path_buf(), source }
+        })?;
         spec.validate()?;
         Ok(spec)
     }
@@ -677,6 +706,28 @@ mod tests {
     fn model() -> impl Fn(&Pose, &Pose) -> f64 {
         let m = TrapezoidMotionModel::default();
         move |a: &Pose, b: &Pose| m.time_s(a, b)
+    }
+
+    /// A typo in a plan file names the key it is on (its table too), never the value.
+    #[test]
+    fn plan_typos_name_their_key() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let good = "sampling = \"full\"\norder = \"optimised\"\n[x_mm]\nmin = 0\nmax = 1\nstep = 1\n[y_mm]\nmin = 0\nmax = 1\nstep = 1\n\
+                    [z_mm]\nmin = 0\nmax = 1\nstep = 1\n[yaw_deg]\nmin = 0\nmax = 1\nstep = 1\n";
+        let path = dir.path().join("plan.toml");
+        std::fs::write(&path, good).expect("write");
+        PlanSpec::load(&path).expect("the plan without typos loads");
+        for (typo, key, hidden) in [
+            (good.replace("sampling = \"full\"", "samplng = \"full\""), "`samplng`", "\"full\""),
+            (good.replace("sampling = \"full\"", "sampling = \"randm-secret\""), "`sampling`", "randm-secret"),
+            (good.replacen("step = 1\n[y_mm]", "stp = 1\n[y_mm]", 1), "`x_mm.stp`", "stp = 1"),
+        ] {
+            std::fs::write(&path, &typo).expect("write");
+            let err = PlanSpec::load(&path).expect_err("a typo");
+            let text = format!("{err}: {}", std::error::Error::source(&err).map(|s| s.to_string()).unwrap_or_default());
+            assert!(text.contains(&format!("(key {key})")), "{key} not named: {text}");
+            assert!(!text.contains(hidden), "the file's value was echoed: {text}");
+        }
     }
 
     #[test]

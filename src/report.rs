@@ -242,6 +242,9 @@ impl Classify for crate::dataset::DatasetError {
         match self {
             D::NotEmpty { .. }
             | D::NotADataset { .. }
+            | D::StlMissing { .. }
+            | D::FolderMissing { .. }
+            | D::StlChanged { .. }
             | D::ManifestMismatch { .. }
             | D::ManifestParse { .. }
             | D::ManifestPlan { .. }
@@ -266,6 +269,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::Locked { .. }
             | D::CsvWrite { .. } => Exit::Failure,
             D::Confined(e) => e.exit(),
+            D::Named(e) => e.exit(),
         }
     }
 }

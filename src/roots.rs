@@ -50,7 +50,7 @@ pub enum RootsError {
 pub enum PathError {
     #[error("{field} is empty")]
     Empty { field: String },
-    #[error("{field} {given}: outside the data roots ({roots})")]
+    #[error("{field} {given}: outside the data roots ({roots}); start the daemon with --root DIR to let jobs use DIR")]
     Outside { field: String, given: PathBuf, roots: String },
     #[error("{field} {given}: does not exist")]
     Missing { field: String, given: PathBuf },

@@ -8,7 +8,11 @@
 //! | ViTac | `vitac` | `ViTac` |
 //! | ViTacTip | `vitactip` | `ViTacTip` |
 //!
-//! Names are read case-insensitively (`TacTip`, `tactip` and `TACTIP` are one sensor) and
+//! Names are read by one parser, [`SensorKind::from_str`], wherever a sensor is named: the
+//! command line (`--sensor`, `rig synth one --sensor`, `rig render --sensor`), plan and rig TOML
+//! (`[sensors.<name>]`), daemon job requests and dataset manifests. It reads any case
+//! (`TacTip`, `tactip` and `TACTIP` are one sensor) and ignores `-` and `_` (`ViTac-Tip`,
+//! `vitac_tip`); a name that is none of the three is an error listing the valid names. Names are
 //! written in lower case, so a dataset folder or a file name built from a sensor is always one
 //! of three fixed words: never a path a manifest or a request could smuggle in. A set of
 //! sensors asked for on the command line or in a job request is a [`SensorSet`]
@@ -82,16 +86,28 @@ impl fmt::Display for SensorKind {
 
 /// A sensor name that is none of the three.
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
-#[error("unknown sensor {text:?} (expected tactip, vitac or vitactip)")]
+#[error("unknown sensor {text:?} (expected {expected})")]
 pub struct SensorKindParseError {
+    /// The name as given.
     pub text: String,
+    /// The valid names: `tactip, vitac or vitactip`, and `or all` where a set is asked for.
+    pub expected: &'static str,
 }
+
+/// The valid names of one sensor, as errors list them.
+const EXPECTED_ONE: &str = "tactip, vitac or vitactip, in any case";
+/// The valid names of a set of sensors, as errors list them.
+const EXPECTED_SET: &str = "tactip, vitac, vitactip or all, in any case, or a comma-separated list";
 
 impl FromStr for SensorKind {
     type Err = SensorKindParseError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let trimmed = s.trim();
-        Self::ALL.into_iter().find(|k| k.name().eq_ignore_ascii_case(trimmed)).ok_or_else(|| SensorKindParseError { text: s.to_string() })
+        // Any case, `-` and `_` ignored: `ViTacTip`, `VITACTIP`, `vitac-tip` are one sensor.
+        let folded: String = s.trim().chars().filter(|c| !matches!(c, '-' | '_')).collect();
+        Self::ALL
+            .into_iter()
+            .find(|k| !folded.is_empty() && k.name().eq_ignore_ascii_case(&folded))
+            .ok_or_else(|| SensorKindParseError { text: s.to_string(), expected: EXPECTED_ONE })
     }
 }
 
@@ -109,7 +125,9 @@ impl<'de> serde::Deserialize<'de> for SensorKind {
 }
 
 /// The sensors a command or a job asks for: `all`, one name, or a comma-separated list
-/// (`tactip,vitactip`); repeated names count once, in the order given.
+/// (`tactip,vitactip`); repeated names count once, in the order given, and `all` in a list
+/// stands for the three. A bad name in a list is the one the error names (`all,gelsight`:
+/// `unknown sensor "gelsight"`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SensorSet(pub Vec<SensorKind>);
 
@@ -148,14 +166,17 @@ impl fmt::Display for SensorSet {
 impl FromStr for SensorSet {
     type Err = SensorKindParseError;
     fn from_str(text: &str) -> Result<Self, Self::Err> {
-        if text.trim().eq_ignore_ascii_case("all") {
-            return Ok(Self::all());
-        }
         let mut kinds = Vec::new();
         for part in text.split(',') {
-            let kind: SensorKind = part.parse()?;
-            if !kinds.contains(&kind) {
-                kinds.push(kind);
+            let named: Vec<SensorKind> = if part.trim().eq_ignore_ascii_case("all") {
+                SensorKind::ALL.to_vec()
+            } else {
+                vec![part.parse().map_err(|e: SensorKindParseError| SensorKindParseError { expected: EXPECTED_SET, ..e })?]
+            };
+            for kind in named {
+                if !kinds.contains(&kind) {
+                    kinds.push(kind);
+                }
             }
         }
         Ok(Self(kinds))
@@ -190,8 +211,40 @@ mod tests {
             assert_eq!(kind.to_string(), kind.name());
             assert!(kind.prompt_context().ends_with(&format!("{}.", kind.label())));
         }
-        for bad in ["", "gelsight", "tac tip", "a/../../../X", "tactip/", "../tactip"] {
+        for bad in ["", "-", "gelsight", "tac tip", "a/../../../X", "tactip/", "../tactip", "all"] {
             assert!(bad.parse::<SensorKind>().is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn any_case_and_aliases_name_one_sensor() {
+        for (text, kind) in [
+            ("vitac", SensorKind::ViTac),
+            ("ViTac", SensorKind::ViTac),
+            ("VITAC", SensorKind::ViTac),
+            ("vItAc", SensorKind::ViTac),
+            (" tactip ", SensorKind::TacTip),
+            ("Tac-Tip", SensorKind::TacTip),
+            ("vitac_tip", SensorKind::ViTacTip),
+            ("ViTac-Tip", SensorKind::ViTacTip),
+        ] {
+            assert_eq!(text.parse::<SensorKind>(), Ok(kind), "{text:?}");
+        }
+    }
+
+    #[test]
+    fn a_bad_name_is_named_with_the_valid_ones() {
+        let err = "gelsight".parse::<SensorKind>().expect_err("not a sensor");
+        let text = err.to_string();
+        assert!(text.contains("\"gelsight\"") && text.contains("tactip, vitac or vitactip"), "{text}");
+        assert!(!text.contains("all"), "one sensor is asked for: {text}");
+        // In a set, the bad name is the one named, `all` is listed as valid, and `all` beside it
+        // is not blamed.
+        for list in ["all,gelsight", "tactip,gelsight", "gelsight,ALL"] {
+            let err = list.parse::<SensorSet>().expect_err("not a set");
+            assert_eq!(err.text, "gelsight", "{list}");
+            let text = err.to_string();
+            assert!(text.contains("\"gelsight\"") && text.contains("or all"), "{text}");
         }
     }
 
@@ -204,6 +257,9 @@ mod tests {
         assert_eq!(set.to_string(), "vitactip,tactip");
         assert_eq!(SensorSet::all().to_string(), "all");
         assert!("tactip,".parse::<SensorSet>().is_err(), "an empty name is not a sensor");
+        let set: SensorSet = "vitac,ALL".parse().expect("all in a list");
+        assert_eq!(set.0, vec![SensorKind::ViTac, SensorKind::TacTip, SensorKind::ViTacTip]);
+        assert_eq!("all,tactip".parse::<SensorSet>(), Ok(SensorSet::all()));
         assert!("tactip,gelsight".parse::<SensorSet>().is_err());
     }
 

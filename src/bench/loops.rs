@@ -182,7 +182,7 @@ fn synthesis(config: &BenchConfig, work_dir: &Path, images: usize) -> Result<(f6
     let pose = crate::pose::Pose::new(1.0, -0.5, 1.5, 30.0);
     let depth = crate::geometry::raster::render_depth(&mesh, &pose, &crate::calibration::Calibration::default_for(w, h), w, h, 2);
     let control = crate::geometry::control::control_image(&depth);
-    let prompt = crate::synth::prompt::mds_prompt("ViTac", &pose);
+    let prompt = crate::synth::prompt::mds_prompt(crate::sensor::SensorKind::ViTac, &pose);
     // Seeded initial latents, handed to both sides.
     let shape = pipeline.latent_shape();
     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);

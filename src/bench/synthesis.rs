@@ -82,7 +82,7 @@ pub fn measure(config: &BenchConfig) -> Result<KnobReport, BenchError> {
             let control = control_image(&render_depth(&mesh, &object_pose, &model_calib, w, h, 2));
             let seen = sensor.render(&render_depth(&mesh, &object_pose, &sensor_calib, px, px, 1), &MotionState::STILL, k as u64);
             let truth = image::imageops::resize(&seen, w, h, FilterType::Triangle);
-            Case { control, prompt: mds_prompt(kind.label(), p), truth }
+            Case { control, prompt: mds_prompt(kind, p), truth }
         })
         .collect();
     let Some(&reference_steps) = config.synth_steps.iter().max() else {

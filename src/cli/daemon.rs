@@ -138,7 +138,15 @@ pub fn submit_and_follow(target: &DaemonTarget, spec: crate::jobs::JobRequest) -
 async fn follow(client: crate::daemon::client::DaemonClient, url: &str, spec: crate::jobs::JobRequest, detach: bool) -> anyhow::Result<()> {
     use crate::daemon::{JobState, JobView};
     let body = serde_json::to_value(&spec).context("encoding the job")?;
-    let job: JobView = client.post_json("/api/jobs", &body).await.with_context(|| format!("submitting the job to {url}"))?;
+    let job: JobView = match client.post_json("/api/jobs", &body).await {
+        Ok(job) => job,
+        // 400: the daemon refused the job itself (a bound, a path outside its data roots): bad
+        // input, exit 2, as the standalone command would give.
+        Err(crate::daemon::client::ClientError::Status { status: 400, message }) => {
+            return Err(crate::report::usage(&format!("the daemon at {url} refused the job: {message}")).into());
+        }
+        Err(e) => return Err(anyhow::Error::new(e).context(format!("submitting the job to {url}"))),
+    };
     println!("submitted {} job {} to {url}", spec.kind(), job.id);
     if detach {
         println!("follow it with: curl {url}/api/jobs/{}", job.id);

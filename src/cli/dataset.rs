@@ -220,7 +220,7 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
     let sensor = target.sensor;
     let obj_name = target.object.clone().or_else(|| rows.first().map(|r| r.obj_id.clone())).unwrap_or_default();
     let object = match &target.stl {
-        Some(stl) => ObjectInfo::with_stl(&obj_name, stl)?,
+        Some(stl) => ObjectInfo::with_stl(&obj_name, stl, out)?,
         None => ObjectInfo::named(&obj_name),
     };
     let manifest = Manifest::new(sensor, object, None);

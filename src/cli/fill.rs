@@ -131,6 +131,7 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
     } else {
         println!("model: {}", model.display());
     }
+    crate::synth::fill::check_model_dir(&model)?;
     let mut pipeline =
         Pipeline::load(&model, &args.runtime.options()).with_context(|| format!("loading model package {}", model.display()))?;
     let progress = indicatif::ProgressBar::new(0);

@@ -238,7 +238,7 @@ fn controls_of(dataset: &Path, size: ImageSize, supersample: u32, out_dir: &Path
     })?;
     for row in &rows {
         let pose = row.commanded();
-        prompts.write_record([row.pose_id.to_string(), kind.label().to_string(), mds_prompt(kind.label(), &pose)])?;
+        prompts.write_record([row.pose_id.to_string(), kind.label().to_string(), mds_prompt(kind, &pose)])?;
     }
     prompts.flush()?;
     println!(

@@ -76,18 +76,19 @@ const MAX_BENCH_IMAGES: usize = 1024;
 /// `rig synth one`.
 #[derive(Debug, ClapArgs)]
 pub struct OneArgs {
-    /// Model package directory (model.toml, tokenizer/, text_encoder/, controlnet/, unet/, vae_decoder/, scheduler/).
+    /// Model package directory (model.toml, tokenizer/, text_encoder/, controlnet/, unet/, vae_decoder/, scheduler/);
+    /// default: models/default, found as --fill-missing finds it, else the tiny test package.
     #[arg(long, value_name = "DIR")]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
     /// Control (hint) image, e.g. the colour-mapped depth map of the pose.
     #[arg(long, value_name = "PNG")]
     pub control: PathBuf,
     /// Prompt text. Or give --sensor and --pose to build the MultiDiffSense prompt.
     #[arg(long, required_unless_present = "pose", conflicts_with_all = ["sensor", "pose"])]
     pub prompt: Option<String>,
-    /// Sensor label for the MultiDiffSense prompt (TacTip, ViTac, ViTacTip).
+    /// Sensor of the MultiDiffSense prompt: tactip, vitac or vitactip (any case).
     #[arg(long, requires = "pose")]
-    pub sensor: Option<String>,
+    pub sensor: Option<crate::sensor::SensorKind>,
     /// Work-frame pose for the MultiDiffSense prompt: x_mm,y_mm,z_mm,yaw_deg.
     #[arg(long, requires = "sensor", allow_hyphen_values = true)]
     pub pose: Option<Pose>,
@@ -118,9 +119,9 @@ pub struct OneArgs {
 /// `rig synth info`.
 #[derive(Debug, ClapArgs)]
 pub struct InfoArgs {
-    /// Model package directory.
+    /// Model package directory (default: models/default, found as --fill-missing finds it).
     #[arg(long, value_name = "DIR")]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
     #[command(flatten)]
     pub runtime: RuntimeArgs,
 }
@@ -142,6 +143,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
 }
 
+/// The package `--model` names, else the default package as `--fill-missing` finds it; a
+/// named folder that does not exist is refused saying so (exit 2).
+fn model_dir(given: Option<&std::path::Path>) -> anyhow::Result<PathBuf> {
+    let dir = given.map(std::path::Path::to_path_buf).unwrap_or_else(crate::synth::fill::default_model);
+    crate::synth::fill::check_model_dir(&dir)?;
+    Ok(dir)
+}
+
 fn load(model: &std::path::Path, runtime: &RuntimeArgs) -> anyhow::Result<Pipeline> {
     Pipeline::load(model, &runtime.options()).with_context(|| format!("loading model package {}", model.display()))
 }
@@ -149,7 +158,7 @@ fn load(model: &std::path::Path, runtime: &RuntimeArgs) -> anyhow::Result<Pipeli
 fn run_one(args: OneArgs) -> anyhow::Result<()> {
     let prompt = match (&args.prompt, &args.sensor, &args.pose) {
         (Some(p), _, _) => p.clone(),
-        (None, Some(sensor), Some(pose)) => crate::synth::prompt::mds_prompt(sensor, pose),
+        (None, Some(sensor), Some(pose)) => crate::synth::prompt::mds_prompt(*sensor, pose),
         _ => bail!("give --prompt, or --sensor with --pose"),
     };
     // Bounds first: nothing is read, loaded or allocated for settings that mean nothing.
@@ -167,13 +176,20 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
         &crate::untrusted::read_bytes(&args.control, crate::dataset::durable::MAX_IMAGE_BYTES)
             .with_context(|| format!("reading control image {}", args.control.display()))?,
     )
-    .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?
-    .to_rgb8();
+    .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?;
     let init = match &args.init_latents {
         Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
         None => None,
     };
-    let mut pipeline = load(&args.model, &args.runtime)?;
+    // The control image must be what the package was conditioned on (its hint_encoding),
+    // checked against model.toml before the ONNX models are loaded.
+    let model = model_dir(args.model.as_deref())?;
+    let hint = crate::synth::package::ModelPackage::open(&model)
+        .with_context(|| format!("loading model package {}", model.display()))?
+        .config
+        .hint_encoding;
+    let control = crate::synth::hint::control_for(&control, hint, &args.control)?;
+    let mut pipeline = load(&model, &args.runtime)?;
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
     let s = &args.sampling;
     let Sampling { steps, guidance, sampler: scheduler, eta } =
@@ -248,7 +264,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
         None => None,
     };
-    let mut pipeline = load(&args.model, &args.runtime)?;
+    let mut pipeline = load(&model_dir(Some(&args.model))?, &args.runtime)?;
     let s = &args.sampling;
     let Sampling { steps, guidance, sampler, eta } =
         pipeline.package().config.sampling(s.steps, s.guidance, s.sampler, s.eta, ONE_FALLBACK);
@@ -302,14 +318,18 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
 }
 
 fn run_info(args: InfoArgs) -> anyhow::Result<()> {
-    let pipeline = load(&args.model, &args.runtime)?;
+    let pipeline = load(&model_dir(args.model.as_deref())?, &args.runtime)?;
     let p = pipeline.package();
     let c = &p.config;
     println!("package      {}", p.dir.display());
     println!("name         {}", c.name);
     println!("resolution   {}x{} px (latents /{})", c.width_px, c.height_px, c.vae_scale_factor);
     println!("modalities   {}", c.modalities.join(", "));
-    println!("prompt       {} (e.g. {})", c.prompt_template, crate::synth::prompt::mds_prompt("ViTac", &Pose::new(0.12, -0.34, 1.5, 15.0)));
+    println!(
+        "prompt       {} (e.g. {})",
+        c.prompt_template,
+        crate::synth::prompt::mds_prompt(crate::sensor::SensorKind::ViTac, &Pose::new(0.12, -0.34, 1.5, 15.0))
+    );
     println!("latent scale {}", c.latent_scale);
     println!("hint         {:?}", c.hint_encoding);
     let s = &p.schedule.config;
@@ -391,6 +411,12 @@ mod tests {
         );
         let one = parse_one(&["--sensor", "ViTac", "--pose", "-1,2,0.5,-30"]).unwrap();
         assert_eq!(one.pose, Some(Pose::new(-1.0, 2.0, 0.5, -30.0)));
+        // One vocabulary: any case names the same sensor, so builds the same prompt.
+        let lower = parse_one(&["--sensor", "vitac", "--pose", "-1,2,0.5,-30"]).unwrap();
+        assert_eq!(lower.sensor, Some(crate::sensor::SensorKind::ViTac));
+        assert_eq!(lower.sensor, one.sensor);
+        let err = parse_one(&["--sensor", "gelsight", "--pose", "0,0,1,0"]).expect_err("not a sensor");
+        assert!(err.to_string().contains("tactip, vitac or vitactip"), "{err}");
         assert!(parse_one(&[]).is_err(), "a prompt or a pose is required");
     }
 }

@@ -27,6 +27,15 @@ pub enum DatasetError {
     },
     #[error("{dir} already holds a dataset (or other files); refusing to overwrite it. Use --resume to continue it")]
     NotEmpty { dir: PathBuf },
+    #[error("STL {path} named by {manifest} does not exist (give the dataset its STL there, or re-collect with --stl)")]
+    StlMissing { path: String, manifest: PathBuf },
+    #[error("STL {path} named by {manifest} is not the file the dataset was made with (its sha256 differs)")]
+    StlChanged { path: PathBuf, manifest: PathBuf },
+    /// A file the manifest names that rig may not read ([`crate::dataset::named`]).
+    #[error(transparent)]
+    Named(#[from] crate::dataset::named::NamedFileError),
+    #[error("folder {dir} does not exist")]
+    FolderMissing { dir: PathBuf },
     #[error("{dir} is not a dataset: {missing} is missing")]
     NotADataset { dir: PathBuf, missing: &'static str },
     #[error("dataset {dir} was written with a different {field}: it has {existing}, this run asks for {requested}")]

@@ -37,7 +37,17 @@
 //!
 //! **tactile-bench**: `sensor_image,object_label,pose_x,pose_y,pose_z,pose_Rx,pose_Ry,pose_Rz`
 //! (mm and degrees; rig writes Rx = Ry = 0 and Rz = yaw), followed by rig's `pose_id` and
-//! `source` so rows stay traceable.
+//! `source` so rows stay traceable. This is the `targets.csv` of the Lepora lab's collection
+//! code (github.com/dexterousrobot/tactile_image_processing,
+//! `tactile_image_processing/collect_data/setup_targets.py` writes the header, `collect_data.py`
+//! drives the robot by it). **`pose_z` is positive deeper**, into the object: in `collect_data.py`
+//! the robot starts "50mm above workframe origin" at `(0, 0, -50, 0, 0, 0)` and moves "above the
+//! target pose" to `pose - clearance` with `clearance = (0, 0, 10, 0, 0, 0)`, and its task limits
+//! press at `pose_z` from 1 to 5 mm (`pose_llims`/`pose_ulims`, e.g. `(-5, 0, 3, 0, 0, -180)` to
+//! `(5, 0, 4, 0, 0, 180)`). rig's work-frame z is positive deeper too ([`crate::pose::WorkFrame`]),
+//! so `pose_z` is the row's `z_mm` with its sign: a deeper press is a larger `pose_z`. (An MDS
+//! row imported with `pose_3` = +0.80, which is 0.80 mm *shallower*, exports `pose_z` = -0.80.)
+//! The origin is rig's: `pose_z` = 0 is the contact depth, not the object's surface.
 //!
 //! Both exports write the commanded pose (what the plan asked for), as the MDS files do.
 
@@ -281,5 +291,33 @@ mod tests {
             "sensor_image,object_label,pose_x,pose_y,pose_z,pose_Rx,pose_Ry,pose_Rz,pose_id,source\n\
              images/7.png,edge,1.5,-2,0.5,0,0,30,7,real\n"
         );
+    }
+
+    /// `pose_z`'s sign against a row written by the tactile-bench convention: in the Lepora lab's
+    /// collection code (github.com/dexterousrobot/tactile_image_processing,
+    /// `tactile_image_processing/collect_data/collect_data.py` and `setup_targets.py`) the robot
+    /// moves "above the target pose" to `pose - (0, 0, 10, 0, 0, 0)`, so a larger `pose_z` presses
+    /// deeper. The row below is one of its `targets.csv` rows (edge task, `pose_z` sampled from
+    /// 3 to 4 mm); its press re-collected by rig, deeper by the same amount, exports the same
+    /// `pose_z`, and a shallower press a smaller one.
+    #[test]
+    fn tactile_bench_pose_z_is_positive_deeper_as_its_collection_code_writes_it() {
+        let targets = "sensor_image,object_label,pose_x,pose_y,pose_z,pose_Rx,pose_Ry,pose_Rz\n\
+                       image_1.png,edge,-2.5,0,3.5,0,0,45\n";
+        let mut reader = csv::Reader::from_reader(targets.as_bytes());
+        let headers = reader.headers().unwrap().clone();
+        let record = reader.records().next().unwrap().unwrap();
+        let field = |name: &str| -> f64 { record[headers.iter().position(|h| h == name).unwrap()].parse().unwrap() };
+        let (x, y, z, yaw) = (field("pose_x"), field("pose_y"), field("pose_z"), field("pose_Rz"));
+        // rig's work-frame z is positive deeper: the same press is z_mm = +3.5.
+        let deeper = PoseRow::real(1, Pose::new(x, y, z, yaw), Pose::default(), 1.0);
+        let shallower = PoseRow::real(2, Pose::new(x, y, z - 1.0, yaw), Pose::default(), 1.0);
+        let mut out = Vec::new();
+        export_tactile_bench(&[deeper, shallower], "edge", &mut out).unwrap();
+        let mut exported = csv::Reader::from_reader(out.as_slice());
+        let z_column = exported.headers().unwrap().iter().position(|h| h == "pose_z").unwrap();
+        let z: Vec<f64> = exported.records().map(|r| r.unwrap()[z_column].parse().unwrap()).collect();
+        assert_eq!(z, vec![3.5, 2.5], "pose_z keeps rig's sign: positive deeper");
+        assert!(z[0] > z[1], "the deeper press has the larger pose_z, as in the collection code");
     }
 }

@@ -20,7 +20,11 @@ use crate::sensor::SensorKind;
 pub struct ObjectInfo {
     /// Short name used in paths (`datasets/<name>/...`).
     pub name: String,
-    /// STL file the control images are rendered from, as given by the user.
+    /// STL file the control images are rendered from: relative to the dataset folder when the
+    /// file lies inside it, else absolute ([`ObjectInfo::stored_stl_path`]), so it resolves from
+    /// wherever the dataset is used. Manifests written before this rule hold the path as the
+    /// user gave it, relative to where `rig collect` ran; [`ObjectInfo::stl_bytes`] still reads
+    /// those where they resolve.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stl_path: Option<String>,
     /// Hex sha256 of the STL file's bytes.
@@ -34,9 +38,61 @@ impl ObjectInfo {
         Self { name: name.to_string(), stl_path: None, stl_sha256: None }
     }
 
-    /// An object with its STL file, hashing the file.
-    pub fn with_stl(name: &str, stl: &Path) -> Result<Self, DatasetError> {
-        Ok(Self { name: name.to_string(), stl_path: Some(stl.display().to_string()), stl_sha256: Some(sha256_file(stl)?) })
+    /// An object with its STL file, for the dataset at `dataset_dir`, hashing the file.
+    pub fn with_stl(name: &str, stl: &Path, dataset_dir: &Path) -> Result<Self, DatasetError> {
+        Ok(Self { name: name.to_string(), stl_path: Some(Self::stored_stl_path(stl, dataset_dir)), stl_sha256: Some(sha256_file(stl)?) })
+    }
+
+    /// How a manifest of the dataset at `dataset_dir` names the STL file `stl` (a path as the
+    /// user gave it, relative to the working directory or absolute): relative to the dataset
+    /// folder when the file lies inside it (the dataset can move with its STL), else absolute.
+    /// Symlinks in either path are resolved first where the path exists, so the two compare.
+    pub fn stored_stl_path(stl: &Path, dataset_dir: &Path) -> String {
+        let absolute = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
+        let stl_abs = absolute(stl);
+        // The dataset folder may not exist yet: resolve its nearest existing ancestor.
+        let mut existing = dataset_dir.to_path_buf();
+        let mut rest = Vec::new();
+        while !existing.exists() {
+            match (existing.parent(), existing.file_name()) {
+                (Some(parent), Some(name)) => {
+                    rest.push(name.to_os_string());
+                    existing = parent.to_path_buf();
+                }
+                _ => break,
+            }
+        }
+        let mut dir_abs = absolute(if existing.as_os_str().is_empty() { Path::new(".") } else { &existing });
+        dir_abs.extend(rest.iter().rev());
+        match stl_abs.strip_prefix(&dir_abs) {
+            Ok(inside) => inside.display().to_string(),
+            Err(_) => stl_abs.display().to_string(),
+        }
+    }
+
+    /// The bytes of the STL file this manifest names, for the dataset at `dataset_dir` whose
+    /// manifest is `manifest`: `None` when it names none; else the file, read by the rules of
+    /// [`crate::dataset::named`] (below the dataset, then below the working folder for
+    /// manifests written before paths were stored relative to the dataset; elsewhere only the
+    /// file its sha256 names) and checked against `stl_sha256`.
+    ///
+    /// A relative path found in neither folder is [`DatasetError::StlMissing`] naming it and the
+    /// manifest; a file whose bytes differ from the recorded hash is [`DatasetError::StlChanged`];
+    /// a path outside both folders is refused in the same words whether or not a file is there.
+    /// `max_bytes` bounds the read (the STL decoder's limit).
+    pub fn stl_bytes(&self, dataset_dir: &Path, manifest: &Path, max_bytes: u64) -> Result<Option<Vec<u8>>, DatasetError> {
+        let Some(stored) = self.stl_path.as_deref() else { return Ok(None) };
+        let sha = self.stl_sha256.as_deref();
+        let Some(bytes) = crate::dataset::named::read_named(dataset_dir, "object.stl_path", stored, sha, max_bytes)?
+        else {
+            return Err(DatasetError::StlMissing { path: stored.to_string(), manifest: manifest.to_path_buf() });
+        };
+        if let Some(expected) = sha
+            && !hex::encode(Sha256::digest(&bytes)).eq_ignore_ascii_case(expected)
+        {
+            return Err(DatasetError::StlChanged { path: PathBuf::from(stored), manifest: manifest.to_path_buf() });
+        }
+        Ok(Some(bytes))
     }
 }
 
@@ -270,6 +326,7 @@ impl Manifest {
     /// [`MAX_MANIFEST_BYTES`](super::durable::MAX_MANIFEST_BYTES)) and validates its plan, so
     /// no manifest can make a reader enumerate a grid beyond [`crate::plan::MAX_GRID_POINTS`].
     pub fn load(dir: &Path) -> Result<Self, DatasetError> {
+        super::require_folder(dir)?;
         let path = dir.join(super::MANIFEST_FILE);
         let bytes = super::durable::read_regular(&path, super::durable::MAX_MANIFEST_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| DatasetError::ManifestParse {

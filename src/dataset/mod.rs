@@ -330,6 +330,7 @@ pub fn find_datasets(root: &std::path::Path) -> Result<Vec<PathBuf>, DatasetErro
 /// Reads every row of `dir/poses.csv`, failing on a malformed or duplicated row (a torn last
 /// line is ignored, as resume would truncate it). Rows come in file order.
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
+    require_folder(dir)?;
     let path = dir.join(POSES_FILE);
     let bytes = durable::read_regular(&path, durable::MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
@@ -436,6 +437,16 @@ fn parse_row(raw: &[u8], layout: CsvLayout) -> Result<PoseRow, String> {
         return Err(p.to_string());
     }
     Ok(row)
+}
+
+/// [`DatasetError::FolderMissing`] when nothing exists at `dir` (not even a dangling link), so
+/// a mistyped dataset folder reads "folder X does not exist" rather than a missing file inside
+/// it. Anything else there is left to the reader that follows.
+pub fn require_folder(dir: &std::path::Path) -> Result<(), DatasetError> {
+    match std::fs::symlink_metadata(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(DatasetError::FolderMissing { dir: dir.to_path_buf() }),
+        _ => Ok(()),
+    }
 }
 
 #[cfg(test)]

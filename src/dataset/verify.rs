@@ -176,6 +176,7 @@ impl fmt::Display for VerifyReport {
 /// Checks the dataset in `dir` without modifying it. Fails only when `dir` has no
 /// `poses.csv` or cannot be read.
 pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
+    super::require_folder(dir)?;
     let csv_path = dir.join(POSES_FILE);
     if !entry_exists(&csv_path, Kind::File)? {
         return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: POSES_FILE });

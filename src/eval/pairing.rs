@@ -184,16 +184,14 @@ pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) 
     Some(calib.scaled_to(size, size))
 }
 
-/// The object's mesh: its STL when the manifest names one rig may read and it is there, else
-/// the library object of that name.
+/// The object's mesh: the STL its manifest names when rig may read it, it is there and it
+/// matches its sha256 ([`crate::dataset::ObjectInfo::stl_bytes`]), else the library object of
+/// that name.
 pub(super) fn mesh_of(dir: &Path, manifest: &Manifest) -> Option<Mesh> {
-    if let Some(named) = manifest.object.stl_path.as_deref() {
-        let sha = manifest.object.stl_sha256.as_deref();
-        if let Ok(Some(bytes)) = crate::dataset::named::read_named(dir, "object.stl_path", named, sha, crate::geometry::stl::MAX_STL_BYTES)
-            && let Ok(mesh) = Mesh::from_bytes(&bytes)
-        {
-            return Some(mesh);
-        }
+    if let Ok(Some(bytes)) = manifest.object.stl_bytes(dir, &dir.join(crate::dataset::MANIFEST_FILE), crate::geometry::stl::MAX_STL_BYTES)
+        && let Ok(mesh) = Mesh::from_bytes(&bytes)
+    {
+        return Some(mesh);
     }
     crate::geometry::objects::load_object(&manifest.object.name).ok()
 }

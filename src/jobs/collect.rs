@@ -11,7 +11,7 @@
 //!   (rig replay builds the setup it recorded)          datasets opened, CollectJob run
 //! ```
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::{CollectRequest, JobError, Observer};
@@ -141,7 +141,12 @@ impl CollectSetup {
     /// The manifest a new dataset of `sensor` starts with; `arm` and `sensors` are the capture
     /// parts of the run's arm and of every sensor of the run.
     fn manifest(&self, sensor: SensorKind, calibration: &str, arm: &CapturePart, sensors: &[CapturePart]) -> Manifest {
-        let mut manifest = Manifest::new(sensor, self.object.clone(), Some(self.plan_spec.clone()));
+        // The STL as the dataset names it: relative to its folder when inside, else absolute.
+        let object = ObjectInfo {
+            stl_path: self.object.stl_path.as_deref().map(|p| ObjectInfo::stored_stl_path(Path::new(p), &self.dataset_dir(sensor))),
+            ..self.object.clone()
+        };
+        let mut manifest = Manifest::new(sensor, object, Some(self.plan_spec.clone()));
         manifest.calibration = Some(calibration.to_string());
         manifest.firmware_profile = Some(self.profile_name.clone());
         manifest.work_frame = Some(self.work_frame);
@@ -216,7 +221,7 @@ impl CollectOutcome {
                 s.captured,
                 s.skipped,
                 s.recovered_faults,
-                self.root.display()
+                relative_to_working_folder(&self.root).display()
             )
         }
     }
@@ -235,6 +240,19 @@ fn confine_dataset_dir(setup: &CollectSetup, sensor: SensorKind) -> Result<(), c
     let out = crate::confine::RootDir::open(&setup.out)?;
     out.create_dir_all(std::path::Path::new(&setup.object.name).join(sensor.name()))?;
     Ok(())
+}
+
+/// `path` relative to the working folder when it lies inside it, else as it is: a daemon job,
+/// whose paths were resolved against the daemon's working folder, reports `out/tour/edge` as the
+/// standalone command does.
+fn relative_to_working_folder(path: &Path) -> PathBuf {
+    match std::env::current_dir() {
+        Ok(cwd) if path.is_absolute() => match path.strip_prefix(&cwd) {
+            Ok(inside) if !inside.as_os_str().is_empty() => inside.to_path_buf(),
+            _ => path.to_path_buf(),
+        },
+        _ => path.to_path_buf(),
+    }
 }
 
 /// Runs a collection: opens (or resumes) one dataset per camera and drives the arm through

@@ -48,8 +48,12 @@ impl FillRequest {
     pub fn targets(&self) -> Result<Vec<FillTarget>, JobError> {
         self.check()?;
         let bad = |field, reason: String| JobError::bad_option(field, reason);
-        let no_dataset = |root: &Path| {
-            bad("dataset", format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()))
+        let no_dataset = |root: &Path| match crate::dataset::require_folder(root) {
+            Err(missing) => JobError::Dataset { dir: root.to_path_buf(), source: missing },
+            Ok(()) => bad(
+                "dataset",
+                format!("no dataset under {} (a dataset has a manifest.toml; collect one with `rig collect`)", root.display()),
+            ),
         };
         if let Some(source) = &self.poses_of {
             let Some(out) = &self.out else {

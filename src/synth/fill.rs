@@ -129,6 +129,27 @@ pub fn default_model() -> PathBuf {
     PathBuf::from("models/default")
 }
 
+/// Refuses a model package folder `dir` that does not exist, saying where rig looked and where
+/// the default package is: a relative `--model models/default` is relative to the working
+/// folder, while leaving `--model` out finds the default from anywhere ([`default_model`]).
+pub fn check_model_dir(dir: &Path) -> Result<(), SynthError> {
+    if std::fs::symlink_metadata(dir).is_ok() {
+        return Ok(());
+    }
+    let cwd = std::env::current_dir().map(|d| format!(" (relative to the working folder {})", d.display())).unwrap_or_default();
+    let default = default_model();
+    let hint = if default.join("model.toml").is_file() {
+        format!("leave out --model to use the default package, found at {}", default.display())
+    } else {
+        "no default package is installed either (models/default)".to_string()
+    };
+    Err(SynthError::BadRequest {
+        field: "model",
+        value: dir.display().to_string(),
+        reason: format!("folder {} does not exist{}; {hint}", dir.display(), if dir.is_relative() { cwd } else { String::new() }),
+    })
+}
+
 /// Dataset directories under `root` (itself, or up to two levels below).
 pub fn find_datasets(root: &Path) -> Result<Vec<PathBuf>, DatasetError> {
     crate::dataset::find_datasets(root)
@@ -214,7 +235,7 @@ pub fn fill_missing_observed(
     let mut synthesised = 0usize;
     for chunk in todo.chunks(options.batch.max(1)) {
         let controls: Vec<RgbImage> = chunk.iter().map(|p| renderer.control_image(&p.pose)).collect();
-        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
+        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind, &p.pose)).collect();
         let requests: Vec<GenerateRequest> = chunk
             .iter()
             .zip(controls.iter().zip(&prompts))
@@ -317,7 +338,7 @@ pub fn synthesise_poses_of(
     progress.set_length(todo.len() as u64);
     for chunk in todo.chunks(options.batch.max(1)) {
         let controls: Vec<RgbImage> = chunk.iter().map(|p| renderer.control_image(&p.pose)).collect();
-        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind.label(), &p.pose)).collect();
+        let prompts: Vec<String> = chunk.iter().map(|p| mds_prompt(kind, &p.pose)).collect();
         let requests: Vec<GenerateRequest> = chunk
             .iter()
             .zip(controls.iter().zip(&prompts))
@@ -411,20 +432,25 @@ impl Default for ControlScratch {
     }
 }
 
-/// The object mesh the dataset was collected on: its STL when the manifest names one rig may
-/// read ([`crate::dataset::named`]) and it is there, else the library object of that name.
+/// The object mesh the dataset was collected on: the STL its manifest names (read by the rules
+/// of [`crate::dataset::named`], checked against its sha256, [`crate::dataset::ObjectInfo::stl_bytes`]);
+/// else the library object of that name. A named STL that is gone is an error naming it, unless
+/// the library holds the same file (a library object named relative to where it was collected).
 fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
     let name = manifest.object.name.clone();
     let err = |reason: String| FillError::Object { dir: dir.to_path_buf(), object: name.clone(), reason };
-    if let Some(named) = manifest.object.stl_path.as_deref() {
-        let sha = manifest.object.stl_sha256.as_deref();
-        let found = crate::dataset::named::read_named(dir, "object.stl_path", named, sha, crate::geometry::stl::MAX_STL_BYTES)
-            .map_err(|e| err(e.to_string()))?;
-        if let Some(bytes) = found {
-            return Mesh::from_bytes(&bytes).map_err(|e| err(format!("{named}: {e}")));
-        }
+    let manifest_file = dir.join(crate::dataset::MANIFEST_FILE);
+    match manifest.object.stl_bytes(dir, &manifest_file, crate::geometry::stl::MAX_STL_BYTES) {
+        Ok(Some(bytes)) => Mesh::from_bytes(&bytes).map_err(|e| err(e.to_string())),
+        Ok(None) => load_object(&name).map_err(|e| err(e.to_string())),
+        Err(missing @ DatasetError::StlMissing { .. }) => match crate::geometry::objects::ObjectChoice::resolve(&name, None) {
+            Ok(library) if manifest.object.stl_sha256.as_ref().is_none_or(|h| h.eq_ignore_ascii_case(&library.sha256)) => {
+                Ok((*library.mesh).clone())
+            }
+            _ => Err(missing.into()),
+        },
+        Err(e) => Err(e.into()),
     }
-    load_object(&name).map_err(|e| err(e.to_string()))
 }
 
 /// The calibration named in the manifest ("default": the default for the image size).

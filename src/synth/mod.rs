@@ -17,6 +17,7 @@
 //! - [`text`] tokenises (CLIP BPE, padded to 77 with the end token) and encodes prompts, with
 //!   an embedding cache;
 //! - [`prompt`] builds the MultiDiffSense prompt text;
+//! - [`hint`] checks a caller's control image against the package's `hint_encoding`;
 //! - [`scheduler`] holds DDIM (as diffusers) and DPM-Solver++ 2M;
 //! - [`pipeline`] runs the step loop with classifier-free guidance batched as [uncond, cond];
 //! - [`npy`] reads and writes float32 `.npy` files for comparing with Python runs;
@@ -25,6 +26,7 @@
 //! - [`onnx_graph`] counts the UNet's downsamples, which fix the sizes a package can make.
 
 pub mod fill;
+pub mod hint;
 pub mod limits;
 pub mod npy;
 pub mod onnx_graph;

@@ -23,20 +23,16 @@
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
 
-/// The sensor sentence MultiDiffSense uses for a sensor label (`TacTip`, `ViTac`, `ViTacTip`;
-/// other labels get its generic fallback sentence). Labels are case-sensitive, as in its code.
-pub fn sensor_context(sensor_label: &str) -> String {
-    match SensorKind::from_label(sensor_label) {
-        Some(kind) => kind.prompt_context().to_string(),
-        None => format!("captured by {sensor_label} sensor."),
-    }
-}
-
-/// The MultiDiffSense prompt for `sensor_label` at the work-frame `pose`.
-pub fn mds_prompt(sensor_label: &str, pose: &Pose) -> String {
+/// The MultiDiffSense prompt for `sensor` at the work-frame `pose`.
+///
+/// The sensor is a [`SensorKind`], parsed once from whatever named it (any case, see
+/// [`crate::sensor`]), so `vitac` and `ViTac` build the same prompt. MultiDiffSense's own code
+/// compares case-sensitive labels and gives any other text a generic sentence (`captured by
+/// vitac sensor.`), a prompt the model was never trained on; rig has no such path.
+pub fn mds_prompt(sensor: SensorKind, pose: &Pose) -> String {
     format!(
         "{{'sensor_context': {}, 'object_pose': {{'x': {}, 'y': {}, 'z': {}, 'yaw': {}}}}}",
-        python_str_repr(&sensor_context(sensor_label)),
+        python_str_repr(sensor.prompt_context()),
         python_float_repr(numpy_round2(pose.x_mm)),
         python_float_repr(numpy_round2(pose.y_mm)),
         python_float_repr(numpy_round2(pose.z_mm)),
@@ -105,7 +101,7 @@ mod tests {
     fn architecture_example() {
         let p = Pose::new(0.12, -0.34, 1.5, 15.0);
         assert_eq!(
-            mds_prompt("ViTac", &p),
+            mds_prompt(SensorKind::ViTac, &p),
             "{'sensor_context': 'captured by a high-resolution vision only sensor ViTac.', \
              'object_pose': {'x': 0.12, 'y': -0.34, 'z': 1.5, 'yaw': 15.0}}"
         );
@@ -117,14 +113,14 @@ mod tests {
         // `str(json.loads(json.dumps(entry))["prompt"])` gives for that row in its pipeline.
         let p = Pose::new(-3.06193989, -2.038885835, 0.7995462253753978, -89.79246118);
         assert_eq!(
-            mds_prompt("TacTip", &p),
+            mds_prompt(SensorKind::TacTip, &p),
             "{'sensor_context': 'captured by a high-resolution tactile only sensor TacTip.', \
              'object_pose': {'x': -3.06, 'y': -2.04, 'z': 0.8, 'yaw': -89.79}}"
         );
         assert!(
-            mds_prompt("ViTacTip", &p).starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'")
+            mds_prompt(SensorKind::ViTacTip, &p)
+                .starts_with("{'sensor_context': 'captured by a high-resolution visuo-tactile sensor ViTacTip.'")
         );
-        assert!(mds_prompt("GelSight", &p).starts_with("{'sensor_context': 'captured by GelSight sensor.'"));
     }
 
     #[test]

@@ -67,8 +67,9 @@ const LAYERS: &[Layer] = &[
     // (`rig devices`) read `camera::usb`.
     Layer { name: "io", prefixes: &["io"], may_use: &["camera", "clock"] },
     // Not in the table: the rig TOML, raw then resolved (STYLE.md 13). It holds the settings of
-    // the arm, the cameras, the Modbus peripherals and the collection, so it sits on them.
-    Layer { name: "config", prefixes: &["config"], may_use: &["pose", "camera", "io"] },
+    // the arm, the cameras, the Modbus peripherals and the collection, so it sits on them; its
+    // `[sensors.<name>]` sections name sensors through `sensor`'s one parser.
+    Layer { name: "config", prefixes: &["config"], may_use: &["pose", "sensor", "camera", "io"] },
     // The calibration model (px/mm map, store): the bottom of `calibration`, under geometry.
     Layer { name: "calibration::model", prefixes: &["calibration::model"], may_use: &[] },
     Layer { name: "geometry", prefixes: &["geometry"], may_use: &["pose", "calibration::model"] },

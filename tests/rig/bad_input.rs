@@ -71,6 +71,14 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         b"sampling = \"lhs\"\nn_poses = 1\nseed = 1\norder = \"optimised\"\nx_mm = { min = -5.0, max = 5.0, step = -1.0 }\ny_mm = { min = -5.0, max = 5.0, step = 1.0 }\nz_mm = { min = 0.0, max = 1.0, step = 0.5 }\nyaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
     );
     write("plan-syntax.toml", b"x_mm = { min = 1.0, max = \n");
+    write(
+        "plan-typo.toml",
+        b"samplng = \"full\"\norder = \"optimised\"\nx_mm = { min = 0.0, max = 1.0, step = 1.0 }\ny_mm = { min = 0.0, max = 1.0, step = 1.0 }\nz_mm = { min = 0.0, max = 1.0, step = 1.0 }\nyaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
+    );
+    // What `rig render --sensor depth` writes: a 16-bit grey PNG, not a control image.
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(16, 16, |x, y| image::Luma([(x * 1000 + y) as u16]))
+        .save(dir.join("depth.png"))
+        .expect("writing depth.png");
     write("bad.csv", b"a,b\n1,2\n");
     write("bad-row.csv", b"image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\nf.png,d,1,x,1,2,3,4,5,6,0,0,0,0,0,0\n");
     std::fs::create_dir_all(dir.join("not-a-dataset")).expect("mkdir");
@@ -97,6 +105,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("unknown subcommand", &["frobnicate"], 2, "unrecognized subcommand"),
         case("a number flag given a word", &["collect", "--poses", "many"], 2, "invalid value"),
         case("unknown sensor name", &["collect", "--sensor", "gelsight", "--dry-run"], 2, "unknown sensor"),
+        case("a bad name in a sensor list", &["collect", "--sensor", "all,gelsight", "--dry-run"], 2, "unknown sensor \"gelsight\""),
         case("unknown object name", &["collect", "--object", "teapot", "--dry-run"], 2, "unknown object"),
         case("missing STL file", &["collect", "--stl", "nope.stl", "--dry-run"], 2, "cannot read"),
         case("STL with a NaN vertex", &["collect", "--stl", "garbage.stl", "--dry-run"], 2, "STL"),
@@ -117,6 +126,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("plan file missing", &["collect", "--plan", "nope.toml", "--dry-run"], 2, "cannot read plan"),
         case("plan TOML syntax error", &["collect", "--plan", "plan-syntax.toml", "--dry-run"], 2, "not a valid plan"),
         case("plan with a negative step", &["collect", "--plan", "negative-step.toml", "--dry-run"], 2, "step must be positive"),
+        case("plan with a mistyped key", &["collect", "--plan", "plan-typo.toml", "--dry-run"], 2, "(key `samplng`)"),
         case("zero poses asked for", &["collect", "--poses", "0", "--dry-run"], 2, "0 poses"),
         case("more poses than the grid has", &["collect", "--poses", "100000000", "--dry-run"], 2, "only"),
         case("plan outside the arm's workspace", &["collect", "--config", "far.toml", "--dry-run"], 2, "outside the arm's workspace"),
@@ -133,6 +143,13 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "different",
         ),
         case("verify a folder that is not a dataset", &["dataset", "verify", "not-a-dataset"], 2, "is not a dataset"),
+        case("verify a folder that does not exist", &["dataset", "verify", "no-such-folder"], 2, "folder no-such-folder does not exist"),
+        case(
+            "fill a folder that does not exist",
+            &["synth", "--fill-missing", "--dataset", "no-such-folder", "--dry-run"],
+            2,
+            "folder no-such-folder does not exist",
+        ),
         case("import a CSV that is not MDS", &["dataset", "import", "bad.csv"], 2, "missing column"),
         case("import an MDS row with a bad number", &["dataset", "import", "bad-row.csv"], 2, "malformed MDS row"),
         case("LeRobot export without --out", &["dataset", "export", "ds", "--format", "lerobot"], 2, "needs --out"),
@@ -142,7 +159,26 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             2,
             "refusing to overwrite",
         ),
-        case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "missing"),
+        case("synth with a missing model package", &["synth", "info", "--model", "no-model"], 2, "folder no-model does not exist"),
+        case(
+            "a depth map as the control image",
+            &[
+                "synth",
+                "one",
+                "--model",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
+                "--control",
+                "depth.png",
+                "--sensor",
+                "vitac",
+                "--pose",
+                "0,0,1,0",
+                "--out",
+                "o.png",
+            ],
+            2,
+            "make it with `rig render --sensor control",
+        ),
         case(
             "a dataset whose images/ is a symlink",
             &["dataset", "export", "linked/sphere/tactip", "--format", "lerobot", "--out", "lr"],
@@ -168,7 +204,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         table.push(format!(
             "| {} | `rig {}` | {} | {} |",
             c.input,
-            c.args.join(" "),
+            c.args.join(" ").replace(env!("CARGO_MANIFEST_DIR"), "<repo>"),
             // As the guide prints it: the checkout as <repo>, angle brackets escaped for Markdown.
             msg.replace(env!("CARGO_MANIFEST_DIR"), "<repo>").replace('<', "&lt;").replace('>', "&gt;").replace('|', "\\|"),
             code.map_or("signal".to_string(), |c| c.to_string())

@@ -574,6 +574,73 @@ fn exit_codes_follow_the_table() {
     expect(&run(&w, &["collect", "--config", "refused.toml", "--sensor", "tactip", "--poses", "1", "--out", "o"]), 3, "127.0.0.1");
 }
 
+/// (Issue 35, item 13.) A dataset collected with `--stl mypart.stl` names an STL that resolves
+/// from anywhere: filling it from another folder uses that file. When the file is gone, the error
+/// names it and the manifest (exit 2) instead of `unknown object "mypart"`; a file whose bytes
+/// changed is refused by its sha256.
+#[test]
+fn an_stl_named_by_a_dataset_resolves_from_anywhere_or_is_named() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let lab = w.join("lab");
+    std::fs::create_dir_all(&lab).expect("mkdir");
+    let sphere = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/objects/sphere.stl")).expect("library sphere");
+    std::fs::write(lab.join("mypart.stl"), &sphere).expect("write STL");
+    // A three-point grid, two collected: the fill has one pose to make.
+    std::fs::write(
+        lab.join("plan.toml"),
+        "sampling = \"random\"\nn_poses = 2\nseed = 1\norder = \"optimised\"\nx_mm = { min = 0.0, max = 2.0, step = 1.0 }\n\
+         y_mm = { min = 0.0, max = 0.0, step = 1.0 }\nz_mm = { min = 0.0, max = 0.0, step = 1.0 }\n\
+         yaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
+    )
+    .expect("write plan");
+    expect(&run(&lab, &["collect", "--stl", "mypart.stl", "--plan", "plan.toml", "--sensor", "tactip", "--out", "ds"]), 0, "collected 2");
+    let manifest = std::fs::read_to_string(lab.join("ds/mypart/tactip/manifest.toml")).expect("manifest");
+    let stored = lab.join("mypart.stl").canonicalize().expect("canonical");
+    assert!(manifest.contains(&format!("stl_path = \"{}\"", stored.display())), "not stored absolute:\n{manifest}");
+
+    let tiny = tiny_package();
+    let fill = || {
+        run(&w, &["synth", "--fill-missing", "--dataset", "lab/ds/mypart/tactip", "--model", tiny.to_str().expect("utf-8"), "--steps", "1"])
+    };
+    std::fs::rename(lab.join("mypart.stl"), w.join("moved.stl")).expect("move the STL away");
+    let all = expect(&fill(), 2, "does not exist");
+    assert!(
+        all.contains(&format!("STL {} named by lab/ds/mypart/tactip/manifest.toml does not exist", stored.display())),
+        "the missing file and the manifest are not named:\n{all}"
+    );
+    assert!(!all.contains("unknown object"), "{all}");
+    // Another file at that path is not the STL the dataset was made with.
+    std::fs::write(
+        lab.join("mypart.stl"),
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/objects/edge.stl")).expect("edge"),
+    )
+    .expect("write");
+    expect(&fill(), 2, "sha256 differs");
+    std::fs::rename(w.join("moved.stl"), lab.join("mypart.stl")).expect("move the STL back");
+    expect(&fill(), 0, "synthesised 1 poses");
+    expect(&run(&w, &["dataset", "verify", "lab/ds/mypart/tactip"]), 0, "rows 3");
+}
+
+/// (Issue 35, item 14.) A daemon job whose path lies outside the daemon's data roots is bad
+/// input for the command that sent it (exit 2), and the message says how to allow the folder.
+#[test]
+fn a_daemon_job_outside_the_roots_exits_2_and_names_root() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let daemon = DaemonProcess::start(&w, &[], &[]);
+    let url = format!("http://{}", daemon.addr);
+    let outside = sb.secret().parent().expect("outside folder").join("tour");
+    let out = run(
+        &w,
+        &["collect", "--daemon", &url, "--object", "edge", "--sensor", "tactip", "--poses", "1", "--out", outside.to_str().expect("utf-8")],
+    );
+    let all = expect(&out, 2, "outside the data roots");
+    assert!(all.contains("--root"), "{all}");
+    assert!(!outside.exists(), "a refused job wrote outside the roots");
+    assert_eq!(daemon.job_count(), 0, "a refused job was queued");
+}
+
 /// (Item 12.) Two runs racing into one empty folder: the loser says the dataset is held.
 #[test]
 fn two_collections_racing_into_one_folder() {

@@ -153,7 +153,7 @@ fn render_controls_of_matches_single_renders_and_prompts() {
         let b = image::open(&single).expect("single png").to_rgb8();
         assert_eq!(a.dimensions(), (64, 48));
         assert!(a == b, "pose {}: batch and single control images differ", row.pose_id);
-        let prompt = rig::synth::prompt::mds_prompt("TacTip", &pose);
+        let prompt = rig::synth::prompt::mds_prompt(rig::sensor::SensorKind::TacTip, &pose);
         assert!(prompts.contains(&format!("{},TacTip,\"{}\"", row.pose_id, prompt)), "pose {}: {prompts}", row.pose_id);
     }
 

@@ -105,7 +105,7 @@ fn batched_equals_unbatched_and_seeds_are_deterministic() {
     let mut pipeline = load();
     let control = control();
     let p1 = prompt();
-    let p2 = rig::synth::prompt::mds_prompt("TacTip", &rig::pose::Pose::new(1.0, -2.0, 0.5, 30.0));
+    let p2 = rig::synth::prompt::mds_prompt(rig::sensor::SensorKind::TacTip, &rig::pose::Pose::new(1.0, -2.0, 0.5, 30.0));
     let base = GenerateRequest { steps: 3, guidance: 5.0, ..GenerateRequest::new(&control, &p1) };
     let reqs = [
         GenerateRequest { seed: 11, ..base },

@@ -30,7 +30,7 @@ fn prompts_for_the_real_csv_match_python() {
             continue; // the template's unfilled rows
         }
         let v = |c: usize| record.get(c).unwrap().parse::<f64>().unwrap();
-        got.push(mds_prompt("ViTacTip", &Pose::new(v(c1), v(c2), v(c3), v(c6))));
+        got.push(mds_prompt(rig::sensor::SensorKind::ViTacTip, &Pose::new(v(c1), v(c2), v(c3), v(c6))));
     }
     let expected_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/mds_prompts_object1_vitactip.txt");
     let expected: Vec<String> = std::fs::read_to_string(expected_path).unwrap().lines().map(str::to_string).collect();
