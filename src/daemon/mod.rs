@@ -75,6 +75,9 @@ pub enum DaemonError {
     OrtLib(#[source] crate::synth::SynthError),
 }
 
+/// Longest [`Daemon::shutdown`] waits for the worker to stop the job and make the arm safe.
+pub const SHUTDOWN_DEADLINE: Duration = Duration::from_secs(5);
+
 /// How to run a daemon.
 #[derive(Debug, Clone)]
 pub struct DaemonOptions {
@@ -203,10 +206,15 @@ impl Daemon {
     /// point, the arm retracted and disabled, the rig closed, then the HTTP server stopped.
     pub async fn shutdown(self) -> Result<(), DaemonError> {
         self.state.begin_shutdown();
-        let worker = self.worker.await;
+        // The worker bounds each stage itself (the job's grace, the retract, the disable);
+        // this is the net under those bounds.
+        let worker = match tokio::time::timeout(SHUTDOWN_DEADLINE, self.worker).await {
+            Ok(joined) => joined.map_err(|e| DaemonError::Task { task: "worker", reason: e.to_string() }),
+            Err(_) => Err(DaemonError::Task { task: "worker", reason: format!("it did not stop within {SHUTDOWN_DEADLINE:?}") }),
+        };
         let _ = self.stop_server.send(true);
         let server = self.server.await;
-        worker.map_err(|e| DaemonError::Task { task: "worker", reason: e.to_string() })?;
+        worker?;
         server.map_err(|e| DaemonError::Task { task: "server", reason: e.to_string() })?.map_err(DaemonError::Serve)
     }
 }

@@ -165,7 +165,12 @@ pub struct Pipeline {
     /// Width and height must be multiples of this many pixels (see [`Pipeline::size_multiple`]).
     size_multiple: u32,
     hash: String,
+    /// Asked at the top of every sampling step: true stops the sampling ([`SynthError::Cancelled`]).
+    cancel: Option<CancelCheck>,
 }
+
+/// A cancel flag the sampling loop reads between steps (e.g. a job's cancel request).
+pub type CancelCheck = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 
 impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -274,7 +279,14 @@ impl Pipeline {
             latent_channels,
             size_multiple,
             hash,
+            cancel: None,
         })
+    }
+
+    /// Sets (or with `None` clears) the check the sampling loop makes before every step; once
+    /// it answers true, generating returns [`SynthError::Cancelled`] at the next step.
+    pub fn set_cancel(&mut self, cancel: Option<CancelCheck>) {
+        self.cancel = cancel;
     }
 
     /// Width and height of a synthesised image must be multiples of this many pixels: the VAE
@@ -463,6 +475,9 @@ impl Pipeline {
         let mut step_latents: Vec<Vec<NpyArray>> = vec![Vec::new(); n];
 
         for &t in &timesteps {
+            if self.cancel.as_ref().is_some_and(|cancelled| cancelled()) {
+                return Err(SynthError::Cancelled);
+            }
             let mut sample: Vec<f32> = latents.concat();
             if guided {
                 sample.extend_from_within(..);
