@@ -58,7 +58,9 @@ fn schedule(bytes: &[u8], config: Option<&model_toml::ModelConfig>) {
 }
 
 fn tokenizer(bytes: &[u8], end_token: &str) {
-    use tokenizers::{PaddingDirection, PaddingParams, PaddingStrategy, Tokenizer, TruncationDirection, TruncationParams, TruncationStrategy};
+    use tokenizers::{
+        PaddingDirection, PaddingParams, PaddingStrategy, Tokenizer, TruncationDirection, TruncationParams, TruncationStrategy,
+    };
     let Ok(mut tokenizer) = Tokenizer::from_bytes(bytes) else { return };
     let Some(end_id) = tokenizer.token_to_id(end_token) else { return };
     let truncation = TruncationParams {

@@ -298,7 +298,10 @@ async fn list_jobs(State(api): State<ApiState>, uri: axum::http::Uri) -> Respons
             ("before", Ok(id)) => before = Some(id),
             ("limit", Ok(n)) if n >= 1 => limit = usize::try_from(n).unwrap_or(usize::MAX).min(super::state::MAX_PAGE),
             ("before" | "limit", _) => {
-                return error(StatusCode::BAD_REQUEST, format!("{key} must be a positive whole number (limit: 1 to {})", super::state::MAX_PAGE));
+                return error(
+                    StatusCode::BAD_REQUEST,
+                    format!("{key} must be a positive whole number (limit: 1 to {})", super::state::MAX_PAGE),
+                );
             }
             _ => return error(StatusCode::BAD_REQUEST, "GET /api/jobs takes limit=N and before=ID only"),
         }

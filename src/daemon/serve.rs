@@ -234,11 +234,8 @@ pub(crate) fn json_for_parse_error(buf: &[u8]) -> Option<Vec<u8>> {
     };
     let body = serde_json::json!({ "error": message }).to_string();
     Some(
-        format!(
-            "HTTP/1.1 {status}\r\ncontent-type: application/json\r\ncontent-length: {}\r\nconnection: close\r\n\r\n{body}",
-            body.len()
-        )
-        .into_bytes(),
+        format!("HTTP/1.1 {status}\r\ncontent-type: application/json\r\ncontent-length: {}\r\nconnection: close\r\n\r\n{body}", body.len())
+            .into_bytes(),
     )
 }
 

@@ -113,7 +113,9 @@ async fn grace_after_cancel(mut cancel: tokio::sync::watch::Receiver<bool>, stat
         if stopping_since.is_none() && !state.accepting() {
             stopping_since = Some(now);
         }
-        if now.duration_since(cancelled_at) >= JOB_STOP_GRACE || stopping_since.is_some_and(|t| now.duration_since(t) >= SHUTDOWN_STOP_GRACE) {
+        if now.duration_since(cancelled_at) >= JOB_STOP_GRACE
+            || stopping_since.is_some_and(|t| now.duration_since(t) >= SHUTDOWN_STOP_GRACE)
+        {
             return;
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -168,7 +170,8 @@ pub(crate) async fn run_worker(
             };
             let (outcome, done) = match ended {
                 None => {
-                    let message = "cancelled: the job did not stop at a safe point in time and was abandoned (what it wrote stays)".to_string();
+                    let message =
+                        "cancelled: the job did not stop at a safe point in time and was abandoned (what it wrote stays)".to_string();
                     warn!(id = job.id, "job abandoned after the stop grace");
                     (JobOutcome::Cancelled { message }, None)
                 }

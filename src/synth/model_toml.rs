@@ -140,7 +140,8 @@ impl ModelConfig {
 
     /// Parses and validates the text of a `model.toml` ([`super::package`] reads the file).
     pub fn parse(text: &str) -> Result<Self, ModelTomlError> {
-        let raw: RawModelToml = toml::from_str(text).map_err(|e| ModelTomlError::Syntax(crate::untrusted::SyntaxError::from_toml(&e, text)))?;
+        let raw: RawModelToml =
+            toml::from_str(text).map_err(|e| ModelTomlError::Syntax(crate::untrusted::SyntaxError::from_toml(&e, text)))?;
         let bad = |field, value: String, reason| ModelTomlError::Bad { field, value, reason };
         let hint_encoding = match raw.hint_encoding.as_str() {
             "rgb01" => HintEncoding::Rgb01,

@@ -729,7 +729,8 @@ fn scheduler_timestep_bombs_are_refused_before_allocating() {
 
     dataset(&w.join("ds/sphere/tactip"), 2);
     let daemon = DaemonProcess::start(&w, &[], &[]);
-    let job = serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": w.join("bomb-1000000000000"), "steps": 1});
+    let job =
+        serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": w.join("bomb-1000000000000"), "steps": 1});
     let id = daemon.submit(&job);
     let job = daemon.wait_final(id);
     assert_eq!((job["state"].as_str(), job["exit_code"].as_u64()), (Some("failed"), Some(2)), "{job}");
@@ -762,7 +763,9 @@ fn the_longest_synth_job_stops_on_cancel_and_on_sigterm() {
 
     // While it runs: the queue is bounded and the list comes in pages.
     let queue_one = |k: usize| {
-        daemon.submit(&serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join(format!("q{k}"))}))
+        daemon.submit(
+            &serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join(format!("q{k}"))}),
+        )
     };
     let mut queued: Vec<u64> = (0..60).map(queue_one).collect();
     let r = daemon.request("GET", "/api/jobs", "", "");
@@ -772,7 +775,8 @@ fn the_longest_synth_job_stops_on_cancel_and_on_sigterm() {
     assert_eq!(page.last().and_then(|j| j["id"].as_u64()), queued.last().copied(), "the newest page, oldest first");
     assert_eq!(r.header("x-rig-jobs-total"), Some("61"));
     let before = r.header("x-rig-next-before").expect("a cursor to older jobs").to_string();
-    let older: Vec<serde_json::Value> = serde_json::from_value(daemon.get_json(&format!("/api/jobs?limit=20&before={before}"))).expect("list");
+    let older: Vec<serde_json::Value> =
+        serde_json::from_value(daemon.get_json(&format!("/api/jobs?limit=20&before={before}"))).expect("list");
     assert_eq!(older.iter().filter_map(|j| j["id"].as_u64()).collect::<Vec<_>>(), [vec![id], queued[..10].to_vec()].concat());
     let capped: Vec<serde_json::Value> = serde_json::from_value(daemon.get_json("/api/jobs?limit=100000")).expect("list");
     assert_eq!(capped.len(), 50);
