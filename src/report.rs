@@ -134,7 +134,6 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::arm::profile::ProfileLookupError,
         crate::record::replay::ReplayError,
         crate::eval::compare_real::CompareRealError,
-        crate::daemon::client::ClientError,
     );
     None
 }
@@ -300,19 +299,6 @@ fn io_exit(e: &std::io::Error) -> Exit {
         Exit::BadInput
     } else {
         Exit::Failure
-    }
-}
-
-impl Classify for crate::daemon::client::ClientError {
-    fn exit(&self) -> Exit {
-        use crate::daemon::client::ClientError as C;
-        match self {
-            // `--daemon https://...`, `ftp://...`, no host: the command line's.
-            C::BadUrl { .. } => Exit::BadInput,
-            // The daemon refused the job as malformed.
-            C::Status { status: 400, .. } => Exit::BadInput,
-            C::Connect { .. } | C::Io { .. } | C::Timeout { .. } | C::Malformed { .. } | C::Status { .. } | C::Json { .. } => Exit::Failure,
-        }
     }
 }
 

@@ -141,7 +141,8 @@ pub fn submit_and_follow(target: &DaemonTarget, spec: crate::jobs::JobRequest) -
     // Read here, not through clap's `env`: `rig synth` rejects flags beside its subcommands,
     // and an environment value would count as one.
     let token = target.daemon_token.clone().or_else(|| std::env::var("RIG_DAEMON_TOKEN").ok());
-    let client = crate::daemon::client::DaemonClient::new(url, token)?;
+    // A URL rig cannot use (https://, another scheme, no host) is the command line's: exit 2.
+    let client = crate::daemon::client::DaemonClient::new(url, token).map_err(|e| crate::cli::usage(&e.to_string()))?;
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     runtime.block_on(follow(client, url, spec, target.detach))
 }

@@ -30,8 +30,9 @@
 //! With a token, every `/api/` request must also carry `Authorization: Bearer <token>` (401
 //! otherwise); the page itself is served without it and sends the token it was given in its
 //! URL fragment (`/#token=...`, which browsers do not send to the server). Every error is JSON
-//! `{"error": "..."}`, whatever its status (400, 401, 403, 404, 405, 408, 409, 413, 415, 503):
-//! [`json_errors`] rewrites any other error body. Header and idle timeouts and the connection
+//! `{"error": "..."}`, whatever its status (400, 401, 403, 404, 405, 408, 409, 413, 414, 415, 431,
+//! 503): [`json_errors`] rewrites any other error body, and [`super::serve`] the answers hyper
+//! gives a request it cannot parse. Header and idle timeouts and the connection
 //! cap are in [`super::serve`].
 
 use std::net::{IpAddr, SocketAddr};

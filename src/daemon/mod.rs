@@ -15,7 +15,8 @@
 //! with its error and exit code and the queue goes on. [`Daemon::shutdown`] (SIGTERM/SIGINT
 //! in `rig daemon`) stops accepting jobs, cancels the queued ones, asks the running one to
 //! stop at its next safe point, retracts and disables the arm, closes the rig, then stops
-//! the HTTP server.
+//! the HTTP server, all within [`SHUTDOWN_DEADLINE`]: a job that does not reach its safe point
+//! in time is abandoned (the worker's stop grace), and the retract and the disable are bounded.
 //!
 //! Listening anywhere but loopback needs a token ([`DaemonError::TokenRequired`]); with a
 //! token every API call must carry `Authorization: Bearer <token>`. The `Host`, CSRF, body and
