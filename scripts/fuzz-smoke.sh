@@ -4,8 +4,9 @@
 #
 # Targets: MG400 replies and requests (reply_decoder), feedback frames (feedback_decoder),
 # Dobot Magician serial packets (magician_decoder), the recording file (recording_decoder),
-# STL (stl_decoder), plan TOML (plan_toml) and the daemon's job requests, JSON to validated
-# and confined request (job_request). The firmware profile, calibration and rig config TOML and
+# STL (stl_decoder), plan TOML (plan_toml), the daemon's job requests, JSON to validated
+# and confined request (job_request), and the model package loader's model.toml,
+# scheduler_config.json and tokenizer.json (package_loader, seeded with the tiny package). The firmware profile, calibration and rig config TOML and
 # the MDS CSV import have no cargo-fuzz target (they reach too far into rig to compile
 # alone); tests/files/decoders_never_panic.rs covers them, and every decoder here, with
 # proptest as part of `cargo test`.

@@ -289,9 +289,23 @@ impl Classify for crate::synth::scheduler::SchedulerError {
     fn exit(&self) -> Exit {
         use crate::synth::scheduler::SchedulerError as S;
         match self {
-            S::Io { .. } => Exit::Failure,
-            S::Json { .. } | S::Unsupported { .. } | S::BadStepCount { .. } | S::OutOfRange { .. } => Exit::BadInput,
+            S::Io { source, .. } => io_exit(source),
+            S::Json { .. } | S::Unsupported { .. } | S::BadStepCount { .. } | S::OutOfRange { .. } | S::OutOfBounds { .. } => {
+                Exit::BadInput
+            }
         }
+    }
+}
+
+/// An I/O error reading a file a user or a package named: bad input when the file is not
+/// what rig reads (too large, not UTF-8: `InvalidData`; a FIFO, a device or a folder:
+/// `InvalidInput`; a symlink loop, or a symlink where none may be: `ELOOP`), else a failure
+/// (a full disk, a permission, a lost mount).
+fn io_exit(e: &std::io::Error) -> Exit {
+    if matches!(e.kind(), std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput) || e.raw_os_error() == Some(libc::ELOOP) {
+        Exit::BadInput
+    } else {
+        Exit::Failure
     }
 }
 
@@ -318,11 +332,13 @@ impl Classify for crate::synth::SynthError {
             | S::Npy(_) => Exit::BadInput,
             S::Scheduler { source, .. } => source.exit(),
             S::Confined(e) => e.exit(),
+            S::Io { source, .. } => io_exit(source),
+            // A cancel request stopped the sampling loop.
+            S::Cancelled => Exit::Interrupted,
             // Set-up (scripts/setup.sh not run), or a failure while running a loaded model.
             S::OrtLibraryNotFound { .. }
             | S::ProviderUnavailable { .. }
             | S::Ort { .. }
-            | S::Io { .. }
             | S::UnexpectedOutputShape { .. }
             | S::Image { .. } => Exit::Failure,
         }

@@ -114,6 +114,15 @@ pub fn sanitise(message: &str) -> String {
         Some(at) => first.split_at(at),
         None => (first, ""),
     };
+    // "missing field `name`": the name is rig's schema's, not the file's, and the one thing
+    // that says what to add.
+    if let Some(field) = head.strip_prefix("missing field `").and_then(|rest| rest.split_once('`')).map(|(name, _)| name)
+        && !field.is_empty()
+        && field.len() <= 64
+        && field.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+    {
+        return format!("missing field `{field}`");
+    }
     let mut out = elide_quoted(head);
     // "unknown field , expected" -> "unknown field, expected"
     while out.ends_with(' ') {
@@ -235,6 +244,9 @@ mod tests {
         assert_eq!(sanitise("invalid type: integer `5` at line 1"), "invalid type: integer at line 1");
         assert_eq!(sanitise("\"all quoted\""), "not valid");
         assert_eq!(sanitise("first\nsecond"), "first");
+        // A missing field is named by the schema, not the file: kept.
+        assert_eq!(sanitise("missing field `name`"), "missing field `name`");
+        assert_eq!(sanitise("missing field `a b`"), "missing field");
         assert!(sanitise(&"y".repeat(1000)).len() < 210);
     }
 }

@@ -58,7 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let roots = crate::roots::DataRoots::from_working_folder(&args.roots)?;
     println!("data roots: {roots}");
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
-    runtime.block_on(async move {
+    let result = runtime.block_on(async move {
         let options = DaemonOptions {
             listen: args.listen,
             token: args.token,
@@ -88,10 +88,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         wait_for_stop_signal().await?;
         println!("stopping: no new jobs; finishing the current step, then retracting and disabling the arm");
+        let state = std::sync::Arc::clone(daemon.state());
         daemon.shutdown().await?;
-        println!("stopped: arm disabled");
-        Ok(())
-    })
+        if state.status().arm.mode == "disabled" {
+            println!("stopped: arm disabled");
+            Ok(())
+        } else {
+            let errors: Vec<String> = state.status().errors.into_iter().map(|e| e.message).collect();
+            println!("stopped, but the arm may NOT be disabled: {}", errors.join("; "));
+            anyhow::bail!(crate::cli::ExitStatus(3))
+        }
+    });
+    // A job abandoned at shutdown may have left a model thread blocked (in a FIFO read, say):
+    // the process exits without joining it.
+    runtime.shutdown_timeout(Duration::from_millis(200));
+    result
 }
 
 /// Waits for SIGTERM or SIGINT.
@@ -130,7 +141,8 @@ pub fn submit_and_follow(target: &DaemonTarget, spec: crate::jobs::JobRequest) -
     // Read here, not through clap's `env`: `rig synth` rejects flags beside its subcommands,
     // and an environment value would count as one.
     let token = target.daemon_token.clone().or_else(|| std::env::var("RIG_DAEMON_TOKEN").ok());
-    let client = crate::daemon::client::DaemonClient::new(url, token)?;
+    // A URL rig cannot use (https://, another scheme, no host) is the command line's: exit 2.
+    let client = crate::daemon::client::DaemonClient::new(url, token).map_err(|e| crate::cli::usage(&e.to_string()))?;
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     runtime.block_on(follow(client, url, spec, target.detach))
 }

@@ -102,16 +102,23 @@ pub fn absolute(path: &std::path::Path) -> PathBuf {
 }
 
 /// A cancel flag for a job that stops at its next safe point: it turns true at the first Ctrl-C
-/// (SIGINT), which is then announced on stderr with `what` (e.g. "finishing the current pose,
-/// then retracting and disabling the arm"). The listener is in place when this returns, so no
-/// interrupt after it is missed; from then on Ctrl-C no longer kills rig. Needs a Tokio runtime.
+/// (SIGINT) or SIGTERM, which is then announced on stderr with `what` (e.g. "finishing the
+/// current pose, then retracting and disabling the arm"). The listeners are in place when this
+/// returns, so no signal after it is missed; from then on neither kills rig (a SIGTERM that
+/// killed it mid-move would leave the arm enabled). Needs a Tokio runtime.
 pub(crate) fn cancel_on_interrupt(what: &'static str) -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
     use anyhow::Context;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt()).context("listening for Ctrl-C")?;
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut sigint = signal(SignalKind::interrupt()).context("listening for Ctrl-C")?;
+    let mut sigterm = signal(SignalKind::terminate()).context("listening for SIGTERM")?;
     let (tx, rx) = tokio::sync::watch::channel(false);
     tokio::spawn(async move {
-        if sigint.recv().await.is_some() {
-            eprintln!("interrupt: {what}");
+        let name = tokio::select! {
+            s = sigint.recv() => s.map(|()| "interrupt"),
+            s = sigterm.recv() => s.map(|()| "SIGTERM"),
+        };
+        if let Some(name) = name {
+            eprintln!("{name}: {what}");
             let _ = tx.send(true);
         }
     });

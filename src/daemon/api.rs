@@ -4,7 +4,7 @@
 //! |---|---|
 //! | `GET /` | the live page (HTML; it polls the API below) |
 //! | `GET /api/status` | [`StatusView`](super::state::StatusView) |
-//! | `GET /api/jobs` | every [`JobView`](super::state::JobView), oldest first |
+//! | `GET /api/jobs?limit=N&before=ID` | a page of [`JobView`](super::state::JobView)s, oldest first: the newest `N` (default and at most [`MAX_PAGE`](super::state::MAX_PAGE)) with an id below `ID` (any, without it); headers `x-rig-jobs-total` and, when older jobs remain, `x-rig-next-before` (the `before` of the next page) |
 //! | `POST /api/jobs` | queue a [`JobRequest`] (JSON body); 201 with the job |
 //! | `GET /api/jobs/{id}` | one job |
 //! | `POST /api/jobs/{id}/cancel`, `DELETE /api/jobs/{id}` | cancel it (a running job stops at its next safe point) |
@@ -30,8 +30,9 @@
 //! With a token, every `/api/` request must also carry `Authorization: Bearer <token>` (401
 //! otherwise); the page itself is served without it and sends the token it was given in its
 //! URL fragment (`/#token=...`, which browsers do not send to the server). Every error is JSON
-//! `{"error": "..."}`, whatever its status (400, 401, 403, 404, 405, 408, 409, 413, 415, 503):
-//! [`json_errors`] rewrites any other error body. Header and idle timeouts and the connection
+//! `{"error": "..."}`, whatever its status (400, 401, 403, 404, 405, 408, 409, 413, 414, 415, 431,
+//! 503): [`json_errors`] rewrites any other error body, and [`super::serve`] the answers hyper
+//! gives a request it cannot parse. Header and idle timeouts and the connection
 //! cap are in [`super::serve`].
 
 use std::net::{IpAddr, SocketAddr};
@@ -288,8 +289,32 @@ async fn status(State(api): State<ApiState>) -> Response {
     axum::Json(api.state.status()).into_response()
 }
 
-async fn list_jobs(State(api): State<ApiState>) -> Response {
-    axum::Json(api.state.jobs()).into_response()
+async fn list_jobs(State(api): State<ApiState>, uri: axum::http::Uri) -> Response {
+    let mut before = None;
+    let mut limit = super::state::MAX_PAGE;
+    for pair in uri.query().unwrap_or_default().split('&').filter(|p| !p.is_empty()) {
+        let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
+        let number = value.parse::<u64>();
+        match (key, number) {
+            ("before", Ok(id)) => before = Some(id),
+            ("limit", Ok(n)) if n >= 1 => limit = usize::try_from(n).unwrap_or(usize::MAX).min(super::state::MAX_PAGE),
+            ("before" | "limit", _) => {
+                return error(
+                    StatusCode::BAD_REQUEST,
+                    format!("{key} must be a positive whole number (limit: 1 to {})", super::state::MAX_PAGE),
+                );
+            }
+            _ => return error(StatusCode::BAD_REQUEST, "GET /api/jobs takes limit=N and before=ID only"),
+        }
+    }
+    let page = api.state.jobs_page(before, limit);
+    let mut response = axum::Json(page.jobs).into_response();
+    let headers = response.headers_mut();
+    headers.insert("x-rig-jobs-total", HeaderValue::from(page.total));
+    if let Some(next) = page.next_before {
+        headers.insert("x-rig-next-before", HeaderValue::from(next));
+    }
+    response
 }
 
 fn bad_id(text: &str) -> Response {
@@ -327,8 +352,8 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
         return error(StatusCode::BAD_REQUEST, format!("bad job: {e}"));
     }
     match api.state.submit(spec) {
-        Some(job) => (StatusCode::CREATED, axum::Json(job)).into_response(),
-        None => error(StatusCode::SERVICE_UNAVAILABLE, "the daemon is shutting down; no new jobs"),
+        Ok(job) => (StatusCode::CREATED, axum::Json(job)).into_response(),
+        Err(e) => error(StatusCode::SERVICE_UNAVAILABLE, e.to_string()),
     }
 }
 

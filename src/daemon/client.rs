@@ -73,7 +73,8 @@ impl DaemonClient {
         let rest = if let Some(rest) = url.strip_prefix("http://") {
             rest
         } else if url.starts_with("https://") {
-            return Err(bad("https is not supported; the daemon speaks plain HTTP (tunnel it, e.g. over ssh)"));
+            return Err(bad("https is not supported: the daemon speaks plain HTTP on loopback; reach a remote one through an SSH tunnel \
+                 (ssh -L 7700:127.0.0.1:7700 HOST) and use --daemon http://127.0.0.1:7700"));
         } else if url.contains("://") {
             return Err(bad("only http:// URLs are supported"));
         } else {

@@ -139,7 +139,11 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
         let result = crate::jobs::fill::run(&request, &targets, &mut loaded, &observer, &mut on_pose, &mut |_| {});
         let end = result.map(|o| {
             let lines: Vec<String> = o.reports.iter().map(|r| r.line()).collect();
-            let message = if o.cancelled { format!("cancelled; {}", lines.join("; ")) } else { lines.join("; ") };
+            let message = match (o.cancelled, lines.is_empty()) {
+                (true, true) => "cancelled (what was written stays and resumes)".to_string(),
+                (true, false) => format!("cancelled; {}", lines.join("; ")),
+                (false, _) => lines.join("; "),
+            };
             JobEnd { message, cancelled: o.cancelled, done: None }
         });
         (Some((model, runtime, loaded)), end)

@@ -15,7 +15,8 @@
 //! with its error and exit code and the queue goes on. [`Daemon::shutdown`] (SIGTERM/SIGINT
 //! in `rig daemon`) stops accepting jobs, cancels the queued ones, asks the running one to
 //! stop at its next safe point, retracts and disables the arm, closes the rig, then stops
-//! the HTTP server.
+//! the HTTP server, all within [`SHUTDOWN_DEADLINE`]: a job that does not reach its safe point
+//! in time is abandoned (the worker's stop grace), and the retract and the disable are bounded.
 //!
 //! Listening anywhere but loopback needs a token ([`DaemonError::TokenRequired`]); with a
 //! token every API call must carry `Authorization: Bearer <token>`. The `Host`, CSRF, body and
@@ -74,6 +75,9 @@ pub enum DaemonError {
     #[error("ONNX Runtime for synth jobs: {0}")]
     OrtLib(#[source] crate::synth::SynthError),
 }
+
+/// Longest [`Daemon::shutdown`] waits for the worker to stop the job and make the arm safe.
+pub const SHUTDOWN_DEADLINE: Duration = Duration::from_secs(5);
 
 /// How to run a daemon.
 #[derive(Debug, Clone)]
@@ -203,10 +207,15 @@ impl Daemon {
     /// point, the arm retracted and disabled, the rig closed, then the HTTP server stopped.
     pub async fn shutdown(self) -> Result<(), DaemonError> {
         self.state.begin_shutdown();
-        let worker = self.worker.await;
+        // The worker bounds each stage itself (the job's grace, the retract, the disable);
+        // this is the net under those bounds.
+        let worker = match tokio::time::timeout(SHUTDOWN_DEADLINE, self.worker).await {
+            Ok(joined) => joined.map_err(|e| DaemonError::Task { task: "worker", reason: e.to_string() }),
+            Err(_) => Err(DaemonError::Task { task: "worker", reason: format!("it did not stop within {SHUTDOWN_DEADLINE:?}") }),
+        };
         let _ = self.stop_server.send(true);
         let server = self.server.await;
-        worker.map_err(|e| DaemonError::Task { task: "worker", reason: e.to_string() })?;
+        worker?;
         server.map_err(|e| DaemonError::Task { task: "server", reason: e.to_string() })?.map_err(DaemonError::Serve)
     }
 }

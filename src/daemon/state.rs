@@ -19,7 +19,11 @@ use crate::jobs::JobRequest;
 use crate::pose::Pose;
 
 /// Finished jobs kept for `GET /api/jobs` (older ones are forgotten).
-const KEEP_FINISHED: usize = 200;
+pub const KEEP_FINISHED: usize = 200;
+/// Most jobs waiting in the queue; a submission past it is refused (503) until one starts.
+pub const MAX_QUEUED: usize = 100;
+/// Most jobs one `GET /api/jobs` page holds (the default page size too).
+pub const MAX_PAGE: usize = 50;
 /// Errors kept for the status and the page.
 const KEEP_ERRORS: usize = 20;
 
@@ -221,6 +225,25 @@ pub enum JobOutcome {
     Failed { error: String, exit_code: u8 },
 }
 
+/// Why a submission was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SubmitError {
+    #[error("the daemon is shutting down; no new jobs")]
+    ShuttingDown,
+    #[error("the queue already holds {max} jobs; wait for some to run, or cancel some")]
+    QueueFull { max: usize },
+}
+
+/// One page of the job list: `jobs` oldest first, the newest ones older than the cursor.
+#[derive(Debug, Clone)]
+pub struct JobsPage {
+    pub jobs: Vec<JobView>,
+    /// Jobs the daemon holds (queued, running and the finished ones kept).
+    pub total: usize,
+    /// The cursor of the next (older) page, when there are older jobs.
+    pub next_before: Option<u64>,
+}
+
 /// Why a cancel was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CancelError {
@@ -258,11 +281,14 @@ impl DaemonState {
         self.inner.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
-    /// Queues a job; `None` once the daemon is stopping.
-    pub fn submit(&self, spec: JobRequest) -> Option<JobView> {
+    /// Queues a job; refused once the daemon is stopping or [`MAX_QUEUED`] jobs wait.
+    pub fn submit(&self, spec: JobRequest) -> Result<JobView, SubmitError> {
         let mut inner = self.lock();
         if !inner.accepting {
-            return None;
+            return Err(SubmitError::ShuttingDown);
+        }
+        if inner.jobs.iter().filter(|j| j.view.state == JobState::Queued).count() >= MAX_QUEUED {
+            return Err(SubmitError::QueueFull { max: MAX_QUEUED });
         }
         let id = inner.next_id;
         inner.next_id += 1;
@@ -282,7 +308,7 @@ impl DaemonState {
         inner.jobs.push(Job { view: view.clone(), cancel, progress: indicatif::ProgressBar::hidden(), rate_origin: None, started: None });
         drop(inner);
         self.wake.notify_one();
-        Some(view)
+        Ok(view)
     }
 
     /// Every job, oldest first.
@@ -296,6 +322,26 @@ impl DaemonState {
                 j.view.clone()
             })
             .collect()
+    }
+
+    /// Up to `limit` (at most [`MAX_PAGE`]) of the newest jobs with an id below `before` (all,
+    /// when `None`), oldest first: `GET /api/jobs?limit=N&before=ID`.
+    pub fn jobs_page(&self, before: Option<u64>, limit: usize) -> JobsPage {
+        let limit = limit.clamp(1, MAX_PAGE);
+        let mut inner = self.lock();
+        let total = inner.jobs.len();
+        // Ids grow with the list, so the jobs below the cursor are a prefix of it.
+        let end = before.map_or(total, |b| inner.jobs.partition_point(|j| j.view.id < b));
+        let start = end.saturating_sub(limit);
+        let jobs: Vec<JobView> = inner.jobs[start..end]
+            .iter_mut()
+            .map(|j| {
+                j.refresh();
+                j.view.clone()
+            })
+            .collect();
+        let next_before = (start > 0).then(|| jobs.first().map(|j| j.id)).flatten();
+        JobsPage { jobs, total, next_before }
     }
 
     /// One job.
@@ -317,6 +363,9 @@ impl DaemonState {
                 job.view.finished_unix_s = Some(unix_now_s());
                 job.view.message = Some("cancelled before it started".into());
                 job.view.exit_code = Some(4);
+                let view = job.view.clone();
+                forget_old_jobs(&mut inner);
+                return Ok(view);
             }
             JobState::Running => {
                 let _ = job.cancel.send(true);
@@ -371,19 +420,7 @@ impl DaemonState {
             push_error(&mut inner, Some(id), message);
         }
         inner.arm.pose_id = None;
-        // Forget the oldest finished jobs beyond the limit.
-        let finished = inner.jobs.iter().filter(|j| j.view.state.is_final()).count();
-        if finished > KEEP_FINISHED {
-            let mut drop_n = finished - KEEP_FINISHED;
-            inner.jobs.retain(|j| {
-                if drop_n > 0 && j.view.state.is_final() {
-                    drop_n -= 1;
-                    false
-                } else {
-                    true
-                }
-            });
-        }
+        forget_old_jobs(&mut inner);
     }
 
     /// Stops accepting jobs, cancels the queued ones and asks the running one to stop.
@@ -404,6 +441,7 @@ impl DaemonState {
                 _ => {}
             }
         }
+        forget_old_jobs(&mut inner);
         drop(inner);
         self.wake.notify_one();
     }
@@ -498,6 +536,22 @@ impl DaemonState {
     }
 }
 
+/// Forgets the oldest finished jobs beyond [`KEEP_FINISHED`].
+fn forget_old_jobs(inner: &mut Inner) {
+    let finished = inner.jobs.iter().filter(|j| j.view.state.is_final()).count();
+    if finished > KEEP_FINISHED {
+        let mut drop_n = finished - KEEP_FINISHED;
+        inner.jobs.retain(|j| {
+            if drop_n > 0 && j.view.state.is_final() {
+                drop_n -= 1;
+                false
+            } else {
+                true
+            }
+        });
+    }
+}
+
 fn push_error(inner: &mut Inner, job_id: Option<u64>, message: String) {
     inner.errors.push_back(ErrorEntry { unix_s: unix_now_s(), job_id, message });
     while inner.errors.len() > KEEP_ERRORS {
@@ -543,7 +597,7 @@ mod tests {
         assert_eq!(state.cancel(a.id).expect("cancel").state, JobState::Running, "stops at its next safe point");
         assert!(*running.cancel.borrow());
         state.begin_shutdown();
-        assert!(state.submit(spec()).is_none());
+        assert_eq!(state.submit(spec()).map(|j| j.id), Err(SubmitError::ShuttingDown));
         assert_eq!(state.job(b.id).map(|j| j.state), Some(JobState::Cancelled));
         assert!(state.start_next().is_none());
         assert_eq!(state.status().daemon, "stopping");
@@ -558,8 +612,45 @@ mod tests {
             state.finish(j.id, JobOutcome::Failed { error: format!("e{k}"), exit_code: 1 }, None);
         }
         assert_eq!(state.jobs().len(), KEEP_FINISHED);
+        // Jobs cancelled in the queue count as finished too.
+        for _ in 0..5 {
+            let j = state.submit(spec()).expect("accepting");
+            state.cancel(j.id).expect("cancel");
+        }
+        assert_eq!(state.jobs().len(), KEEP_FINISHED);
         let errors = state.status().errors;
         assert_eq!(errors.len(), KEEP_ERRORS);
         assert_eq!(errors.last().map(|e| e.message.clone()), Some(format!("e{}", KEEP_FINISHED + 4)));
+    }
+}
+
+#[cfg(test)]
+mod paging_tests {
+    use super::*;
+
+    #[test]
+    fn the_queue_is_bounded_and_the_list_comes_in_pages() {
+        let state = DaemonState::new("test rig".into());
+        let ids: Vec<u64> = (0..MAX_QUEUED).map(|_| state.submit(JobRequest::Collect(Default::default())).expect("room").id).collect();
+        let full = state.submit(JobRequest::Collect(Default::default())).map(|j| j.id);
+        assert_eq!(full, Err(SubmitError::QueueFull { max: MAX_QUEUED }));
+        // The newest page first, oldest first within it; a cursor walks back to the oldest.
+        let page = state.jobs_page(None, 1000);
+        assert_eq!(page.total, MAX_QUEUED);
+        assert_eq!(page.jobs.len(), MAX_PAGE, "a page is capped");
+        assert_eq!(page.jobs.iter().map(|j| j.id).collect::<Vec<_>>(), ids[MAX_QUEUED - MAX_PAGE..]);
+        let mut seen = page.jobs.iter().map(|j| j.id).collect::<Vec<_>>();
+        let mut cursor = page.next_before;
+        while let Some(before) = cursor {
+            let page = state.jobs_page(Some(before), 30);
+            assert!(page.jobs.len() <= 30 && page.jobs.iter().all(|j| j.id < before));
+            seen.splice(0..0, page.jobs.iter().map(|j| j.id));
+            cursor = page.next_before;
+        }
+        assert_eq!(seen, ids, "every job once, in order");
+        assert!(state.jobs_page(Some(1), 10).jobs.is_empty());
+        // A job that starts frees a place in the queue.
+        state.start_next().expect("a job");
+        assert!(state.submit(JobRequest::Collect(Default::default())).is_ok());
     }
 }

@@ -84,6 +84,44 @@ fn injected_panic(kind: &str) -> bool {
 /// Longest wait for one idle frame or pose reading (a stalled camera must not stall the queue).
 const IDLE_READ_TIMEOUT: Duration = Duration::from_secs(2);
 
+/// How long a running job has, after a cancel request, to stop at its next safe point (a
+/// pose, a sampling step). Past it the worker stops waiting: the job is recorded as cancelled
+/// and abandoned (a model thread blocked in a read is left behind, never joined), so a job
+/// that cannot stop (a FIFO read, a step that never returns) cannot hold the queue.
+pub const JOB_STOP_GRACE: Duration = Duration::from_secs(10);
+/// The same grace once the daemon is stopping: short, so that the arm is retracted and
+/// disabled within 5 s of SIGTERM (this, plus [`SHUTDOWN_RETRACT_TIMEOUT`] and
+/// [`SHUTDOWN_DISABLE_TIMEOUT`], plus half a second of asking and closing).
+pub const SHUTDOWN_STOP_GRACE: Duration = Duration::from_secs(1);
+/// Longest the shutdown's retract may take before the arm is disabled where it stands.
+pub const SHUTDOWN_RETRACT_TIMEOUT: Duration = Duration::from_secs(2);
+/// Longest the shutdown waits for the arm to take the disable command.
+pub const SHUTDOWN_DISABLE_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Resolves once the running job has had its grace: [`JOB_STOP_GRACE`] after `cancel` turns
+/// true, or [`SHUTDOWN_STOP_GRACE`] after the daemon began stopping, whichever ends first
+/// (never, if the cancel's sender is gone first).
+async fn grace_after_cancel(mut cancel: tokio::sync::watch::Receiver<bool>, state: Arc<DaemonState>) {
+    let sender_gone = cancel.wait_for(|c| *c).await.is_err();
+    if sender_gone {
+        std::future::pending::<()>().await;
+    }
+    let cancelled_at = tokio::time::Instant::now();
+    let mut stopping_since: Option<tokio::time::Instant> = None;
+    loop {
+        let now = tokio::time::Instant::now();
+        if stopping_since.is_none() && !state.accepting() {
+            stopping_since = Some(now);
+        }
+        if now.duration_since(cancelled_at) >= JOB_STOP_GRACE
+            || stopping_since.is_some_and(|t| now.duration_since(t) >= SHUTDOWN_STOP_GRACE)
+        {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 /// Runs jobs until the state stops accepting them, then makes the arm safe and closes the rig.
 pub(crate) async fn run_worker(
     state: Arc<DaemonState>,
@@ -107,6 +145,7 @@ pub(crate) async fn run_worker(
             // swapped for a symlink since submission.
             let confined = spec.confine(&context.roots, crate::jobs::Confine::Starting);
             let panic_here = injected_panic(spec.kind());
+            let stop_wait = grace_after_cancel(job.cancel.clone(), Arc::clone(&state));
             let ctx = RigContext {
                 rig: &mut rig,
                 config: &config,
@@ -125,15 +164,25 @@ pub(crate) async fn run_worker(
                 confined.map_err(crate::jobs::JobError::from)?;
                 run_job(&spec, ctx).await
             });
-            let (outcome, done) = match run.await {
-                Ok(Ok(end)) if end.cancelled => (JobOutcome::Cancelled { message: end.message }, end.done),
-                Ok(Ok(end)) => (JobOutcome::Done { message: end.message }, end.done),
-                Ok(Err(e)) => {
+            let ended = tokio::select! {
+                ended = run => Some(ended),
+                () = stop_wait => None,
+            };
+            let (outcome, done) = match ended {
+                None => {
+                    let message =
+                        "cancelled: the job did not stop at a safe point in time and was abandoned (what it wrote stays)".to_string();
+                    warn!(id = job.id, "job abandoned after the stop grace");
+                    (JobOutcome::Cancelled { message }, None)
+                }
+                Some(Ok(Ok(end))) if end.cancelled => (JobOutcome::Cancelled { message: end.message }, end.done),
+                Some(Ok(Ok(end))) => (JobOutcome::Done { message: end.message }, end.done),
+                Some(Ok(Err(e))) => {
                     let (error, exit_code) = describe_failure(e);
                     warn!(id = job.id, %error, "job failed");
                     (JobOutcome::Failed { error, exit_code }, None)
                 }
-                Err(panic) => {
+                Some(Err(panic)) => {
                     let error = format!("the job stopped on an internal error (a panic: {panic}); the daemon goes on");
                     warn!(id = job.id, %error, "job panicked");
                     (JobOutcome::Failed { error, exit_code: Exit::Failure.code() }, None)
@@ -154,7 +203,10 @@ pub(crate) async fn run_worker(
         }
     }
     make_safe(&mut rig, &config, &state).await;
-    rig.shutdown().await;
+    // Closing the streams is courtesy; it must not hold the shutdown past its deadline.
+    if tokio::time::timeout(Duration::from_millis(300), rig.shutdown()).await.is_err() {
+        warn!("closing the rig took too long; leaving it to the process exit");
+    }
     info!("worker stopped: arm disabled, rig closed");
 }
 
@@ -196,25 +248,37 @@ async fn idle_tick(rig: &mut Rig, state: &DaemonState, clock: &Arc<dyn Clock>, l
 async fn make_safe(rig: &mut Rig, config: &RigConfig, state: &DaemonState) {
     // Asked now, not read from feedback, which may lag the job's last command.
     let mode = match &mut rig.arm {
-        RigArm::Mg400(client) => match client.robot_mode().await {
-            Ok(mode) => format!("{mode:?}").to_lowercase(),
-            Err(_) => state.status().arm.mode,
+        RigArm::Mg400(client) => match tokio::time::timeout(Duration::from_millis(300), client.robot_mode()).await {
+            Ok(Ok(mode)) => format!("{mode:?}").to_lowercase(),
+            _ => state.status().arm.mode,
         },
         RigArm::Magician(_) => state.status().arm.mode,
     };
     if matches!(mode.as_str(), "enabled" | "running") {
         let above = config.work_frame.approach_pose(&Pose::default());
-        let timeout = Duration::from_secs_f64(config.collect.move_timeout_s);
-        if let Err(e) = crate::collect::go(&mut rig.arm, above, MoveKind::Linear, timeout).await {
-            warn!(error = %e, "shutdown: could not retract the arm");
-            state.record_error(None, format!("shutdown: could not retract the arm: {e}"));
+        // Bounded: the whole shutdown must leave the arm disabled within 5 s of SIGTERM.
+        let timeout = Duration::from_secs_f64(config.collect.move_timeout_s).min(SHUTDOWN_RETRACT_TIMEOUT);
+        match tokio::time::timeout(timeout, crate::collect::go(&mut rig.arm, above, MoveKind::Linear, timeout)).await {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => {
+                warn!(error = %e, "shutdown: could not retract the arm");
+                state.record_error(None, format!("shutdown: could not retract the arm: {e}"));
+            }
+            Err(_) => {
+                warn!("shutdown: the retract did not end in time; disabling the arm where it is");
+                state.record_error(None, format!("shutdown: the retract did not end within {timeout:?}; disabled where it stood"));
+            }
         }
     }
-    match rig.arm.disable().await {
-        Ok(()) => state.set_arm(Some("disabled".into()), None),
-        Err(e) => {
+    match tokio::time::timeout(SHUTDOWN_DISABLE_TIMEOUT, rig.arm.disable()).await {
+        Ok(Ok(())) => state.set_arm(Some("disabled".into()), None),
+        Ok(Err(e)) => {
             warn!(error = %e, "shutdown: could not disable the arm");
             state.record_error(None, format!("shutdown: could not disable the arm: {e}"));
+        }
+        Err(_) => {
+            warn!("shutdown: the arm did not take the disable command in time");
+            state.record_error(None, format!("shutdown: the arm did not take the disable command within {SHUTDOWN_DISABLE_TIMEOUT:?}"));
         }
     }
 }

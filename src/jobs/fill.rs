@@ -194,6 +194,28 @@ pub fn run(
     on_pose: &mut dyn FnMut(&FilledPose<'_>),
     on_dataset: &mut dyn FnMut(&FillReport),
 ) -> Result<FillOutcome, JobError> {
+    // The sampling loop checks the cancel before every step, so a long sampling (up to
+    // limits::MAX_STEPS steps an image) stops within one step of a cancel request.
+    let cancel = observer.cancel.clone();
+    pipeline.set_cancel(Some(std::sync::Arc::new(move || *cancel.borrow())));
+    let outcome = run_targets(request, targets, pipeline, observer, on_pose, on_dataset);
+    pipeline.set_cancel(None);
+    outcome
+}
+
+/// True when a synthesis error is the sampling loop stopping at a cancel request.
+fn is_cancel(e: &crate::synth::fill::FillError) -> bool {
+    matches!(e, crate::synth::fill::FillError::Synth(crate::synth::SynthError::Cancelled))
+}
+
+fn run_targets(
+    request: &FillRequest,
+    targets: &[FillTarget],
+    pipeline: &mut Pipeline,
+    observer: &Observer,
+    on_pose: &mut dyn FnMut(&FilledPose<'_>),
+    on_dataset: &mut dyn FnMut(&FillReport),
+) -> Result<FillOutcome, JobError> {
     let options = request.options(pipeline);
     let mut reports = Vec::new();
     for target in targets {
@@ -203,19 +225,24 @@ pub fn run(
         observer.progress.reset();
         let t0 = Instant::now();
         let done = match &target.out {
-            Some(out) if request.twins() => FillDone::Twins(
-                synthesise_poses_of(&target.dataset, out, pipeline, &options, request.twin_size, &observer.progress)
-                    .map_err(JobError::fill("synthesising the poses of", &target.dataset))?,
-            ),
+            Some(out) if request.twins() => {
+                match synthesise_poses_of(&target.dataset, out, pipeline, &options, request.twin_size, &observer.progress) {
+                    Ok(summary) => FillDone::Twins(summary),
+                    Err(e) if is_cancel(&e) => return Ok(FillOutcome { reports, cancelled: true }),
+                    Err(e) => return Err(JobError::fill("synthesising the poses of", &target.dataset)(e)),
+                }
+            }
             _ => {
                 let mut observe = |filled: &FilledPose<'_>| {
                     on_pose(filled);
                     if observer.cancelled() { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
                 };
-                FillDone::Missing(
-                    fill_missing_observed(&target.dataset, target.out.as_deref(), pipeline, &options, &observer.progress, &mut observe)
-                        .map_err(JobError::fill("filling", &target.dataset))?,
-                )
+                match fill_missing_observed(&target.dataset, target.out.as_deref(), pipeline, &options, &observer.progress, &mut observe) {
+                    Ok(summary) => FillDone::Missing(summary),
+                    // What was written stays (each pose is durable) and resumes.
+                    Err(e) if is_cancel(&e) => return Ok(FillOutcome { reports, cancelled: true }),
+                    Err(e) => return Err(JobError::fill("filling", &target.dataset)(e)),
+                }
             }
         };
         let report = FillReport { target: target.clone(), done, elapsed_s: t0.elapsed().as_secs_f64() };

@@ -9,7 +9,9 @@
 //! | width, height | 1 to 2048 px, multiples of the package's size multiple | memory grows with the area (2048 x 2048 is 16 times SD 1.5's native area); the multiple is the VAE factor times 2 per UNet downsample ([`super::onnx_graph`]) |
 //! | batch | 1 to 16 | each image of a batch holds its latents and control hint twice under guidance |
 //! | supersample | 1 to 8 | the depth render holds `supersample^2` samples per pixel |
-//! | steps | 1 to the sampler's limit | DDIM takes one per training timestep, DPM-Solver++ one fewer ([`super::scheduler::NoiseSchedule::max_steps`]) |
+//! | steps | 1 to the sampler's limit, at most [`MAX_STEPS`] | DDIM takes one per training timestep, DPM-Solver++ one fewer ([`super::scheduler::NoiseSchedule::max_steps`]) |
+//! | training timesteps (`num_train_timesteps` in `scheduler_config.json`) | 2 to [`MAX_TRAIN_TIMESTEPS`] | the schedule holds one beta and one cumulative alpha per timestep; Stable Diffusion uses 1000, and 10000 is ten times any published diffusers scheduler, so a package cannot make rig allocate gigabytes before its first step |
+//! | package `sampling_steps` (`model.toml`) | 1 to [`MAX_STEPS`] | a step count no schedule rig accepts can take is refused when the package is read |
 //!
 //! The checks stand alone (their error is [`BadSetting`], which becomes
 //! [`super::SynthError::BadRequest`]), so the daemon's request validation can be fuzzed without
@@ -36,6 +38,11 @@ pub const CONDITIONING_SCALE: (f32, f32) = (0.0, 2.0);
 pub const MAX_BATCH: usize = 16;
 /// Largest supersampling factor of the control image's depth render.
 pub const MAX_SUPERSAMPLE: u32 = 8;
+/// Most training timesteps a scheduler config may declare (`num_train_timesteps`): bounds the
+/// schedule's arrays before they are allocated.
+pub const MAX_TRAIN_TIMESTEPS: usize = 10_000;
+/// Most sampling steps of one image: no sampler takes more steps than training timesteps.
+pub const MAX_STEPS: usize = MAX_TRAIN_TIMESTEPS;
 
 fn in_range(field: &'static str, value: f32, (lo, hi): (f32, f32), why: &str) -> Result<(), BadSetting> {
     if value.is_finite() && (lo..=hi).contains(&value) {
@@ -104,6 +111,18 @@ pub fn check_size(field: &'static str, (width, height): (u32, u32), multiple: u3
     Ok(())
 }
 
+/// A step count, when given: 1 to [`MAX_STEPS`] (the package's schedule may allow fewer).
+pub fn check_steps(steps: Option<usize>) -> Result<(), BadSetting> {
+    match steps {
+        Some(n) if n == 0 || n > MAX_STEPS => Err(BadSetting {
+            field: "steps",
+            value: n.to_string(),
+            reason: format!("must be 1 to {MAX_STEPS} (and at most the package's training timesteps)"),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// The checks of a fill's settings that need no package: steps at least 1 (their upper
 /// bound depends on the package's schedule), guidance, eta, conditioning scale, batch and
 /// supersampling in range. `None`: left to the package, whose value is checked when it is read.
@@ -115,9 +134,7 @@ pub fn check_fill_settings(
     batch: usize,
     supersample: u32,
 ) -> Result<(), BadSetting> {
-    if steps == Some(0) {
-        return Err(BadSetting { field: "steps", value: "0".into(), reason: "must be at least 1".into() });
-    }
+    check_steps(steps)?;
     if let Some(g) = guidance {
         check_guidance(g)?;
     }
@@ -152,6 +169,10 @@ mod tests {
         assert!(check_conditioning_scale(2.5).is_err());
         assert!(check_batch(0).is_err() && check_batch(16).is_ok() && check_batch(17).is_err());
         assert!(check_supersample(0).is_err() && check_supersample(8).is_ok() && check_supersample(9).is_err());
+        assert!(check_steps(None).is_ok() && check_steps(Some(1)).is_ok() && check_steps(Some(MAX_STEPS)).is_ok());
+        for bad in [0, MAX_STEPS + 1, 40_000_000] {
+            assert!(check_steps(Some(bad)).expect_err("out of range").to_string().contains("1 to 10000"), "{bad}");
+        }
     }
 
     #[test]

@@ -28,6 +28,7 @@
 pub mod fill;
 pub mod hint;
 pub mod limits;
+pub mod model_toml;
 pub mod npy;
 pub mod onnx_graph;
 pub mod package;
@@ -112,6 +113,9 @@ pub enum SynthError {
     Npy(#[from] npy::NpyError),
     #[error("{path}: {source}")]
     Image { path: PathBuf, source: image::ImageError },
+    /// A cancel request ([`Pipeline::set_cancel`]) stopped the sampling between two steps.
+    #[error("cancelled between two sampling steps")]
+    Cancelled,
 }
 
 /// The per-pose seed of a synthesis plan: SplitMix64 of `plan_seed + golden * (pose_id + 1)`.

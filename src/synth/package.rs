@@ -40,11 +40,10 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use ort::value::{TensorElementType, ValueType};
-use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
 use super::SynthError;
-use super::scheduler::{NoiseSchedule, SchedulerConfig, SchedulerKind};
+use super::scheduler::{NoiseSchedule, SchedulerConfig};
 
 /// Files every package must hold, relative to its directory.
 pub const PACKAGE_FILES: [&str; 7] = [
@@ -57,175 +56,18 @@ pub const PACKAGE_FILES: [&str; 7] = [
     "scheduler/scheduler_config.json",
 ];
 
-/// How the control image is turned into the ControlNet's `controlnet_cond` tensor.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum HintEncoding {
-    /// RGB / 255, in [0, 1] (MultiDiffSense, diffusers' ControlNet pipelines).
-    Rgb01,
-    /// RGB / 127.5 - 1, in [-1, 1].
-    Rgb11,
-}
-
-/// `model.toml` as written (first stage).
-#[derive(Debug, Deserialize)]
-struct RawModelToml {
-    name: String,
-    #[serde(default = "default_resolution")]
-    resolution: [u32; 2],
-    #[serde(default)]
-    modalities: Vec<String>,
-    #[serde(default = "default_template")]
-    prompt_template: String,
-    #[serde(default = "default_latent_scale")]
-    latent_scale: f64,
-    #[serde(default = "default_hint")]
-    hint_encoding: String,
-    #[serde(default = "default_vae_scale")]
-    vae_scale_factor: u32,
-    #[serde(default = "default_end_token")]
-    end_token: String,
-    #[serde(default)]
-    sampling_steps: Option<usize>,
-    #[serde(default)]
-    guidance: Option<f32>,
-    #[serde(default)]
-    sampler: Option<String>,
-    #[serde(default)]
-    eta: Option<f32>,
-}
-
-fn default_resolution() -> [u32; 2] {
-    [512, 512]
-}
-fn default_template() -> String {
-    "multidiffsense".to_string()
-}
-fn default_latent_scale() -> f64 {
-    0.18215
-}
-fn default_hint() -> String {
-    "rgb01".to_string()
-}
-fn default_vae_scale() -> u32 {
-    8
-}
-fn default_end_token() -> String {
-    "<|endoftext|>".to_string()
-}
-
-/// `model.toml`, validated (second stage).
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModelConfig {
-    pub name: String,
-    pub width_px: u32,
-    pub height_px: u32,
-    pub modalities: Vec<String>,
-    pub prompt_template: String,
-    pub latent_scale: f32,
-    pub hint_encoding: HintEncoding,
-    pub vae_scale_factor: u32,
-    pub end_token: String,
-    /// Sampling steps the model is meant to be sampled with, if the package says.
-    pub sampling_steps: Option<usize>,
-    /// Classifier-free guidance scale the model is meant to be sampled with, if the package says.
-    pub guidance: Option<f32>,
-    /// The sampler the model is meant to be sampled with, if the package says.
-    pub sampler: Option<SchedulerKind>,
-    /// DDIM eta the model is meant to be sampled with, if the package says.
-    pub eta: Option<f32>,
-}
-
-/// The sampling settings of a request: what was asked for, else the package's, else a fallback.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sampling {
-    pub steps: usize,
-    pub guidance: f32,
-    pub sampler: SchedulerKind,
-    pub eta: f32,
-}
+pub use super::model_toml::{HintEncoding, ModelConfig, Sampling};
 
 impl ModelConfig {
-    /// The settings to sample with: each one asked for, else this package's, else `fallback`'s
-    /// steps and guidance, DDIM and eta 0.
-    pub fn sampling(
-        &self,
-        steps: Option<usize>,
-        guidance: Option<f32>,
-        sampler: Option<SchedulerKind>,
-        eta: Option<f32>,
-        fallback: (usize, f32),
-    ) -> Sampling {
-        Sampling {
-            steps: steps.or(self.sampling_steps).unwrap_or(fallback.0),
-            guidance: guidance.or(self.guidance).unwrap_or(fallback.1),
-            sampler: sampler.or(self.sampler).unwrap_or_default(),
-            eta: eta.or(self.eta).unwrap_or(0.0),
-        }
-    }
-
     /// Reads and validates `model.toml`.
     pub fn read(path: &Path) -> Result<Self, SynthError> {
         let text = crate::untrusted::read_text(path, crate::untrusted::MAX_CONFIG_BYTES)
             .map_err(|source| SynthError::Io { path: path.to_path_buf(), source })?;
-        let raw: RawModelToml = toml::from_str(&text)
-            .map_err(|e| SynthError::ModelToml { path: path.to_path_buf(), source: crate::untrusted::SyntaxError::from_toml(&e, &text) })?;
-        let bad = |field, value: String, reason| SynthError::BadModelConfig { path: path.to_path_buf(), field, value, reason };
-        let hint_encoding = match raw.hint_encoding.as_str() {
-            "rgb01" => HintEncoding::Rgb01,
-            "rgb11" => HintEncoding::Rgb11,
-            other => return Err(bad("hint_encoding", other.to_string(), "expected \"rgb01\" or \"rgb11\"")),
-        };
-        if raw.prompt_template != "multidiffsense" {
-            return Err(bad("prompt_template", raw.prompt_template, "the only template rig knows is \"multidiffsense\""));
-        }
-        if !(raw.latent_scale.is_finite() && raw.latent_scale > 0.0) {
-            return Err(bad("latent_scale", raw.latent_scale.to_string(), "must be a positive number"));
-        }
-        let f = raw.vae_scale_factor;
-        if f == 0 {
-            return Err(bad("vae_scale_factor", f.to_string(), "must be positive"));
-        }
-        let [w, h] = raw.resolution;
-        if w > super::limits::MAX_SIDE_PX || h > super::limits::MAX_SIDE_PX {
-            return Err(bad("resolution", format!("{:?}", raw.resolution), "width and height must be at most 2048 px"));
-        }
-        if f > super::limits::MAX_SIDE_PX {
-            return Err(bad("vae_scale_factor", f.to_string(), "must be at most 2048"));
-        }
-        if w == 0 || h == 0 || !w.is_multiple_of(f) || !h.is_multiple_of(f) {
-            return Err(bad(
-                "resolution",
-                format!("{raw_res:?}", raw_res = raw.resolution),
-                "must be positive multiples of vae_scale_factor",
-            ));
-        }
-        if raw.sampling_steps == Some(0) {
-            return Err(bad("sampling_steps", "0".to_string(), "must be at least 1"));
-        }
-        if let Some(g) = raw.guidance.filter(|g| super::limits::check_guidance(*g).is_err()) {
-            return Err(bad("guidance", g.to_string(), "must be a number from 1 to 30 (1: unguided)"));
-        }
-        if let Some(eta) = raw.eta.filter(|e| super::limits::check_eta(*e).is_err()) {
-            return Err(bad("eta", eta.to_string(), "must be a number from 0 to 1 (0: deterministic DDIM)"));
-        }
-        let sampler = match raw.sampler {
-            None => None,
-            Some(text) => Some(text.parse::<SchedulerKind>().map_err(|_| bad("sampler", text, "expected \"ddim\" or \"dpm++2m\""))?),
-        };
-        Ok(Self {
-            name: raw.name,
-            width_px: w,
-            height_px: h,
-            modalities: raw.modalities,
-            prompt_template: raw.prompt_template,
-            latent_scale: raw.latent_scale as f32,
-            hint_encoding,
-            vae_scale_factor: f,
-            end_token: raw.end_token,
-            sampling_steps: raw.sampling_steps,
-            guidance: raw.guidance,
-            sampler,
-            eta: raw.eta,
+        Self::parse(&text).map_err(|e| match e {
+            super::model_toml::ModelTomlError::Syntax(source) => SynthError::ModelToml { path: path.to_path_buf(), source },
+            super::model_toml::ModelTomlError::Bad { field, value, reason } => {
+                SynthError::BadModelConfig { path: path.to_path_buf(), field, value, reason }
+            }
         })
     }
 }
@@ -484,6 +326,7 @@ impl ModelIo {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::synth::scheduler::SchedulerKind;
 
     fn write_toml(text: &str) -> (tempfile::TempDir, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
@@ -524,6 +367,9 @@ mod tests {
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampler", .. })));
         let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 0\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "sampling_steps", .. })));
+        let (_d, p) = write_toml("name = \"x\"\nsampling_steps = 40000000\n");
+        let e = ModelConfig::read(&p).expect_err("40,000,000 steps");
+        assert!(matches!(e, SynthError::BadModelConfig { field: "sampling_steps", .. }) && e.to_string().contains("1 to 10000"), "{e}");
         let (_d, p) = write_toml("name = \"x\"\nguidance = 0.5\n");
         assert!(matches!(ModelConfig::read(&p), Err(SynthError::BadModelConfig { field: "guidance", .. })));
         // Sampling settings: asked for, else the package's, else the fallback (and DDIM).

@@ -183,6 +183,8 @@ pub struct Pipeline {
     /// Width and height must be multiples of this many pixels (see [`Pipeline::size_multiple`]).
     size_multiple: u32,
     hash: String,
+    /// Asked at the top of every sampling step: true stops the sampling ([`SynthError::Cancelled`]).
+    cancel: Option<CancelCheck>,
     /// The batch the ControlNet's and UNet's `sample` inputs declare, where fixed.
     fixed_batch: Option<usize>,
     opts: RuntimeOptions,
@@ -257,6 +259,9 @@ struct BoundCall {
     controlnet: IoBinding,
     unet: IoBinding,
 }
+
+/// A cancel flag the sampling loop reads between steps (e.g. a job's cancel request).
+pub type CancelCheck = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 
 impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -383,6 +388,7 @@ impl Pipeline {
             fixed_batch,
             opts: opts.clone(),
             timing,
+            cancel: None,
         })
     }
 
@@ -411,6 +417,12 @@ impl Pipeline {
     /// Rows per ControlNet/UNet call for a step batch of `batch` rows (`2n` with guidance).
     fn rows_per_call(&self, batch: usize, guided: bool) -> Result<usize, SynthError> {
         rows_per_call(self.fixed_batch, self.opts.force_two_pass, batch, guided)
+    }
+
+    /// Sets (or with `None` clears) the check the sampling loop makes before every step; once
+    /// it answers true, generating returns [`SynthError::Cancelled`] at the next step.
+    pub fn set_cancel(&mut self, cancel: Option<CancelCheck>) {
+        self.cancel = cancel;
     }
 
     /// Width and height of a synthesised image must be multiples of this many pixels: the VAE
@@ -750,7 +762,9 @@ impl Pipeline {
         let mut step_s: Vec<f64> = Vec::with_capacity(timesteps.len());
 
         for &t in &timesteps {
-            // cancellation check goes here
+            if self.cancel.as_ref().is_some_and(|cancelled| cancelled()) {
+                return Err(SynthError::Cancelled);
+            }
             let step_started = Instant::now();
             let mut sample: Vec<f32> = latents.concat();
             if guided {

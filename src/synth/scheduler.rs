@@ -28,6 +28,8 @@ pub enum SchedulerError {
     BadStepCount { steps: usize, sampler: &'static str, train_steps: usize, max: usize },
     #[error("scheduler config: {field} = {value} is out of range")]
     OutOfRange { field: &'static str, value: f64 },
+    #[error("scheduler config: {field} = {value} is not valid: must be {min} to {max} ({why})")]
+    OutOfBounds { field: &'static str, value: u64, min: u64, max: u64, why: &'static str },
 }
 
 /// The fields of a diffusers scheduler config that rig uses, with diffusers' `DDIMScheduler`
@@ -112,8 +114,29 @@ impl NoiseSchedule {
     /// Builds the schedule, rejecting options rig does not implement.
     pub fn new(config: SchedulerConfig) -> Result<Self, SchedulerError> {
         let n = config.num_train_timesteps;
-        if n < 2 {
-            return Err(SchedulerError::OutOfRange { field: "num_train_timesteps", value: n as f64 });
+        // Bounded before anything of size n is allocated: the betas and cumulative alphas hold
+        // one value per timestep (1e12 would ask for 4 TB and abort).
+        if !(2..=super::limits::MAX_TRAIN_TIMESTEPS).contains(&n) {
+            return Err(SchedulerError::OutOfBounds {
+                field: "num_train_timesteps",
+                value: n as u64,
+                min: 2,
+                max: super::limits::MAX_TRAIN_TIMESTEPS as u64,
+                why: "Stable Diffusion trains over 1000",
+            });
+        }
+        // diffusers uses an offset of 0 or 1; one past the schedule would overflow the grid.
+        if config.steps_offset < 0 || config.steps_offset as u64 >= n as u64 {
+            return Err(SchedulerError::OutOfBounds {
+                field: "steps_offset",
+                value: config.steps_offset.unsigned_abs(),
+                min: 0,
+                max: n as u64 - 1,
+                why: "an offset into the training timesteps; diffusers uses 0 or 1",
+            });
+        }
+        if config.clip_sample && !(config.clip_sample_range.is_finite() && config.clip_sample_range > 0.0) {
+            return Err(SchedulerError::OutOfRange { field: "clip_sample_range", value: config.clip_sample_range });
         }
         if config.thresholding {
             return Err(SchedulerError::Unsupported { field: "thresholding", value: "true".into(), supported: "false" });
@@ -580,6 +603,19 @@ mod tests {
         assert!(matches!(bad(r#"{"thresholding": true}"#), SchedulerError::Unsupported { field: "thresholding", .. }));
         assert!(matches!(bad(r#"{"beta_schedule": "sigmoid"}"#), SchedulerError::Unsupported { field: "beta_schedule", .. }));
         assert!(matches!(bad(r#"{"prediction_type": "flow"}"#), SchedulerError::Unsupported { .. }));
+        // Sizes that would abort on allocation (1e12) or take gigabytes (3e8) are refused first.
+        for n in ["1000000000000", "300000000", "10001", "1"] {
+            let e = bad(&format!(r#"{{"num_train_timesteps": {n}}}"#));
+            assert!(matches!(e, SchedulerError::OutOfBounds { field: "num_train_timesteps", .. }), "{n}: {e}");
+            assert!(e.to_string().contains("2 to 10000"), "{e}");
+        }
+        // At the bound, with betas small enough that the last cumulative alpha stays usable.
+        let longest = SchedulerConfig { num_train_timesteps: 10_000, beta_end: 0.002, ..Default::default() };
+        assert_eq!(NoiseSchedule::new(longest).map(|s| s.max_steps(SchedulerKind::Ddim)).ok(), Some(10_000));
+        // Values that would overflow the timestep grid or make clamp panic.
+        assert!(matches!(bad(r#"{"steps_offset": 9000000000000000000}"#), SchedulerError::OutOfBounds { field: "steps_offset", .. }));
+        assert!(matches!(bad(r#"{"steps_offset": -1}"#), SchedulerError::OutOfBounds { field: "steps_offset", .. }));
+        assert!(matches!(bad(r#"{"clip_sample_range": -1.0}"#), SchedulerError::OutOfRange { field: "clip_sample_range", .. }));
         assert!(SchedulerConfig::from_json("{not json").is_err());
         assert!("euler".parse::<SchedulerKind>().is_err());
         assert_eq!("DPM++2M".parse::<SchedulerKind>().unwrap(), SchedulerKind::DpmSolverPp2m);

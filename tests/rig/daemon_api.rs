@@ -230,7 +230,7 @@ async fn shutdown_stops_the_running_job_and_leaves_the_arm_disabled() {
     let pose = status.arm.pose.expect("a pose");
     let above = rig::pose::WorkFrame::default().approach_pose(&rig::pose::Pose::default());
     assert!((pose.z_mm - above.z_mm).abs() < 0.5, "arm left at {pose:?}, expected above the origin at {above:?}");
-    assert!(state.submit(rig::jobs::JobRequest::Collect(Default::default())).is_none(), "a stopping daemon took a job");
+    assert!(state.submit(rig::jobs::JobRequest::Collect(Default::default())).is_err(), "a stopping daemon took a job");
     assert!(!tmp.path().join("q").exists(), "the queued job ran");
 }
 

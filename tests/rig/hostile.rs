@@ -142,6 +142,8 @@ fn dataset(dir: &Path, n: u32) {
 struct DaemonProcess {
     child: Child,
     addr: SocketAddr,
+    /// Every line it printed on stdout so far.
+    output: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
 }
 
 impl DaemonProcess {
@@ -154,15 +156,18 @@ impl DaemonProcess {
         let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::null()).spawn().expect("spawning rig daemon");
         let stdout = child.stdout.take().expect("stdout");
         let (tx, rx) = std::sync::mpsc::channel();
+        let output = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let lines = std::sync::Arc::clone(&output);
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                 if let Some(rest) = line.strip_prefix("rig daemon listening on http://") {
                     let _ = tx.send(rest.split_whitespace().next().unwrap_or_default().to_string());
                 }
+                lines.lock().expect("output lines").push(line);
             }
         });
         let addr = rx.recv_timeout(Duration::from_secs(120)).expect("the daemon did not say where it listens");
-        Self { child, addr: addr.parse().expect("listen address") }
+        Self { child, addr: addr.parse().expect("listen address"), output }
     }
 
     /// One request on a fresh connection; `head` without the Host line (added unless `host` is
@@ -213,6 +218,35 @@ impl DaemonProcess {
 
     fn job_count(&self) -> usize {
         self.get_json("/api/jobs").as_array().expect("list").len()
+    }
+
+    /// Polls a job until it is running.
+    fn wait_running(&self, id: u64) {
+        let t0 = Instant::now();
+        while self.get_json(&format!("/api/jobs/{id}"))["state"] != "running" {
+            assert!(t0.elapsed() < Duration::from_secs(120), "job {id} never started");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// Sends SIGTERM and waits for the process to end; returns how long it took, its exit
+    /// status and what it printed.
+    fn terminate(&mut self, within: Duration) -> (Duration, std::process::ExitStatus, String) {
+        let pid = i32::try_from(self.child.id()).expect("pid");
+        let t0 = Instant::now();
+        // SAFETY: kill(2) on our own child's pid, with a valid signal number.
+        assert_eq!(unsafe { libc::kill(pid, libc::SIGTERM) }, 0, "sending SIGTERM");
+        loop {
+            if let Some(status) = self.child.try_wait().expect("polling the daemon") {
+                let elapsed = t0.elapsed();
+                // The reader thread sees the last lines once the pipe closes.
+                std::thread::sleep(Duration::from_millis(100));
+                return (elapsed, status, self.output.lock().expect("output lines").join("\n"));
+            }
+            let out = self.output.lock().expect("output lines").join("\n");
+            assert!(t0.elapsed() < within, "the daemon still runs {:?} after SIGTERM; it printed:\n{out}", t0.elapsed());
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }
 
@@ -970,4 +1004,269 @@ fn manifest_paths_outside_the_dataset_reveal_nothing() {
     assert_eq!(messages[0], messages[1], "an STL outside: the same words whether it exists or not");
     assert_eq!(messages[2], messages[3], "a calibration outside: the same words whether it exists or not");
     sb.assert_no_copy_of_the_secret();
+}
+
+// Off the walked path (issue 35): reproductions 2, 3, 4 and 9.
+
+/// A copy of the tiny package with `scheduler_config.json`'s `num_train_timesteps` and, when
+/// given, `model.toml`'s `sampling_steps` replaced.
+fn package_with_steps(dir: &Path, train_steps: u64, sampling_steps: Option<u64>) -> PathBuf {
+    let pkg = copy_package(dir);
+    let config = pkg.join("scheduler/scheduler_config.json");
+    let json = std::fs::read_to_string(&config).expect("scheduler config");
+    let mut changed = json.replace("\"num_train_timesteps\": 1000", &format!("\"num_train_timesteps\": {train_steps}"));
+    assert!(json.contains("\"num_train_timesteps\": 1000,"), "the fixture names its training timesteps");
+    // Over 10000 timesteps the fixture's betas would drive the last cumulative alpha to about
+    // 1e-22 (refused as unusable): smaller betas keep a long schedule valid.
+    changed = changed.replace("\"beta_end\": 0.012", "\"beta_end\": 0.002").replace("\"beta_start\": 0.00085", "\"beta_start\": 0.0001");
+    std::fs::write(&config, changed).expect("write");
+    if let Some(n) = sampling_steps {
+        let toml = std::fs::read_to_string(pkg.join("model.toml")).expect("model.toml");
+        std::fs::write(pkg.join("model.toml"), format!("{toml}sampling_steps = {n}\n")).expect("write");
+    }
+    pkg
+}
+
+/// `rig` with its address space limited to `bytes` (RLIMIT_AS): an allocation past it fails.
+fn run_limited(cwd: &Path, args: &[&str], bytes: u64) -> Output {
+    use std::os::unix::process::CommandExt;
+    let mut cmd = rig(cwd);
+    cmd.args(args);
+    // SAFETY: setrlimit is async-signal-safe and touches only the child's own limits.
+    unsafe {
+        cmd.pre_exec(move || {
+            let limit = libc::rlimit { rlim_cur: bytes, rlim_max: bytes };
+            if libc::setrlimit(libc::RLIMIT_AS, &limit) == 0 { Ok(()) } else { Err(std::io::Error::last_os_error()) }
+        });
+    }
+    cmd.output().expect("running rig")
+}
+
+/// (Reproduction 2.) `num_train_timesteps` of 1e12 (which aborted rig: a 4 TB allocation) and
+/// 3e8 (2.3 GB before the refusal) are refused as bad input, before the schedule is allocated;
+/// a daemon job naming such a package fails alone and the next job runs.
+#[test]
+fn scheduler_timestep_bombs_are_refused_before_allocating() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    for n in [1_000_000_000_000u64, 300_000_000] {
+        let dir = w.join(format!("bomb-{n}"));
+        package_with_steps(&dir, n, None);
+        // 3e8 f32 betas alone are 1.2 GB: under a 1 GiB address space the refusal must come
+        // before any of it is allocated.
+        let out = run_limited(&w, &["synth", "info", "--model", dir.to_str().expect("utf-8")], 1 << 30);
+        let all = expect(&out, 2, "num_train_timesteps");
+        assert!(all.contains("2 to 10000"), "the bound is said:\n{all}");
+    }
+
+    dataset(&w.join("ds/sphere/tactip"), 2);
+    let daemon = DaemonProcess::start(&w, &[], &[]);
+    let job =
+        serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": w.join("bomb-1000000000000"), "steps": 1});
+    let id = daemon.submit(&job);
+    let job = daemon.wait_final(id);
+    assert_eq!((job["state"].as_str(), job["exit_code"].as_u64()), (Some("failed"), Some(2)), "{job}");
+    assert!(job["error"].as_str().is_some_and(|e| e.contains("num_train_timesteps")), "{job}");
+    let good = serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join("good")});
+    let id = daemon.submit(&good);
+    assert_eq!(daemon.wait_final(id)["state"], "done", "the daemon goes on after the bad package");
+}
+
+/// (Reproduction 3.) A package asking for 40,000,000 sampling steps (or training timesteps) is
+/// refused by the documented bound (10000); one at the bound runs, and both a cancel through
+/// the API and SIGTERM stop it: the cancel within a sampling step (not by abandoning the job),
+/// SIGTERM ending the daemon within 5 s with the arm disabled. The job list is paged and the
+/// queue bounded meanwhile (reproduction 4).
+#[test]
+fn the_longest_synth_job_stops_on_cancel_and_on_sigterm() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let huge = package_with_steps(&w.join("huge"), 1000, Some(40_000_000));
+    expect(&run(&w, &["synth", "info", "--model", huge.to_str().expect("utf-8")]), 2, "sampling_steps");
+    let huge = package_with_steps(&w.join("huge-train"), 40_000_000, Some(40_000_000));
+    expect(&run(&w, &["synth", "info", "--model", huge.to_str().expect("utf-8")]), 2, "1 to 10000");
+    let long = package_with_steps(&w.join("long"), 10_000, Some(10_000));
+    dataset(&w.join("ds/sphere/tactip"), 2);
+
+    let mut daemon = DaemonProcess::start(&w, &[], &[]);
+    let job = serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": long});
+    let id = daemon.submit(&job);
+    daemon.wait_running(id);
+
+    // While it runs: the queue is bounded and the list comes in pages.
+    let queue_one = |k: usize| {
+        daemon.submit(
+            &serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join(format!("q{k}"))}),
+        )
+    };
+    let mut queued: Vec<u64> = (0..60).map(queue_one).collect();
+    let r = daemon.request("GET", "/api/jobs", "", "");
+    assert_eq!(r.status, 200);
+    let page: Vec<serde_json::Value> = serde_json::from_slice(&r.body).expect("a JSON list");
+    assert_eq!(page.len(), 50, "a page holds at most 50 jobs");
+    assert_eq!(page.last().and_then(|j| j["id"].as_u64()), queued.last().copied(), "the newest page, oldest first");
+    assert_eq!(r.header("x-rig-jobs-total"), Some("61"));
+    let before = r.header("x-rig-next-before").expect("a cursor to older jobs").to_string();
+    let older: Vec<serde_json::Value> =
+        serde_json::from_value(daemon.get_json(&format!("/api/jobs?limit=20&before={before}"))).expect("list");
+    assert_eq!(older.iter().filter_map(|j| j["id"].as_u64()).collect::<Vec<_>>(), [vec![id], queued[..10].to_vec()].concat());
+    let capped: Vec<serde_json::Value> = serde_json::from_value(daemon.get_json("/api/jobs?limit=100000")).expect("list");
+    assert_eq!(capped.len(), 50);
+    let r = daemon.request("GET", "/api/jobs?limit=0", "", "");
+    assert_eq!(r.status, 400);
+    assert!(error_of(&r).contains("limit"), "{}", error_of(&r));
+    queued.extend((60..100).map(queue_one));
+    let full = serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join("q-full")});
+    let r = daemon.request("POST", "/api/jobs", "Content-Type: application/json\r\nX-Rig-Client: t\r\n", &full.to_string());
+    assert_eq!(r.status, 503, "{}", String::from_utf8_lossy(&r.body));
+    assert!(error_of(&r).contains("queue"), "{}", error_of(&r));
+
+    for q in &queued {
+        let r = daemon.request("POST", &format!("/api/jobs/{q}/cancel"), "X-Rig-Client: t\r\n", "");
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    }
+
+    // A cancel stops the sampling within a step: the job ends cancelled, not abandoned. (The
+    // package loads in about a second; a batch of 10000 steps takes minutes, so after a few
+    // seconds the job is sampling.)
+    std::thread::sleep(Duration::from_secs(3));
+    let r = daemon.request("POST", &format!("/api/jobs/{id}/cancel"), "X-Rig-Client: t\r\n", "");
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    let t0 = Instant::now();
+    let ended = daemon.wait_final(id);
+    assert_eq!(ended["state"], "cancelled", "{ended}");
+    assert!(!ended["message"].as_str().unwrap_or_default().contains("abandoned"), "the sampling loop did not see the cancel: {ended}");
+    assert!(t0.elapsed() < Duration::from_secs(60), "the cancel took {:?}", t0.elapsed());
+
+    // SIGTERM during the same job: the daemon ends within 5 s, the arm disabled.
+    let id = daemon.submit(&job);
+    daemon.wait_running(id);
+    std::thread::sleep(Duration::from_secs(3));
+    let (elapsed, status, out) = daemon.terminate(Duration::from_secs(60));
+    assert!(elapsed <= Duration::from_secs(5), "SIGTERM took {elapsed:?}:\n{out}");
+    assert!(out.contains("stopped: arm disabled"), "{out}");
+    assert_eq!(status.code(), Some(0), "{out}");
+}
+
+/// (Reproduction 3.) A job blocked in a read that never returns (a FIFO inside its package)
+/// cannot hold the queue or the shutdown: a cancel ends it (the next job runs) and SIGTERM ends
+/// the daemon within 5 s with the arm disabled.
+#[test]
+fn a_job_blocked_on_a_fifo_is_stoppable() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let pkg = copy_package(&w.join("fifo-pkg"));
+    let fifo = pkg.join("extra.fifo");
+    let c = std::ffi::CString::new(fifo.to_str().expect("utf-8")).expect("c string");
+    // SAFETY: mkfifo on a NUL-terminated path inside our temp folder.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    dataset(&w.join("ds/sphere/tactip"), 2);
+    let job = serde_json::json!({"kind": "synth", "dataset": w.join("ds/sphere/tactip"), "model": pkg, "steps": 1});
+
+    let mut daemon = DaemonProcess::start(&w, &[], &[]);
+    let id = daemon.submit(&job);
+    std::thread::sleep(Duration::from_secs(2));
+    let _ = daemon.request("POST", &format!("/api/jobs/{id}/cancel"), "X-Rig-Client: t\r\n", "");
+    let ended = daemon.wait_final(id);
+    // Cancelled (abandoned in its read) or, where the FIFO is refused outright, failed as bad input.
+    assert!(ended["state"] == "cancelled" || ended["exit_code"] == 2, "{ended}");
+    let good = serde_json::json!({"kind": "collect", "object": "sphere", "sensor": "tactip", "poses": 1, "out": w.join("good")});
+    let next = daemon.submit(&good);
+    assert_eq!(daemon.wait_final(next)["state"], "done", "the queue goes on");
+
+    let id = daemon.submit(&job);
+    std::thread::sleep(Duration::from_secs(2));
+    let state = daemon.get_json(&format!("/api/jobs/{id}"))["state"].clone();
+    let (elapsed, status, out) = daemon.terminate(Duration::from_secs(60));
+    assert!(elapsed <= Duration::from_secs(5), "SIGTERM (job {state}) took {elapsed:?}:\n{out}");
+    assert!(out.contains("stopped: arm disabled"), "{out}");
+    assert_eq!(status.code(), Some(0), "{out}");
+}
+
+/// (Reproduction 4.) Clients that ask and never read hold a connection for the write timeout at
+/// most: the daemon closes them, and a fresh client is served. (Reproduction 9.) hyper's own
+/// 400 and 431 answers carry the JSON error body every other error has.
+#[test]
+fn clients_that_never_read_are_cut_off_and_parse_errors_are_json() {
+    let sb = Sandbox::new();
+    let daemon = DaemonProcess::start(&sb.work(), &[], &[]);
+    let r = daemon.send("BLAH\r\n\r\n");
+    assert_eq!(r.status, 400);
+    assert!(error_of(&r).contains("not valid HTTP"), "{}", error_of(&r));
+    let r = daemon.send(&format!("GET /api/status HTTP/1.1\r\nHost: {}\r\nX-Big: {}\r\n\r\n", daemon.addr, "a".repeat(20_000)));
+    assert_eq!(r.status, 431);
+    assert!(error_of(&r).contains("16384 bytes"), "{}", error_of(&r));
+
+    // Each slow reader pipelines 2000 page requests (about 14 MB of answers) into a small
+    // receive buffer and reads nothing.
+    let request = format!("GET / HTTP/1.1\r\nHost: {}\r\n\r\n", daemon.addr).repeat(2000);
+    let slow: Vec<TcpStream> = (0..8)
+        .map(|_| {
+            let s = TcpStream::connect(daemon.addr).expect("connect");
+            let size: libc::c_int = 4096;
+            // SAFETY: setsockopt on a socket we own, with a c_int option value.
+            let rc = unsafe {
+                use std::os::fd::AsRawFd;
+                libc::setsockopt(
+                    s.as_raw_fd(),
+                    libc::SOL_SOCKET,
+                    libc::SO_RCVBUF,
+                    (&size as *const libc::c_int).cast(),
+                    std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+                )
+            };
+            assert_eq!(rc, 0);
+            let mut writer = s.try_clone().expect("clone");
+            let request = request.clone();
+            std::thread::spawn(move || {
+                let _ = writer.write_all(request.as_bytes());
+            });
+            s
+        })
+        .collect();
+    let timeout = rig::daemon::serve::WRITE_TIMEOUT;
+    std::thread::sleep(timeout + Duration::from_secs(5));
+    // A fresh client is served meanwhile.
+    assert_eq!(daemon.request("GET", "/api/status", "", "").status, 200);
+    for (k, mut s) in slow.into_iter().enumerate() {
+        s.set_read_timeout(Some(Duration::from_secs(20))).expect("timeout");
+        let mut got = Vec::new();
+        let mut buf = vec![0u8; 1 << 16];
+        let closed = loop {
+            match s.read(&mut buf) {
+                Ok(0) => break true,
+                Ok(n) => got.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break true,
+                Err(_) => break false,
+            }
+        };
+        let answers = got.windows(15).filter(|w| *w == &b"HTTP/1.1 200 OK"[..]).count();
+        assert!(closed, "slow reader {k}: the daemon kept its connection open ({answers} answers read)");
+        assert!(answers < 2000, "slow reader {k}: every answer came, so the daemon never gave up on it");
+    }
+}
+
+/// (Reproduction 9.) Exit codes agree with the table: a model.toml that is too large or not
+/// UTF-8 and a symlink loop inside a package are bad input (2), as is `--daemon https://...`;
+/// a plan's missing key is named.
+#[test]
+fn package_files_and_daemon_urls_exit_with_the_tables_codes() {
+    let sb = Sandbox::new();
+    let w = sb.work();
+    let pkg = copy_package(&w.join("big"));
+    std::fs::write(pkg.join("model.toml"), format!("name = \"x\"\n# {}\n", "a".repeat(2 << 20))).expect("write");
+    expect(&run(&w, &["synth", "info", "--model", "big"]), 2, "model.toml");
+    let pkg = copy_package(&w.join("latin1"));
+    std::fs::write(pkg.join("model.toml"), b"name = \"caf\xe9\"\n").expect("write");
+    expect(&run(&w, &["synth", "info", "--model", "latin1"]), 2, "UTF-8");
+    let pkg = copy_package(&w.join("loop"));
+    std::os::unix::fs::symlink("b", pkg.join("a")).expect("symlink");
+    std::os::unix::fs::symlink("a", pkg.join("b")).expect("symlink");
+    expect(&run(&w, &["synth", "info", "--model", "loop"]), 2, "loop");
+
+    let all = expect(&run(&w, &["collect", "--poses", "1", "--daemon", "https://127.0.0.1:7700"]), 2, "https is not supported");
+    assert!(all.contains("SSH tunnel"), "{all}");
+
+    std::fs::write(w.join("plan.toml"), "sampling = \"full\"\n[x_mm]\nmin = 0.0\nmax = 1.0\nstep = 1.0\n").expect("write");
+    expect(&run(&w, &["collect", "--plan", "plan.toml", "--dry-run"]), 2, "missing field `y_mm`");
 }
