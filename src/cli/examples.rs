@@ -92,7 +92,7 @@ Examples:
 /// `rig synth bench`.
 pub const SYNTH_BENCH: &str = "\
 Examples:
-  rig synth bench --model models/default --control hint.png --prompt \"a tactile image\" --guidance 9 --images 16 --batch 4";
+  rig synth bench --model models/default --control hint.png --prompt tactile --guidance 9 --images 16 --batch 4";
 
 /// `rig synth info`.
 pub const SYNTH_INFO: &str = "\
