@@ -245,6 +245,7 @@ impl Classify for crate::dataset::DatasetError {
             | D::StlMissing { .. }
             | D::FolderMissing { .. }
             | D::StlChanged { .. }
+            | D::StlUnusable { .. }
             | D::ManifestMismatch { .. }
             | D::ManifestParse { .. }
             | D::ManifestPlan { .. }

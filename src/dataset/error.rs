@@ -31,6 +31,15 @@ pub enum DatasetError {
     StlMissing { path: String, manifest: PathBuf },
     #[error("STL {path} named by {manifest} is not the file the dataset was made with (its sha256 differs)")]
     StlChanged { path: PathBuf, manifest: PathBuf },
+    /// An STL path outside the dataset and the working folder that is not the file the
+    /// manifest's sha256 names: refused in the same words whether or not a file is there, so
+    /// nothing is learned about files outside ([`crate::dataset::named`]).
+    #[error(
+        "STL {path} named by {manifest} is not a path below the dataset folder or the working folder, and outside them rig reads \
+         only the file whose sha256 the manifest records: this is not that file, or it is not there (put the original back, or \
+         copy the STL into the dataset folder and name it relative to the dataset)"
+    )]
+    StlUnusable { path: String, manifest: PathBuf },
     /// A file the manifest names that rig may not read ([`crate::dataset::named`]).
     #[error(transparent)]
     Named(#[from] crate::dataset::named::NamedFileError),

@@ -83,7 +83,13 @@ impl ObjectInfo {
     pub fn stl_bytes(&self, dataset_dir: &Path, manifest: &Path, max_bytes: u64) -> Result<Option<Vec<u8>>, DatasetError> {
         let Some(stored) = self.stl_path.as_deref() else { return Ok(None) };
         let sha = self.stl_sha256.as_deref();
-        let Some(bytes) = crate::dataset::named::read_named(dataset_dir, "object.stl_path", stored, sha, max_bytes)?
+        let read = crate::dataset::named::read_named(dataset_dir, "object.stl_path", stored, sha, max_bytes);
+        let Some(bytes) = read.map_err(|e| match e {
+            crate::dataset::named::NamedFileError::Outside { .. } => {
+                DatasetError::StlUnusable { path: stored.to_string(), manifest: manifest.to_path_buf() }
+            }
+            other => DatasetError::Named(other),
+        })?
         else {
             return Err(DatasetError::StlMissing { path: stored.to_string(), manifest: manifest.to_path_buf() });
         };

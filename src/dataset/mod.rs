@@ -289,6 +289,7 @@ pub fn image_rel_path(pose_id: u32) -> String {
 /// dataset could be is an error, not a dataset somewhere else.
 pub fn find_datasets(root: &std::path::Path) -> Result<Vec<PathBuf>, DatasetError> {
     use crate::confine::{EntryKind, RootDir};
+    require_folder(root)?;
     let dir = RootDir::open(root)?;
     let has_manifest = |rel: &std::path::Path| -> Result<bool, DatasetError> {
         match dir.stat(rel.join(MANIFEST_FILE))? {

@@ -435,7 +435,8 @@ impl Default for ControlScratch {
 /// The object mesh the dataset was collected on: the STL its manifest names (read by the rules
 /// of [`crate::dataset::named`], checked against its sha256, [`crate::dataset::ObjectInfo::stl_bytes`]);
 /// else the library object of that name. A named STL that is gone is an error naming it, unless
-/// the library holds the same file (a library object named relative to where it was collected).
+/// the library holds the same file (the manifest's sha256 is the library object's): a library
+/// object named relative to where it was collected.
 fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
     let name = manifest.object.name.clone();
     let err = |reason: String| FillError::Object { dir: dir.to_path_buf(), object: name.clone(), reason };
@@ -443,12 +444,14 @@ fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
     match manifest.object.stl_bytes(dir, &manifest_file, crate::geometry::stl::MAX_STL_BYTES) {
         Ok(Some(bytes)) => Mesh::from_bytes(&bytes).map_err(|e| err(e.to_string())),
         Ok(None) => load_object(&name).map_err(|e| err(e.to_string())),
-        Err(missing @ DatasetError::StlMissing { .. }) => match crate::geometry::objects::ObjectChoice::resolve(&name, None) {
-            Ok(library) if manifest.object.stl_sha256.as_ref().is_none_or(|h| h.eq_ignore_ascii_case(&library.sha256)) => {
-                Ok((*library.mesh).clone())
+        Err(missing @ (DatasetError::StlMissing { .. } | DatasetError::StlUnusable { .. })) => {
+            match crate::geometry::objects::ObjectChoice::resolve(&name, None) {
+                Ok(library) if manifest.object.stl_sha256.as_ref().is_some_and(|h| h.eq_ignore_ascii_case(&library.sha256)) => {
+                    Ok((*library.mesh).clone())
+                }
+                _ => Err(missing.into()),
             }
-            _ => Err(missing.into()),
-        },
+        }
         Err(e) => Err(e.into()),
     }
 }
