@@ -35,8 +35,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use serde::Deserialize;
 use crate::io::serial::{DataBits, Parity, SerialError, SerialFraming, StopBits};
+use serde::Deserialize;
 use tokio_modbus::client::{Context, Reader as _, Writer as _};
 use tokio_modbus::slave::Slave;
 
@@ -82,6 +82,7 @@ impl ModbusError {
     pub fn is_recoverable(&self) -> bool {
         match self {
             ModbusError::Invalid { .. } => false,
+            ModbusError::Serial { source: SerialError::PathNotUtf8 { .. }, .. } => false,
             ModbusError::Replayed { recoverable, .. } => *recoverable,
             _ => true,
         }
@@ -808,7 +809,8 @@ mod tests {
         let text = format!("transport = \"rtu\"\ndevice = {:?}\n{framing_toml}", pty.slave_path.display().to_string());
         let raw: RawModbusPeripheral = toml::from_str(&text).unwrap();
         let resolved = ModbusPeripheralConfig::resolve("force", raw).unwrap();
-        let cfg = ModbusPeripheralConfig { transport: resolved.transport, ..config("force", ModbusTransport::Tcp { address: String::new() }) };
+        let cfg =
+            ModbusPeripheralConfig { transport: resolved.transport, ..config("force", ModbusTransport::Tcp { address: String::new() }) };
         let mut p = ModbusPeripheral::connect(cfg.clone()).await.unwrap();
         exercise(&mut p, &b).await;
         // While rig holds the port, nobody else opens it.
@@ -877,12 +879,9 @@ mod tests {
         assert_eq!(c.describe(), "x (rtu /dev/ttyUSB1 19200 Bd 8E1 unit 1, required)");
         let c = resolve("baud = 115200\ndata_bits = 7\nparity = \"odd\"\nstop_bits = 2\n").unwrap();
         assert!(matches!(c.transport, ModbusTransport::Rtu { framing, .. } if framing.to_string() == "115200 Bd 7O2"));
-        for (bad, field) in [
-            ("parity = \"mark\"\n", "parity"),
-            ("data_bits = 9\n", "data_bits"),
-            ("stop_bits = 3\n", "stop_bits"),
-            ("baud = 0\n", "baud"),
-        ] {
+        for (bad, field) in
+            [("parity = \"mark\"\n", "parity"), ("data_bits = 9\n", "data_bits"), ("stop_bits = 3\n", "stop_bits"), ("baud = 0\n", "baud")]
+        {
             let e = resolve(bad).unwrap_err();
             assert!(matches!(e, ModbusError::Invalid { field: f, .. } if f == field), "{bad}: {e}");
         }

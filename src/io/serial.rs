@@ -204,6 +204,17 @@ impl PtyPair {
     }
 }
 
+/// Test support: what the driver holds for a tty, read back through `TCGETS2` (the call
+/// `serialport` sets speeds with on Linux, so `c_ospeed` is the rate in Bd).
+#[cfg(all(test, target_os = "linux"))]
+pub(crate) fn read_termios2(fd: &impl AsRawFd) -> libc::termios2 {
+    // SAFETY: termios2 is plain data; TCGETS2 fills it for a valid tty fd or fails.
+    let mut t: libc::termios2 = unsafe { std::mem::zeroed() };
+    let rc = unsafe { libc::ioctl(fd.as_raw_fd(), libc::TCGETS2, &mut t) };
+    assert_eq!(rc, 0, "TCGETS2: {}", io::Error::last_os_error());
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -282,15 +293,4 @@ mod tests {
         assert!(matches!(e, SerialError::Open { .. }), "{e}");
         assert!(e.to_string().contains("ttyUSB9") && e.to_string().contains("19200 Bd 8E1"), "{e}");
     }
-}
-
-/// Test support: what the driver holds for a tty, read back through `TCGETS2` (the call
-/// `serialport` sets speeds with on Linux, so `c_ospeed` is the rate in Bd).
-#[cfg(all(test, target_os = "linux"))]
-pub(crate) fn read_termios2(fd: &impl AsRawFd) -> libc::termios2 {
-    // SAFETY: termios2 is plain data; TCGETS2 fills it for a valid tty fd or fails.
-    let mut t: libc::termios2 = unsafe { std::mem::zeroed() };
-    let rc = unsafe { libc::ioctl(fd.as_raw_fd(), libc::TCGETS2, &mut t) };
-    assert_eq!(rc, 0, "TCGETS2: {}", io::Error::last_os_error());
-    t
 }

@@ -115,7 +115,8 @@ async fn stale_buffered_frames_are_never_saved_and_the_manifest_counts_them() {
     let dir = tmp.path().join("sphere").join("tactip");
     let clock = Arc::new(SteppingClock { now_s: Mutex::new(10.0) });
     let arrivals = Arc::new(Mutex::new(Vec::new()));
-    let (_truth_tx, truth) = watch::channel(ArmTruth { t_s: 0.0, pose: WorkFrame::default().contact_pose(&Pose::default()), speed_mm_s: 0.0 });
+    let (_truth_tx, truth) =
+        watch::channel(ArmTruth { t_s: 0.0, pose: WorkFrame::default().contact_pose(&Pose::default()), speed_mm_s: 0.0 });
     let sim = SensorSim::new(SensorKind::TacTip, Scene::preset("full").unwrap(), 64, 64, 3.0, 7);
     let depth = Box::new(|p: &Pose| shapes::sphere(64, 64, 3.0, -p.x_mm as f32, -p.y_mm as f32, 8.0, p.z_mm as f32));
     let inner = SimCamera::new("tactip".into(), sim, depth, WorkFrame::default(), truth, clock.clone(), FRAME_PERIOD_S)
@@ -129,7 +130,8 @@ async fn stale_buffered_frames_are_never_saved_and_the_manifest_counts_them() {
         modbus: Vec::new(),
     });
     let writer = DatasetWriter::start(&dir, manifest, false).unwrap();
-    let plan: Vec<PlannedPose> = (0..3).map(|pose_id| PlannedPose { pose_id, pose: Pose::new(f64::from(pose_id), 0.0, 0.5, 0.0) }).collect();
+    let plan: Vec<PlannedPose> =
+        (0..3).map(|pose_id| PlannedPose { pose_id, pose: Pose::new(f64::from(pose_id), 0.0, 0.5, 0.0) }).collect();
     let (_stop, cancel) = watch::channel(false);
     let mut arm = TimedArm { at: Pose::default(), clock: clock.clone(), arrivals: arrivals.clone() };
     let job = CollectJob {
