@@ -12,7 +12,11 @@ pub fn run(_args: Args) -> anyhow::Result<()> {
     let report = crate::io::inventory::DeviceReport::scan();
     print!("{}", report.render());
     if let Ok(config) = crate::config::RigConfig::discover(None) {
-        let streams = crate::io::inventory::configured_streams(&config.sensors, &report.cameras);
+        let v4l2 = config.sensors.iter().filter_map(|s| match &s.backend {
+            crate::config::SensorBackend::V4l2 { device } => Some((s.name.as_str(), device.as_str(), &s.camera)),
+            _ => None,
+        });
+        let streams = crate::io::inventory::configured_streams(v4l2, &report.cameras);
         for warning in crate::io::inventory::usb_bandwidth_warnings(&streams) {
             println!("{warning}");
         }

@@ -161,22 +161,24 @@ pub fn usb_bandwidth_warnings(streams: &[ConfiguredStream]) -> Vec<String> {
     out
 }
 
-/// The configured V4L2 cameras found among `cameras`, each with the format rig would pick.
-/// Cameras that are absent, not on USB, or offer no matching mode are left out (`rig collect`
-/// reports those when it opens them).
-pub fn configured_streams(sensors: &[crate::config::SensorConfig], cameras: &[CameraEntry]) -> Vec<ConfiguredStream> {
+/// The configured V4L2 cameras (sensor name, `device` selector, settings) found among
+/// `cameras`, each with the format rig would pick. Cameras that are absent, not on USB, or
+/// offer no matching mode are left out (`rig collect` reports those when it opens them).
+pub fn configured_streams<'a>(
+    sensors: impl IntoIterator<Item = (&'a str, &'a str, &'a crate::camera::v4l2::CameraSettings)>,
+    cameras: &[CameraEntry],
+) -> Vec<ConfiguredStream> {
     let nodes: Vec<crate::camera::usb::VideoNode> = cameras.iter().map(|c| c.node.clone()).collect();
     sensors
-        .iter()
-        .filter_map(|s| {
-            let crate::config::SensorBackend::V4l2 { device } = &s.backend else { return None };
+        .into_iter()
+        .filter_map(|(sensor, device, settings)| {
             let selector = crate::camera::usb::DeviceSelector::parse(device).ok()?;
             let (path, usb) = crate::camera::usb::video_node_of(&nodes, &selector).ok()?;
             let entry = cameras.iter().find(|c| c.node.path == path)?;
-            let choice = crate::camera::v4l2::choose_format(&entry.offers, &s.camera).ok()?;
+            let choice = crate::camera::v4l2::choose_format(&entry.offers, settings).ok()?;
             let bus = usb?.port_path.split('-').next()?.to_string();
             Some(ConfiguredStream {
-                sensor: s.name.clone(),
+                sensor: sensor.to_string(),
                 bus,
                 format: choice.format,
                 width: choice.width,
@@ -236,12 +238,10 @@ mod tests {
                 error: None,
             })
             .collect();
-        let text: String = (0..3)
-            .map(|k| format!("[sensors.s{k}]\nbackend = \"v4l2\"\ndevice = \"port:1-{}\"\nwidth = 640\nheight = 480\n", k + 1))
-            .collect::<String>()
-            + "[arm]\nbackend = \"mg400\"\nhost = \"192.168.1.6\"\n";
-        let config = crate::config::RigConfig::parse(&text, std::path::Path::new("rig.toml")).unwrap();
-        let streams = configured_streams(&config.sensors, &cameras);
+        let settings = crate::camera::v4l2::CameraSettings { width: 640, height: 480, fps: 30, ..Default::default() };
+        let configured =
+            [("s0", "port:1-1", &settings), ("s1", "port:1-2", &settings), ("s2", "port:1-3", &settings), ("gone", "port:2-9", &settings)];
+        let streams = configured_streams(configured, &cameras);
         assert_eq!(streams.len(), 3, "{streams:?}");
         assert!(streams.iter().all(|s| s.bus == "1" && s.format == PixelFormat::Yuyv), "{streams:?}");
         assert_eq!(usb_bandwidth_warnings(&streams).len(), 1);
