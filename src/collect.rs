@@ -225,6 +225,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
                     if let Some(part) = chain.sensors.iter_mut().find(|p| &p.name == name) {
                         let timed = (run.origin == StreamOrigin::Measured).then_some((run.timed_frames, run.timed_s));
                         part.add_stream_run(run.frames_received, run.frames_dropped, timed);
+                        part.add_stale_frames(crate::camera::fresh_frame_rule(self.options.settle_s), run.stale_discarded);
                     }
                 }
             })?;

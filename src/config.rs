@@ -109,6 +109,9 @@ pub struct RawSim {
     pub faults: RawFaults,
     /// Simulated sensors: the physical unit (static specks and dust); default: the run's seed.
     pub sensor_unit_seed: Option<u64>,
+    /// Simulated sensors: frames queued in each camera's driver buffer before a request,
+    /// exposed earlier (what the fresh-frame rule discards); default 0.
+    pub stale_buffer_frames: Option<u32>,
 }
 
 /// `[sim.faults]` as written in the file.
@@ -309,6 +312,9 @@ pub struct RigConfig {
     /// sensor_unit_seed`); `None`: derived from the run's seed, so each plan seed simulates
     /// another unit.
     pub sensor_unit_seed: Option<u64>,
+    /// Simulated sensors: frames queued in each camera's buffer before a request (`[sim]
+    /// stale_buffer_frames`, at most 64).
+    pub sim_stale_buffer_frames: u32,
 }
 
 /// Default time scale of the built-in simulated rig.
@@ -326,6 +332,7 @@ impl RigConfig {
             faults: FaultConfig::default(),
             modbus: std::collections::BTreeMap::new(),
             sensor_unit_seed: None,
+            sim_stale_buffer_frames: 0,
         }
     }
 
@@ -483,6 +490,10 @@ impl RigConfig {
             });
         }
         let faults = resolve_faults(&raw.sim.faults, path)?;
+        let sim_stale_buffer_frames = raw.sim.stale_buffer_frames.unwrap_or(0);
+        if sim_stale_buffer_frames > 64 {
+            return Err(invalid("sim.stale_buffer_frames", format!("must be 0..=64, got {sim_stale_buffer_frames}")));
+        }
         if !faults.is_empty() && !matches!(backend, ArmBackend::Simulated { .. }) {
             return Err(invalid("sim.faults", "only applies to the simulated arm (arm.backend = \"sim\")".into()));
         }
@@ -501,6 +512,7 @@ impl RigConfig {
             faults,
             modbus,
             sensor_unit_seed: raw.sim.sensor_unit_seed,
+            sim_stale_buffer_frames,
         })
     }
 

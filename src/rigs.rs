@@ -406,7 +406,8 @@ impl Rig {
                         sim.truth(),
                         Arc::clone(&clock),
                         1.0 / f64::from(SIM_FPS),
-                    );
+                    )
+                    .with_stale_buffer(config.sim_stale_buffer_frames);
                     cameras.push(RigCamera::Simulated {
                         kind: *kind,
                         camera,

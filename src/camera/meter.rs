@@ -74,6 +74,7 @@ impl StreamMeter {
             frames_dropped: self.frames_dropped,
             timed_frames: self.timed_frames,
             timed_s: self.timed_s,
+            stale_discarded: 0,
             origin: StreamOrigin::Measured,
         }
     }

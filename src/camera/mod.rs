@@ -86,6 +86,9 @@ pub struct StreamStats {
     pub timed_frames: u64,
     /// The time between those frames and the ones before them, s (driver time).
     pub timed_s: f64,
+    /// Frames [`Camera::frame_after`] looked at and threw away because their exposure started
+    /// before the instant asked for (buffered while the arm moved): [`StaleFrameFilter`].
+    pub stale_discarded: u64,
     pub origin: StreamOrigin,
 }
 
@@ -108,8 +111,42 @@ impl StreamStats {
             frames_dropped: self.frames_dropped.saturating_sub(earlier.frames_dropped),
             timed_frames: self.timed_frames.saturating_sub(earlier.timed_frames),
             timed_s: (self.timed_s - earlier.timed_s).max(0.0),
+            stale_discarded: self.stale_discarded.saturating_sub(earlier.stale_discarded),
             origin: self.origin,
         }
+    }
+}
+
+/// The fresh-frame rule every backend's [`Camera::frame_after`] applies, as the manifest
+/// records it: a frame is kept only when its exposure started at or after the instant asked
+/// for, which the collection job sets to the arm's arrival plus the settle time (and after the
+/// peripherals' `before_capture` writes); older frames, queued in the driver while the arm
+/// moved, are discarded and counted.
+pub fn fresh_frame_rule(settle_s: f64) -> String {
+    format!("exposure start >= arrival + settle_s ({settle_s} s) and after before_capture writes; earlier buffered frames discarded")
+}
+
+/// Applies the fresh-frame rule to the frames a backend has, oldest first, and counts what it
+/// throws away.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StaleFrameFilter {
+    discarded: u64,
+}
+
+impl StaleFrameFilter {
+    /// True when a frame whose exposure started at `exposure_start_s` may be used for a
+    /// request for frames from `not_before_s` on; false (and counted) when it is stale.
+    pub fn admit(&mut self, exposure_start_s: f64, not_before_s: f64) -> bool {
+        let fresh = !not_before_s.is_finite() || exposure_start_s >= not_before_s;
+        if !fresh {
+            self.discarded += 1;
+        }
+        fresh
+    }
+
+    /// Frames discarded so far.
+    pub fn discarded(&self) -> u64 {
+        self.discarded
     }
 }
 

@@ -227,6 +227,11 @@ pub struct V4l2Camera {
     frames: watch::Receiver<Option<RawFrame>>,
     timeout: Duration,
     controls: Vec<(&'static str, i64)>,
+    /// Frames looked at and found exposed too early (the fresh-frame rule).
+    stale: crate::camera::StaleFrameFilter,
+    /// Sequence number of the newest frame already delivered or counted: the capture thread's
+    /// watch shows a frame until the next replaces it, and one frame is counted once.
+    last_seen_seq: Option<u64>,
 }
 
 impl V4l2Camera {
@@ -290,6 +295,8 @@ impl V4l2Camera {
             frames: rx,
             timeout: Duration::from_secs_f64((interval_s * (f64::from(warmup) + 10.0)).max(2.0)),
             controls,
+            stale: crate::camera::StaleFrameFilter::default(),
+            last_seen_seq: None,
         })
     }
 
@@ -434,7 +441,16 @@ impl Camera for V4l2Camera {
     async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
         let camera = self.name.clone();
         let timeout = self.timeout;
-        let wait = self.frames.wait_for(|f| f.as_ref().is_some_and(|f| f.t_start_s >= not_before_s));
+        let (stale, last_seen_seq) = (&mut self.stale, &mut self.last_seen_seq);
+        let wait = self.frames.wait_for(|f| {
+            let Some(f) = f.as_ref() else { return false };
+            if last_seen_seq.is_some_and(|seen| f.seq <= seen) {
+                // Already delivered or counted: never a fresh frame for a later request.
+                return f.t_start_s >= not_before_s;
+            }
+            *last_seen_seq = Some(f.seq);
+            stale.admit(f.t_start_s, not_before_s)
+        });
         let raw = match tokio::time::timeout(timeout, wait).await {
             Err(_) => return Err(CameraError::Timeout { camera, timeout_ms: timeout.as_millis() as u64 }),
             Ok(Err(_closed)) => return Err(CameraError::Device { camera, reason: "capture thread stopped".into() }),
@@ -454,7 +470,8 @@ impl Camera for V4l2Camera {
     /// The counts the capture thread published with its newest frame: every buffer since
     /// warm-up, also those no job asked for. Before the first frame, nothing yet.
     fn stream_stats(&self) -> Option<StreamStats> {
-        Some(self.frames.borrow().as_ref().map_or_else(|| StreamMeter::new().stats(), |f| f.stats))
+        let stats = self.frames.borrow().as_ref().map_or_else(|| StreamMeter::new().stats(), |f| f.stats);
+        Some(StreamStats { stale_discarded: self.stale.discarded(), ..stats })
     }
 }
 

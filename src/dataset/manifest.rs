@@ -162,6 +162,13 @@ pub struct CapturePart {
     /// A camera's USB port path (`1-2.3`) when it was opened.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub usb_port: Option<String>,
+    /// The rule that kept this camera's frames fresh, as the last run applied it
+    /// ([`crate::camera::fresh_frame_rule`]); absent before rig recorded it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fresh_frame_rule: Option<String>,
+    /// Frames the rule threw away (exposed before arrival + settle), summed over the runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stale_frames_discarded: Option<u64>,
     /// The arm's firmware version as the controller reported it (the Magician); for the
     /// simulated MG400 the version its firmware profile names, followed by `(simulated)`.
     /// Absent where the controller does not report one (the MG400: see `firmware_profile`).
@@ -202,6 +209,8 @@ impl CapturePart {
             serial: None,
             usb_id: None,
             usb_port: None,
+            fresh_frame_rule: None,
+            stale_frames_discarded: None,
             firmware: None,
             frames_received: None,
             frames_dropped: None,
@@ -233,6 +242,12 @@ impl CapturePart {
         self.usb_id = Some(format!("{vendor_id:04x}:{product_id:04x}"));
         self.serial = serial.map(str::to_string);
         self
+    }
+
+    /// Records the fresh-frame rule a run applied and adds the frames it discarded.
+    pub fn add_stale_frames(&mut self, rule: String, discarded: u64) {
+        self.fresh_frame_rule = Some(rule);
+        self.stale_frames_discarded = Some(self.stale_frames_discarded.unwrap_or(0).saturating_add(discarded));
     }
 
     /// Adds one run's stream to this camera part: `frames_received` and `frames_dropped` are

@@ -23,8 +23,10 @@
 //! Register values: one 16-bit register per reading unless `words = 2` (big-endian word
 //! order, as most devices use), signed or unsigned, times `scale` plus `offset`.
 //!
-//! RTU runs over [`AsyncSerial`](crate::io::serial::AsyncSerial), so any tty works (USB-RS485
-//! adapters, pseudo-terminals in tests). `transport = "sim"` names a simulated device that
+//! RTU runs over [`open_async`](crate::io::serial::open_async) (`serialport`/`tokio-serial`),
+//! so any tty works (USB-RS485 adapters, pseudo-terminals in tests). The port is opened
+//! exclusively at the configured [`SerialFraming`]: `baud`, `data_bits`, `parity`, `stop_bits`,
+//! with Modbus RTU's defaults (19200 Bd, 8E1) for what is left out. `transport = "sim"` names a simulated device that
 //! [`crate::rigs`] starts on loopback ([`crate::sim::modbus`]); the client then talks real
 //! Modbus TCP to it.
 
@@ -33,6 +35,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use crate::io::serial::{DataBits, Parity, SerialError, SerialFraming, StopBits};
 use serde::Deserialize;
 use tokio_modbus::client::{Context, Reader as _, Writer as _};
 use tokio_modbus::slave::Slave;
@@ -46,6 +49,13 @@ pub enum ModbusError {
         target: String,
         #[source]
         source: std::io::Error,
+    },
+    /// The RTU serial port would not open (in use by another program, missing, refused).
+    #[error("modbus {peripheral}: {source}")]
+    Serial {
+        peripheral: String,
+        #[source]
+        source: SerialError,
     },
     #[error("modbus {peripheral}: {operation} failed: {source}")]
     Transport {
@@ -72,6 +82,7 @@ impl ModbusError {
     pub fn is_recoverable(&self) -> bool {
         match self {
             ModbusError::Invalid { .. } => false,
+            ModbusError::Serial { source: SerialError::PathNotUtf8 { .. }, .. } => false,
             ModbusError::Replayed { recoverable, .. } => *recoverable,
             _ => true,
         }
@@ -155,6 +166,12 @@ pub struct RawModbusPeripheral {
     pub device: Option<PathBuf>,
     /// RTU: baud rate (default 19200, the Modbus default).
     pub baud: Option<u32>,
+    /// RTU: data bits, 7 or 8 (default 8).
+    pub data_bits: Option<u8>,
+    /// RTU: `even` (default, Modbus RTU's default), `odd` or `none`.
+    pub parity: Option<String>,
+    /// RTU: stop bits, 1 (default) or 2 (the Modbus standard's choice with no parity).
+    pub stop_bits: Option<u8>,
     /// Unit (slave) id, default 1.
     pub unit: Option<u8>,
     pub timeout_ms: Option<u64>,
@@ -174,7 +191,7 @@ pub enum ModbusTransport {
     },
     Rtu {
         device: PathBuf,
-        baud: u32,
+        framing: SerialFraming,
     },
     /// A simulated device; [`crate::rigs::Rig::open`] starts it on loopback and replaces this
     /// with the [`Tcp`](Self::Tcp) address it listens on.
@@ -218,8 +235,8 @@ impl ModbusPeripheralConfig {
                 ModbusTransport::Tcp { address }
             }
             Some("rtu") => ModbusTransport::Rtu {
-                device: raw.device.ok_or_else(|| invalid("device", "is required for transport rtu (e.g. /dev/ttyUSB1)".into()))?,
-                baud: raw.baud.unwrap_or(19_200),
+                framing: rtu_framing(&raw).map_err(|(field, problem)| invalid(field, problem))?,
+                device: raw.device.clone().ok_or_else(|| invalid("device", "is required for transport rtu (e.g. /dev/ttyUSB1)".into()))?,
             },
             Some("sim") => {
                 let device = match raw.sim.as_deref() {
@@ -237,6 +254,11 @@ impl ModbusPeripheralConfig {
             }
             other => return Err(invalid("transport", format!("must be tcp, rtu or sim, got {other:?}"))),
         };
+        if !matches!(transport, ModbusTransport::Rtu { .. })
+            && (raw.baud.is_some() || raw.data_bits.is_some() || raw.parity.is_some() || raw.stop_bits.is_some())
+        {
+            return Err(invalid("transport", "is not rtu, so baud, data_bits, parity and stop_bits do not apply".into()));
+        }
         if !matches!(transport, ModbusTransport::Sim { .. })
             && (raw.sim.is_some() || raw.sim_stiffness_n_per_mm.is_some() || raw.sim_stop_answering_after.is_some())
         {
@@ -269,12 +291,42 @@ impl ModbusPeripheralConfig {
     }
 }
 
+/// The serial framing of `[modbus.<name>]`, Modbus RTU's defaults (19200 Bd, 8E1) for what is
+/// left out; `Err((field, problem))` for a value no UART offers.
+fn rtu_framing(raw: &RawModbusPeripheral) -> Result<SerialFraming, (&'static str, String)> {
+    let default = SerialFraming::MODBUS_RTU;
+    let baud = raw.baud.unwrap_or(default.baud);
+    if !(50..=4_000_000).contains(&baud) {
+        return Err(("baud", format!("must be 50..=4000000 Bd, got {baud}")));
+    }
+    let data_bits = match raw.data_bits {
+        None => default.data_bits,
+        Some(8) => DataBits::Eight,
+        Some(7) => DataBits::Seven,
+        Some(other) => return Err(("data_bits", format!("must be 7 or 8, got {other}"))),
+    };
+    let parity = match raw.parity.as_deref() {
+        None => default.parity,
+        Some("even") => Parity::Even,
+        Some("odd") => Parity::Odd,
+        Some("none") => Parity::None,
+        Some(other) => return Err(("parity", format!("must be even, odd or none, got {other:?}"))),
+    };
+    let stop_bits = match raw.stop_bits {
+        None => default.stop_bits,
+        Some(1) => StopBits::One,
+        Some(2) => StopBits::Two,
+        Some(other) => return Err(("stop_bits", format!("must be 1 or 2, got {other}"))),
+    };
+    Ok(SerialFraming { baud, data_bits, parity, stop_bits })
+}
+
 impl ModbusPeripheralConfig {
     /// `force (sim force sensor, required)`: one line for the start-up banner.
     pub fn describe(&self) -> String {
         let transport = match &self.transport {
             ModbusTransport::Tcp { address } => format!("tcp {address}"),
-            ModbusTransport::Rtu { device, baud } => format!("rtu {} {baud} Bd", device.display()),
+            ModbusTransport::Rtu { device, framing } => format!("rtu {} {framing}", device.display()),
             ModbusTransport::Sim { device: SimPeripheralKind::ForceSensor { .. }, .. } => "sim force sensor".into(),
             ModbusTransport::Sim { device: SimPeripheralKind::Illumination, .. } => "sim light".into(),
         };
@@ -485,8 +537,9 @@ async fn open_context(config: &ModbusPeripheralConfig) -> Result<Context, Modbus
                 .map_err(|e| connect_err(address.clone(), e))?;
             Ok(tokio_modbus::client::tcp::attach_slave(stream, slave))
         }
-        ModbusTransport::Rtu { device, baud } => {
-            let port = crate::io::serial::AsyncSerial::open(device, *baud).map_err(|e| connect_err(device.display().to_string(), e))?;
+        ModbusTransport::Rtu { device, framing } => {
+            let port = crate::io::serial::open_async(device, framing)
+                .map_err(|source| ModbusError::Serial { peripheral: config.name.clone(), source })?;
             Ok(tokio_modbus::client::rtu::attach_slave(port, slave))
         }
         ModbusTransport::Sim { .. } => Err(ModbusError::Invalid {
@@ -740,22 +793,100 @@ mod tests {
         exercise(&mut p, &b).await;
     }
 
-    #[cfg(unix)]
-    #[tokio::test]
-    async fn rtu_peripheral_over_a_pseudo_terminal() {
+    /// rig opens the pty's slave end as its RTU port, through the config and the real open
+    /// path; tokio-modbus's RTU server answers on the master end. A pty carries bytes, not
+    /// parity, so what is checked is what rig asked the driver for: the tty's termios, read
+    /// back through the test's own fd on the same tty.
+    #[cfg(target_os = "linux")]
+    async fn rtu_round_trip_with_framing(framing_toml: &str) -> libc::termios2 {
         let pty = crate::io::serial::PtyPair::open().unwrap();
         let b = bank();
-        // The device opens the slave end as its serial port; rig talks through the master.
-        let server = tokio_modbus::server::rtu::Server::new_from_path(&pty.slave_path, 19_200).unwrap();
+        let server = tokio_modbus::server::rtu::Server::new(pty.master_async().unwrap());
         let served = b.clone();
-        tokio::spawn(async move {
+        let server = tokio::spawn(async move {
             let _ = server.serve_forever(served).await;
         });
-        let port = crate::io::serial::AsyncSerial::from_fd(pty.master.try_clone().unwrap()).unwrap();
-        let cfg = config("force", ModbusTransport::Rtu { device: pty.slave_path.clone(), baud: 19_200 });
-        let ctx = tokio_modbus::client::rtu::attach_slave(port, Slave(cfg.unit));
-        let mut p = ModbusPeripheral::attach(cfg, ctx);
+        let text = format!("transport = \"rtu\"\ndevice = {:?}\n{framing_toml}", pty.slave_path.display().to_string());
+        let raw: RawModbusPeripheral = toml::from_str(&text).unwrap();
+        let resolved = ModbusPeripheralConfig::resolve("force", raw).unwrap();
+        let cfg =
+            ModbusPeripheralConfig { transport: resolved.transport, ..config("force", ModbusTransport::Tcp { address: String::new() }) };
+        let mut p = ModbusPeripheral::connect(cfg.clone()).await.unwrap();
         exercise(&mut p, &b).await;
+        // While rig holds the port, nobody else opens it.
+        let ModbusTransport::Rtu { framing, .. } = &cfg.transport else { unreachable!() };
+        let e = crate::io::serial::open_async(&pty.slave_path, framing).unwrap_err();
+        assert!(matches!(e, SerialError::Busy { .. }), "{e}");
+        let e = ModbusPeripheral::connect(cfg).await.err().expect("a second peripheral on the same port");
+        assert!(matches!(e, ModbusError::Serial { source: SerialError::Busy { .. }, .. }) && e.is_recoverable(), "{e}");
+        assert!(e.to_string().contains("in use by another program"), "{e}");
+        let termios = crate::io::serial::read_termios2(&pty.slave);
+        server.abort();
+        termios
+    }
+
+    /// Linux's pty driver (`pty_set_termios` in drivers/tty/pty.c) forces CS8 and clears PARENB
+    /// on whatever is asked of a pty, so there the parity request is read from the input
+    /// flags `serialport` sets with it: INPCK (check parity) for even and odd, IGNPAR for none;
+    /// PARODD, CSTOPB and the exact speed are kept as asked. On a tty that keeps PARENB (a real
+    /// UART) it is checked too.
+    #[cfg(target_os = "linux")]
+    fn assert_framing(t: &libc::termios2, baud: u32, parity: Option<bool>, cstopb: bool) {
+        let (parity_enabled, parodd) = (parity.is_some(), parity == Some(true));
+        assert_eq!((t.c_ispeed, t.c_ospeed), (baud, baud), "speed");
+        assert_eq!(t.c_cflag & libc::CBAUD, libc::BOTHER, "an exact rate, not a B-constant");
+        assert_eq!(t.c_cflag & libc::CSIZE, libc::CS8, "8 data bits");
+        assert_eq!(t.c_iflag & libc::INPCK != 0, parity_enabled, "INPCK (parity checked on input)");
+        assert_eq!(t.c_iflag & libc::IGNPAR != 0, !parity_enabled, "IGNPAR");
+        if t.c_cflag & libc::PARENB != 0 || !parity_enabled {
+            assert_eq!(t.c_cflag & libc::PARENB != 0, parity_enabled, "PARENB");
+        }
+        assert_eq!(t.c_cflag & libc::PARODD != 0, parodd, "PARODD");
+        assert_eq!(t.c_cflag & libc::CSTOPB != 0, cstopb, "CSTOPB");
+        assert_eq!(t.c_cflag & libc::CRTSCTS, 0, "no hardware flow control");
+        assert_eq!(t.c_iflag & (libc::IXON | libc::IXOFF), 0, "no software flow control");
+        assert_eq!(t.c_lflag & (libc::ICANON | libc::ECHO | libc::ISIG), 0, "raw");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[tokio::test]
+    async fn rtu_over_a_pty_defaults_to_19200_8e1() {
+        let t = rtu_round_trip_with_framing("").await;
+        assert_framing(&t, 19_200, Some(false), false);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[tokio::test]
+    async fn rtu_over_a_pty_at_8o1() {
+        let t = rtu_round_trip_with_framing("baud = 9600\nparity = \"odd\"\n").await;
+        assert_framing(&t, 9_600, Some(true), false);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[tokio::test]
+    async fn rtu_over_a_pty_at_8n2() {
+        let t = rtu_round_trip_with_framing("baud = 38400\ndata_bits = 8\nparity = \"none\"\nstop_bits = 2\n").await;
+        assert_framing(&t, 38_400, None, true);
+    }
+
+    #[test]
+    fn rtu_framing_is_validated() {
+        let resolve = |extra: &str| {
+            let raw: RawModbusPeripheral = toml::from_str(&format!("transport = \"rtu\"\ndevice = \"/dev/ttyUSB1\"\n{extra}")).unwrap();
+            ModbusPeripheralConfig::resolve("x", raw)
+        };
+        let c = resolve("").unwrap();
+        assert_eq!(c.describe(), "x (rtu /dev/ttyUSB1 19200 Bd 8E1 unit 1, required)");
+        let c = resolve("baud = 115200\ndata_bits = 7\nparity = \"odd\"\nstop_bits = 2\n").unwrap();
+        assert!(matches!(c.transport, ModbusTransport::Rtu { framing, .. } if framing.to_string() == "115200 Bd 7O2"));
+        for (bad, field) in
+            [("parity = \"mark\"\n", "parity"), ("data_bits = 9\n", "data_bits"), ("stop_bits = 3\n", "stop_bits"), ("baud = 0\n", "baud")]
+        {
+            let e = resolve(bad).unwrap_err();
+            assert!(matches!(e, ModbusError::Invalid { field: f, .. } if f == field), "{bad}: {e}");
+        }
+        let raw: RawModbusPeripheral = toml::from_str("transport = \"tcp\"\naddress = \"h\"\nparity = \"odd\"\n").unwrap();
+        assert!(matches!(ModbusPeripheralConfig::resolve("x", raw), Err(ModbusError::Invalid { field: "transport", .. })));
     }
 
     #[test]

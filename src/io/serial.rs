@@ -5,18 +5,16 @@
 //! `/dev/ttyACM*` and `/sys/class/tty` itself and reads the USB identity of each port's
 //! parent device from sysfs. [`PtyPair`] wraps `openpty(3)`: the slave end has a path and
 //! behaves like a serial device to the code under test, the master end is the simulated
-//! device. [`AsyncSerial`] puts a tty into raw mode at a baud rate and drives it through
-//! tokio's reactor; it is what the Modbus RTU transport talks over.
+//! device. [`open_async`] opens a port through `serialport`/`tokio-serial` at a
+//! [`SerialFraming`] (baud, data bits, parity, stop bits), raw and exclusive; it is what the
+//! Modbus RTU transport talks over.
 
 use std::fs::File;
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
-use std::pin::Pin;
-use std::task::{Context, Poll, ready};
 
-use tokio::io::unix::AsyncFd;
-use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+pub use serialport::{DataBits, Parity, StopBits};
 
 /// A serial port found on this machine.
 #[derive(Debug, Clone, PartialEq)]
@@ -91,7 +89,7 @@ impl PtyPair {
         }
         // SAFETY: openpty succeeded, so both are fresh fds that nothing else owns.
         let (master, slave) = unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
-        make_raw(slave.as_raw_fd(), None)?;
+        make_raw(slave.as_raw_fd())?;
         // SAFETY: openpty NUL-terminated the name inside the buffer.
         let path = unsafe { std::ffi::CStr::from_ptr(name.as_ptr()) }.to_string_lossy().into_owned();
         Ok(Self { master, slave, slave_path: PathBuf::from(path) })
@@ -103,8 +101,8 @@ impl PtyPair {
     }
 }
 
-/// Raw mode (cfmakeraw), optionally at a baud rate, applied now.
-fn make_raw(fd: libc::c_int, baud: Option<u32>) -> io::Result<()> {
+/// Raw mode (cfmakeraw), applied now: the pty's slave end carries bytes unchanged.
+fn make_raw(fd: libc::c_int) -> io::Result<()> {
     // SAFETY: termios is plain data; tcgetattr fills it for a valid fd or fails.
     let mut t: libc::termios = unsafe { std::mem::zeroed() };
     if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
@@ -113,14 +111,6 @@ fn make_raw(fd: libc::c_int, baud: Option<u32>) -> io::Result<()> {
     // SAFETY: t came from tcgetattr.
     unsafe { libc::cfmakeraw(&mut t) };
     t.c_cflag |= libc::CLOCAL | libc::CREAD;
-    if let Some(baud) = baud {
-        let speed =
-            baud_constant(baud).ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("unsupported baud rate {baud}")))?;
-        // SAFETY: valid termios and a speed constant.
-        if unsafe { libc::cfsetspeed(&mut t, speed) } != 0 {
-            return Err(io::Error::last_os_error());
-        }
-    }
     // SAFETY: valid fd and termios.
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
         return Err(io::Error::last_os_error());
@@ -128,102 +118,101 @@ fn make_raw(fd: libc::c_int, baud: Option<u32>) -> io::Result<()> {
     Ok(())
 }
 
-fn baud_constant(baud: u32) -> Option<libc::speed_t> {
-    Some(match baud {
-        1200 => libc::B1200,
-        2400 => libc::B2400,
-        4800 => libc::B4800,
-        9600 => libc::B9600,
-        19200 => libc::B19200,
-        38400 => libc::B38400,
-        57600 => libc::B57600,
-        115200 => libc::B115200,
-        230400 => libc::B230400,
-        460800 => libc::B460800,
-        921600 => libc::B921600,
-        _ => return None,
+/// Speed and character framing of a serial line, as rig asks the driver for them.
+///
+/// Modbus RTU's default (Modbus over Serial Line V1.02, section 2.5.1) is even parity with one
+/// stop bit, and 19200 Bd is the rate every device must offer: [`SerialFraming::MODBUS_RTU`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SerialFraming {
+    pub baud: u32,
+    pub data_bits: DataBits,
+    pub parity: Parity,
+    pub stop_bits: StopBits,
+}
+
+impl SerialFraming {
+    /// 19200 Bd, 8 data bits, even parity, 1 stop bit (8E1).
+    pub const MODBUS_RTU: Self = Self { baud: 19_200, data_bits: DataBits::Eight, parity: Parity::Even, stop_bits: StopBits::One };
+
+    /// `8E1`, `8N2`: data bits, parity letter, stop bits.
+    pub fn character_format(&self) -> String {
+        let parity = match self.parity {
+            Parity::None => 'N',
+            Parity::Even => 'E',
+            Parity::Odd => 'O',
+        };
+        format!("{}{parity}{}", u8::from(self.data_bits), u8::from(self.stop_bits))
+    }
+}
+
+impl std::fmt::Display for SerialFraming {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} Bd {}", self.baud, self.character_format())
+    }
+}
+
+/// Errors opening a serial port.
+#[derive(Debug, thiserror::Error)]
+pub enum SerialError {
+    /// Another process (or another part of rig) holds the port: rig opens ports exclusively
+    /// (`TIOCEXCL` and an exclusive `flock`), so two programs never interleave frames.
+    #[error("serial port {path} is in use by another program (rig opens serial ports exclusively): {source}")]
+    Busy {
+        path: PathBuf,
+        #[source]
+        source: serialport::Error,
+    },
+    #[error("cannot open serial port {path} at {framing}: {source}")]
+    Open {
+        path: PathBuf,
+        framing: SerialFraming,
+        #[source]
+        source: serialport::Error,
+    },
+    #[error("serial port path {path:?} is not valid UTF-8")]
+    PathNotUtf8 { path: PathBuf },
+}
+
+/// Opens `path` (e.g. `/dev/ttyUSB0`) raw at `framing`, exclusively, with no flow control, as
+/// a tokio stream (the Modbus RTU transport). Call inside a runtime. A second open of the
+/// same port, by rig or by any program that honours `TIOCEXCL` or `flock`, fails with
+/// [`SerialError::Busy`].
+pub fn open_async(path: &Path, framing: &SerialFraming) -> Result<tokio_serial::SerialStream, SerialError> {
+    let name = path.to_str().ok_or_else(|| SerialError::PathNotUtf8 { path: path.to_path_buf() })?;
+    let builder = serialport::new(name, framing.baud)
+        .data_bits(framing.data_bits)
+        .parity(framing.parity)
+        .stop_bits(framing.stop_bits)
+        .flow_control(serialport::FlowControl::None)
+        .exclusive(true);
+    tokio_serial::SerialStream::open(&builder).map_err(|source| match source.kind {
+        // serialport reports EBUSY from open(2) under TIOCEXCL, and a held flock, as NoDevice.
+        serialport::ErrorKind::NoDevice => SerialError::Busy { path: path.to_path_buf(), source },
+        _ => SerialError::Open { path: path.to_path_buf(), framing: *framing, source },
     })
 }
 
-/// A tty in raw mode driven by tokio (non-blocking fd registered with the reactor).
-pub struct AsyncSerial {
-    fd: AsyncFd<OwnedFd>,
-}
-
-impl AsyncSerial {
-    /// Opens `path` (e.g. `/dev/ttyUSB0` or a pty slave) raw at `baud`. Call inside a runtime.
-    pub fn open(path: &Path, baud: u32) -> io::Result<Self> {
-        let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes())
-            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path contains NUL"))?;
-        // SAFETY: a valid C string; the flags make the fd non-blocking and not our controlling tty.
-        let raw = unsafe { libc::open(c_path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC) };
-        if raw < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: open succeeded; we own the fd now.
-        let fd = unsafe { OwnedFd::from_raw_fd(raw) };
-        make_raw(fd.as_raw_fd(), Some(baud))?;
-        Self::from_fd(fd)
-    }
-
-    /// Wraps an fd that is already configured; it is switched to non-blocking.
-    pub fn from_fd(fd: OwnedFd) -> io::Result<Self> {
-        // SAFETY: fcntl on a valid fd.
-        let flags = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_GETFL) };
-        if flags < 0 || unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
-            return Err(io::Error::last_os_error());
-        }
-        // SAFETY: an OwnedFd stays open and keeps its number until the AsyncFd drops it.
-        let fd = unsafe { AsyncFd::register(fd) }?;
-        Ok(Self { fd })
+impl PtyPair {
+    /// The master (device) side as a tokio stream, for a simulated device such as
+    /// tokio-modbus's RTU server. Call inside a runtime.
+    pub fn master_async(&self) -> io::Result<tokio_serial::SerialStream> {
+        let fd = self.master.try_clone()?;
+        // SAFETY: `fd` is a fresh duplicate that nothing else owns; TTYPort takes it over and
+        // closes it on drop.
+        let port = unsafe { serialport::TTYPort::from_raw_fd(fd.into_raw_fd()) };
+        tokio_serial::SerialStream::try_from(port).map_err(io::Error::from)
     }
 }
 
-impl AsyncRead for AsyncSerial {
-    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
-        loop {
-            let mut guard = ready!(self.fd.poll_read_ready(cx))?;
-            let unfilled = buf.initialize_unfilled();
-            let result = guard.try_io(|fd| {
-                // SAFETY: reading into an initialised buffer of the given length.
-                let n = unsafe { libc::read(fd.as_raw_fd(), unfilled.as_mut_ptr().cast(), unfilled.len()) };
-                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
-            });
-            match result {
-                Ok(Ok(n)) => {
-                    buf.advance(n);
-                    return Poll::Ready(Ok(()));
-                }
-                // A pty master whose slave closed reports EIO: that is end of stream.
-                Ok(Err(e)) if e.raw_os_error() == Some(libc::EIO) => return Poll::Ready(Ok(())),
-                Ok(Err(e)) => return Poll::Ready(Err(e)),
-                Err(_would_block) => continue,
-            }
-        }
-    }
-}
-
-impl AsyncWrite for AsyncSerial {
-    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
-        loop {
-            let mut guard = ready!(self.fd.poll_write_ready(cx))?;
-            let result = guard.try_io(|fd| {
-                // SAFETY: writing from a valid slice.
-                let n = unsafe { libc::write(fd.as_raw_fd(), data.as_ptr().cast(), data.len()) };
-                if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n as usize) }
-            });
-            match result {
-                Ok(r) => return Poll::Ready(r),
-                Err(_would_block) => continue,
-            }
-        }
-    }
-    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Poll::Ready(Ok(()))
-    }
-    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Poll::Ready(Ok(()))
-    }
+/// Test support: what the driver holds for a tty, read back through `TCGETS2` (the call
+/// `serialport` sets speeds with on Linux, so `c_ospeed` is the rate in Bd).
+#[cfg(all(test, target_os = "linux"))]
+pub(crate) fn read_termios2(fd: &impl AsRawFd) -> libc::termios2 {
+    // SAFETY: termios2 is plain data; TCGETS2 fills it for a valid tty fd or fails.
+    let mut t: libc::termios2 = unsafe { std::mem::zeroed() };
+    let rc = unsafe { libc::ioctl(fd.as_raw_fd(), libc::TCGETS2, &mut t) };
+    assert_eq!(rc, 0, "TCGETS2: {}", io::Error::last_os_error());
+    t
 }
 
 #[cfg(test)]
@@ -263,14 +252,45 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn async_serial_over_a_pty() {
+    async fn open_async_carries_bytes_over_a_pty() {
         use tokio::io::{AsyncReadExt, AsyncWriteExt};
         let pty = PtyPair::open().unwrap();
-        let mut port = AsyncSerial::open(&pty.slave_path, 9600).unwrap();
-        let mut device = AsyncSerial::from_fd(pty.master.try_clone().unwrap()).unwrap();
-        port.write_all(b"\x01\x03\x00\x00").await.unwrap();
+        let mut port = open_async(&pty.slave_path, &SerialFraming::MODBUS_RTU).unwrap();
+        let mut device = pty.master_async().unwrap();
+        AsyncWriteExt::write_all(&mut port, b"\x01\x03\x00\x00").await.unwrap();
         let mut got = [0u8; 4];
-        device.read_exact(&mut got).await.unwrap();
+        AsyncReadExt::read_exact(&mut device, &mut got).await.unwrap();
         assert_eq!(&got, b"\x01\x03\x00\x00");
+        AsyncWriteExt::write_all(&mut device, b"\x0D\x0A\xFF").await.unwrap();
+        let mut got = [0u8; 3];
+        AsyncReadExt::read_exact(&mut port, &mut got).await.unwrap();
+        assert_eq!(&got, b"\x0D\x0A\xFF");
+    }
+
+    #[tokio::test]
+    async fn a_second_open_of_a_port_is_refused_until_the_first_closes() {
+        let pty = PtyPair::open().unwrap();
+        let first = open_async(&pty.slave_path, &SerialFraming::MODBUS_RTU).unwrap();
+        let e = open_async(&pty.slave_path, &SerialFraming::MODBUS_RTU).unwrap_err();
+        assert!(matches!(&e, SerialError::Busy { path, .. } if *path == pty.slave_path), "{e}");
+        assert!(e.to_string().contains("in use by another program"), "{e}");
+        drop(first);
+        open_async(&pty.slave_path, &SerialFraming::MODBUS_RTU).unwrap();
+    }
+
+    #[test]
+    fn framing_names_itself_like_a_datasheet() {
+        assert_eq!(SerialFraming::MODBUS_RTU.to_string(), "19200 Bd 8E1");
+        let f = SerialFraming { baud: 9600, data_bits: DataBits::Seven, parity: Parity::Odd, stop_bits: StopBits::Two };
+        assert_eq!(f.character_format(), "7O2");
+    }
+
+    #[test]
+    fn opening_a_missing_port_names_it_and_the_framing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ttyUSB9");
+        let e = open_async(&path, &SerialFraming::MODBUS_RTU).unwrap_err();
+        assert!(matches!(e, SerialError::Open { .. }), "{e}");
+        assert!(e.to_string().contains("ttyUSB9") && e.to_string().contains("19200 Bd 8E1"), "{e}");
     }
 }

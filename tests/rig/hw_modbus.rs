@@ -1,6 +1,6 @@
 //! Opt-in checks against a real Modbus peripheral. Run with
 //! `RIG_MODBUS_TCP=192.168.1.50:502 cargo test --test rig hw_modbus:: -- --ignored --nocapture` or
-//! `RIG_MODBUS_RTU=/dev/ttyUSB1 RIG_MODBUS_BAUD=19200 ...`; `RIG_MODBUS_UNIT` (default 1) and
+//! `RIG_MODBUS_RTU=/dev/ttyUSB1 RIG_MODBUS_BAUD=19200 ...` (8E1, Modbus RTU's default); `RIG_MODBUS_UNIT` (default 1) and
 //! `RIG_MODBUS_REGISTER` (default 0, a holding register) pick what is read. Nothing is written
 //! unless `RIG_MODBUS_WRITE=<register>=<value>` is set: then the capture-cycle test writes it
 //! before the "capture" and writes back the value it read first afterwards (a light level,
@@ -18,7 +18,8 @@ fn config() -> ModbusPeripheralConfig {
         ModbusTransport::Tcp { address }
     } else if let Ok(device) = std::env::var("RIG_MODBUS_RTU") {
         let baud = std::env::var("RIG_MODBUS_BAUD").map_or(19_200, |b| b.parse().expect("RIG_MODBUS_BAUD"));
-        ModbusTransport::Rtu { device: device.into(), baud }
+        let framing = rig::io::serial::SerialFraming { baud, ..rig::io::serial::SerialFraming::MODBUS_RTU };
+        ModbusTransport::Rtu { device: device.into(), framing }
     } else {
         panic!("set RIG_MODBUS_TCP=host:port or RIG_MODBUS_RTU=/dev/ttyUSBn")
     };

@@ -13,6 +13,7 @@ mod daemon_api;
 mod daemon_browser;
 mod dataset_kill;
 mod fault_matrix;
+mod fresh_frames;
 mod hostile;
 mod hw_camera;
 mod hw_magician;

@@ -14,6 +14,12 @@
 //! With the scene's `stale_frame` stage the camera hands out what it saw one frame period
 //! before the end of the exposure (a buffer that was not flushed), stamped as the new frame.
 //!
+//! With a stale buffer ([`SimCamera::with_stale_buffer`], `[sim] stale_buffer_frames`) the
+//! camera models a driver queue: up to N frames, one frame period apart, exposed before the
+//! request and since the previous frame, wait in front of the fresh ones. [`Camera::frame_after`]
+//! hands them through the same [`StaleFrameFilter`] a hardware backend uses, so frames exposed
+//! before the instant asked for are discarded and counted (`stale_discarded`).
+//!
 //! It renders a frame only when one is asked for, so it has no stream to measure:
 //! [`Camera::stream_stats`] counts the frames it rendered, none dropped, and gives its frame
 //! rate as nominal ([`StreamOrigin::Simulated`]), never as measured.
@@ -26,7 +32,7 @@ use tokio::sync::watch;
 
 use super::stages::mix64;
 use super::{MotionState, SensorSim, Stage};
-use crate::camera::{Camera, CameraError, Frame, StreamOrigin, StreamStats};
+use crate::camera::{Camera, CameraError, Frame, StaleFrameFilter, StreamOrigin, StreamStats};
 use crate::clock::Clock;
 use crate::geometry::DepthMap;
 use crate::pose::{Pose, WorkFrame};
@@ -56,6 +62,11 @@ pub struct SimCamera {
     timeout: Duration,
     seq: u64,
     taken_at_pose: HashMap<[i64; 4], u64>,
+    /// Frames the modelled driver queue holds at most (0: no queue).
+    stale_buffer_frames: u32,
+    /// End of the last frame's exposure, rig clock: the queue fills from there.
+    last_frame_end_s: Option<f64>,
+    stale: StaleFrameFilter,
 }
 
 impl std::fmt::Debug for SimCamera {
@@ -95,12 +106,22 @@ impl SimCamera {
             timeout: DEFAULT_TIMEOUT,
             seq: 0,
             taken_at_pose: HashMap::new(),
+            stale_buffer_frames: 0,
+            last_frame_end_s: None,
+            stale: StaleFrameFilter::default(),
         }
     }
 
     /// Sets the exposure time (clamped to `0..=frame period`).
     pub fn with_exposure_s(mut self, exposure_s: f64) -> Self {
         self.exposure_s = if exposure_s.is_finite() { exposure_s.clamp(0.0, self.frame_period_s) } else { self.exposure_s };
+        self
+    }
+
+    /// Models a driver queue of up to `frames` frames exposed before each request (see the
+    /// module docs).
+    pub fn with_stale_buffer(mut self, frames: u32) -> Self {
+        self.stale_buffer_frames = frames;
         self
     }
 
@@ -177,6 +198,20 @@ impl Camera for SimCamera {
     async fn frame_after(&mut self, not_before_s: f64) -> Result<Frame, CameraError> {
         let started = tokio::time::Instant::now();
         let now = self.clock.now_s();
+        // The queue: frames exposed one period apart, the newest ending now, none before the
+        // previous frame's end. They come first and are kept only if the rule admits them.
+        let queued = match self.last_frame_end_s {
+            Some(last_end) => (((now - last_end) / self.frame_period_s).floor().max(0.0) as u64).min(u64::from(self.stale_buffer_frames)),
+            None => u64::from(self.stale_buffer_frames),
+        };
+        for k in (0..queued).rev() {
+            let queued_end = now - k as f64 * self.frame_period_s;
+            if self.stale.admit(queued_end - self.exposure_s, not_before_s) {
+                // Fresh enough: deliver it (seen as the arm is now; it stood still since).
+                let seen = self.read_truth();
+                return Ok(self.render(seen, seen, queued_end));
+            }
+        }
         let t0 = if not_before_s.is_finite() { not_before_s.max(now) } else { now };
         let mut t_end = t0 + self.exposure_s;
 
@@ -201,7 +236,25 @@ impl Camera for SimCamera {
         };
         self.wait_until(t_end, started).await?;
         let (start, seen) = if self.sim.runs(Stage::StaleFrame) { (start, seen) } else { (start, self.read_truth()) };
+        Ok(self.render(start, seen, t_end))
+    }
 
+    fn stream_stats(&self) -> Option<StreamStats> {
+        Some(StreamStats {
+            frames_received: self.seq,
+            frames_dropped: 0,
+            timed_frames: 0,
+            timed_s: 0.0,
+            stale_discarded: self.stale.discarded(),
+            origin: StreamOrigin::Simulated { nominal_fps: 1.0 / self.frame_period_s },
+        })
+    }
+}
+
+impl SimCamera {
+    /// Renders the frame whose exposure ends at `t_end`, from the truths at its start and
+    /// end.
+    fn render(&mut self, start: ArmTruth, seen: ArmTruth, t_end: f64) -> Frame {
         let object_pose = self.object_pose(&seen.pose);
         let start_pose = self.object_pose(&start.pose);
         let (dx, dy) = (object_pose.x_mm - start_pose.x_mm, object_pose.y_mm - start_pose.y_mm);
@@ -218,16 +271,7 @@ impl Camera for SimCamera {
         let image = self.sim.render(&depth, &motion, key);
         let seq = self.seq;
         self.seq += 1;
-        Ok(Frame { image, t_capture_s: t_end - self.exposure_s / 2.0, seq })
-    }
-
-    fn stream_stats(&self) -> Option<StreamStats> {
-        Some(StreamStats {
-            frames_received: self.seq,
-            frames_dropped: 0,
-            timed_frames: 0,
-            timed_s: 0.0,
-            origin: StreamOrigin::Simulated { nominal_fps: 1.0 / self.frame_period_s },
-        })
+        self.last_frame_end_s = Some(t_end);
+        Frame { image, t_capture_s: t_end - self.exposure_s / 2.0, seq }
     }
 }
