@@ -422,7 +422,9 @@ impl Classify for crate::jobs::JobError {
             J::Settings(e) => e.exit(),
             J::Replay(e) => e.exit(),
             J::SensorNotOpen { .. } => Exit::BadInput,
-            J::SaveCalibration { .. } | J::Worker { .. } => Exit::Failure,
+            // Every scoring error is bad input: datasets missing, unpaired or inconsistent.
+            J::Audit { .. } => Exit::BadInput,
+            J::SaveCalibration { .. } | J::Worker { .. } | J::AuditWrite { .. } => Exit::Failure,
         }
     }
 }
