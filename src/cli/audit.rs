@@ -27,7 +27,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Exit 1 when the mean contact-region SSIM (RGB) is below this bound.
-    #[arg(long, value_name = "X")]
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
     pub min_ssim: Option<f64>,
     /// The object's STL file, when the dataset's object is not in the object library.
     #[arg(long)]
