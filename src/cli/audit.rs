@@ -9,7 +9,8 @@ use clap::Args as ClapArgs;
 
 use crate::config::RigConfig;
 use crate::jobs::collect::SensorFeed;
-use crate::jobs::{AuditRequest, Observer};
+use super::shared::absolute;
+use crate::jobs::{AuditRequest, JobRequest, Observer};
 use crate::rigs::Rig;
 use crate::sensor::SensorSet;
 
@@ -41,6 +42,8 @@ pub struct Args {
     /// Print the draw and check it against the workspace, move nothing.
     #[arg(long)]
     pub dry_run: bool,
+    #[command(flatten)]
+    pub daemon: crate::cli::daemon::DaemonTarget,
 }
 
 impl Args {
@@ -59,6 +62,15 @@ impl Args {
 
 /// Runs `rig audit`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.daemon.daemon.is_some() {
+        if args.dry_run || args.config.is_some() {
+            bail!(crate::cli::usage("--daemon runs the job on the daemon's rig: --dry-run and --config apply to a standalone run only"));
+        }
+        let mut request = args.request();
+        request.dataset = absolute(&request.dataset);
+        request.stl = request.stl.as_deref().map(absolute);
+        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Audit(request));
+    }
     if !args.dataset.is_dir() {
         bail!(crate::cli::usage(&format!("--dataset {}: no such directory", args.dataset.display())));
     }

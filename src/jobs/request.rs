@@ -43,15 +43,18 @@ pub enum JobRequest {
     Synth(FillRequest),
     /// `rig calibrate` (automatic presses).
     Calibrate(CalibrateRequest),
+    /// `rig audit`.
+    Audit(AuditRequest),
 }
 
 impl JobRequest {
-    /// `collect`, `synth` or `calibrate`.
+    /// `collect`, `synth`, `calibrate` or `audit`.
     pub fn kind(&self) -> &'static str {
         match self {
             JobRequest::Collect(_) => "collect",
             JobRequest::Synth(_) => "synth",
             JobRequest::Calibrate(_) => "calibrate",
+            JobRequest::Audit(_) => "audit",
         }
     }
 
@@ -63,6 +66,7 @@ impl JobRequest {
             JobRequest::Collect(r) => r.check(),
             JobRequest::Synth(r) => r.check(),
             JobRequest::Calibrate(r) => r.check(),
+            JobRequest::Audit(r) => r.check(),
         }
     }
 
@@ -78,6 +82,7 @@ impl JobRequest {
             JobRequest::Collect(r) => r.confine(&read),
             JobRequest::Synth(r) => r.confine(&read),
             JobRequest::Calibrate(r) => r.confine(roots),
+            JobRequest::Audit(r) => r.confine(&read),
         }
     }
 }
