@@ -7,9 +7,9 @@ use std::sync::Arc;
 use anyhow::{Context, bail};
 use clap::Args as ClapArgs;
 
+use super::shared::absolute;
 use crate::config::RigConfig;
 use crate::jobs::collect::SensorFeed;
-use super::shared::absolute;
 use crate::jobs::{AuditRequest, JobRequest, Observer};
 use crate::rigs::Rig;
 use crate::sensor::SensorSet;
@@ -105,7 +105,8 @@ async fn run_async(args: Args, config: RigConfig) -> anyhow::Result<()> {
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let peripherals = std::mem::take(&mut rig.peripherals);
-    let outcome = crate::jobs::audit::run(&prepared, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), Observer { progress, cancel }).await;
+    let outcome =
+        crate::jobs::audit::run(&prepared, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), Observer { progress, cancel }).await;
     rig.shutdown().await;
     let outcome = outcome?;
     println!("{}", outcome.collected.line("the same rig audit command"));

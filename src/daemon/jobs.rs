@@ -137,9 +137,11 @@ async fn run_audit(request: &AuditRequest, ctx: RigContext<'_>) -> Result<JobEnd
         return Ok(JobEnd { message: collected.line("the same audit job"), cancelled: true, done });
     }
     let for_scoring = prepared.clone();
-    let scored = tokio::task::spawn_blocking(move || crate::jobs::audit::score(&for_scoring))
+    // Boxed across the thread: the job error is large.
+    let scored = tokio::task::spawn_blocking(move || crate::jobs::audit::score(&for_scoring).map_err(Box::new))
         .await
-        .map_err(|e| JobError::Worker { reason: e.to_string() })??;
+        .map_err(|e| JobError::Worker { reason: e.to_string() })?
+        .map_err(|e| *e)?;
     let mut message = scored.summary.lines().join("; ");
     if scored.passed == Some(false) {
         message += "; below --min-ssim";

@@ -307,10 +307,8 @@ impl AuditSummary {
         ];
         for (name, figure, k) in figures {
             match figure {
-                Some(f) => out.push(format!(
-                    "  {name}: {:.k$} [{:.k$}, {:.k$}] (95% interval, n {})",
-                    f.mean, f.interval95[0], f.interval95[1], f.n
-                )),
+                Some(f) => out
+                    .push(format!("  {name}: {:.k$} [{:.k$}, {:.k$}] (95% interval, n {})", f.mean, f.interval95[0], f.interval95[1], f.n)),
                 None => out.push(format!("  {name}: n/a")),
             }
         }

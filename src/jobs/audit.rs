@@ -50,7 +50,8 @@ pub const WORST_POSES: usize = 4;
 /// The synthetic pose ids of `rows` (each once, in id order), and the seeded draw of
 /// `fraction` of them (at least one when there is any), in id order.
 pub fn draw(rows: &[PoseRow], fraction: f64, seed: u64) -> (Vec<u32>, Vec<u32>) {
-    let ids: Vec<u32> = rows.iter().filter(|r| r.source == Source::Synthetic).map(|r| r.pose_id).collect::<BTreeSet<u32>>().into_iter().collect();
+    let ids: Vec<u32> =
+        rows.iter().filter(|r| r.source == Source::Synthetic).map(|r| r.pose_id).collect::<BTreeSet<u32>>().into_iter().collect();
     if ids.is_empty() {
         return (ids, Vec::new());
     }
@@ -301,14 +302,7 @@ fn report_markdown(
         "{} of the dataset's {} synthesised poses (fraction {}, seed {}) collected again on the rig into `{}/{}/{}`, \
          each synthesised image judged against the captured one at {} px. Intervals: 95% bootstrap of the mean over the poses \
          that have the figure. MultiDiffSense's definition: both images grey (Rec. 601 luma) and each min-max scaled onto 0..255.\n\n",
-        summary.audited_poses,
-        summary.synthetic_poses,
-        r.fraction,
-        r.seed,
-        AUDIT_DIR,
-        prepared.object.name,
-        prepared.sensor,
-        r.size_px,
+        summary.audited_poses, summary.synthetic_poses, r.fraction, r.seed, AUDIT_DIR, prepared.object.name, prepared.sensor, r.size_px,
     );
     s += &scores.totals_markdown();
     if let (Some(bound), Some(ok)) = (r.min_ssim, passed) {

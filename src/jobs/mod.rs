@@ -33,7 +33,9 @@ use std::path::PathBuf;
 
 use tokio::sync::watch;
 
-pub use request::{AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name};
+pub use request::{
+    AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name,
+};
 
 impl JobError {
     /// An option the command would reject (exit code 2), refused after the request's own
