@@ -42,7 +42,7 @@ impl Exit {
             Exit::Success => "success",
             Exit::Failure => {
                 "general failure: a full disk, a dataset held by another process, an internal error, `rig dataset verify` \
-                 finding a dataset not clean"
+                 finding a dataset not clean, `rig audit` below its `--min-ssim`"
             }
             Exit::BadInput => {
                 "bad input: command line, rig config, plan, object/STL, calibration, firmware profile, model package \
@@ -462,7 +462,9 @@ impl Classify for crate::jobs::JobError {
             J::Settings(e) => e.exit(),
             J::Replay(e) => e.exit(),
             J::SensorNotOpen { .. } => Exit::BadInput,
-            J::SaveCalibration { .. } | J::Worker { .. } => Exit::Failure,
+            // Every scoring error is bad input: datasets missing, unpaired or inconsistent.
+            J::Audit { .. } => Exit::BadInput,
+            J::SaveCalibration { .. } | J::Worker { .. } | J::AuditWrite { .. } => Exit::Failure,
         }
     }
 }

@@ -81,6 +81,10 @@ fn paths(request: &JobRequest) -> Vec<(&Path, bool)> {
             out.extend(r.out.as_deref().map(|p| (p, false)));
         }
         JobRequest::Calibrate(r) => out.extend(r.out.as_deref().map(|p| (p, false))),
+        JobRequest::Audit(r) => {
+            out.push((r.dataset.as_path(), true));
+            out.extend(r.stl.as_deref().map(|p| (p, true)));
+        }
     }
     out
 }

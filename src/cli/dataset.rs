@@ -114,6 +114,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         DatasetCommand::Verify { dir } => {
             let report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
             println!("{}: {report}", dir.display());
+            if let Ok(Manifest { audit: Some(audit), .. }) = Manifest::load(&dir) {
+                for line in audit.lines() {
+                    println!("{line}");
+                }
+            }
             if !report.is_clean() {
                 bail!("{} is not clean ({} issues)", dir.display(), report.issues.len());
             }

@@ -142,6 +142,12 @@ Examples:
   rig eval --real test --synthetic twins --collected datasets
   rig eval --real test --synthetic twins --collected datasets --markdown eval.md --json eval.json";
 
+/// `rig audit`.
+pub const AUDIT: &str = "\
+Examples:
+  rig audit --dataset datasets/sphere/tactip
+  rig audit --dataset datasets/sphere/tactip --fraction 0.2 --seed 3 --min-ssim 0.5";
+
 /// `rig replay`.
 pub const REPLAY: &str = "\
 Examples:

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser, Subcommand};
 
+pub mod audit;
 pub mod bench;
 pub mod calibrate;
 pub mod collect;
@@ -80,6 +81,10 @@ pub enum Command {
     /// pose-blind and nearest-neighbour baselines.
     #[command(after_help = examples::EVAL)]
     Eval(eval::Args),
+    /// Collect a seeded share of a dataset's synthesised poses again and judge the synthesised
+    /// images against the captured ones (SSIM, PSNR, pose recoverability, intervals).
+    #[command(after_help = examples::AUDIT)]
+    Audit(audit::Args),
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
     #[command(after_help = examples::REPLAY)]
     Replay(replay::Args),
@@ -116,6 +121,7 @@ pub fn main() -> ExitCode {
         Command::Objects(args) => objects::run(args),
         Command::CompareReal(args) => compare::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Audit(args) => audit::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Calibrate(args) => calibrate::run(args),

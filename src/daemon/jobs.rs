@@ -17,7 +17,7 @@ use crate::config::RigConfig;
 use crate::geometry::objects::ObjectChoice;
 use crate::jobs::calibrate::CalibrateOutcome;
 use crate::jobs::collect::SensorFeed;
-use crate::jobs::{CalibrateRequest, CollectRequest, FillRequest};
+use crate::jobs::{AuditRequest, CalibrateRequest, CollectRequest, FillRequest};
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::plan::PlannedPose;
 use crate::rigs::{Rig, RigError};
@@ -70,6 +70,7 @@ pub async fn run_job(request: &JobRequest, ctx: RigContext<'_>) -> Result<JobEnd
         JobRequest::Collect(r) => run_collect(r, ctx).await,
         JobRequest::Synth(r) => run_synth(r, ctx).await,
         JobRequest::Calibrate(r) => run_calibrate(r, ctx).await,
+        JobRequest::Audit(r) => run_audit(r, ctx).await,
     }
 }
 
@@ -103,6 +104,49 @@ async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<Jo
     let outcome = crate::jobs::collect::run(setup, &mut live_arm, feeds, peripherals, clock, observer, None).await?;
     let s = &outcome.summary;
     Ok(JobEnd { message: outcome.line("resume"), cancelled: s.interrupted, done: Some((s.skipped + s.captured) as u64) })
+}
+
+/// An audit on the open rig: its dataset's sensor must be open; the drawn poses are collected
+/// like a collection job's, then scored on a blocking thread.
+async fn run_audit(request: &AuditRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
+    let observer = ctx.observer();
+    let RigContext { rig, config, clock, state, .. } = ctx;
+    let prepared = request.prepare(config)?;
+    let opened = sensor_names(rig);
+    if !rig.cameras.iter().any(|c| c.kind() == prepared.sensor) {
+        return Err(JobError::SensorNotOpen { sensor: prepared.sensor, opened }.into());
+    }
+    rig.set_object(config, &prepared.object)?;
+    let Rig { arm, cameras, peripherals, .. } = rig;
+    let feeds: Vec<_> = cameras
+        .iter_mut()
+        .filter(|c| c.kind() == prepared.sensor)
+        .map(|camera| SensorFeed {
+            sensor: camera.kind(),
+            calibration: camera.calibration_name(),
+            capture: camera.capture_part(),
+            camera: LiveCamera { camera, state: Arc::clone(&state) },
+        })
+        .collect();
+    let setup = &prepared.setup;
+    let mut live_arm = LiveArm::new(arm, Arc::clone(&state), &setup.poses, &setup.work_frame);
+    let collected = crate::jobs::collect::run(setup, &mut live_arm, feeds, peripherals, clock, observer, None).await?;
+    let s = &collected.summary;
+    let done = Some((s.skipped + s.captured) as u64);
+    if s.interrupted {
+        return Ok(JobEnd { message: collected.line("the same audit job"), cancelled: true, done });
+    }
+    let for_scoring = prepared.clone();
+    // Boxed across the thread: the job error is large.
+    let scored = tokio::task::spawn_blocking(move || crate::jobs::audit::score(&for_scoring).map_err(Box::new))
+        .await
+        .map_err(|e| JobError::Worker { reason: e.to_string() })?
+        .map_err(|e| *e)?;
+    let mut message = scored.summary.lines().join("; ");
+    if scored.passed == Some(false) {
+        message += "; below --min-ssim";
+    }
+    Ok(JobEnd { message, cancelled: false, done })
 }
 
 async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {

@@ -323,6 +323,78 @@ pub struct Manifest {
     /// no rig captured (synthesised, imported).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capture: Option<CaptureChain>,
+    /// The last `rig audit` of this dataset's synthetic poses (`rig dataset verify` prints it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub audit: Option<AuditSummary>,
+}
+
+/// A figure of an audit: its mean over the audited poses with a 95% bootstrap interval, over
+/// the `n` poses that have it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AuditFigure {
+    pub n: usize,
+    pub mean: f64,
+    pub interval95: [f64; 2],
+}
+
+/// What `rig audit` wrote into the audited dataset's manifest: which synthesised poses were
+/// collected again on the rig (`audit/` beside the rows) and how the synthesised images compare
+/// with the captured ones.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AuditSummary {
+    /// UTC time the audit finished, RFC 3339.
+    pub utc: String,
+    /// Share of the synthetic poses drawn, and the seed of the draw.
+    pub fraction: f64,
+    pub seed: u64,
+    /// Synthetic poses in the dataset, and how many were audited.
+    pub synthetic_poses: usize,
+    pub audited_poses: usize,
+    /// Contact-region SSIM on raw RGB (rig's definition), the headline figure.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_ssim: Option<AuditFigure>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_psnr_db: Option<AuditFigure>,
+    /// Whole-frame SSIM on grey images, each min-max scaled (MultiDiffSense's definition).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mds_ssim: Option<AuditFigure>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mds_psnr_db: Option<AuditFigure>,
+    /// Contact position recovered from the synthesised image against the commanded pose, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_err_mm: Option<AuditFigure>,
+    /// The `--min-ssim` bound checked against `contact_ssim`'s mean, if one was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_ssim: Option<f64>,
+}
+
+impl AuditSummary {
+    /// One line per figure, as `rig dataset verify` and `rig audit` print them.
+    pub fn lines(&self) -> Vec<String> {
+        let mut out = vec![format!(
+            "audit {}: {} of {} synthetic poses collected again (fraction {}, seed {})",
+            self.utc, self.audited_poses, self.synthetic_poses, self.fraction, self.seed
+        )];
+        let figures = [
+            ("contact SSIM (RGB)", self.contact_ssim, 3),
+            ("contact PSNR dB (RGB)", self.contact_psnr_db, 2),
+            ("SSIM (grey, min-max; MultiDiffSense)", self.mds_ssim, 3),
+            ("PSNR dB (grey, min-max; MultiDiffSense)", self.mds_psnr_db, 2),
+            ("position error mm", self.position_err_mm, 2),
+        ];
+        for (name, figure, k) in figures {
+            match figure {
+                Some(f) => out
+                    .push(format!("  {name}: {:.k$} [{:.k$}, {:.k$}] (95% interval, n {})", f.mean, f.interval95[0], f.interval95[1], f.n)),
+                None => out.push(format!("  {name}: n/a")),
+            }
+        }
+        if let (Some(bound), Some(f)) = (self.min_ssim, self.contact_ssim) {
+            let verdict = if f.mean >= bound { "passed" } else { "FAILED" };
+            out.push(format!("  --min-ssim {bound}: {verdict}"));
+        }
+        out
+    }
 }
 
 impl Manifest {
@@ -340,6 +412,7 @@ impl Manifest {
             plan,
             work_frame: None,
             capture: None,
+            audit: None,
         }
     }
 

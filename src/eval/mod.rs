@@ -55,9 +55,12 @@
 //! - [`judge`] judges one pair: every method's figures and pose errors.
 //! - [`report`] writes [`EvalReport`] as Markdown, JSON and CSV.
 //! - [`run`] is the run, [`evaluate()`] with its [`EvalOptions`].
+//! - [`audit`] scores a dataset's synthesised poses against the same poses collected again
+//!   (`rig audit`), with MultiDiffSense's grey min-max SSIM and PSNR beside rig's.
 //! - [`compare_real`] scores rendered frames against real frames of logged poses, beside the
 //!   pose-blind baseline (`rig compare-real`).
 
+pub mod audit;
 pub mod baselines;
 pub mod compare_real;
 pub mod contact;

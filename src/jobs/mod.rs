@@ -6,6 +6,7 @@
 //! | fill | [`FillRequest`] | [`fill::run`] | `rig synth --fill-missing` / `--poses-of`, daemon `synth` |
 //! | replay | a recording's header ([`replay::setup_of`]) | [`replay::run`] (over [`collect::run`]) | `rig replay` |
 //! | calibrate | [`CalibrateRequest`] | [`calibrate::run`] | `rig calibrate`, daemon `calibrate`, `rig bench` |
+//! | audit | [`AuditRequest`] | [`audit::run`] (over [`collect::run`]), then [`audit::score`] | `rig audit` |
 //!
 //! A request is a serde type ([`request`]): the CLI turns its clap arguments into one, the
 //! daemon deserialises the same type from a job's JSON ([`JobRequest`]), and replay and bench
@@ -21,6 +22,7 @@
 // errors whole (unboxed) so that the exit-code table can find them by type in the chain.
 #![allow(clippy::result_large_err)]
 
+pub mod audit;
 pub mod calibrate;
 pub mod collect;
 pub mod fill;
@@ -31,7 +33,9 @@ use std::path::PathBuf;
 
 use tokio::sync::watch;
 
-pub use request::{CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name};
+pub use request::{
+    AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name,
+};
 
 impl JobError {
     /// An option the command would reject (exit code 2), refused after the request's own
@@ -115,6 +119,15 @@ pub enum JobError {
     SensorNotOpen { sensor: crate::sensor::SensorKind, opened: String },
     #[error("{0}")]
     Replay(#[from] crate::record::replay::ReplayError),
+    /// Scoring an audit: the datasets could not be paired or read.
+    #[error("scoring the audit of {dataset}: {source}")]
+    Audit {
+        dataset: PathBuf,
+        #[source]
+        source: crate::eval::EvalError,
+    },
+    #[error("writing {path}: {reason}")]
+    AuditWrite { path: PathBuf, reason: String },
     #[error("the synth worker thread stopped: {reason}")]
     Worker { reason: String },
 }

@@ -43,15 +43,18 @@ pub enum JobRequest {
     Synth(FillRequest),
     /// `rig calibrate` (automatic presses).
     Calibrate(CalibrateRequest),
+    /// `rig audit`.
+    Audit(AuditRequest),
 }
 
 impl JobRequest {
-    /// `collect`, `synth` or `calibrate`.
+    /// `collect`, `synth`, `calibrate` or `audit`.
     pub fn kind(&self) -> &'static str {
         match self {
             JobRequest::Collect(_) => "collect",
             JobRequest::Synth(_) => "synth",
             JobRequest::Calibrate(_) => "calibrate",
+            JobRequest::Audit(_) => "audit",
         }
     }
 
@@ -63,6 +66,7 @@ impl JobRequest {
             JobRequest::Collect(r) => r.check(),
             JobRequest::Synth(r) => r.check(),
             JobRequest::Calibrate(r) => r.check(),
+            JobRequest::Audit(r) => r.check(),
         }
     }
 
@@ -78,6 +82,7 @@ impl JobRequest {
             JobRequest::Collect(r) => r.confine(&read),
             JobRequest::Synth(r) => r.confine(&read),
             JobRequest::Calibrate(r) => r.confine(roots),
+            JobRequest::Audit(r) => r.confine(&read),
         }
     }
 }
@@ -349,5 +354,61 @@ impl CalibrateRequest {
     /// Where the calibration is saved.
     pub fn out_path(&self) -> PathBuf {
         self.out.clone().unwrap_or_else(|| self.sensor.calibration_path())
+    }
+}
+
+/// An audit of a dataset's synthesised poses: the options of `rig audit` (see its `--help`).
+/// Fields left out take these defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AuditRequest {
+    /// The dataset (`.../<object>/<sensor>`) whose synthetic rows are audited.
+    pub dataset: PathBuf,
+    /// Share of its synthetic poses to collect again, above 0 and at most 1 (at least one pose).
+    pub fraction: f64,
+    /// Seed of the draw.
+    pub seed: u64,
+    /// Fail (exit 1) when the mean contact-region SSIM is below this bound.
+    pub min_ssim: Option<f64>,
+    /// The object's STL file, when the dataset's object is not in the object library.
+    pub stl: Option<PathBuf>,
+    /// Every image is resized to this many pixels square before it is measured.
+    pub size_px: u32,
+}
+
+impl Default for AuditRequest {
+    fn default() -> Self {
+        Self { dataset: PathBuf::from("datasets"), fraction: 0.1, seed: 0, min_ssim: None, stl: None, size_px: 128 }
+    }
+}
+
+/// Largest measuring size of an audit, px.
+pub const MAX_AUDIT_SIZE_PX: u32 = 1024;
+
+impl AuditRequest {
+    /// Checks the numbers: fraction in (0, 1], `min_ssim` in [-1, 1], size 11 to
+    /// [`MAX_AUDIT_SIZE_PX`].
+    pub fn check(&self) -> Result<(), RequestError> {
+        let bad = |field, reason: String| Err(RequestError::BadOption { field, reason });
+        if !(self.fraction.is_finite() && self.fraction > 0.0 && self.fraction <= 1.0) {
+            return bad("fraction", format!("{}: must be above 0 and at most 1", self.fraction));
+        }
+        if let Some(m) = self.min_ssim
+            && !(m.is_finite() && (-1.0..=1.0).contains(&m))
+        {
+            return bad("min_ssim", format!("{m}: SSIM lies in [-1, 1]"));
+        }
+        if !(11..=MAX_AUDIT_SIZE_PX).contains(&self.size_px) {
+            return bad("size_px", format!("{}: must be 11 (the SSIM window) to {MAX_AUDIT_SIZE_PX}", self.size_px));
+        }
+        Ok(())
+    }
+
+    /// Resolves `dataset` and `stl` (read) inside `roots`; the audit folder is written inside
+    /// the dataset.
+    pub fn confine(&mut self, read: &Reader<'_>) -> Result<(), RequestError> {
+        self.dataset = read.input("dataset", &self.dataset)?;
+        confine_opt(&mut self.stl, |p| read.input("stl", p))?;
+        Ok(())
     }
 }

@@ -72,6 +72,7 @@ fn paths(request: &JobRequest) -> Vec<PathBuf> {
                 .collect()
         }
         JobRequest::Calibrate(r) => r.out.clone().into_iter().collect(),
+        JobRequest::Audit(r) => [Some(r.dataset.clone()), r.stl.clone()].into_iter().flatten().collect(),
     }
 }
 
@@ -114,11 +115,12 @@ fn run(fixture: &Fixture, json: &[u8]) -> u8 {
 }
 
 /// Valid jobs of each kind, the starting points of the mutations.
-const SEEDS: [&str; 4] = [
+const SEEDS: [&str; 5] = [
     r#"{"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 3, "seed": 1, "out": "ds", "resume": true}"#,
     r#"{"kind": "synth", "dataset": "ds/edge/tactip", "shard": "1/2", "out": "new", "steps": 4, "guidance": 1.5, "eta": 0.2, "sampler": "ddim", "image_range": "minmax", "batch": 2, "limit": 3}"#,
     r#"{"kind": "calibrate", "sensor": "vitac", "out": "cal/vitac.toml", "grid": 3, "span_mm": 2.0, "depths_mm": [-0.5, 0.5]}"#,
     r#"{"kind": "synth", "poses_of": "ds", "out": "twins", "twin_size": "model"}"#,
+    r#"{"kind": "audit", "dataset": "ds/edge/tactip", "fraction": 0.2, "seed": 3, "min_ssim": 0.5, "size_px": 64}"#,
 ];
 
 proptest! {
@@ -131,7 +133,7 @@ proptest! {
     }
 
     #[test]
-    fn mutated_jobs_never_panic(which in 0usize..4, edits in prop::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..6)) {
+    fn mutated_jobs_never_panic(which in 0usize..5, edits in prop::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..6)) {
         let fixture = Fixture::new();
         run(&fixture, &mutate(SEEDS[which].as_bytes(), &edits));
     }

@@ -3,6 +3,7 @@
 //! One test binary per area; run one module with
 //! `cargo test --test synth <module>::`.
 
+mod audit;
 mod eval;
 mod mds_parity;
 mod synth_device;
