@@ -99,8 +99,8 @@ pub fn score_audit(dataset: &Path, audit_dataset: &Path, size_px: u32) -> Result
         let synth_row = synthetic.iter().find(|s| s.pose_id == r.pose_id && s.source == crate::dataset::Source::Synthetic);
         let real_row = captured.iter().find(|s| s.pose_id == r.pose_id && s.source.is_captured());
         if let (Some(s), Some(c)) = (synth_row, real_row) {
-            let a = load_at(&dataset.join(&s.image), size_px)?;
-            let b = load_at(&audit_dataset.join(&c.image), size_px)?;
+            let a = load_at(dataset, &s.image, size_px)?;
+            let b = load_at(audit_dataset, &c.image, size_px)?;
             if let Ok((ssim, psnr_db)) = mds_ssim_psnr(&b, &a) {
                 mds_ssim = Some(ssim);
                 mds_psnr_db = Some(psnr_db);
@@ -222,7 +222,7 @@ pub fn worst_poses_panel(dataset: &Path, audit_dataset: &Path, worst: &[&AuditPo
         let rows = read_rows(dir).map_err(|source| EvalError::Dataset { dir: dir.to_path_buf(), source })?;
         let row = rows.iter().find(|r| r.pose_id == pose_id && (r.source == crate::dataset::Source::Synthetic) == synthetic);
         match row {
-            Some(r) => load_at(&dir.join(&r.image), size_px),
+            Some(r) => load_at(dir, &r.image, size_px),
             None => Ok(RgbImage::new(size_px, size_px)),
         }
     };
