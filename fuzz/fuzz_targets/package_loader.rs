@@ -21,6 +21,8 @@ mod model_toml;
 mod scheduler;
 #[path = "../../src/synth/settings.rs"]
 mod settings;
+#[path = "../../src/synth/tokenizer_json.rs"]
+mod tokenizer_json;
 #[path = "../../src/untrusted.rs"]
 mod untrusted;
 
@@ -59,9 +61,16 @@ fn schedule(bytes: &[u8], config: Option<&model_toml::ModelConfig>) {
 
 fn tokenizer(bytes: &[u8], end_token: &str) {
     use tokenizers::{
-        PaddingDirection, PaddingParams, PaddingStrategy, Tokenizer, TruncationDirection, TruncationParams, TruncationStrategy,
+        PaddingDirection, PaddingParams, PaddingStrategy, TruncationDirection, TruncationParams, TruncationStrategy,
     };
-    let Ok(mut tokenizer) = Tokenizer::from_bytes(bytes) else { return };
+    // rig reads the file through `tokenizer_json::parse`, which turns a panic inside the crate
+    // into a refusal; libFuzzer's panic hook aborts at once, so the default hook stands in while
+    // it runs (any panic outside the guard still aborts).
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let parsed = tokenizer_json::parse(bytes);
+    std::panic::set_hook(hook);
+    let Ok(mut tokenizer) = parsed else { return };
     let Some(end_id) = tokenizer.token_to_id(end_token) else { return };
     let truncation = TruncationParams {
         direction: TruncationDirection::Right,

@@ -38,6 +38,7 @@ pub mod runtime;
 pub mod scheduler;
 pub mod settings;
 pub mod text;
+pub mod tokenizer_json;
 
 use std::path::PathBuf;
 

@@ -47,7 +47,7 @@ impl PromptTokenizer {
             reason: crate::untrusted::sanitise(&e.to_string()),
         };
         let bytes = crate::untrusted::read_bytes(path, MAX_TOKENIZER_BYTES).map_err(|e| bad(&e))?;
-        let mut tokenizer = Tokenizer::from_bytes(&bytes).map_err(|e| bad(&e))?;
+        let mut tokenizer = super::tokenizer_json::parse(&bytes).map_err(|e| bad(&e))?;
         let end_id = tokenizer
             .token_to_id(end_token)
             .ok_or_else(|| SynthError::NoEndToken { path: path.to_path_buf(), token: end_token.to_string() })?;
