@@ -67,15 +67,17 @@ impl PromptTokenizer {
             pad_type_id: 0,
             pad_token: end_token.to_string(),
         }));
-        Ok(Self { tokenizer, sequence_len, end_id, path: path.to_path_buf() })
+        let loaded = Self { tokenizer, sequence_len, end_id, path: path.to_path_buf() };
+        // One encode at load: a tokenizer the crate cannot run is refused with the package,
+        // not at the first prompt of a job.
+        loaded.ids("a")?;
+        Ok(loaded)
     }
 
     /// The ids of one prompt, exactly `sequence_len` long.
     pub fn ids(&self, prompt: &str) -> Result<Vec<u32>, SynthError> {
-        let enc = self
-            .tokenizer
-            .encode(prompt, true)
-            .map_err(|e| SynthError::Tokenizer { path: self.path.clone(), reason: crate::untrusted::sanitise(&e.to_string()) })?;
+        let enc = super::tokenizer_json::encode(&self.tokenizer, prompt)
+            .map_err(|e| SynthError::Tokenizer { path: self.path.clone(), reason: crate::untrusted::sanitise(&e) })?;
         let mut ids = enc.get_ids().to_vec();
         // Fixed padding and truncation already give this length; keep the invariant explicit
         // for tokenizers whose post-processor adds more than truncation reserved.
