@@ -13,11 +13,11 @@
 //! A slowloris (a head sent a byte at a time, or never finished) holds one connection for
 //! [`HEADER_TIMEOUT`] at most, and thousands of them hold at most [`MAX_CONNECTIONS`]. A
 //! client that asks and never reads holds one for [`WRITE_TIMEOUT`] once its socket buffers
-//! are full ([`ConnIo`]).
+//! are full (`ConnIo`).
 //!
 //! hyper answers a request it cannot parse itself, before any handler runs (400 for a bad
 //! request line or header, 414 for a long target, 431 for a head over [`MAX_HEAD_BYTES`]),
-//! with an empty body; [`ConnIo`] rewrites those answers as the JSON `{"error": "..."}` every
+//! with an empty body; `ConnIo` rewrites those answers as the JSON `{"error": "..."}` every
 //! other error has.
 
 use std::future::Future;
