@@ -20,7 +20,8 @@ use crate::jobs::collect::SensorFeed;
 use crate::jobs::{AuditRequest, CalibrateRequest, CollectRequest, FillRequest};
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::plan::PlannedPose;
-use crate::rigs::{Rig, RigError};
+use crate::rigs::{Rig, RigCamera, RigError};
+use crate::sensor::SensorKind;
 use crate::synth::{Pipeline, RuntimeOptions};
 
 /// What the worker gives a job: the opened rig and what it was opened with.
@@ -78,6 +79,25 @@ fn sensor_names(rig: &Rig) -> String {
     rig.cameras.iter().map(|c| c.sensor_dir()).collect::<Vec<_>>().join(",")
 }
 
+/// The open cameras a job uses (`wanted` picks them by sensor), each shown on the live page as
+/// it captures.
+fn live_feeds<'a>(
+    cameras: &'a mut [RigCamera],
+    state: &Arc<DaemonState>,
+    wanted: impl Fn(SensorKind) -> bool,
+) -> Vec<SensorFeed<LiveCamera<'a>>> {
+    cameras
+        .iter_mut()
+        .filter(|c| wanted(c.kind()))
+        .map(|camera| SensorFeed {
+            sensor: camera.kind(),
+            calibration: camera.calibration_name(),
+            capture: camera.capture_part(),
+            camera: LiveCamera { camera, state: Arc::clone(state) },
+        })
+        .collect()
+}
+
 async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
     let observer = ctx.observer();
     let RigContext { rig, config, clock, state, .. } = ctx;
@@ -89,16 +109,7 @@ async fn run_collect(request: &CollectRequest, ctx: RigContext<'_>) -> Result<Jo
     rig.set_object(config, &prepared.object)?;
 
     let Rig { arm, cameras, peripherals, .. } = rig;
-    let feeds: Vec<_> = cameras
-        .iter_mut()
-        .filter(|c| prepared.sensors.contains(c.kind()))
-        .map(|camera| SensorFeed {
-            sensor: camera.kind(),
-            calibration: camera.calibration_name(),
-            capture: camera.capture_part(),
-            camera: LiveCamera { camera, state: Arc::clone(&state) },
-        })
-        .collect();
+    let feeds = live_feeds(cameras, &state, |kind| prepared.sensors.contains(kind));
     let setup = &prepared.setup;
     let mut live_arm = LiveArm::new(arm, Arc::clone(&state), &setup.poses, &setup.work_frame);
     let outcome = crate::jobs::collect::run(setup, &mut live_arm, feeds, peripherals, clock, observer, None).await?;
@@ -118,16 +129,7 @@ async fn run_audit(request: &AuditRequest, ctx: RigContext<'_>) -> Result<JobEnd
     }
     rig.set_object(config, &prepared.object)?;
     let Rig { arm, cameras, peripherals, .. } = rig;
-    let feeds: Vec<_> = cameras
-        .iter_mut()
-        .filter(|c| c.kind() == prepared.sensor)
-        .map(|camera| SensorFeed {
-            sensor: camera.kind(),
-            calibration: camera.calibration_name(),
-            capture: camera.capture_part(),
-            camera: LiveCamera { camera, state: Arc::clone(&state) },
-        })
-        .collect();
+    let feeds = live_feeds(cameras, &state, |kind| kind == prepared.sensor);
     let setup = &prepared.setup;
     let mut live_arm = LiveArm::new(arm, Arc::clone(&state), &setup.poses, &setup.work_frame);
     let collected = crate::jobs::collect::run(setup, &mut live_arm, feeds, peripherals, clock, observer, None).await?;
