@@ -314,8 +314,9 @@ pub fn synthesise_poses_of(
         resumed_utc: Vec::new(),
         ended_utc: None,
         rig_version: crate::version().to_string(),
-        // The twins are synthesised: no sensor captured them.
+        // The twins are synthesised: no sensor captured them, and no audit has judged them.
         capture: None,
+        audit: None,
         ..source_manifest.clone()
     };
     let mut writer = DatasetWriter::resume(out, manifest)?;

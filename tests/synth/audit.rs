@@ -100,6 +100,14 @@ fn audit_collects_a_seeded_share_scores_it_and_writes_the_summary() {
     let mut v = rig();
     v.args(["dataset", "verify"]).arg(&audit_ds);
     ok(v);
+    // Synthetic twins of the audited dataset are not what the audit judged: their manifest
+    // carries no audit summary.
+    let twins = ds.parent().expect("object folder").parent().expect("datasets").join("twins");
+    let mut t = rig();
+    t.args(["synth", "--steps", "1", "--poses-of"]).arg(&ds).arg("--out").arg(&twins);
+    ok(t);
+    let twin_manifest = std::fs::read_to_string(twins.join("manifest.toml")).expect("twins' manifest");
+    assert!(!twin_manifest.contains("[audit]"), "{twin_manifest}");
 
     // The same draw again: nothing to collect, the same poses scored.
     let again = ok(audit(&ds, &["--fraction", "0.5", "--seed", "3"]));
