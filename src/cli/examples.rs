@@ -139,8 +139,8 @@ Examples:
 pub const EVAL: &str = "\
 Examples:
   rig synth --poses-of test --out twins
-  rig eval --real test --synthetic twins --collected datasets
-  rig eval --real test --synthetic twins --collected datasets --markdown eval.md --json eval.json";
+  rig eval --real test --synthetic twins --collected datasets --markdown eval.md --json eval.json
+  rig eval --downstream datasets --markdown downstream.md --json downstream.json";
 
 /// `rig audit`.
 pub const AUDIT: &str = "\

@@ -78,7 +78,8 @@ pub enum Command {
     #[command(after_help = examples::COMPARE_REAL)]
     CompareReal(compare::Args),
     /// Judge synthetic images against real ones (SSIM, PSNR, MSE, pose recoverability) beside
-    /// pose-blind and nearest-neighbour baselines.
+    /// pose-blind and nearest-neighbour baselines; or, with --downstream, train pose regressors
+    /// on real, mixed and synthetic rows and score them on held-out real rows.
     #[command(after_help = examples::EVAL)]
     Eval(eval::Args),
     /// Collect a seeded share of a dataset's synthesised poses again and judge the synthesised

@@ -57,6 +57,9 @@
 //! - [`run`] is the run, [`evaluate()`] with its [`EvalOptions`].
 //! - [`audit`] scores a dataset's synthesised poses against the same poses collected again
 //!   (`rig audit`), with MultiDiffSense's grey min-max SSIM and PSNR beside rig's.
+//! - [`regressor`] is the pose regressor (ResNet18's layout, candle) and its training;
+//!   [`downstream`] is MultiDiffSense's downstream protocol on it (`rig eval --downstream`):
+//!   trained on captured, mixed and synthetic rows, scored on held-out captured rows.
 //! - [`compare_real`] scores rendered frames against real frames of logged poses, beside the
 //!   pose-blind baseline (`rig compare-real`).
 
@@ -64,10 +67,12 @@ pub mod audit;
 pub mod baselines;
 pub mod compare_real;
 pub mod contact;
+pub mod downstream;
 pub mod error;
 pub mod judge;
 pub mod pairing;
 pub mod records;
+pub mod regressor;
 pub mod report;
 pub mod run;
 pub mod statistics;

@@ -192,6 +192,14 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             2,
             "--daemon runs only --fill-missing",
         ),
+        case("downstream table of a folder with no dataset", &["eval", "--downstream", "not-a-dataset"], 2, "no dataset under"),
+        case("downstream table from too few captured rows", &["eval", "--downstream", "ds", "--sets", "real"], 2, "collect more poses"),
+        case(
+            "downstream training on CUDA in a CPU build",
+            &["eval", "--downstream", "ds", "--device", "cuda"],
+            2,
+            "built without CUDA training",
+        ),
     ];
 
     let mut table = vec!["| bad input | command | rig says | exit |".to_string(), "|---|---|---|---|".to_string()];

@@ -4,6 +4,7 @@
 //! `cargo test --test synth <module>::`.
 
 mod audit;
+mod downstream;
 mod eval;
 mod mds_parity;
 mod synth_device;
