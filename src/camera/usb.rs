@@ -235,6 +235,16 @@ pub fn video_node_of(nodes: &[VideoNode], selector: &DeviceSelector) -> Result<(
 
 /// USB devices libusb can see; empty when libusb cannot run here. Strings (serial, product)
 /// need the device opened, which may be refused without permissions; they are then `None`.
+#[cfg(not(target_os = "linux"))]
+pub fn list_usb_devices() -> Vec<UsbIdentity> {
+    // libusb is built on Linux only, where USB identities bind cameras to sensors; nokhwa on
+    // macOS and Windows picks cameras by index.
+    Vec::new()
+}
+
+/// USB devices libusb can see; empty when libusb cannot run here. Strings (serial, product)
+/// need the device opened, which may be refused without permissions; they are then `None`.
+#[cfg(target_os = "linux")]
 pub fn list_usb_devices() -> Vec<UsbIdentity> {
     use rusb::UsbContext;
     let Ok(context) = rusb::Context::new() else { return Vec::new() };

@@ -39,6 +39,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+#[cfg(feature = "synth")]
 use ort::value::{TensorElementType, ValueType};
 use sha2::{Digest, Sha256};
 
@@ -203,6 +204,7 @@ fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathB
     Ok(())
 }
 
+#[cfg(feature = "synth")]
 /// One input or output of a model as the session reports it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TensorSpec {
@@ -212,6 +214,7 @@ pub struct TensorSpec {
     pub shape: Vec<i64>,
 }
 
+#[cfg(feature = "synth")]
 /// The inputs and outputs of one model file.
 #[derive(Debug, Clone)]
 pub struct ModelIo {
@@ -220,6 +223,7 @@ pub struct ModelIo {
     pub outputs: Vec<TensorSpec>,
 }
 
+#[cfg(feature = "synth")]
 /// Element types a contract tensor may have.
 #[derive(Debug, Clone, Copy)]
 pub enum Accept {
@@ -230,6 +234,7 @@ pub enum Accept {
     Number,
 }
 
+#[cfg(feature = "synth")]
 impl Accept {
     fn allows(self, ty: TensorElementType) -> bool {
         use TensorElementType as T;
@@ -248,6 +253,7 @@ impl Accept {
     }
 }
 
+#[cfg(feature = "synth")]
 fn specs(file: &Path, direction: &'static str, outlets: &[ort::value::Outlet]) -> Result<Vec<TensorSpec>, SynthError> {
     outlets
         .iter()
@@ -264,6 +270,7 @@ fn specs(file: &Path, direction: &'static str, outlets: &[ort::value::Outlet]) -
         .collect()
 }
 
+#[cfg(feature = "synth")]
 impl ModelIo {
     /// Reads the inputs and outputs of a session made from `file`.
     pub fn of(file: &Path, session: &ort::session::Session) -> Result<Self, SynthError> {

@@ -31,22 +31,34 @@
 //! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`. [`raw_to_rgb8`] also
 //! maps it the way MultiDiffSense saves images ([`ImageRange::MinMax`]).
 
+#[cfg(feature = "synth")]
 use std::ops::Range;
+#[cfg(feature = "synth")]
 use std::path::{Path, PathBuf};
+#[cfg(feature = "synth")]
 use std::time::Instant;
 
 use image::RgbImage;
+#[cfg(feature = "synth")]
 use ort::session::{IoBinding, Session};
 use rand_chacha::ChaCha8Rng;
-use rand_chacha::rand_core::{Rng, SeedableRng};
+use rand_chacha::rand_core::Rng;
+#[cfg(feature = "synth")]
+use rand_chacha::rand_core::SeedableRng;
 
+#[cfg(feature = "synth")]
 use super::SynthError;
 use super::npy::NpyArray;
+#[cfg(feature = "synth")]
 use super::package::{Accept, ModelIo, ModelPackage, TensorSpec};
+#[cfg(feature = "synth")]
 use super::runtime::{
     Inputs, Runtime, RuntimeOptions, device_memory, f32_tensor, f32_value, host_memory, init_runtime, number_tensor, number_value, run_f32,
 };
-use super::scheduler::{Scheduler, SchedulerKind};
+#[cfg(feature = "synth")]
+use super::scheduler::Scheduler;
+use super::scheduler::SchedulerKind;
+#[cfg(feature = "synth")]
 use super::text::TextEncoder;
 
 /// One image to synthesise.
@@ -95,6 +107,7 @@ impl<'a> GenerateRequest<'a> {
         }
     }
 
+    #[cfg(feature = "synth")]
     fn guided(&self) -> bool {
         self.guidance != 1.0
     }
@@ -150,6 +163,7 @@ pub fn raw_to_rgb8(raw: &[f32], width: u32, height: u32, range: ImageRange) -> R
     }
 }
 
+#[cfg(feature = "synth")]
 /// A session with the file it came from and its checked inputs/outputs.
 struct ModelSession {
     session: Session,
@@ -157,6 +171,7 @@ struct ModelSession {
     io: ModelIo,
 }
 
+#[cfg(feature = "synth")]
 impl ModelSession {
     fn open(runtime: &Runtime, package: &ModelPackage, relative: &str, opts: &RuntimeOptions) -> Result<Self, SynthError> {
         let file = package.file(relative);
@@ -166,6 +181,7 @@ impl ModelSession {
     }
 }
 
+#[cfg(feature = "synth")]
 /// A loaded model package, ready to generate.
 pub struct Pipeline {
     package: ModelPackage,
@@ -222,6 +238,7 @@ impl SynthTiming {
     }
 }
 
+#[cfg(feature = "synth")]
 /// The inputs one step's session calls share: text embeddings `[batch, seq_len, hidden]` and
 /// control images `[batch, 3, h, w]`, and the sizes.
 struct StepShape<'a> {
@@ -235,6 +252,7 @@ struct StepShape<'a> {
     conditioning_scale: f32,
 }
 
+#[cfg(feature = "synth")]
 impl StepShape<'_> {
     fn latent_len(&self) -> usize {
         self.channels * self.latent_hw.0 * self.latent_hw.1
@@ -252,6 +270,7 @@ impl StepShape<'_> {
     }
 }
 
+#[cfg(feature = "synth")]
 /// One call's I/O bindings: text embeddings, control image and conditioning scale bound once
 /// per batch; the ControlNet's residuals stay where the ControlNet wrote them (the device)
 /// and are bound straight into the UNet; the UNet's noise estimate comes back to the host.
@@ -263,6 +282,7 @@ struct BoundCall {
 /// A cancel flag the sampling loop reads between steps (e.g. a job's cancel request).
 pub type CancelCheck = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 
+#[cfg(feature = "synth")]
 impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Pipeline")
@@ -273,8 +293,10 @@ impl std::fmt::Debug for Pipeline {
     }
 }
 
+#[cfg(feature = "synth")]
 const STEP_INPUTS: [&str; 3] = ["sample", "timestep", "encoder_hidden_states"];
 
+#[cfg(feature = "synth")]
 impl Pipeline {
     /// Opens the package at `model_dir`, loads ONNX Runtime and the four models, and checks
     /// every model against the package contract.
@@ -836,6 +858,7 @@ impl Pipeline {
     }
 }
 
+#[cfg(feature = "synth")]
 /// Rows per ControlNet/UNet call: the graphs' fixed batch where they declare one (it must
 /// divide the `batch` rows of a step), half the batch for forced two-pass guidance, else all.
 fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize, guided: bool) -> Result<usize, SynthError> {
@@ -851,6 +874,7 @@ fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize,
     }
 }
 
+#[cfg(feature = "synth")]
 /// Requests that can share session calls.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct BatchKey {
@@ -862,6 +886,7 @@ struct BatchKey {
     size: (u32, u32),
 }
 
+#[cfg(feature = "synth")]
 impl BatchKey {
     fn of(r: &GenerateRequest, native: (u32, u32)) -> Self {
         Self {
@@ -924,6 +949,8 @@ pub fn gaussian(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
 
 #[cfg(test)]
 mod tests {
+    use rand_chacha::rand_core::SeedableRng;
+
     use super::*;
 
     #[test]
@@ -965,6 +992,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "synth")]
     fn a_fixed_batch_of_one_runs_guidance_as_one_row_a_call() {
         // Dynamic graphs: [uncond, cond] of 2 images in one call; forced: two calls of 2.
         assert_eq!(rows_per_call(None, false, 4, true).unwrap(), 4);
