@@ -48,6 +48,10 @@ fn message(stderr: &str, tmp: &Path) -> String {
 }
 
 #[test]
+#[cfg_attr(
+    not(all(feature = "synth", feature = "lerobot")),
+    ignore = "the table has synth and LeRobot cases: it needs the default features"
+)]
 fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();
