@@ -233,12 +233,10 @@ pub fn video_node_of(nodes: &[VideoNode], selector: &DeviceSelector) -> Result<(
     select_video_node(nodes, selector).map(|n| (n.path.clone(), n.usb.clone()))
 }
 
-/// USB devices libusb can see; empty when libusb cannot run here. Strings (serial, product)
-/// need the device opened, which may be refused without permissions; they are then `None`.
+/// Always empty: libusb is built on Linux only, where USB identities bind cameras to sensors;
+/// nokhwa on macOS and Windows picks cameras by index.
 #[cfg(not(target_os = "linux"))]
 pub fn list_usb_devices() -> Vec<UsbIdentity> {
-    // libusb is built on Linux only, where USB identities bind cameras to sensors; nokhwa on
-    // macOS and Windows picks cameras by index.
     Vec::new()
 }
 

@@ -160,8 +160,8 @@ pub fn monotonic_now_s() -> f64 {
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
-#[cfg(target_os = "linux")]
 /// A raw frame as the capture thread publishes it.
+#[cfg(target_os = "linux")]
 #[derive(Debug, Clone)]
 struct RawFrame {
     bytes: Arc<Vec<u8>>,
@@ -224,8 +224,8 @@ pub fn lock_mismatches(settings: &CameraSettings, read: &[(&str, i64)]) -> Vec<S
         .collect()
 }
 
-#[cfg(target_os = "linux")]
 /// A V4L2 camera.
+#[cfg(target_os = "linux")]
 pub struct V4l2Camera {
     name: String,
     path: PathBuf,

@@ -204,8 +204,8 @@ fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathB
     Ok(())
 }
 
-#[cfg(feature = "synth")]
 /// One input or output of a model as the session reports it.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, PartialEq)]
 pub struct TensorSpec {
     pub name: String,
@@ -214,8 +214,8 @@ pub struct TensorSpec {
     pub shape: Vec<i64>,
 }
 
-#[cfg(feature = "synth")]
 /// The inputs and outputs of one model file.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone)]
 pub struct ModelIo {
     pub file: PathBuf,
@@ -223,8 +223,8 @@ pub struct ModelIo {
     pub outputs: Vec<TensorSpec>,
 }
 
-#[cfg(feature = "synth")]
 /// Element types a contract tensor may have.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, Copy)]
 pub enum Accept {
     Float32,

@@ -163,8 +163,8 @@ pub fn raw_to_rgb8(raw: &[f32], width: u32, height: u32, range: ImageRange) -> R
     }
 }
 
-#[cfg(feature = "synth")]
 /// A session with the file it came from and its checked inputs/outputs.
+#[cfg(feature = "synth")]
 struct ModelSession {
     session: Session,
     file: PathBuf,
@@ -181,8 +181,8 @@ impl ModelSession {
     }
 }
 
-#[cfg(feature = "synth")]
 /// A loaded model package, ready to generate.
+#[cfg(feature = "synth")]
 pub struct Pipeline {
     package: ModelPackage,
     runtime: Runtime,
@@ -238,9 +238,9 @@ impl SynthTiming {
     }
 }
 
-#[cfg(feature = "synth")]
 /// The inputs one step's session calls share: text embeddings `[batch, seq_len, hidden]` and
 /// control images `[batch, 3, h, w]`, and the sizes.
+#[cfg(feature = "synth")]
 struct StepShape<'a> {
     ehs: &'a [f32],
     hint: &'a [f32],
@@ -270,10 +270,10 @@ impl StepShape<'_> {
     }
 }
 
-#[cfg(feature = "synth")]
 /// One call's I/O bindings: text embeddings, control image and conditioning scale bound once
 /// per batch; the ControlNet's residuals stay where the ControlNet wrote them (the device)
 /// and are bound straight into the UNet; the UNet's noise estimate comes back to the host.
+#[cfg(feature = "synth")]
 struct BoundCall {
     controlnet: IoBinding,
     unet: IoBinding,
@@ -858,9 +858,9 @@ impl Pipeline {
     }
 }
 
-#[cfg(feature = "synth")]
 /// Rows per ControlNet/UNet call: the graphs' fixed batch where they declare one (it must
 /// divide the `batch` rows of a step), half the batch for forced two-pass guidance, else all.
+#[cfg(feature = "synth")]
 fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize, guided: bool) -> Result<usize, SynthError> {
     match fixed_batch {
         Some(b) if b > 0 && batch.is_multiple_of(b) => Ok(b),
@@ -874,8 +874,8 @@ fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize,
     }
 }
 
-#[cfg(feature = "synth")]
 /// Requests that can share session calls.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct BatchKey {
     steps: usize,

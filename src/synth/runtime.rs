@@ -145,8 +145,8 @@ impl CudaOptions {
     }
 }
 
-#[cfg(feature = "synth")]
 /// The loaded runtime: the library it came from and the shared environment.
+#[cfg(feature = "synth")]
 #[derive(Clone)]
 pub struct Runtime {
     pub library: PathBuf,
@@ -254,9 +254,9 @@ fn check_trusted(library: &Path) -> Result<(), SynthError> {
     Ok(())
 }
 
-#[cfg(feature = "synth")]
 /// Loads ONNX Runtime once per process and returns it. A later call with another library
 /// path gets the library already loaded (a process can hold only one).
+#[cfg(feature = "synth")]
 pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
     if let Some(rt) = RUNTIME.get() {
         return Ok(rt.clone());
