@@ -15,9 +15,10 @@
 
 /// A camera backend this platform does not build: `open` refuses with
 /// [`CameraError::NotBuilt`] (exit 2: the rig config names it), so no value exists and the
-/// rig's camera enum needs no per-platform variants.
+/// rig's camera enum needs no per-platform variants. `$selector` and `$settings` are the
+/// device selector and camera settings types `open` takes, as the real backends do.
 macro_rules! absent_camera {
-    ($camera:ident, $backend:literal, $hint:literal) => {
+    ($camera:ident, $backend:literal, $hint:literal, $selector:ty, $settings:ty) => {
         #[doc = concat!("The `", $backend, "` backend, not built on this platform.")]
         pub struct $camera {
             never: std::convert::Infallible,
@@ -27,8 +28,8 @@ macro_rules! absent_camera {
             /// Always [`CameraError::NotBuilt`](crate::camera::CameraError::NotBuilt).
             pub fn open(
                 name: &str,
-                _selector: &crate::camera::usb::DeviceSelector,
-                _settings: &crate::camera::v4l2::CameraSettings,
+                _selector: &$selector,
+                _settings: &$settings,
                 _clock: std::sync::Arc<dyn crate::clock::Clock>,
             ) -> Result<Self, crate::camera::CameraError> {
                 Err(crate::camera::CameraError::NotBuilt { camera: name.to_string(), backend: $backend, hint: $hint })
@@ -51,19 +52,13 @@ pub mod convert;
 pub mod meter;
 #[cfg(all(any(target_os = "macos", target_os = "windows"), feature = "nokhwa"))]
 pub mod nokhwa_backend;
-pub mod usb;
-pub mod v4l2;
-
 /// nokhwa is built on macOS and Windows only (with the `nokhwa` feature, on by default): on
 /// Linux the V4L2 backend does the same, with driver timestamps and locked exposure.
 #[cfg(not(all(any(target_os = "macos", target_os = "windows"), feature = "nokhwa")))]
-pub mod nokhwa_backend {
-    super::absent_camera!(
-        NokhwaCamera,
-        "nokhwa",
-        "nokhwa is built on macOS and Windows only, with the `nokhwa` feature (on by default); on Linux use backend = \"v4l2\""
-    );
-}
+#[path = "nokhwa_absent.rs"]
+pub mod nokhwa_backend;
+pub mod usb;
+pub mod v4l2;
 
 use std::future::Future;
 

@@ -340,7 +340,13 @@ pub fn offers_at(_path: &std::path::Path) -> std::io::Result<Vec<FormatOffer>> {
 }
 
 #[cfg(not(target_os = "linux"))]
-super::absent_camera!(V4l2Camera, "v4l2", "V4L2 is Linux's camera interface: on macOS and Windows use backend = \"nokhwa\"");
+super::absent_camera!(
+    V4l2Camera,
+    "v4l2",
+    "V4L2 is Linux's camera interface: on macOS and Windows use backend = \"nokhwa\"",
+    super::usb::DeviceSelector,
+    CameraSettings
+);
 
 #[cfg(not(target_os = "linux"))]
 impl V4l2Camera {
