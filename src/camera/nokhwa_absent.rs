@@ -1,5 +1,6 @@
 //! The nokhwa backend where this build has none (Linux, or without the `nokhwa` feature):
-//! [`NokhwaCamera::open`] refuses with [`super::CameraError::NotBuilt`].
+//! [`NokhwaCamera::open`](crate::camera::nokhwa_backend::NokhwaCamera::open) refuses with
+//! [`CameraError::NotBuilt`](crate::camera::CameraError::NotBuilt).
 
 use super::usb::DeviceSelector;
 use super::v4l2::CameraSettings;
