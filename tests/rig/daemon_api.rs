@@ -235,6 +235,7 @@ async fn shutdown_stops_the_running_job_and_leaves_the_arm_disabled() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[cfg_attr(not(feature = "synth"), ignore = "a synth job runs the model: needs the synth feature")]
 async fn a_synth_job_publishes_the_control_and_synthetic_images() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let plan = tmp.path().join("plan.toml");
