@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what rig needs on a fresh Debian 12 machine: libclang for the v4l/nokhwa bindings and
+# Installs what rig needs on a fresh Debian 12 machine: libclang for the v4l bindings and
 # the ONNX Runtime shared library (from the PyPI onnxruntime wheel) into .rig/onnxruntime/.
 # Idempotent: each step is skipped when its result is already there.
 set -euo pipefail
@@ -13,7 +13,7 @@ as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 
 if ! ldconfig -p 2>/dev/null | grep -q 'libclang-14.so\|libclang.so.1'; then
   if ! ls /usr/lib/x86_64-linux-gnu/libclang-14.so* >/dev/null 2>&1 && ! ls /usr/lib/*/libclang-14.so* >/dev/null 2>&1; then
-    echo "setup: installing libclang1-14 (needed by the v4l and nokhwa bindings)"
+    echo "setup: installing libclang1-14 (needed by the v4l bindings)"
     as_root apt-get update -qq
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libclang1-14 >/dev/null
   fi

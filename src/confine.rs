@@ -39,6 +39,7 @@ use std::io::{Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::ffi::OsStrExt;
 use std::path::{Component, Path, PathBuf};
+#[cfg(target_os = "linux")]
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use rustix::fs::{AtFlags, FileType, Mode, OFlags};
@@ -147,6 +148,7 @@ enum Resolution {
 }
 
 /// Set once `openat2` answered ENOSYS or EPERM: every later resolution walks.
+#[cfg(target_os = "linux")]
 static OPENAT2_MISSING: AtomicBool = AtomicBool::new(false);
 
 /// An open folder that paths are confined beneath.
@@ -594,7 +596,9 @@ mod tests {
     fn fifos_folders_and_oversized_files_are_refused_before_reading() {
         let (_tmp, top) = fixture();
         let fifo = top.join("root/a/fifo");
-        rustix::fs::mkfifoat(rustix::fs::CWD, fifo.as_path(), Mode::from_raw_mode(0o600)).expect("mkfifo");
+        let c_path = std::ffi::CString::new(fifo.as_os_str().as_bytes()).expect("no NUL in a temp path");
+        // SAFETY: mkfifo reads a NUL-terminated path we own (rustix has no mkfifoat on macOS).
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo: {}", std::io::Error::last_os_error());
         for root in roots(&top) {
             // Would block forever if it were opened for reading the usual way.
             let e = root.read("a/fifo", 100).expect_err("a FIFO");

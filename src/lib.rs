@@ -18,6 +18,7 @@ pub mod confine;
 pub mod daemon;
 pub mod dataset;
 pub mod eval;
+pub mod features;
 pub mod geometry;
 pub mod imaging;
 pub mod io;

@@ -42,7 +42,8 @@ impl Exit {
             Exit::Success => "success",
             Exit::Failure => {
                 "general failure: a full disk, a dataset held by another process, an internal error, `rig dataset verify` \
-                 finding a dataset not clean, `rig audit` below its `--min-ssim`"
+                 finding a dataset not clean, `rig audit` below its `--min-ssim`, a command that needs a feature this \
+                 rig was built without (`synth`, `lerobot`)"
             }
             Exit::BadInput => {
                 "bad input: command line, rig config, plan, object/STL, calibration, firmware profile, model package \
@@ -111,7 +112,6 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::config::ConfigError,
         crate::plan::PlanError,
         crate::dataset::DatasetError,
-        crate::dataset::lerobot::LerobotError,
         crate::synth::SynthError,
         crate::synth::scheduler::SchedulerError,
         crate::synth::limits::BadSetting,
@@ -136,7 +136,10 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::eval::compare_real::CompareRealError,
         crate::confine::ConfineError,
         crate::dataset::named::NamedFileError,
+        crate::features::FeatureMissing,
     );
+    #[cfg(feature = "lerobot")]
+    try_types!(crate::dataset::lerobot::LerobotError);
     None
 }
 
@@ -180,7 +183,11 @@ impl Classify for crate::arm::ArmError {
 
 impl Classify for crate::camera::CameraError {
     fn exit(&self) -> Exit {
-        Exit::HardwareFault
+        match self {
+            // The rig config names a backend this platform does not build.
+            crate::camera::CameraError::NotBuilt { .. } => Exit::BadInput,
+            _ => Exit::HardwareFault,
+        }
     }
 }
 
@@ -275,6 +282,7 @@ impl Classify for crate::dataset::DatasetError {
     }
 }
 
+#[cfg(feature = "lerobot")]
 impl Classify for crate::dataset::lerobot::LerobotError {
     fn exit(&self) -> Exit {
         use crate::dataset::lerobot::LerobotError as L;
@@ -310,6 +318,13 @@ fn io_exit(e: &std::io::Error) -> Exit {
     }
 }
 
+/// The input is fine; this build lacks the part that handles it.
+impl Classify for crate::features::FeatureMissing {
+    fn exit(&self) -> Exit {
+        Exit::Failure
+    }
+}
+
 impl Classify for crate::synth::SynthError {
     fn exit(&self) -> Exit {
         use crate::synth::SynthError as S;
@@ -329,19 +344,21 @@ impl Classify for crate::synth::SynthError {
             | S::ResidualCountMismatch { .. }
             | S::OrtLibraryMissing { .. }
             | S::OrtLibraryUntrusted { .. }
-            | S::OrtLoad { .. }
             | S::Npy(_) => Exit::BadInput,
+            #[cfg(feature = "synth")]
+            S::OrtLoad { .. } => Exit::BadInput,
+            S::FeatureMissing(e) => e.exit(),
             S::Scheduler { source, .. } => source.exit(),
             S::Confined(e) => e.exit(),
             S::Io { source, .. } => io_exit(source),
             // A cancel request stopped the sampling loop.
             S::Cancelled => Exit::Interrupted,
             // Set-up (scripts/setup.sh not run), or a failure while running a loaded model.
-            S::OrtLibraryNotFound { .. }
-            | S::ProviderUnavailable { .. }
-            | S::Ort { .. }
-            | S::UnexpectedOutputShape { .. }
-            | S::Image { .. } => Exit::Failure,
+            S::OrtLibraryNotFound { .. } | S::ProviderUnavailable { .. } | S::UnexpectedOutputShape { .. } | S::Image { .. } => {
+                Exit::Failure
+            }
+            #[cfg(feature = "synth")]
+            S::Ort { .. } => Exit::Failure,
         }
     }
 }

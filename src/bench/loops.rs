@@ -341,6 +341,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(not(feature = "synth"), ignore = "the loops knob runs the synthesis loop: needs the synth feature")]
     fn without_a_python_the_peer_is_left_out_and_said_so() {
         let tmp = tempfile::tempdir().unwrap();
         let r = measure(&config(None), tmp.path()).unwrap();
@@ -355,6 +356,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(not(feature = "synth"), ignore = "the loops knob runs the synthesis loop: needs the synth feature")]
     fn the_peers_time_and_value_become_its_row() {
         use std::os::unix::fs::PermissionsExt;
         let tmp = tempfile::tempdir().unwrap();

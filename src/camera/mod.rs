@@ -13,8 +13,49 @@
 //! dataset manifests. V4L2 measures it ([`meter::StreamMeter`]), a simulated sensor counts
 //! what it rendered and says it measured nothing, backends that cannot count give `None`.
 
+/// A camera backend this platform does not build: `open` refuses with
+/// [`CameraError::NotBuilt`] (exit 2: the rig config names it), so no value exists and the
+/// rig's camera enum needs no per-platform variants. `$selector` and `$settings` are the
+/// device selector and camera settings types `open` takes, as the real backends do.
+macro_rules! absent_camera {
+    ($camera:ident, $backend:literal, $hint:literal, $selector:ty, $settings:ty) => {
+        #[doc = concat!("The `", $backend, "` backend, not built on this platform.")]
+        pub struct $camera {
+            never: std::convert::Infallible,
+        }
+
+        impl $camera {
+            /// Always [`CameraError::NotBuilt`](crate::camera::CameraError::NotBuilt).
+            pub fn open(
+                name: &str,
+                _selector: &$selector,
+                _settings: &$settings,
+                _clock: std::sync::Arc<dyn crate::clock::Clock>,
+            ) -> Result<Self, crate::camera::CameraError> {
+                Err(crate::camera::CameraError::NotBuilt { camera: name.to_string(), backend: $backend, hint: $hint })
+            }
+        }
+
+        impl crate::camera::Camera for $camera {
+            fn name(&self) -> &str {
+                match self.never {}
+            }
+            async fn frame_after(&mut self, _not_before_s: f64) -> Result<crate::camera::Frame, crate::camera::CameraError> {
+                match self.never {}
+            }
+        }
+    };
+}
+pub(crate) use absent_camera;
+
 pub mod convert;
 pub mod meter;
+#[cfg(all(any(target_os = "macos", target_os = "windows"), feature = "nokhwa"))]
+pub mod nokhwa_backend;
+/// nokhwa is built on macOS and Windows only (with the `nokhwa` feature, on by default): on
+/// Linux the V4L2 backend does the same, with driver timestamps and locked exposure.
+#[cfg(not(all(any(target_os = "macos", target_os = "windows"), feature = "nokhwa")))]
+#[path = "nokhwa_absent.rs"]
 pub mod nokhwa_backend;
 pub mod usb;
 pub mod v4l2;
@@ -48,6 +89,9 @@ pub enum CameraError {
     Decode { camera: String, reason: String },
     #[error("camera {camera}: {reason}")]
     Device { camera: String, reason: String },
+    /// The configured backend is not part of this platform's build.
+    #[error("camera {camera}: backend \"{backend}\" is not built on this platform; {hint}")]
+    NotBuilt { camera: String, backend: &'static str, hint: &'static str },
 }
 
 /// A frame source.

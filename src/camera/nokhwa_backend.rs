@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use tokio::sync::watch;
 
+use super::convert::{self, PixelFormat};
 use super::usb::DeviceSelector;
 use super::v4l2::CameraSettings;
 use super::{Camera, CameraError, Frame};
@@ -56,7 +57,7 @@ impl NokhwaCamera {
             }
         };
         let frame_format = match settings.pixel_format {
-            Some(super::convert::PixelFormat::Yuyv) => FrameFormat::YUYV,
+            Some(PixelFormat::Yuyv) => FrameFormat::YUYV,
             _ => FrameFormat::MJPEG,
         };
         let wanted = CameraFormat::new(Resolution::new(settings.width, settings.height), frame_format, settings.fps);
@@ -96,12 +97,18 @@ impl NokhwaCamera {
                     if seq <= u64::from(warmup) {
                         continue;
                     }
-                    match buffer.decode_image::<nokhwa::pixel_format::RgbFormat>() {
-                        Ok(rgb) => {
-                            let (w, h) = rgb.dimensions();
-                            if let Some(image) = image::RgbImage::from_raw(w, h, rgb.into_raw()) {
-                                let _ = tx.send(Some(Frame { image, t_capture_s, seq }));
-                            }
+                    // rig's own decoders (nokhwa's `decoding` feature, mozjpeg, is not built).
+                    let (w, h) = (buffer.resolution().width(), buffer.resolution().height());
+                    let decoded = match buffer.source_frame_format() {
+                        FrameFormat::MJPEG => convert::to_rgb(PixelFormat::Mjpeg, buffer.buffer(), w, h).map_err(|e| e.to_string()),
+                        FrameFormat::YUYV => convert::to_rgb(PixelFormat::Yuyv, buffer.buffer(), w, h).map_err(|e| e.to_string()),
+                        FrameFormat::RAWRGB => image::RgbImage::from_raw(w, h, buffer.buffer().to_vec())
+                            .ok_or_else(|| format!("an RGB frame of {w}x{h} needs {} bytes, got {}", 3 * w * h, buffer.buffer().len())),
+                        other => Err(format!("rig does not convert {other} frames; set pixel_format to MJPEG or YUYV")),
+                    };
+                    match decoded {
+                        Ok(image) => {
+                            let _ = tx.send(Some(Frame { image, t_capture_s, seq }));
                         }
                         Err(e) => tracing::debug!(camera = %camera_name, "nokhwa frame dropped: {e}"),
                     }

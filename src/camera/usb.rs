@@ -233,8 +233,16 @@ pub fn video_node_of(nodes: &[VideoNode], selector: &DeviceSelector) -> Result<(
     select_video_node(nodes, selector).map(|n| (n.path.clone(), n.usb.clone()))
 }
 
+/// Always empty: libusb is built on Linux only, where USB identities bind cameras to sensors;
+/// nokhwa on macOS and Windows picks cameras by index.
+#[cfg(not(target_os = "linux"))]
+pub fn list_usb_devices() -> Vec<UsbIdentity> {
+    Vec::new()
+}
+
 /// USB devices libusb can see; empty when libusb cannot run here. Strings (serial, product)
 /// need the device opened, which may be refused without permissions; they are then `None`.
+#[cfg(target_os = "linux")]
 pub fn list_usb_devices() -> Vec<UsbIdentity> {
     use rusb::UsbContext;
     let Ok(context) = rusb::Context::new() else { return Vec::new() };

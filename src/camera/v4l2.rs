@@ -22,16 +22,21 @@
 //! delivery rate. [`V4l2Camera::usb`] is the USB identity of the device opened, as sysfs gave
 //! it (serial, vendor and product id), for the manifest.
 
+#[cfg(target_os = "linux")]
 use std::path::PathBuf;
+#[cfg(target_os = "linux")]
 use std::sync::Arc;
+#[cfg(target_os = "linux")]
 use std::time::Duration;
 
+#[cfg(target_os = "linux")]
 use tokio::sync::watch;
 
-use super::convert::{self, PixelFormat};
-use super::meter::StreamMeter;
-use super::usb::{DeviceSelector, UsbIdentity};
-use super::{Camera, CameraError, Frame, StreamStats};
+use super::convert::PixelFormat;
+use super::usb::UsbIdentity;
+#[cfg(target_os = "linux")]
+use super::{Camera, CameraError, Frame, StreamStats, convert, meter::StreamMeter, usb::DeviceSelector};
+#[cfg(target_os = "linux")]
 use crate::clock::Clock;
 
 /// Camera settings from the sensor's configuration.
@@ -156,6 +161,7 @@ pub fn monotonic_now_s() -> f64 {
 }
 
 /// A raw frame as the capture thread publishes it.
+#[cfg(target_os = "linux")]
 #[derive(Debug, Clone)]
 struct RawFrame {
     bytes: Arc<Vec<u8>>,
@@ -219,6 +225,7 @@ pub fn lock_mismatches(settings: &CameraSettings, read: &[(&str, i64)]) -> Vec<S
 }
 
 /// A V4L2 camera.
+#[cfg(target_os = "linux")]
 pub struct V4l2Camera {
     name: String,
     path: PathBuf,
@@ -234,6 +241,7 @@ pub struct V4l2Camera {
     last_seen_seq: Option<u64>,
 }
 
+#[cfg(target_os = "linux")]
 impl V4l2Camera {
     /// Opens the camera selected by `selector`, configures it and starts streaming.
     pub fn open(name: &str, selector: &DeviceSelector, settings: &CameraSettings, clock: Arc<dyn Clock>) -> Result<Self, CameraError> {
@@ -319,7 +327,45 @@ impl V4l2Camera {
     }
 }
 
+/// Every YUYV/MJPEG size the device node at `path` offers with its best rate.
+#[cfg(target_os = "linux")]
+pub fn offers_at(path: &std::path::Path) -> std::io::Result<Vec<FormatOffer>> {
+    enumerate_offers(&v4l::Device::with_path(path)?)
+}
+
+/// No V4L2 here: every node is refused as unsupported.
+#[cfg(not(target_os = "linux"))]
+pub fn offers_at(_path: &std::path::Path) -> std::io::Result<Vec<FormatOffer>> {
+    Err(std::io::Error::new(std::io::ErrorKind::Unsupported, "V4L2 is built on Linux only"))
+}
+
+#[cfg(not(target_os = "linux"))]
+super::absent_camera!(
+    V4l2Camera,
+    "v4l2",
+    "V4L2 is Linux's camera interface: on macOS and Windows use backend = \"nokhwa\"",
+    super::usb::DeviceSelector,
+    CameraSettings
+);
+
+#[cfg(not(target_os = "linux"))]
+impl V4l2Camera {
+    pub fn path(&self) -> &std::path::Path {
+        match self.never {}
+    }
+    pub fn usb(&self) -> Option<&UsbIdentity> {
+        match self.never {}
+    }
+    pub fn format(&self) -> FormatChoice {
+        match self.never {}
+    }
+    pub fn controls(&self) -> &[(&'static str, i64)] {
+        match self.never {}
+    }
+}
+
 /// Every YUYV/MJPEG size the device offers with its best rate.
+#[cfg(target_os = "linux")]
 pub fn enumerate_offers(device: &v4l::Device) -> std::io::Result<Vec<FormatOffer>> {
     use v4l::frameinterval::FrameIntervalEnum;
     use v4l::framesize::FrameSizeEnum;
@@ -349,6 +395,7 @@ pub fn enumerate_offers(device: &v4l::Device) -> std::io::Result<Vec<FormatOffer
     Ok(offers)
 }
 
+#[cfg(target_os = "linux")]
 fn lock_controls(device: &v4l::Device, s: &CameraSettings) -> std::io::Result<()> {
     use v4l::control::{Control, Value};
     let set = |id: u32, value: i64| device.set_control(Control { id, value: Value::Integer(value) });
@@ -373,6 +420,7 @@ fn lock_controls(device: &v4l::Device, s: &CameraSettings) -> std::io::Result<()
     Ok(())
 }
 
+#[cfg(target_os = "linux")]
 #[allow(clippy::too_many_arguments)]
 fn capture_loop(
     device: v4l::Device,
@@ -433,6 +481,7 @@ fn capture_loop(
     }
 }
 
+#[cfg(target_os = "linux")]
 impl Camera for V4l2Camera {
     fn name(&self) -> &str {
         &self.name

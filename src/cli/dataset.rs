@@ -7,6 +7,7 @@ use anyhow::{Context, bail};
 
 use crate::dataset::durable;
 use crate::dataset::export::{export_mds, export_tactile_bench, import_mds, mds_rows_from, pose_row_from_mds};
+#[cfg(feature = "lerobot")]
 use crate::dataset::lerobot::{LerobotOptions, export_lerobot};
 use crate::dataset::{DatasetWriter, Manifest, MergeOptions, ObjectInfo, merge, read_rows, verify};
 use crate::sensor::SensorKind;
@@ -124,6 +125,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             Ok(())
         }
+        #[cfg(not(feature = "lerobot"))]
+        DatasetCommand::Export { format: Format::Lerobot, .. } => {
+            use crate::features::{Feature, FeatureMissing};
+            Err(FeatureMissing { feature: Feature::Lerobot, needed_by: "`rig dataset export --format lerobot`" }.into())
+        }
+        #[cfg(feature = "lerobot")]
         DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, .. } => {
             let Some(out) = out else { bail!(crate::cli::usage("--format lerobot needs --out DIR (a new folder)")) };
             let options = LerobotOptions { fps, task, robot_type };

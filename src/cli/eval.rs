@@ -116,6 +116,7 @@ fn write_outputs(args: &Args, table: &str, json: impl FnOnce() -> String) -> any
 
 /// Runs `rig eval --downstream`.
 fn run_downstream(args: &Args, root: &std::path::Path) -> anyhow::Result<()> {
+    crate::features::Feature::Downstream.require("`rig eval --downstream`")?;
     require_dir("--downstream", root)?;
     if let Some(s) = &args.synthetic {
         require_dir("--synthetic", s)?;

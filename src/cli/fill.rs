@@ -117,6 +117,11 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
         };
         return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Synth(request));
     }
+    // The daemon and the dry run need no ONNX Runtime here; a local run does.
+    if !args.dry_run {
+        crate::features::Feature::Synth
+            .require("`rig synth --fill-missing` and `--poses-of` run here (`--daemon URL` runs them on a daemon)")?;
+    }
     let targets = request.targets().map_err(usage_of)?;
     if args.dry_run {
         for line in request.dry_run()? {

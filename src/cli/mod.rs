@@ -108,7 +108,7 @@ pub fn main() -> ExitCode {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
         Command::Info => {
-            println!("rig {}", crate::version());
+            println!("rig {} (features: {})", crate::version(), crate::features::built_list());
             crate::config::RigConfig::discover(None).map(|c| println!("{}", c.describe())).map_err(anyhow::Error::from)
         }
         Command::Collect(args) => collect::run(args),

@@ -11,6 +11,7 @@ use anyhow::{Context, bail};
 use clap::{Args as ClapArgs, Subcommand};
 
 use super::shared::{RuntimeArgs, SamplingArgs};
+use crate::features::Feature;
 use crate::pose::Pose;
 use crate::synth::npy::NpyArray;
 use crate::synth::package::Sampling;
@@ -136,9 +137,18 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// Runs `rig synth`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        Some(SynthCommand::One(one)) => run_one(*one),
-        Some(SynthCommand::Info(info)) => run_info(info),
-        Some(SynthCommand::Bench(bench)) => run_bench(*bench),
+        Some(SynthCommand::One(one)) => {
+            Feature::Synth.require("`rig synth one`")?;
+            run_one(*one)
+        }
+        Some(SynthCommand::Info(info)) => {
+            Feature::Synth.require("`rig synth info`")?;
+            run_info(info)
+        }
+        Some(SynthCommand::Bench(bench)) => {
+            Feature::Synth.require("`rig synth bench`")?;
+            run_bench(*bench)
+        }
         None => super::fill::run(args.fill),
     }
 }

@@ -158,6 +158,7 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
         // Twins are for evaluating a model offline; the daemon's synth jobs fill datasets.
         return Err(JobError::bad_option("poses_of", "the daemon runs fills only: run `rig synth --poses-of` locally").into());
     }
+    crate::features::Feature::Synth.require("the daemon's synth jobs").map_err(|e| JobError::Settings(e.into()))?;
     let targets = request.targets()?;
     let model = request.model_dir();
     let Some(ort_lib) = ort_lib else {

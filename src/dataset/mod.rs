@@ -23,6 +23,7 @@
 pub mod durable;
 mod error;
 pub mod export;
+#[cfg(feature = "lerobot")]
 pub mod lerobot;
 pub mod manifest;
 pub mod merge;

@@ -12,7 +12,7 @@
 //! (truncated away, and its image becomes an orphan). The set of done pose ids is the set of
 //! complete CSV rows, each of which names an image that was durable before the row was.
 //!
-//! A writer holds an exclusive `flock` on the dataset folder itself, taken before it looks at
+//! A writer holds an exclusive lock (`File::try_lock`, `flock` on Unix) on the dataset folder itself, taken before it looks at
 //! or creates anything there, so two processes never write one dataset at once (two runs
 //! racing into an empty folder: the second is told the dataset is held by another process);
 //! the kernel drops the lock when the process dies, so a killed run never blocks its resume.
@@ -23,7 +23,6 @@
 use std::collections::BTreeSet;
 use std::fs::File;
 use std::io::{Read, Write};
-use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 
 use image::RgbImage;
@@ -402,16 +401,12 @@ fn lock_dir(dir: &Path, create: bool) -> Result<File, DatasetError> {
 }
 
 fn lock_exclusive(file: &File, path: &Path) -> Result<(), DatasetError> {
-    // SAFETY: flock on a file descriptor we own; no memory is involved.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    if rc == 0 {
-        return Ok(());
-    }
-    let err = std::io::Error::last_os_error();
-    if err.raw_os_error() == Some(libc::EWOULDBLOCK) {
-        Err(DatasetError::Locked { path: path.to_path_buf() })
-    } else {
-        Err(DatasetError::Io { op: "locking", path: path.to_path_buf(), source: err })
+    // std's lock is `flock(LOCK_EX | LOCK_NB)` on Unix: advisory, whole-file, dropped with the
+    // descriptor (and so when the process dies).
+    match file.try_lock() {
+        Ok(()) => Ok(()),
+        Err(std::fs::TryLockError::WouldBlock) => Err(DatasetError::Locked { path: path.to_path_buf() }),
+        Err(std::fs::TryLockError::Error(source)) => Err(DatasetError::Io { op: "locking", path: path.to_path_buf(), source }),
     }
 }
 

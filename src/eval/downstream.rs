@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::error::EvalError;
 use super::pairing::{DatasetInfo, load_at, same_pose};
-use super::regressor::{CHANNELS, OUTPUTS, RegressorConfig, RegressorError, TrainDevice, train_and_predict};
+use super::regressor::{CHANNELS, OUTPUTS, RegressorConfig, RegressorError, TrainDevice, cuda_built, train_and_predict};
 use crate::dataset::{PoseRow, Source};
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
@@ -401,7 +401,7 @@ fn check_bounds(options: &DownstreamOptions) -> Result<(), DownstreamError> {
     if r.batch > 1024 {
         return Err(DownstreamError::Bound { what: "--batch", value: r.batch as u64, max: 1024 });
     }
-    if options.device == TrainDevice::Cuda && !candle_core::utils::cuda_is_available() {
+    if options.device == TrainDevice::Cuda && !cuda_built() {
         return Err(DownstreamError::Device(
             "this rig was built without CUDA training (cargo feature `downstream-cuda`, which needs the CUDA toolkit to build)".into(),
         ));

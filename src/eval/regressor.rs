@@ -11,14 +11,22 @@
 //!
 //! Everything random (initial weights, batch order, augmentation) comes from one seed, so a
 //! run is repeatable on one machine (candle's CPU kernels sum in a fixed order).
+//!
+//! candle is the optional `downstream` feature (on by default): without it [`train_and_predict`]
+//! returns [`RegressorError::FeatureMissing`] and everything else here stays.
 
+#[cfg(feature = "downstream")]
 use candle_core::{D, DType, Device, Module, Tensor};
+#[cfg(feature = "downstream")]
 use candle_nn::{
     AdamW, BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, ParamsAdamW, VarBuilder, VarMap,
     batch_norm, conv2d_no_bias, linear,
 };
+#[cfg(feature = "downstream")]
 use rand::seq::SliceRandom;
+#[cfg(feature = "downstream")]
 use rand::{RngExt, SeedableRng};
+#[cfg(feature = "downstream")]
 use rand_chacha::ChaCha8Rng;
 
 /// Components the regressor predicts, in this order.
@@ -51,8 +59,11 @@ pub struct RegressorConfig {
 pub enum RegressorError {
     #[error("training data: {0}")]
     Data(String),
+    #[cfg(feature = "downstream")]
     #[error("the regressor's tensor arithmetic failed: {0}")]
     Candle(#[from] candle_core::Error),
+    #[error(transparent)]
+    FeatureMissing(#[from] crate::features::FeatureMissing),
     #[error("training diverged (loss {loss}) at epoch {epoch}")]
     Diverged { epoch: usize, loss: f32 },
 }
@@ -67,11 +78,17 @@ pub enum TrainDevice {
     Cuda,
 }
 
+/// Whether this build trains on CUDA GPUs (the `downstream-cuda` feature).
+pub fn cuda_built() -> bool {
+    cfg!(feature = "downstream-cuda")
+}
+
+#[cfg(feature = "downstream")]
 impl TrainDevice {
     fn device(self) -> Result<Device, RegressorError> {
         match self {
             TrainDevice::Cpu => Ok(Device::Cpu),
-            TrainDevice::Cuda if candle_core::utils::cuda_is_available() => Ok(Device::new_cuda(0)?),
+            TrainDevice::Cuda if cuda_built() => Ok(Device::new_cuda(0)?),
             TrainDevice::Cuda => Err(RegressorError::Data(
                 "--device cuda: this rig was built without CUDA training (cargo feature `downstream-cuda`, which needs the CUDA toolkit to build)".into(),
             )),
@@ -79,6 +96,22 @@ impl TrainDevice {
     }
 }
 
+/// Without candle: training is refused, naming the feature.
+#[cfg(not(feature = "downstream"))]
+pub fn train_and_predict(
+    _train: &[f32],
+    _labels: &[[f32; OUTPUTS]],
+    _test: &[f32],
+    _config: &RegressorConfig,
+    _seed: u64,
+    _device: TrainDevice,
+    _progress: impl FnMut(usize, f32),
+) -> Result<Vec<[f32; OUTPUTS]>, RegressorError> {
+    use crate::features::{Feature, FeatureMissing};
+    Err(FeatureMissing { feature: Feature::Downstream, needed_by: "`rig eval --downstream`" }.into())
+}
+
+#[cfg(feature = "downstream")]
 /// One residual basic block: two 3x3 convolutions with batch norm, and a 1x1 projection on
 /// the shortcut where the shape changes.
 struct BasicBlock {
@@ -89,10 +122,12 @@ struct BasicBlock {
     shortcut: Option<(Conv2d, BatchNorm)>,
 }
 
+#[cfg(feature = "downstream")]
 fn bn(channels: usize, vb: VarBuilder) -> candle_core::Result<BatchNorm> {
     batch_norm(channels, BatchNormConfig::default(), vb)
 }
 
+#[cfg(feature = "downstream")]
 impl BasicBlock {
     fn new(vb: VarBuilder, cin: usize, cout: usize, stride: usize) -> candle_core::Result<Self> {
         let conv = |cin, k, stride, padding, vb| conv2d_no_bias(cin, cout, k, Conv2dConfig { padding, stride, ..Default::default() }, vb);
@@ -117,6 +152,7 @@ impl BasicBlock {
     }
 }
 
+#[cfg(feature = "downstream")]
 /// ResNet18's layout at `width`.
 struct ResNet18 {
     stem: Conv2d,
@@ -126,6 +162,7 @@ struct ResNet18 {
     head: Linear,
 }
 
+#[cfg(feature = "downstream")]
 impl ResNet18 {
     fn new(vb: VarBuilder, config: &RegressorConfig) -> candle_core::Result<Self> {
         let w = config.width;
@@ -162,6 +199,7 @@ impl ResNet18 {
     }
 }
 
+#[cfg(feature = "downstream")]
 /// Sets every variable from `seed`, in name order: convolution weights Kaiming-normal (fan
 /// in, as torchvision's ResNet), the head uniform ±1/sqrt(fan in) (PyTorch's `Linear`),
 /// batch norm scale 1 and shift 0, running mean 0 and variance 1.
@@ -192,12 +230,14 @@ fn seeded_init(vars: &VarMap, seed: u64, device: &Device) -> Result<(), Regresso
     Ok(())
 }
 
+#[cfg(feature = "downstream")]
 /// The fan in of a bias: that of the weight beside it.
 fn data_fan_in(data: &std::collections::HashMap<String, candle_core::Var>, bias: &str) -> usize {
     let weight = bias.strip_suffix("bias").map(|p| format!("{p}weight"));
     weight.and_then(|w| data.get(&w)).map(|v| v.dims().iter().skip(1).product::<usize>()).unwrap_or(1).max(1)
 }
 
+#[cfg(feature = "downstream")]
 /// A standard normal draw (Box-Muller).
 fn normal(rng: &mut ChaCha8Rng) -> f64 {
     let u1: f64 = rng.random_range(f64::EPSILON..1.0);
@@ -205,6 +245,7 @@ fn normal(rng: &mut ChaCha8Rng) -> f64 {
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
+#[cfg(feature = "downstream")]
 /// Mean and standard deviation of each label component (a constant component gets 1).
 fn label_scale(labels: &[[f32; OUTPUTS]]) -> [(f32, f32); OUTPUTS] {
     let n = labels.len().max(1) as f64;
@@ -216,6 +257,7 @@ fn label_scale(labels: &[[f32; OUTPUTS]]) -> [(f32, f32); OUTPUTS] {
     })
 }
 
+#[cfg(feature = "downstream")]
 /// Trains a regressor on `train` (images `n x 3 x size x size`, flattened, values in [0, 1])
 /// with `labels`, then predicts the labels of `test`. `progress` is called after each epoch
 /// with (epoch, mean training loss).
@@ -298,7 +340,7 @@ pub fn train_and_predict(
     Ok(predictions)
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "downstream"))]
 mod tests {
     use super::*;
 

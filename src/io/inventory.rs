@@ -37,11 +37,8 @@ impl DeviceReport {
             .into_iter()
             // Metadata nodes (index > 0) carry no images.
             .filter(|n| n.index == 0)
-            .map(|node| match v4l::Device::with_path(&node.path) {
-                Ok(device) => match crate::camera::v4l2::enumerate_offers(&device) {
-                    Ok(offers) => CameraEntry { node, offers, error: None },
-                    Err(e) => CameraEntry { node, offers: Vec::new(), error: Some(e.to_string()) },
-                },
+            .map(|node| match crate::camera::v4l2::offers_at(&node.path) {
+                Ok(offers) => CameraEntry { node, offers, error: None },
                 Err(e) => CameraEntry { node, offers: Vec::new(), error: Some(e.to_string()) },
             })
             .collect();

@@ -83,7 +83,7 @@ impl PtyPair {
         let mut name = [0 as libc::c_char; 256];
         // SAFETY: openpty writes two fds and a NUL-terminated name into buffers we own; the
         // name buffer is larger than any pts path. termios/winsize may be null.
-        let rc = unsafe { libc::openpty(&mut master, &mut slave, name.as_mut_ptr(), std::ptr::null(), std::ptr::null()) };
+        let rc = unsafe { libc::openpty(&mut master, &mut slave, name.as_mut_ptr(), std::ptr::null_mut(), std::ptr::null_mut()) };
         if rc != 0 {
             return Err(io::Error::last_os_error());
         }

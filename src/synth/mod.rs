@@ -37,14 +37,22 @@ pub mod prompt;
 pub mod runtime;
 pub mod scheduler;
 pub mod settings;
+#[cfg(feature = "synth")]
 pub mod text;
+#[cfg(feature = "synth")]
 pub mod tokenizer_json;
+#[cfg(not(feature = "synth"))]
+mod without_ort;
 
 use std::path::PathBuf;
 
-pub use pipeline::{GenerateOutput, GenerateRequest, ImageRange, Pipeline, SynthTiming};
+#[cfg(feature = "synth")]
+pub use pipeline::Pipeline;
+pub use pipeline::{GenerateOutput, GenerateRequest, ImageRange, SynthTiming};
 pub use runtime::{ExecutionProviderKind, RuntimeOptions};
 pub use scheduler::SchedulerKind;
+#[cfg(not(feature = "synth"))]
+pub use without_ort::Pipeline;
 
 /// Everything that can go wrong loading a package or generating an image.
 #[derive(Debug, thiserror::Error)]
@@ -62,6 +70,7 @@ pub enum SynthError {
          yours and not writable by others (chmod go-w), or name a library you trust with --ort-lib / RIG_ORT_LIB"
     )]
     OrtLibraryUntrusted { path: PathBuf, reason: String },
+    #[cfg(feature = "synth")]
     #[error("could not load the ONNX Runtime library {path}: {source}")]
     OrtLoad { path: PathBuf, source: ort::LoadDynamicError },
     #[error(
@@ -69,6 +78,7 @@ pub enum SynthError {
          it needs a build with {provider} support (e.g. the onnxruntime-gpu wheel), or use --provider cpu"
     )]
     ProviderUnavailable { provider: ExecutionProviderKind, library: PathBuf },
+    #[cfg(feature = "synth")]
     #[error("ONNX Runtime: {context}: {source}")]
     Ort { context: String, source: ort::Error },
     /// ONNX Runtime could not load a model file of the package: corrupt, truncated, or not a
@@ -114,6 +124,9 @@ pub enum SynthError {
     Npy(#[from] npy::NpyError),
     #[error("{path}: {source}")]
     Image { path: PathBuf, source: image::ImageError },
+    /// This build has no ONNX Runtime (made without the `synth` feature).
+    #[error(transparent)]
+    FeatureMissing(#[from] crate::features::FeatureMissing),
     /// A cancel request ([`Pipeline::set_cancel`]) stopped the sampling between two steps.
     #[error("cancelled between two sampling steps")]
     Cancelled,

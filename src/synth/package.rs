@@ -39,6 +39,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+#[cfg(feature = "synth")]
 use ort::value::{TensorElementType, ValueType};
 use sha2::{Digest, Sha256};
 
@@ -204,6 +205,7 @@ fn collect_files(root: &crate::confine::RootDir, rel: &Path, out: &mut Vec<PathB
 }
 
 /// One input or output of a model as the session reports it.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, PartialEq)]
 pub struct TensorSpec {
     pub name: String,
@@ -213,6 +215,7 @@ pub struct TensorSpec {
 }
 
 /// The inputs and outputs of one model file.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone)]
 pub struct ModelIo {
     pub file: PathBuf,
@@ -221,6 +224,7 @@ pub struct ModelIo {
 }
 
 /// Element types a contract tensor may have.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, Copy)]
 pub enum Accept {
     Float32,
@@ -230,6 +234,7 @@ pub enum Accept {
     Number,
 }
 
+#[cfg(feature = "synth")]
 impl Accept {
     fn allows(self, ty: TensorElementType) -> bool {
         use TensorElementType as T;
@@ -248,6 +253,7 @@ impl Accept {
     }
 }
 
+#[cfg(feature = "synth")]
 fn specs(file: &Path, direction: &'static str, outlets: &[ort::value::Outlet]) -> Result<Vec<TensorSpec>, SynthError> {
     outlets
         .iter()
@@ -264,6 +270,7 @@ fn specs(file: &Path, direction: &'static str, outlets: &[ort::value::Outlet]) -
         .collect()
 }
 
+#[cfg(feature = "synth")]
 impl ModelIo {
     /// Reads the inputs and outputs of a session made from `file`.
     pub fn of(file: &Path, session: &ort::session::Session) -> Result<Self, SynthError> {

@@ -31,22 +31,34 @@
 //! to 8 bits as diffusers does: `round(clamp(x / 2 + 0.5, 0, 1) * 255)`. [`raw_to_rgb8`] also
 //! maps it the way MultiDiffSense saves images ([`ImageRange::MinMax`]).
 
+#[cfg(feature = "synth")]
 use std::ops::Range;
+#[cfg(feature = "synth")]
 use std::path::{Path, PathBuf};
+#[cfg(feature = "synth")]
 use std::time::Instant;
 
 use image::RgbImage;
+#[cfg(feature = "synth")]
 use ort::session::{IoBinding, Session};
 use rand_chacha::ChaCha8Rng;
-use rand_chacha::rand_core::{Rng, SeedableRng};
+use rand_chacha::rand_core::Rng;
+#[cfg(feature = "synth")]
+use rand_chacha::rand_core::SeedableRng;
 
+#[cfg(feature = "synth")]
 use super::SynthError;
 use super::npy::NpyArray;
+#[cfg(feature = "synth")]
 use super::package::{Accept, ModelIo, ModelPackage, TensorSpec};
+#[cfg(feature = "synth")]
 use super::runtime::{
     Inputs, Runtime, RuntimeOptions, device_memory, f32_tensor, f32_value, host_memory, init_runtime, number_tensor, number_value, run_f32,
 };
-use super::scheduler::{Scheduler, SchedulerKind};
+#[cfg(feature = "synth")]
+use super::scheduler::Scheduler;
+use super::scheduler::SchedulerKind;
+#[cfg(feature = "synth")]
 use super::text::TextEncoder;
 
 /// One image to synthesise.
@@ -95,6 +107,7 @@ impl<'a> GenerateRequest<'a> {
         }
     }
 
+    #[cfg(feature = "synth")]
     fn guided(&self) -> bool {
         self.guidance != 1.0
     }
@@ -151,12 +164,14 @@ pub fn raw_to_rgb8(raw: &[f32], width: u32, height: u32, range: ImageRange) -> R
 }
 
 /// A session with the file it came from and its checked inputs/outputs.
+#[cfg(feature = "synth")]
 struct ModelSession {
     session: Session,
     file: PathBuf,
     io: ModelIo,
 }
 
+#[cfg(feature = "synth")]
 impl ModelSession {
     fn open(runtime: &Runtime, package: &ModelPackage, relative: &str, opts: &RuntimeOptions) -> Result<Self, SynthError> {
         let file = package.file(relative);
@@ -167,6 +182,7 @@ impl ModelSession {
 }
 
 /// A loaded model package, ready to generate.
+#[cfg(feature = "synth")]
 pub struct Pipeline {
     package: ModelPackage,
     runtime: Runtime,
@@ -224,6 +240,7 @@ impl SynthTiming {
 
 /// The inputs one step's session calls share: text embeddings `[batch, seq_len, hidden]` and
 /// control images `[batch, 3, h, w]`, and the sizes.
+#[cfg(feature = "synth")]
 struct StepShape<'a> {
     ehs: &'a [f32],
     hint: &'a [f32],
@@ -235,6 +252,7 @@ struct StepShape<'a> {
     conditioning_scale: f32,
 }
 
+#[cfg(feature = "synth")]
 impl StepShape<'_> {
     fn latent_len(&self) -> usize {
         self.channels * self.latent_hw.0 * self.latent_hw.1
@@ -255,6 +273,7 @@ impl StepShape<'_> {
 /// One call's I/O bindings: text embeddings, control image and conditioning scale bound once
 /// per batch; the ControlNet's residuals stay where the ControlNet wrote them (the device)
 /// and are bound straight into the UNet; the UNet's noise estimate comes back to the host.
+#[cfg(feature = "synth")]
 struct BoundCall {
     controlnet: IoBinding,
     unet: IoBinding,
@@ -263,6 +282,7 @@ struct BoundCall {
 /// A cancel flag the sampling loop reads between steps (e.g. a job's cancel request).
 pub type CancelCheck = std::sync::Arc<dyn Fn() -> bool + Send + Sync>;
 
+#[cfg(feature = "synth")]
 impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Pipeline")
@@ -273,8 +293,10 @@ impl std::fmt::Debug for Pipeline {
     }
 }
 
+#[cfg(feature = "synth")]
 const STEP_INPUTS: [&str; 3] = ["sample", "timestep", "encoder_hidden_states"];
 
+#[cfg(feature = "synth")]
 impl Pipeline {
     /// Opens the package at `model_dir`, loads ONNX Runtime and the four models, and checks
     /// every model against the package contract.
@@ -838,6 +860,7 @@ impl Pipeline {
 
 /// Rows per ControlNet/UNet call: the graphs' fixed batch where they declare one (it must
 /// divide the `batch` rows of a step), half the batch for forced two-pass guidance, else all.
+#[cfg(feature = "synth")]
 fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize, guided: bool) -> Result<usize, SynthError> {
     match fixed_batch {
         Some(b) if b > 0 && batch.is_multiple_of(b) => Ok(b),
@@ -852,6 +875,7 @@ fn rows_per_call(fixed_batch: Option<usize>, force_two_pass: bool, batch: usize,
 }
 
 /// Requests that can share session calls.
+#[cfg(feature = "synth")]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct BatchKey {
     steps: usize,
@@ -862,6 +886,7 @@ struct BatchKey {
     size: (u32, u32),
 }
 
+#[cfg(feature = "synth")]
 impl BatchKey {
     fn of(r: &GenerateRequest, native: (u32, u32)) -> Self {
         Self {
@@ -924,6 +949,8 @@ pub fn gaussian(rng: &mut ChaCha8Rng, len: usize) -> Vec<f32> {
 
 #[cfg(test)]
 mod tests {
+    use rand_chacha::rand_core::SeedableRng;
+
     use super::*;
 
     #[test]
@@ -965,6 +992,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "synth")]
     fn a_fixed_batch_of_one_runs_guidance_as_one_row_a_call() {
         // Dynamic graphs: [uncond, cond] of 2 images in one call; forced: two calls of 2.
         assert_eq!(rows_per_call(None, false, 4, true).unwrap(), 4);

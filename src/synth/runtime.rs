@@ -22,8 +22,10 @@
 
 use std::fmt;
 use std::path::{Path, PathBuf};
+#[cfg(feature = "synth")]
 use std::sync::OnceLock;
 
+#[cfg(feature = "synth")]
 use ort::ep::ExecutionProvider;
 
 use super::SynthError;
@@ -119,6 +121,7 @@ pub struct CudaOptions {
     pub mem_limit_bytes: Option<usize>,
 }
 
+#[cfg(feature = "synth")]
 impl CudaOptions {
     fn provider(&self) -> ort::ep::CUDA {
         let mut ep = ort::ep::CUDA::default().with_device_id(self.device_id);
@@ -143,6 +146,7 @@ impl CudaOptions {
 }
 
 /// The loaded runtime: the library it came from and the shared environment.
+#[cfg(feature = "synth")]
 #[derive(Clone)]
 pub struct Runtime {
     pub library: PathBuf,
@@ -151,12 +155,14 @@ pub struct Runtime {
     environment: ort::environment::Environment,
 }
 
+#[cfg(feature = "synth")]
 impl fmt::Debug for Runtime {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Runtime").field("library", &self.library).finish_non_exhaustive()
     }
 }
 
+#[cfg(feature = "synth")]
 static RUNTIME: OnceLock<Runtime> = OnceLock::new();
 
 /// Library file names ONNX Runtime ships under, most specific last (a versioned `.so.1.x.y`
@@ -250,6 +256,7 @@ fn check_trusted(library: &Path) -> Result<(), SynthError> {
 
 /// Loads ONNX Runtime once per process and returns it. A later call with another library
 /// path gets the library already loaded (a process can hold only one).
+#[cfg(feature = "synth")]
 pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
     if let Some(rt) = RUNTIME.get() {
         return Ok(rt.clone());
@@ -263,6 +270,7 @@ pub fn init_runtime(opts: &RuntimeOptions) -> Result<Runtime, SynthError> {
     Ok(RUNTIME.get_or_init(|| rt).clone())
 }
 
+#[cfg(feature = "synth")]
 impl Runtime {
     /// Whether the loaded library was built with `provider`.
     pub fn supports(&self, provider: ExecutionProviderKind) -> Result<bool, SynthError> {
@@ -312,15 +320,18 @@ impl Runtime {
 }
 
 /// Input values for one session call, by name.
+#[cfg(feature = "synth")]
 pub(crate) type Inputs = Vec<(String, ort::session::SessionInputValue<'static>)>;
 
 /// A float32 tensor value, in memory from ONNX Runtime's allocator (aligned as its kernels
 /// prefer) rather than wrapping the Rust `Vec`.
+#[cfg(feature = "synth")]
 pub(crate) fn f32_value(shape: &[usize], data: Vec<f32>) -> Result<ort::session::SessionInputValue<'static>, SynthError> {
     f32_tensor(shape, &data).map(Into::into)
 }
 
 /// [`f32_value`] as a tensor (to bind to a session input with I/O binding).
+#[cfg(feature = "synth")]
 pub(crate) fn f32_tensor(shape: &[usize], data: &[f32]) -> Result<ort::value::Tensor<f32>, SynthError> {
     let err = |source| SynthError::Ort { context: "making a float32 tensor".to_string(), source };
     let dims: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
@@ -338,6 +349,7 @@ pub(crate) fn f32_tensor(shape: &[usize], data: &[f32]) -> Result<ort::value::Te
 }
 
 /// A tensor of `ty` (float32, float64, int32 or int64) holding `values`, converted from f64.
+#[cfg(feature = "synth")]
 pub(crate) fn number_value(
     ty: ort::value::TensorElementType,
     shape: &[usize],
@@ -347,6 +359,7 @@ pub(crate) fn number_value(
 }
 
 /// [`number_value`] as a value (to bind to a session input with I/O binding).
+#[cfg(feature = "synth")]
 pub(crate) fn number_tensor(
     ty: ort::value::TensorElementType,
     shape: &[usize],
@@ -365,6 +378,7 @@ pub(crate) fn number_tensor(
 
 /// Where a model's outputs stay between session calls under I/O binding: the GPU's memory
 /// for CUDA and TensorRT, host memory for the CPU provider.
+#[cfg(feature = "synth")]
 pub(crate) fn device_memory(opts: &RuntimeOptions) -> Result<ort::memory::MemoryInfo<'static>, SynthError> {
     use ort::memory::{AllocationDevice, AllocatorType, MemoryInfo, MemoryType};
     let made = match opts.provider {
@@ -377,6 +391,7 @@ pub(crate) fn device_memory(opts: &RuntimeOptions) -> Result<ort::memory::Memory
 }
 
 /// Host memory, for an output that must come back to the CPU (the UNet's noise estimate).
+#[cfg(feature = "synth")]
 pub(crate) fn host_memory() -> Result<ort::memory::MemoryInfo<'static>, SynthError> {
     use ort::memory::{AllocationDevice, AllocatorType, MemoryInfo, MemoryType};
     MemoryInfo::new(AllocationDevice::CPU, 0, AllocatorType::Device, MemoryType::CPUOutput)
@@ -384,9 +399,11 @@ pub(crate) fn host_memory() -> Result<ort::memory::MemoryInfo<'static>, SynthErr
 }
 
 /// A float32 output: its shape and its values (C order).
+#[cfg(feature = "synth")]
 pub(crate) type ShapedF32 = (Vec<i64>, Vec<f32>);
 
 /// Runs a session and copies the named float32 outputs out, with their shapes.
+#[cfg(feature = "synth")]
 pub(crate) fn run_f32(
     session: &mut ort::session::Session,
     file: &Path,

@@ -49,6 +49,10 @@ const LAYERS: &[Layer] = &[
     // recordings name) is in [`FOUNDATION`] too: every row that reads such a path uses it.
     Layer { name: "confine", prefixes: &["confine"], may_use: &[] },
     Layer { name: "roots", prefixes: &["roots"], may_use: &[] },
+    // `features` (the Cargo features of the build and the error of a command that needs one
+    // left out) is in [`FOUNDATION`]: `synth` refuses to load a model without `synth`, the
+    // CLI and the daemon refuse commands and jobs.
+    Layer { name: "features", prefixes: &["features"], may_use: &[] },
     Layer { name: "pose", prefixes: &["pose"], may_use: &[] },
     // Time as a value (STYLE.md 5): the bottom row with `pose`.
     Layer { name: "clock", prefixes: &["clock"], may_use: &[] },
@@ -617,7 +621,7 @@ fn row_of(path: &[String]) -> Option<&'static Layer> {
 }
 
 /// Rows every row may use (below them all in [`LAYERS`]).
-const FOUNDATION: &[&str] = &["untrusted", "confine"];
+const FOUNDATION: &[&str] = &["untrusted", "confine", "features"];
 
 /// Row name -> every row it may use (transitively), itself included.
 fn allowed_rows() -> BTreeMap<&'static str, BTreeSet<&'static str>> {

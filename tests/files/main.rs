@@ -3,6 +3,7 @@
 //! One test binary per area; run one module with
 //! `cargo test --test files <module>::`.
 
+#[cfg(feature = "lerobot")]
 mod dataset_lerobot;
 mod dataset_mds;
 mod dataset_verify;

@@ -48,6 +48,10 @@ fn message(stderr: &str, tmp: &Path) -> String {
 }
 
 #[test]
+#[cfg_attr(
+    not(all(feature = "synth", feature = "lerobot")),
+    ignore = "the table has synth and LeRobot cases: it needs the default features"
+)]
 fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();
@@ -101,7 +105,9 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     // SAFETY: mkfifo on a NUL-terminated path in the test's temp folder.
     assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
 
-    let cases = vec![
+    write("nokhwa.toml", b"[sensors.tactip]\nbackend = \"nokhwa\"\ndevice = \"index:0\"\n");
+
+    let mut cases = vec![
         case("unknown subcommand", &["frobnicate"], 2, "unrecognized subcommand"),
         case("a number flag given a word", &["collect", "--poses", "many"], 2, "invalid value"),
         case("unknown sensor name", &["collect", "--sensor", "gelsight", "--dry-run"], 2, "unknown sensor"),
@@ -201,6 +207,15 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "built without CUDA training",
         ),
     ];
+    // Each platform builds one hardware camera backend: V4L2 on Linux, nokhwa on macOS and Windows.
+    if cfg!(target_os = "linux") {
+        cases.push(case(
+            "a camera backend this platform does not build",
+            &["collect", "--config", "nokhwa.toml", "--sensor", "tactip", "--poses", "1", "--out", "cam"],
+            2,
+            "backend \"nokhwa\" is not built on this platform",
+        ));
+    }
 
     let mut table = vec!["| bad input | command | rig says | exit |".to_string(), "|---|---|---|---|".to_string()];
     let mut failures = Vec::new();
@@ -229,6 +244,7 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     }
     // Nothing of a refused run may be left as a dataset.
     assert!(!dir.join("cal/sphere/tactip/poses.csv").exists(), "a refused calibration started a dataset");
+    assert!(!dir.join("cam/sphere/tactip/poses.csv").exists(), "a refused camera backend started a dataset");
     // A refused export leaves the folder it was pointed at as it was.
     let kept: Vec<_> =
         std::fs::read_dir(dir.join("not-a-dataset-either")).expect("ls").filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
@@ -239,6 +255,47 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         std::fs::write(&path, format!("{table}\n")).unwrap_or_else(|e| panic!("writing {path}: {e}"));
     }
     assert!(failures.is_empty(), "bad inputs:\n{}\n\n{table}", failures.join("\n"));
+}
+
+/// A command whose Cargo feature this build left out (`cargo build --no-default-features`)
+/// still parses and exits 1 saying how to rebuild; with the feature it gets past that check
+/// and fails on the input instead (exit 2). Each build checks its own side.
+#[test]
+fn a_command_of_a_feature_left_out_exits_1_saying_how_to_rebuild() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    image::RgbImage::new(16, 16).save(dir.join("c.png")).expect("writing a control image");
+    let info = rig(dir).arg("info").output().expect("running rig info");
+    let listed = String::from_utf8_lossy(&info.stdout).lines().next().unwrap_or_default().to_string();
+    for (feature, built, args, input_error) in [
+        ("synth", cfg!(feature = "synth"), vec!["synth", "info", "--model", "no-model"], "folder no-model does not exist"),
+        (
+            "synth",
+            cfg!(feature = "synth"),
+            vec!["synth", "one", "--model", "no-model", "--control", "c.png", "--prompt", "p", "--out", "o.png"],
+            "does not exist",
+        ),
+        ("synth", cfg!(feature = "synth"), vec!["synth", "--fill-missing", "--dataset", "no-such-folder"], "no-such-folder"),
+        (
+            "lerobot",
+            cfg!(feature = "lerobot"),
+            vec!["dataset", "export", "no-such-folder", "--format", "lerobot", "--out", "lr"],
+            "no-such-folder",
+        ),
+    ] {
+        let o = rig(dir).args(&args).output().expect("running rig");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        let missing = format!("this rig was built without the `{feature}` feature");
+        if built {
+            assert_eq!(o.status.code(), Some(2), "rig {args:?}: {stderr}");
+            assert!(stderr.contains(input_error) && !stderr.contains(&missing), "rig {args:?}: {stderr}");
+        } else {
+            assert_eq!(o.status.code(), Some(1), "rig {args:?}: {stderr}");
+            assert!(stderr.contains(&missing) && stderr.contains("rebuild with `cargo build"), "rig {args:?}: {stderr}");
+        }
+        assert!(!dir.join("lr").exists(), "a refused export made its --out");
+        assert_eq!(listed.contains(feature), built, "rig info says {listed:?}");
+    }
 }
 
 /// `rig plan show | head -1`: the reader goes away after one line; rig ends without a panic

@@ -41,6 +41,7 @@ fn tiny_config() -> BenchConfig {
 }
 
 #[test]
+#[cfg_attr(not(feature = "synth"), ignore = "every knob, synthesis too: needs the synth feature")]
 fn tiny_bench_writes_the_report_with_every_table_and_plot() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("report");

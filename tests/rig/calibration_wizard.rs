@@ -35,7 +35,7 @@ fn spawn_wizard(dir: &std::path::Path, args: &[&str]) -> (std::process::Child, F
     let (mut master, mut slave) = (-1, -1);
     // SAFETY: openpty writes two new descriptors into the two ints; the null pointers ask for
     // no name, default terminal settings and default size.
-    let rc = unsafe { libc::openpty(&mut master, &mut slave, std::ptr::null_mut(), std::ptr::null(), std::ptr::null()) };
+    let rc = unsafe { libc::openpty(&mut master, &mut slave, std::ptr::null_mut(), std::ptr::null_mut(), std::ptr::null_mut()) };
     assert_eq!(rc, 0, "openpty: {}", std::io::Error::last_os_error());
     // SAFETY: both descriptors were just opened by openpty and are owned by nothing else.
     let (master, slave) = unsafe { (File::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };

@@ -14,6 +14,8 @@ mod daemon_browser;
 mod dataset_kill;
 mod fault_matrix;
 mod fresh_frames;
+// Its cases load model packages and export LeRobot datasets: the default features.
+#[cfg(all(feature = "synth", feature = "lerobot"))]
 mod hostile;
 mod hw_camera;
 mod hw_magician;

@@ -4,6 +4,7 @@
 //! `cargo test --test synth <module>::`.
 
 mod audit;
+#[cfg(feature = "downstream")]
 mod downstream;
 mod eval;
 mod mds_parity;
