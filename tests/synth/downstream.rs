@@ -82,8 +82,10 @@ fn the_regressor_learns_vitac_x_and_the_shuffled_control_does_not() {
     assert_eq!(control["shuffle_labels"], true);
     for c in 0..3 {
         let r2 = r2s(&control, "vitac", "real", c);
-        // Nothing to learn: about 0, or below it (a guess away from the test rows' mean).
-        assert!(r2.iter().all(|r| *r < 0.2 && *r > -1.0), "component {c}: R² with shuffled labels {r2:?}");
+        // Nothing to learn: about 0, or below it (a network that memorises shuffled labels
+        // answers with their spread, not their mean: about -1 for answers independent of the
+        // truth). Never the learnt regressor's 0.9.
+        assert!(r2.iter().all(|r| *r < 0.2), "component {c}: R² with shuffled labels {r2:?}");
     }
 }
 
