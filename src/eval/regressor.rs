@@ -187,9 +187,7 @@ impl ResNet18 {
     fn forward(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
         let mut h = self.stem_bn.forward_t(&self.stem.forward(x)?, train)?.relu()?;
         if self.max_pool {
-            // 3x3, stride 2, padding 1: after a ReLU every value is >= 0, so zero padding is
-            // the same as padding with -infinity.
-            h = h.pad_with_zeros(2, 1, 1)?.pad_with_zeros(3, 1, 1)?.max_pool2d_with_stride(3, 2)?;
+            h = max_pool_3x3_stride_2(&h)?;
         }
         for block in &self.blocks {
             h = block.forward(&h, train)?;
@@ -197,6 +195,34 @@ impl ResNet18 {
         let pooled = h.mean(D::Minus1)?.mean(D::Minus1)?;
         self.head.forward(&pooled)
     }
+}
+
+/// ResNet18's max pool (3x3 window, stride 2, padding 1) as the maximum of nine strided views:
+/// candle's own `max_pool2d` has no gradient when windows overlap. Its input comes from a
+/// ReLU, so every value is >= 0 and zero padding is the same as padding with -infinity.
+#[cfg(feature = "downstream")]
+fn max_pool_3x3_stride_2(x: &Tensor) -> candle_core::Result<Tensor> {
+    let (n, c, h, w) = x.dims4()?;
+    let (ho, wo) = ((h + 1) / 2, (w + 1) / 2);
+    // Room for every window: one row (column) before, and enough after for 2 * ho + 1.
+    let padded = x.pad_with_zeros(2, 1, 2 * ho + 1 - h)?.pad_with_zeros(3, 1, 2 * wo + 1 - w)?;
+    let mut out: Option<Tensor> = None;
+    for dy in 0..3 {
+        for dx in 0..3 {
+            let view = padded
+                .narrow(2, dy, 2 * ho)?
+                .narrow(3, dx, 2 * wo)?
+                .reshape((n, c, ho, 2, wo, 2))?
+                .narrow(3, 0, 1)?
+                .narrow(5, 0, 1)?
+                .reshape((n, c, ho, wo))?;
+            out = Some(match out {
+                Some(m) => m.maximum(&view)?,
+                None => view,
+            });
+        }
+    }
+    out.ok_or_else(|| candle_core::Error::Msg("empty pooling window".into()))
 }
 
 #[cfg(feature = "downstream")]
@@ -380,6 +406,33 @@ mod tests {
         assert!(mae < 1.0, "x MAE {mae} px");
         // The constant component stays at its constant.
         assert!(a.iter().all(|p| p[2].abs() < 0.25), "{a:?}");
+    }
+
+    #[test]
+    fn from_128_px_the_stem_is_resnet18s_own_and_predicts_every_test_image() {
+        // 7x7 stride-2 convolution and max pool: 128 -> 64 -> 32, then the stages to 4 x 4.
+        let s = IMAGENET_STEM_FROM_PX;
+        let config = RegressorConfig { size_px: s, width: 2, epochs: 1, batch: 4, ..tiny() };
+        let image = |i: usize| (0..CHANNELS * s * s).map(move |p| ((p * 7 + i * 13) % 97) as f32 / 97.0);
+        let train: Vec<f32> = (0..8).flat_map(image).collect();
+        let labels: Vec<[f32; OUTPUTS]> = (0..8).map(|i| [i as f32, 0.5 * i as f32, 10.0 * i as f32]).collect();
+        let test: Vec<f32> = (8..11).flat_map(image).collect();
+        let got = train_and_predict(&train, &labels, &test, &config, 3, TrainDevice::Cpu, |_, _| {}).expect("train");
+        assert_eq!(got.len(), 3);
+        assert!(got.iter().flatten().all(|v| v.is_finite()), "{got:?}");
+    }
+
+    #[test]
+    fn the_max_pool_is_torchs_3x3_stride_2_padding_1() {
+        // 1 x 1 x 5 x 5, values 0..25: windows centred on rows and columns 0, 2, 4.
+        let x = Tensor::arange(0f32, 25.0, &Device::Cpu).and_then(|t| t.reshape((1, 1, 5, 5))).expect("x");
+        let got = max_pool_3x3_stride_2(&x).and_then(|t| t.flatten_all()).and_then(|t| t.to_vec1::<f32>()).expect("pool");
+        // torch.nn.functional.max_pool2d(torch.arange(25.).reshape(1, 1, 5, 5), 3, 2, 1)
+        assert_eq!(got, vec![6.0, 8.0, 9.0, 16.0, 18.0, 19.0, 21.0, 23.0, 24.0]);
+        let even = Tensor::arange(0f32, 16.0, &Device::Cpu).and_then(|t| t.reshape((1, 1, 4, 4))).expect("x");
+        let got = max_pool_3x3_stride_2(&even).and_then(|t| t.flatten_all()).and_then(|t| t.to_vec1::<f32>()).expect("pool");
+        // torch: [[5, 7], [13, 15]]
+        assert_eq!(got, vec![5.0, 7.0, 13.0, 15.0]);
     }
 
     #[test]
