@@ -203,7 +203,7 @@ impl ResNet18 {
 #[cfg(feature = "downstream")]
 fn max_pool_3x3_stride_2(x: &Tensor) -> candle_core::Result<Tensor> {
     let (n, c, h, w) = x.dims4()?;
-    let (ho, wo) = ((h + 1) / 2, (w + 1) / 2);
+    let (ho, wo) = (h.div_ceil(2), w.div_ceil(2));
     // Room for every window: one row (column) before, and enough after for 2 * ho + 1.
     let padded = x.pad_with_zeros(2, 1, 2 * ho + 1 - h)?.pad_with_zeros(3, 1, 2 * wo + 1 - w)?;
     let mut out: Option<Tensor> = None;
