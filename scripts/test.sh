@@ -36,9 +36,9 @@ echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs
 #   Not with the `nokhwa` feature: nokhwa's AVFoundation bindings compile an Objective-C file
 #   (objc_exception) that needs Apple's compiler and SDK, which a Linux machine lacks; so this
 #   checks everything of the macOS build but nokhwa's backend (camera/nokhwa_backend.rs).
-# Added time with target/ warm from an earlier test run: seconds. On a fresh clone, after the
-# default build, 7 min 11 s on a 2-core machine busy with other builds (the build 4 min 32 s,
-# mostly rig itself again; the check 1 min 10 s; the macOS check 1 min 29 s).
+# Added time with target/ warm from an earlier test run: seconds. On a fresh clone, 5 min 56 s
+# on a quiet 2-core machine (the build 3 min 14 s, compiling the dependencies the test build
+# then reuses; the check 30 s; the macOS check 2 min 12 s).
 cargo build --no-default-features --locked
 cargo check --no-default-features --all-targets --locked
 if ! rustup target list --installed | grep -qx x86_64-apple-darwin; then
