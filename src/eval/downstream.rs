@@ -53,7 +53,7 @@ pub const MAX_IMAGE_BYTES: u64 = 4 << 30;
 pub enum Scale {
     /// Minutes on a CPU: width 8 (ResNet18: 64), 32 px, 15 epochs, learning rate 3e-3.
     Small,
-    /// MultiDiffSense's: width 64, 224 px, 100 epochs, batch 8, AdamW 1e-4 (hours on a CPU).
+    /// MultiDiffSense's: width 64, 224 px, 100 epochs, batch 8, AdamW 1e-4 (days on a 2-core CPU).
     Paper,
 }
 
