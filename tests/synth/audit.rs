@@ -5,25 +5,10 @@
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn rig() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
-    c.current_dir(env!("CARGO_MANIFEST_DIR"));
-    c.env_remove("RIG_CONFIG");
-    c
-}
-
-fn text(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
-}
-
-fn ok(mut c: Command) -> String {
-    let o = c.output().expect("running rig");
-    assert!(o.status.success(), "{c:?} failed:\n{}", text(&o));
-    text(&o)
-}
+use crate::cli::{ok, rig, text};
 
 /// A 3 x 2 x 1 x 3 = 18-pose grid of the edge under ViTac: `collected` poses collected, the
 /// rest filled with the tiny package (1 step). Returns the dataset.

@@ -4,24 +4,8 @@
 //! filled with `models/default`.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn rig() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
-    c.current_dir(env!("CARGO_MANIFEST_DIR"));
-    c.env_remove("RIG_CONFIG");
-    c
-}
-
-fn text(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
-}
-
-fn ok(mut c: Command) -> String {
-    let o = c.output().expect("running rig");
-    assert!(o.status.success(), "{c:?} failed:\n{}", text(&o));
-    text(&o)
-}
+use crate::cli::{ok, rig, text};
 
 /// A plan over x (9 values), z (3) and yaw (`yaw_values` from -90 deg in 180 / `yaw_values`
 /// steps: an edge's yaw is ambiguous only between -90 and 90, so 90 is left out).

@@ -4,6 +4,7 @@
 //! `cargo test --test synth <module>::`.
 
 mod audit;
+mod cli;
 #[cfg(feature = "downstream")]
 mod downstream;
 mod eval;
