@@ -336,37 +336,22 @@ fn to_chw(img: &image::RgbImage) -> Vec<f32> {
     out
 }
 
-/// The datasets under `root` of one sensor (and the chosen objects).
-fn datasets_of(root: &Path, sensor: SensorKind, objects: &[String]) -> Result<Vec<DatasetInfo>, DownstreamError> {
+/// Every dataset under `root`, read once (manifest and rows).
+fn load_all(root: &Path) -> Result<Vec<DatasetInfo>, DownstreamError> {
     let dirs = crate::dataset::find_datasets(root).map_err(|source| EvalError::Dataset { dir: root.to_path_buf(), source })?;
     if dirs.is_empty() {
         return Err(EvalError::NoDatasets { side: "downstream", dir: root.to_path_buf() }.into());
     }
-    let mut out = Vec::new();
-    for d in dirs {
-        let info = DatasetInfo::load(&d)?;
-        if info.manifest.sensor == sensor && (objects.is_empty() || objects.contains(&info.manifest.object.name)) {
-            out.push(info);
-        }
-    }
-    Ok(out)
+    dirs.iter().map(|d| DatasetInfo::load(d).map_err(DownstreamError::from)).collect()
 }
 
-/// The sensors that have a dataset under `root`, in rig's order.
-fn sensors_under(root: &Path) -> Result<Vec<SensorKind>, DownstreamError> {
-    let dirs = crate::dataset::find_datasets(root).map_err(|source| EvalError::Dataset { dir: root.to_path_buf(), source })?;
-    if dirs.is_empty() {
-        return Err(EvalError::NoDatasets { side: "downstream", dir: root.to_path_buf() }.into());
-    }
-    let mut found = Vec::new();
-    for d in dirs {
-        found.push(crate::dataset::Manifest::load(&d).map_err(|source| EvalError::Dataset { dir: d.clone(), source })?.sensor);
-    }
-    Ok(SensorKind::ALL.into_iter().filter(|k| found.contains(k)).collect())
+/// The datasets of one sensor (and the chosen objects).
+fn of_sensor<'a>(all: &'a [DatasetInfo], sensor: SensorKind, objects: &[String]) -> Vec<&'a DatasetInfo> {
+    all.iter().filter(|d| d.manifest.sensor == sensor && (objects.is_empty() || objects.contains(&d.manifest.object.name))).collect()
 }
 
 /// The images (at `size` px) and labels of `rows` (dataset index, row), in their order.
-fn load_samples(datasets: &[DatasetInfo], rows: &[(usize, &PoseRow)], size: u32) -> Result<Vec<Sample>, DownstreamError> {
+fn load_samples(datasets: &[&DatasetInfo], rows: &[(usize, &PoseRow)], size: u32) -> Result<Vec<Sample>, DownstreamError> {
     let mut out = Vec::with_capacity(rows.len());
     for (i, row) in rows {
         let img = load_at(&datasets[*i].dir, &row.image, size)?;
@@ -415,11 +400,22 @@ pub fn downstream(root: &Path, options: &DownstreamOptions, mut progress: impl F
     check_bounds(options)?;
     let started = Instant::now();
     let synthetic_root = options.synthetic_root.as_deref().unwrap_or(root);
-    let sensors = if options.sensors.is_empty() { sensors_under(root)? } else { options.sensors.clone() };
+    let captured = load_all(root)?;
+    let synthetic = match &options.synthetic_root {
+        Some(other) => Some(load_all(other)?),
+        None => None,
+    };
+    let sources = Sources { root, synthetic_root, captured: &captured, synthetic: synthetic.as_deref().unwrap_or(&captured) };
+    // Every sensor with a dataset, in rig's order, unless some are chosen.
+    let sensors: Vec<SensorKind> = if options.sensors.is_empty() {
+        SensorKind::ALL.into_iter().filter(|k| captured.iter().any(|d| d.manifest.sensor == *k)).collect()
+    } else {
+        options.sensors.clone()
+    };
     let sets = options.sets();
     let mut results = Vec::new();
     for sensor in sensors {
-        results.push(one_sensor(root, synthetic_root, sensor, &sets, options, &mut progress)?);
+        results.push(one_sensor(&sources, sensor, &sets, options, &mut progress)?);
     }
     Ok(DownstreamReport {
         root: root.to_path_buf(),
@@ -435,20 +431,28 @@ pub fn downstream(root: &Path, options: &DownstreamOptions, mut progress: impl F
     })
 }
 
+/// The datasets read from the root and from where the synthetic rows come from (the same
+/// datasets unless `--synthetic` names another folder).
+struct Sources<'a> {
+    root: &'a Path,
+    synthetic_root: &'a Path,
+    captured: &'a [DatasetInfo],
+    synthetic: &'a [DatasetInfo],
+}
+
 fn one_sensor(
-    root: &Path,
-    synthetic_root: &Path,
+    sources: &Sources,
     sensor: SensorKind,
     sets: &[TrainingSet],
     options: &DownstreamOptions,
     progress: &mut impl FnMut(&str),
 ) -> Result<SensorResult, DownstreamError> {
     let objects_note = if options.objects.is_empty() { String::new() } else { format!(" (objects {})", options.objects.join(", ")) };
-    let captured_sets = datasets_of(root, sensor, &options.objects)?;
+    let captured_sets = of_sensor(sources.captured, sensor, &options.objects);
     if captured_sets.is_empty() {
-        return Err(DownstreamError::NoSensor { sensor, dir: root.to_path_buf(), objects: objects_note });
+        return Err(DownstreamError::NoSensor { sensor, dir: sources.root.to_path_buf(), objects: objects_note });
     }
-    let synthetic_sets = if synthetic_root == root { captured_sets.clone() } else { datasets_of(synthetic_root, sensor, &options.objects)? };
+    let synthetic_sets = of_sensor(sources.synthetic, sensor, &options.objects);
 
     // The split: captured rows in a seeded order, the first TEST_FRACTION held out.
     let mut captured: Vec<(usize, &PoseRow)> =
@@ -488,7 +492,7 @@ fn one_sensor(
             available: synthetic.len(),
             needed: MIN_TRAIN_ROWS,
             set,
-            dir: synthetic_root.to_path_buf(),
+            dir: sources.synthetic_root.to_path_buf(),
         });
     }
 
