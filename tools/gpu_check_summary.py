@@ -193,8 +193,8 @@ def summary(work, tiny=False):
 
 
 def self_test():
-    """The H200 figures of docs/src/benchmarks.md give the verdicts the guide states; odd or missing
-    logs give n/a and no error."""
+    """The H200 figures of docs/src/benchmarks.md give the verdicts the guide states, and the block
+    the guide shows; figures equal to a threshold meet it; odd or missing logs give n/a and no error."""
     fixture = Path(__file__).resolve().parent.parent / "tests" / "data" / "gpu-check-h200"
     fails = []
     fig = read_work(fixture)
@@ -242,6 +242,11 @@ def self_test():
                 fails.append("--tiny printed no line about the thresholds")
             if "| rig fp16, guidance 1 | n/a | n/a | n/a | n/a |  |  |" not in text:
                 fails.append("a timing line without numbers did not give n/a in the split")
+    # The guide shows this block as the H200 figures give it.
+    guide = (fixture.parent.parent.parent / "docs" / "src" / "benchmarks.md").read_text(encoding="utf-8").splitlines()
+    block, _ = acceptance(fig)
+    if any(row not in guide for row in block):
+        fails.append("docs/src/benchmarks.md does not show the acceptance block the H200 figures give")
     if fails:
         print("gpu_check_summary self-test FAILED:\n  " + "\n  ".join(fails), file=sys.stderr)
         return 1
