@@ -2,8 +2,10 @@
 # rig against diffusers on a GPU, full size: builds a Stable Diffusion 1.5 + ControlNet pipeline
 # with random weights and the real shapes (tools/build_sd15.py), exports it as rig packages in
 # float32 and float16 (tools/export_package.py --diffusers), runs rig and diffusers from the same
-# initial latents on the same GPU, and prints the parity and the timing table.
-# See docs/src/benchmarks.md#gpu-rig-against-diffusers.
+# initial latents on the same GPU, and prints the parity, the timing table, the fills' split (load,
+# warm-up, steady state) and the issue's GPU acceptance criteria, each met or NOT met. The tables
+# come from the logs it keeps in the work folder: `tools/gpu_check_summary.py WORK_DIR` prints them
+# again. See docs/src/benchmarks.md#gpu-rig-against-diffusers.
 #
 #   RIG_ORT_LIB=/path/to/onnxruntime-gpu/capi scripts/gpu-check.sh
 #   scripts/gpu-check.sh --tiny            # a dry run on the CPU: tiny shapes, 4 steps, 2 images
@@ -28,7 +30,7 @@ tiny=0
 for arg in "$@"; do
   case "$arg" in
     --tiny) tiny=1 ;;
-    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
     *) echo "gpu-check: unknown argument $arg (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -143,27 +145,21 @@ stage "diffusers ($device): warm-up, then guidance 1 and 9"
 "$py" tools/diffusers_anchor.py "$pipe" --control "$work/control.png" --prompt "$prompt" --latents "$work/x_T.npy" \
   --out-prefix "$work/diffusers" --steps "$steps" --guidance 1,9 --device "$device" $([ "$tiny" = 0 ] && echo --fp16) \
   2>&1 | quiet | tee "$work/diffusers.log"
-for g in 1 9; do
-  for dtype in float32 float16; do
-    timing[diffusers_${dtype}_g$g]=$(awk -v g="$g" -v d="$dtype" '$3 == d && $5 == g":" {print $9}' "$work/diffusers.log")
-  done
-done
 
 # --- rig -----------------------------------------------------------------------------------------
-# Every rig run goes through these two functions: PACKAGE GUIDANCE TAG.
-# rig_one: the first image of a process (`rig synth one`); sets one_s and load_s.
+# Every rig run goes through these two functions: PACKAGE GUIDANCE TAG. Their logs, rig-TAG.log and
+# fill-TAG.log, are what tools/gpu_check_summary.py reads.
+# rig_one: the first image of a process (`rig synth one`).
 rig_one() {
   local pkg=$1 g=$2 tag=$3
   "$rig" synth one --model "$pkg" --control "$work/control.png" --prompt "$prompt" --init-latents "$work/x_T.npy" \
     --steps "$steps" --guidance "$g" --provider "$provider" "${ort_args[@]}" \
     --out "$work/rig-$tag.png" --dump-raw "$work/rig-$tag.npy" >"$work/rig-$tag.log" 2>&1 \
     || { cat "$work/rig-$tag.log"; die "rig synth one ($tag) failed"; }
-  grep "^wrote" "$work/rig-$tag.log" | sed 's/^/  /'
-  one_s=$(sed -n 's/^wrote .* in \([0-9.]*\) s (+\([0-9.]*\) s loading).*/\1/p' "$work/rig-$tag.log")
-  load_s=$(sed -n 's/^wrote .* in \([0-9.]*\) s (+\([0-9.]*\) s loading).*/\2/p' "$work/rig-$tag.log")
+  grep "^wrote" "$work/rig-$tag.log" | sed 's/^/  /' || true
 }
-# rig_fill: a fill of $images poses of a simulated dataset, as a lab fills (pipeline loaded once);
-# sets fill_s (seconds an image, the fill's time over its images).
+# rig_fill: a fill of $images poses of a simulated dataset, as a lab fills (pipeline loaded once):
+# its `synthesised N poses in S s` and `timing:` (load, warm-up, steady state) lines.
 rig_fill() {
   local pkg=$1 g=$2 tag=$3
   local data=$work/fill-$tag
@@ -172,8 +168,7 @@ rig_fill() {
     || { cat "$work/collect-$tag.log"; die "rig collect failed"; }
   "$rig" synth --fill-missing --dataset "$data/edge" --model "$pkg" --steps "$steps" --guidance "$g" --limit "$images" \
     --provider "$provider" "${ort_args[@]}" >"$work/fill-$tag.log" 2>&1 || { cat "$work/fill-$tag.log"; die "rig synth --fill-missing ($tag) failed"; }
-  grep "synthesised" "$work/fill-$tag.log" | sed 's/^/  /'
-  fill_s=$(sed -n 's/.*synthesised \([0-9]*\) poses in \([0-9.]*\) s.*/\1 \2/p' "$work/fill-$tag.log" | awk '{n += $1; s += $2} END { if (n) printf "%.3f", s / n }')
+  grep "synthesised\|^timing:" "$work/fill-$tag.log" | sed 's/^/  /' || true
 }
 # A plan of 1 + $images poses: one collected, the rest for the fill.
 {
@@ -186,24 +181,23 @@ for variant in fp32 fp16; do
   for g in 1 9; do
     stage "rig $variant ($provider), guidance $g"
     rig_one "$work/package-$variant" "$g" "$variant-g$g"
-    timing[one_${variant}_g$g]=$one_s; timing[load_${variant}_g$g]=$load_s
     rig_fill "$work/package-$variant" "$g" "$variant-g$g"
-    timing[fill_${variant}_g$g]=$fill_s
   done
 done
 
-# --- parity and the table ------------------------------------------------------------------------
+# --- parity and the tables -----------------------------------------------------------------------
 stage "parity: rig's PNG against diffusers' (8-bit levels of 255), same latents"
+: >"$work/parity.log"
 for variant in fp32 fp16; do
   for g in 1 9; do
-    timing[levels_${variant}_g$g]=$("$py" - "$work/rig-$variant-g$g.png" "$work/diffusers_g$g.png" <<'PY'
+    level=$("$py" - "$work/rig-$variant-g$g.png" "$work/diffusers_g$g.png" <<'PY'
 import sys, numpy as np
 from PIL import Image
 a, b = (np.asarray(Image.open(p).convert("RGB"), dtype=np.int16) for p in sys.argv[1:3])
 print(int(np.abs(a - b).max()))
 PY
 )
-    echo "  rig $variant guidance $g: max level difference ${timing[levels_${variant}_g$g]}"
+    echo "rig $variant guidance $g: max level difference $level" | tee -a "$work/parity.log" | sed 's/^/  /'
   done
 done
 
@@ -215,12 +209,5 @@ echo "device: $gpu; $size x $size px, $steps DDIM steps, one image; $v; $(date -
 cell() { [ -n "${1:-}" ] && echo "$1 s" || echo "n/a"; }
 echo "build pipeline $(cell "${timing[build]:-}"), export fp32 $(cell "${timing[export_fp32]:-}"), export fp16 $(cell "${timing[export_fp16]:-}") (n/a: kept from an earlier run)"
 echo
-echo "| | guidance 1 | guidance 9 |"
-echo "|---|---|---|"
-echo "| diffusers, PyTorch fp32 | $(cell "${timing[diffusers_float32_g1]}") | $(cell "${timing[diffusers_float32_g9]}") |"
-echo "| diffusers, PyTorch fp16 | $(cell "${timing[diffusers_float16_g1]}") | $(cell "${timing[diffusers_float16_g9]}") |"
-for variant in fp32 fp16; do
-  echo "| rig $variant \`synth --fill-missing\` ($images images, per image) | $(cell "${timing[fill_${variant}_g1]}") | $(cell "${timing[fill_${variant}_g9]}") |"
-  echo "| rig $variant \`synth one\` (first image of a process) | ${timing[one_${variant}_g1]} s (+${timing[load_${variant}_g1]} s loading) | ${timing[one_${variant}_g9]} s (+${timing[load_${variant}_g9]} s loading) |"
-done
-echo "| parity: max level difference, rig fp32 / fp16 against diffusers fp32 | ${timing[levels_fp32_g1]} / ${timing[levels_fp16_g1]} | ${timing[levels_fp32_g9]} / ${timing[levels_fp16_g9]} |"
+# The timing table, the fills' split and the acceptance check, from the logs above.
+"$py" tools/gpu_check_summary.py "$work" $([ "$tiny" = 1 ] && echo --tiny)

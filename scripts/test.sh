@@ -19,6 +19,8 @@ export RIG_SHARED="${RIG_SHARED:-$(cd .. && pwd)/shared}"
 # of README.md, CHANGELOG.md, TESTING.md and docs/src must resolve. mdBook is optional.
 python3 scripts/check-docs.py --self-test
 python3 scripts/check-docs.py
+# scripts/gpu-check.sh's tables and acceptance verdicts on the H200 run's figures (standard library, < 1 s).
+python3 tools/gpu_check_summary.py --self-test
 if command -v mdbook >/dev/null 2>&1; then
   book_dir=$(mktemp -d)
   mdbook build docs --dest-dir "$book_dir"
