@@ -140,9 +140,8 @@ fn run_downstream(args: &Args, root: &std::path::Path) -> anyhow::Result<()> {
     options.synthetic_root = args.synthetic.clone();
     options.shuffle_labels = args.shuffle_labels;
     options.device = args.device;
-    let report = downstream(root, &options, |line| eprintln!("{line}")).map_err(|e| {
-        if e.is_bad_input() { anyhow::Error::new(crate::cli::usage(&e.to_string())) } else { anyhow::Error::new(e) }
-    })?;
+    let report = downstream(root, &options, |line| eprintln!("{line}"))
+        .map_err(|e| if e.is_bad_input() { anyhow::Error::new(crate::cli::usage(&e.to_string())) } else { anyhow::Error::new(e) })?;
     let table = report.to_markdown();
     println!("{table}");
     write_outputs(args, &table, || report.to_json())
@@ -168,8 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..EvalOptions::at_size(args.size.unwrap_or(128), &args.label)
     };
     // Every evaluation error is bad input: missing, unpaired or inconsistent datasets.
-    let report =
-        evaluate(real, synthetic, &args.collected, &options).map_err(|e| anyhow::Error::new(crate::cli::usage(&e.to_string())))?;
+    let report = evaluate(real, synthetic, &args.collected, &options).map_err(|e| anyhow::Error::new(crate::cli::usage(&e.to_string())))?;
     let table = report.to_markdown();
     println!("{table}");
     write_outputs(&args, &table, || report.to_json())?;

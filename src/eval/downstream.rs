@@ -184,7 +184,9 @@ pub enum DownstreamError {
     TooFewSynthetic { sensor: SensorKind, available: usize, needed: usize, set: &'static str, dir: PathBuf },
     #[error("--train-size {asked}: {sensor} has only {real} captured training rows and {synthetic} synthetic rows")]
     TrainSize { asked: usize, sensor: SensorKind, real: usize, synthetic: usize },
-    #[error("{sensor}: {images} images at {size_px} px take {bytes} bytes as tensors, over the {MAX_IMAGE_BYTES}-byte bound (use a smaller --size)")]
+    #[error(
+        "{sensor}: {images} images at {size_px} px take {bytes} bytes as tensors, over the {MAX_IMAGE_BYTES}-byte bound (use a smaller --size)"
+    )]
     TooLarge { sensor: SensorKind, images: usize, size_px: usize, bytes: u64 },
     #[error("--device cuda: {0}")]
     Device(String),
@@ -528,12 +530,8 @@ fn one_sensor(
         let synthetic_pick: Vec<&Sample> =
             if needs_synthetic { pick(&synthetic_samples).into_iter().map(|i| &synthetic_samples[i]).collect() } else { Vec::new() };
         for result in &mut set_results {
-            let chosen: Vec<&Sample> = real_pick
-                .iter()
-                .take(result.real_rows)
-                .chain(synthetic_pick.iter().take(result.synthetic_rows))
-                .copied()
-                .collect();
+            let chosen: Vec<&Sample> =
+                real_pick.iter().take(result.real_rows).chain(synthetic_pick.iter().take(result.synthetic_rows)).copied().collect();
             let pixels: Vec<f32> = chosen.iter().flat_map(|s| s.pixels.iter().copied()).collect();
             let mut labels: Vec<[f32; OUTPUTS]> = chosen.iter().map(|s| s.label).collect();
             if options.shuffle_labels {
@@ -541,10 +539,9 @@ fn one_sensor(
             }
             let t0 = Instant::now();
             let mut last_loss = f32::NAN;
-            let predicted = train_and_predict(&pixels, &labels, &test_pixels, &options.regressor, seed, options.device, |_, loss| {
-                last_loss = loss
-            })
-            .map_err(|source| DownstreamError::Training { sensor, set: result.label, seed, source })?;
+            let predicted =
+                train_and_predict(&pixels, &labels, &test_pixels, &options.regressor, seed, options.device, |_, loss| last_loss = loss)
+                    .map_err(|source| DownstreamError::Training { sensor, set: result.label, seed, source })?;
             let training_s = t0.elapsed().as_secs_f64();
             let scores = std::array::from_fn(|c| {
                 let p: Vec<f64> = predicted.iter().map(|p| p[c] as f64).collect();
@@ -553,7 +550,9 @@ fn one_sensor(
             });
             progress(&format!(
                 "downstream: {sensor}, {}, seed {seed}: {} epochs on {} rows in {training_s:.1} s (last training loss {last_loss:.3})",
-                result.label, options.regressor.epochs, chosen.len()
+                result.label,
+                options.regressor.epochs,
+                chosen.len()
             ));
             result.seeds.push(SeedResult { seed, scores, training_s });
         }
@@ -633,7 +632,11 @@ impl DownstreamReport {
                 s.synthetic_at_test_poses
             );
         }
-        out += &format!("\nTrained {} regressors in {:.0} s.\n", self.sensors.iter().map(|s| s.sets.len()).sum::<usize>() * self.seeds as usize, self.seconds);
+        out += &format!(
+            "\nTrained {} regressors in {:.0} s.\n",
+            self.sensors.iter().map(|s| s.sets.len()).sum::<usize>() * self.seeds as usize,
+            self.seconds
+        );
         out
     }
 
@@ -675,6 +678,8 @@ mod tests {
         assert!(err.to_string().contains("--size 4096: at most 512"), "{err}");
         let mut o = DownstreamOptions::at_scale(Scale::Small);
         o.seeds = 0;
-        assert!(downstream(Path::new("/nonexistent-rig-folder"), &o, |_| {}).unwrap_err().to_string().contains("--seeds must be at least 1"));
+        assert!(
+            downstream(Path::new("/nonexistent-rig-folder"), &o, |_| {}).unwrap_err().to_string().contains("--seeds must be at least 1")
+        );
     }
 }

@@ -19,8 +19,8 @@
 use candle_core::{D, DType, Device, Module, Tensor};
 #[cfg(feature = "downstream")]
 use candle_nn::{
-    AdamW, BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, ParamsAdamW, VarBuilder, VarMap,
-    batch_norm, conv2d_no_bias, linear,
+    AdamW, BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, ParamsAdamW, VarBuilder, VarMap, batch_norm,
+    conv2d_no_bias, linear,
 };
 #[cfg(feature = "downstream")]
 use rand::seq::SliceRandom;
@@ -131,7 +131,8 @@ fn bn(channels: usize, vb: VarBuilder) -> candle_core::Result<BatchNorm> {
 impl BasicBlock {
     fn new(vb: VarBuilder, cin: usize, cout: usize, stride: usize) -> candle_core::Result<Self> {
         let conv = |cin, k, stride, padding, vb| conv2d_no_bias(cin, cout, k, Conv2dConfig { padding, stride, ..Default::default() }, vb);
-        let shortcut = if stride != 1 || cin != cout { Some((conv(cin, 1, stride, 0, vb.pp("proj"))?, bn(cout, vb.pp("proj_bn"))?)) } else { None };
+        let shortcut =
+            if stride != 1 || cin != cout { Some((conv(cin, 1, stride, 0, vb.pp("proj"))?, bn(cout, vb.pp("proj_bn"))?)) } else { None };
         Ok(Self {
             conv1: conv(cin, 3, stride, 1, vb.pp("conv1"))?,
             bn1: bn(cout, vb.pp("bn1"))?,
