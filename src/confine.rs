@@ -4,6 +4,7 @@
 //!
 //! ```text
 //!   a path the operator typed (--dataset /data/x) ──► RootDir::open  (its own symlinks followed, once)
+//!   a file the operator typed (--plan p.toml)      ──► open_operator_file / read_operator_file (same)
 //!   a path a file or request names ("images/3.png") ──► RootDir::{read, open_file, entries, write_atomic, ...}
 //!                                                      └─ resolved beneath the root's fd, no symlink anywhere
 //! ```
@@ -483,6 +484,42 @@ pub fn read_bounded(file: File, path: &Path, max_bytes: u64) -> Result<Vec<u8>, 
     Ok(bytes)
 }
 
+/// Opens the regular file the operator typed (`--plan plans/edge.toml`, `--control hint.png`,
+/// `--stl part.stl`): like [`RootDir::open`] for a folder, the operator's own symlinks are
+/// followed, once, here. The open cannot block (`O_NONBLOCK`: a FIFO or a device answers at
+/// once) and the kind is checked with `fstat` on the opened descriptor, so nothing can be
+/// swapped in between a check and the open. Paths a file or a request names go through a
+/// [`RootDir`] instead.
+pub fn open_operator_file(path: &Path) -> Result<File, ConfineError> {
+    // A device is never opened at all (opening a serial port raises its DTR line, which resets
+    // some boards): its kind is looked at first, then checked again on what was opened.
+    let missing = |e: Errno| match e {
+        Errno::NOENT | Errno::NOTDIR => ConfineError::Missing { path: path.to_path_buf() },
+        e => ConfineError::Io { op: "inspecting", path: path.to_path_buf(), source: e.into() },
+    };
+    let kind = EntryKind::of(FileType::from_raw_mode(rustix::fs::stat(path).map_err(missing)?.st_mode));
+    if kind != EntryKind::File {
+        return Err(ConfineError::NotRegular { path: path.to_path_buf(), found: kind.describe() });
+    }
+    let fd = rustix::fs::open(path, OFlags::RDONLY | OFlags::NONBLOCK | OFlags::CLOEXEC, Mode::empty()).map_err(|e| match e {
+        Errno::NOENT | Errno::NOTDIR => ConfineError::Missing { path: path.to_path_buf() },
+        e => ConfineError::Io { op: "opening", path: path.to_path_buf(), source: e.into() },
+    })?;
+    let stat = rustix::fs::fstat(&fd).map_err(io("inspecting", path))?;
+    let kind = EntryKind::of(FileType::from_raw_mode(stat.st_mode));
+    if kind != EntryKind::File {
+        return Err(ConfineError::NotRegular { path: path.to_path_buf(), found: kind.describe() });
+    }
+    rustix::fs::fcntl_setfl(&fd, OFlags::empty()).map_err(io("opening", path))?;
+    Ok(File::from(fd))
+}
+
+/// The bytes of the regular file the operator typed ([`open_operator_file`]), at most
+/// `max_bytes` (checked on the opened file before reading, and again while reading).
+pub fn read_operator_file(path: &Path, max_bytes: u64) -> Result<Vec<u8>, ConfineError> {
+    read_bounded(open_operator_file(path)?, path, max_bytes)
+}
+
 /// Splits `path` (a path the operator or a request gave, already confined to its roots) into
 /// the folder it lives in, opened as a root, and its file name: the folder's own symlinks are
 /// the operator's, the file name must not be one.
@@ -669,5 +706,26 @@ mod tests {
         symlink(top.join("outside/secret.txt"), top.join("root/named-link")).expect("symlink");
         assert!(matches!(read_named_file(&top.join("root/named-link"), 100), Err(ConfineError::Symlink { .. })));
         assert_eq!(read_named_file(&top.join("root-link/file.txt"), 100).expect("read"), b"inside");
+    }
+
+    #[test]
+    fn a_file_the_operator_typed_follows_their_symlinks_and_is_bounded() {
+        let (_tmp, top) = fixture();
+        symlink(top.join("root/a/file.txt"), top.join("typed-link.txt")).expect("symlink");
+        assert_eq!(read_operator_file(&top.join("typed-link.txt"), 100).expect("the operator's symlink"), b"inside");
+        assert_eq!(read_operator_file(&top.join("root/file.txt"), 6).expect("exactly the bound"), b"inside");
+        assert!(matches!(read_operator_file(&top.join("root/file.txt"), 5), Err(ConfineError::TooLarge { max_bytes: 5, .. })));
+        assert!(matches!(read_operator_file(&top.join("root/a"), 100), Err(ConfineError::NotRegular { found: "a folder", .. })));
+        assert!(matches!(read_operator_file(&top.join("root/nope"), 100), Err(ConfineError::Missing { .. })));
+        assert!(matches!(read_operator_file(&top.join("root/file.txt/x"), 100), Err(ConfineError::Missing { .. })));
+        let fifo = top.join("fifo");
+        let c_path = std::ffi::CString::new(fifo.as_os_str().as_bytes()).expect("no NUL in a temp path");
+        // SAFETY: mkfifo reads a NUL-terminated path we own.
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo: {}", std::io::Error::last_os_error());
+        // Would block forever if it were opened for reading the usual way.
+        let e = open_operator_file(&fifo).expect_err("a FIFO");
+        assert!(matches!(e, ConfineError::NotRegular { found: "a FIFO, socket or device", .. }), "{e}");
+        symlink(&fifo, top.join("fifo-link")).expect("symlink");
+        assert!(matches!(open_operator_file(&top.join("fifo-link")), Err(ConfineError::NotRegular { .. })), "through a symlink too");
     }
 }

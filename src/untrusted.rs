@@ -14,7 +14,6 @@
 //! config, firmware profile, model.toml, scheduler config, scene.
 
 use std::fmt;
-use std::io::Read;
 use std::path::Path;
 
 /// Largest configuration-like file rig reads (plans, configs, manifests, model.toml...).
@@ -78,29 +77,23 @@ pub fn read_text(path: &Path, max_bytes: u64) -> std::io::Result<String> {
     String::from_utf8(bytes).map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"))
 }
 
-/// [`read_text`] without the UTF-8 rule. `/dev/null` (the usual "empty file") reads as empty.
+/// [`read_text`] without the UTF-8 rule, through the one opener
+/// ([`crate::confine::read_operator_file`]). `/dev/null` (the usual "empty file") reads as
+/// empty.
 pub fn read_bytes(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    use crate::confine::ConfineError;
+    use std::io::{Error, ErrorKind};
     if path == Path::new("/dev/null") {
         return Ok(Vec::new());
     }
-    // Checked before opening: opening a FIFO for reading would block until a writer came.
-    if !std::fs::metadata(path)?.is_file() {
-        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file"));
-    }
-    let file = std::fs::File::open(path)?;
-    let meta = file.metadata()?;
-    if !meta.is_file() {
-        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file"));
-    }
-    if meta.len() > max_bytes {
-        return Err(too_large(max_bytes));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > max_bytes {
-        return Err(too_large(max_bytes));
-    }
-    Ok(bytes)
+    crate::confine::read_operator_file(path, max_bytes).map_err(|e| match e {
+        ConfineError::Io { source, .. } => source,
+        // As the system says it: "No such file or directory (os error 2)".
+        ConfineError::Missing { .. } => Error::from(rustix::io::Errno::NOENT),
+        ConfineError::NotRegular { .. } | ConfineError::NotFolder { .. } => Error::new(ErrorKind::InvalidInput, "not a regular file"),
+        ConfineError::TooLarge { .. } => too_large(max_bytes),
+        other => Error::new(ErrorKind::InvalidInput, other.to_string()),
+    })
 }
 
 fn too_large(max_bytes: u64) -> std::io::Error {

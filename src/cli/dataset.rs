@@ -186,9 +186,10 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
                 // Images are read as regular files inside the dataset (never through a symlink)
                 // and written atomically, so a symlink in --images-out is replaced, not followed.
                 durable::entry_exists(&dir.join(crate::dataset::IMAGES_DIR), durable::Kind::Folder)?;
+                let root = crate::confine::RootDir::open(dir)?;
                 for (i, r) in rows.iter().enumerate() {
                     let name = format!("{obj_id}_{}_{i}.png", manifest.sensor.label());
-                    let bytes = durable::read_regular(&dir.join(&r.image), durable::MAX_IMAGE_BYTES)?;
+                    let bytes = root.read(&r.image, durable::MAX_IMAGE_BYTES)?;
                     durable::write_atomic(img_dir, &name, &bytes)
                         .with_context(|| format!("copying to {}", img_dir.join(&name).display()))?;
                 }
@@ -238,17 +239,28 @@ fn import(csv: &Path, target: &ImportTarget) -> anyhow::Result<()> {
     let manifest = Manifest::new(sensor, object, None);
     let mut writer = DatasetWriter::start(out, manifest, target.resume)?;
     let (mut written, mut skipped) = (0, Vec::new());
+    // The operator's --images folder; every image below it through the opener (no symlink,
+    // a regular file, bounded), decoded with limits. The names are the CSV's plain file names.
+    let images_root = crate::confine::RootDir::open(images)?;
     for r in rows.iter().filter(|r| !writer.done_ids().contains(&r.pose_id)).collect::<Vec<_>>() {
-        let mut candidates = vec![images.join(&r.image_name)];
+        let mut candidates = vec![r.image_name.clone()];
         if let Some(i) = r.frame_index() {
-            candidates.push(images.join(format!("{}_{}_{i}.png", r.obj_id, sensor.label())));
+            candidates.push(format!("{}_{}_{i}.png", r.obj_id, sensor.label()));
         }
-        let Some(path) = candidates.into_iter().find(|p| p.symlink_metadata().is_ok()) else {
+        let mut found = None;
+        for name in candidates {
+            if images_root.stat(&name)?.is_some() {
+                found = Some(name);
+                break;
+            }
+        }
+        let Some(name) = found else {
             skipped.push(r.image_name.clone());
             continue;
         };
-        // A regular file (not a symlink), bounded, decoded with limits.
-        let image = durable::read_image(&path)?.to_rgb8();
+        let path = images.join(&name);
+        let bytes = images_root.read(&name, durable::MAX_IMAGE_BYTES)?;
+        let image = durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path, reason })?.to_rgb8();
         writer.append(pose_row_from_mds(r), &image)?;
         written += 1;
     }

@@ -111,7 +111,12 @@ fn render(a: RenderArgs) -> anyhow::Result<()> {
     let out = match &a.side_by_side {
         None => img,
         Some(real_path) => {
-            let real = image::open(real_path).with_context(|| format!("reading real image {}", real_path.display()))?.to_rgb8();
+            // The operator's file, bounded and decoded with limits (a FIFO or a huge "image" is
+            // refused before anything is read).
+            let bytes = crate::confine::read_operator_file(real_path, crate::dataset::durable::MAX_IMAGE_BYTES)?;
+            let real = crate::dataset::durable::decode_image(&bytes)
+                .map_err(|reason| crate::dataset::DatasetError::BadImage { path: real_path.clone(), reason })?
+                .to_rgb8();
             let real = image::imageops::resize(&real, real.width() * h / real.height().max(1), h, image::imageops::FilterType::Triangle);
             let mut both = image::RgbImage::new(real.width() + img.width(), h);
             image::imageops::replace(&mut both, &real, 0, 0);

@@ -188,7 +188,11 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     )
     .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?;
     let init = match &args.init_latents {
-        Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
+        Some(path) => Some(
+            NpyArray::read(path)
+                .map_err(crate::synth::SynthError::from)
+                .with_context(|| format!("reading initial latents {}", path.display()))?,
+        ),
         None => None,
     };
     // The control image must be what the package was conditioned on (its hint_encoding),
@@ -271,7 +275,11 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     .map_err(|reason| crate::synth::SynthError::BadRequest { field: "control", value: args.control.display().to_string(), reason })?
     .to_rgb8();
     let init = match &args.init_latents {
-        Some(path) => Some(NpyArray::read(path).with_context(|| format!("reading initial latents {}", path.display()))?),
+        Some(path) => Some(
+            NpyArray::read(path)
+                .map_err(crate::synth::SynthError::from)
+                .with_context(|| format!("reading initial latents {}", path.display()))?,
+        ),
         None => None,
     };
     let mut pipeline = load(&model_dir(Some(&args.model))?, &args.runtime)?;

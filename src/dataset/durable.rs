@@ -14,7 +14,7 @@
 //! through it), then the folder is fsynced. A failed write (a full disk) removes its temp file.
 
 use std::fs::{File, OpenOptions};
-use std::io::{Read, Write};
+use std::io::Write;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
 
@@ -83,21 +83,6 @@ pub fn open_regular(path: &Path, append: bool) -> Result<File, DatasetError> {
     Ok(file)
 }
 
-/// Reads a regular file inside a dataset (no symlink), at most `max_bytes` of it.
-pub fn read_regular(path: &Path, max_bytes: u64) -> Result<Vec<u8>, DatasetError> {
-    let file = open_regular(path, false)?;
-    let len = file.metadata().map_err(DatasetError::io("reading", path))?.len();
-    if len > max_bytes {
-        return Err(DatasetError::TooLarge { path: path.to_path_buf(), max_bytes });
-    }
-    let mut bytes = Vec::with_capacity(len as usize);
-    file.take(max_bytes + 1).read_to_end(&mut bytes).map_err(DatasetError::io("reading", path))?;
-    if bytes.len() as u64 > max_bytes {
-        return Err(DatasetError::TooLarge { path: path.to_path_buf(), max_bytes });
-    }
-    Ok(bytes)
-}
-
 /// Reads `rel` (a path a dataset's own files name, such as a row's `images/3.png`) below the
 /// dataset folder `dir` through [`crate::confine`]: no symlink in any component (`images/`
 /// included), a regular file, at most `max_bytes`.
@@ -120,12 +105,6 @@ pub fn decode_image(bytes: &[u8]) -> Result<image::DynamicImage, String> {
     limits.max_alloc = Some(MAX_DECODE_BYTES);
     reader.limits(limits);
     reader.decode().map_err(|e| e.to_string())
-}
-
-/// Reads and decodes an image inside a dataset (no symlink, bounded).
-pub fn read_image(path: &Path) -> Result<image::DynamicImage, DatasetError> {
-    let bytes = read_regular(path, MAX_IMAGE_BYTES)?;
-    decode_image(&bytes).map_err(|reason| DatasetError::BadImage { path: path.to_path_buf(), reason })
 }
 
 /// The folder `path` inside a dataset, created when absent; refused when it is a symlink or
@@ -206,11 +185,17 @@ mod tests {
         std::fs::create_dir(d.join("folder")).expect("mkdir");
         symlink(d.join("folder"), d.join("folder-link")).expect("symlink");
 
-        assert!(matches!(read_regular(&d.join("link"), 100), Err(DatasetError::Symlink { .. })));
+        use crate::confine::ConfineError;
+        let below = |rel: &str, max: u64| read_below(d, Path::new(rel), max);
+        assert!(matches!(below("link", 100), Err(DatasetError::Confined(ConfineError::Symlink { .. }))));
         assert!(matches!(open_regular(&d.join("link"), true), Err(DatasetError::Symlink { .. })));
-        assert!(matches!(read_regular(&d.join("folder"), 100), Err(DatasetError::NotRegular { .. })));
-        assert!(matches!(read_regular(&d.join("file"), 0), Err(DatasetError::TooLarge { .. })));
-        assert_eq!(read_regular(&d.join("file"), 1).expect("regular"), b"x");
+        assert!(matches!(below("folder", 100), Err(DatasetError::Confined(ConfineError::NotRegular { .. }))));
+        assert!(matches!(below("file", 0), Err(DatasetError::Confined(ConfineError::TooLarge { .. }))));
+        assert_eq!(below("file", 1).expect("regular"), b"x");
+        // A symlinked folder one level down is refused too, not only a symlinked last name.
+        std::fs::write(d.join("folder/inner"), "sentinel").expect("write");
+        assert!(matches!(below("folder-link/inner", 100), Err(DatasetError::Confined(ConfineError::Symlink { .. }))));
+        assert_eq!(below("folder/inner", 100).expect("the real folder"), b"sentinel");
         assert!(matches!(entry_exists(&d.join("folder-link"), Kind::Folder), Err(DatasetError::Symlink { .. })));
         assert!(matches!(entry_exists(&d.join("file"), Kind::Folder), Err(DatasetError::NotRegular { .. })));
         assert!(!entry_exists(&d.join("absent"), Kind::File).expect("absent"));

@@ -102,9 +102,10 @@ impl ObjectInfo {
     }
 }
 
-/// Hex sha256 of a file.
+/// Hex sha256 of a file the operator named (a regular file: [`crate::confine::open_operator_file`]),
+/// read in blocks.
 pub fn sha256_file(path: &Path) -> Result<String, DatasetError> {
-    let mut f = std::fs::File::open(path).map_err(DatasetError::io("opening", path))?;
+    let mut f = crate::confine::open_operator_file(path)?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     loop {
@@ -422,7 +423,7 @@ impl Manifest {
     pub fn load(dir: &Path) -> Result<Self, DatasetError> {
         super::require_folder(dir)?;
         let path = dir.join(super::MANIFEST_FILE);
-        let bytes = super::durable::read_regular(&path, super::durable::MAX_MANIFEST_BYTES)?;
+        let bytes = super::durable::read_below(dir, Path::new(super::MANIFEST_FILE), super::durable::MAX_MANIFEST_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|_| DatasetError::ManifestParse {
             path: path.clone(),
             source: crate::untrusted::SyntaxError::at(0, 0, "not UTF-8 text"),

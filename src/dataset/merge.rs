@@ -14,7 +14,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::durable::{Kind, MAX_IMAGE_BYTES, entry_exists, read_regular, write_atomic};
+use super::durable::{Kind, MAX_IMAGE_BYTES, entry_exists, read_below, write_atomic};
 use super::{DatasetError, DatasetWriter, Manifest, PoseRow, REFERENCE_FILE, Source, read_rows, verify};
 
 /// How [`merge`] treats its inputs.
@@ -95,12 +95,12 @@ pub fn merge(inputs: &[PathBuf], out: &Path, options: MergeOptions) -> Result<Me
     let mut reference_src = None;
     for dir in inputs {
         if entry_exists(&dir.join(REFERENCE_FILE), Kind::File)? {
-            reference_src = Some(dir.join(REFERENCE_FILE));
+            reference_src = Some(dir);
             break;
         }
     }
     if let Some(src) = reference_src.filter(|_| !out.join(REFERENCE_FILE).exists()) {
-        let bytes = read_regular(&src, MAX_IMAGE_BYTES)?;
+        let bytes = read_below(src, Path::new(REFERENCE_FILE), MAX_IMAGE_BYTES)?;
         write_atomic(out, REFERENCE_FILE, &bytes)?;
     }
     writer.finish()?;
@@ -121,7 +121,7 @@ fn check_not_mixed(dirs: &[&Path]) -> Result<(), DatasetError> {
     }
 }
 
-/// The bytes of a row's image: a regular file (never a symlink), bounded.
+/// The bytes of a row's image: a regular file below `dir` with no symlink on the way, bounded.
 fn read_image(dir: &Path, row: &PoseRow) -> Result<Vec<u8>, DatasetError> {
-    read_regular(&dir.join(&row.image), MAX_IMAGE_BYTES)
+    read_below(dir, Path::new(&row.image), MAX_IMAGE_BYTES)
 }

@@ -334,7 +334,7 @@ pub fn find_datasets(root: &std::path::Path) -> Result<Vec<PathBuf>, DatasetErro
 pub fn read_rows(dir: &std::path::Path) -> Result<Vec<PoseRow>, DatasetError> {
     require_folder(dir)?;
     let path = dir.join(POSES_FILE);
-    let bytes = durable::read_regular(&path, durable::MAX_POSES_CSV_BYTES)?;
+    let bytes = durable::read_below(dir, std::path::Path::new(POSES_FILE), durable::MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
     if parsed.layout.is_none() {
         return Err(DatasetError::BadHeader { path, found: parsed.header.unwrap_or_default(), expected: COLUMNS.join(",") });

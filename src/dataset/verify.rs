@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_regular};
+use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_below};
 use super::writer::{image_file_pose_id, is_temp_name};
 use super::{CaptureChain, DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, Source, parse_csv};
 
@@ -181,7 +181,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     if !entry_exists(&csv_path, Kind::File)? {
         return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: POSES_FILE });
     }
-    let bytes = read_regular(&csv_path, MAX_POSES_CSV_BYTES)?;
+    let bytes = read_below(dir, Path::new(POSES_FILE), MAX_POSES_CSV_BYTES)?;
     let parsed = parse_csv(&bytes);
     let mut report = VerifyReport::default();
 
@@ -199,7 +199,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     match entry_exists(&reference, Kind::File) {
         Ok(true) => {
             report.has_reference = true;
-            expected_size = check_image(&reference, None, &mut report);
+            expected_size = check_image(dir, Path::new(REFERENCE_FILE), None, &mut report);
         }
         Ok(false) => {}
         Err(e) => not_regular(&mut report, &reference, &e),
@@ -270,7 +270,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
                     report.orphan += 1;
                     report.issues.push(VerifyIssue::OrphanImage { path: path.clone() });
                 }
-                let size = check_image(&path, expected_size, &mut report);
+                let size = check_image(dir, &Path::new(IMAGES_DIR).join(&name), expected_size, &mut report);
                 expected_size = expected_size.or(size);
             } else {
                 report.orphan += 1;
@@ -290,17 +290,21 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
 fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
     report.not_regular += 1;
     let reason = match e {
-        DatasetError::Symlink { .. } => "a symlink (rig does not follow symlinks inside a dataset)".to_string(),
+        DatasetError::Symlink { .. } | DatasetError::Confined(crate::confine::ConfineError::Symlink { .. }) => {
+            "a symlink (rig does not follow symlinks inside a dataset)".to_string()
+        }
         DatasetError::NotRegular { expected, .. } => format!("not {expected}"),
         other => other.to_string(),
     };
     report.issues.push(VerifyIssue::NotRegular { path: path.to_path_buf(), reason });
 }
 
-/// Decodes one image; records an issue when it does not decode or is not `expected` in size.
-/// Returns its size when it decoded.
-fn check_image(path: &Path, expected: Option<(u32, u32)>, report: &mut VerifyReport) -> Option<(u32, u32)> {
-    let decoded = read_regular(path, MAX_IMAGE_BYTES).map_err(|e| e.to_string()).and_then(|bytes| decode_image(&bytes));
+/// Decodes the image `rel` of the dataset at `dir` (read through the opener: no symlink below
+/// `dir`); records an issue when it does not decode or is not `expected` in size. Returns its
+/// size when it decoded.
+fn check_image(dir: &Path, rel: &Path, expected: Option<(u32, u32)>, report: &mut VerifyReport) -> Option<(u32, u32)> {
+    let path = &dir.join(rel);
+    let decoded = read_below(dir, rel, MAX_IMAGE_BYTES).map_err(|e| e.to_string()).and_then(|bytes| decode_image(&bytes));
     match decoded {
         Ok(image) => {
             let found = (image.width(), image.height());

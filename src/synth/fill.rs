@@ -499,7 +499,9 @@ fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
     if !durable::entry_exists(&path, durable::Kind::File)? {
         return Ok(None);
     }
-    Ok(Some(durable::read_image(&path)?.to_rgb8()))
+    let bytes = durable::read_below(dataset, Path::new(crate::dataset::REFERENCE_FILE), durable::MAX_IMAGE_BYTES)?;
+    let image = durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path, reason })?;
+    Ok(Some(image.to_rgb8()))
 }
 
 /// Size of the dataset's reference frame, so synthetic images match the captured ones.

@@ -21,6 +21,10 @@
 
 use std::path::{Path, PathBuf};
 
+/// Largest `.npy` file rig reads: 256 MiB, room for a batch of 16 latents at the largest size
+/// (16 x 4 x 256 x 256 float32, 16 MiB) and a decoded 2048 px image, and nothing near memory.
+pub const MAX_NPY_BYTES: u64 = 256 << 20;
+
 /// A float32 array with its shape (C order).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NpyArray {
@@ -33,6 +37,9 @@ pub struct NpyArray {
 pub enum NpyError {
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
+    /// Not a regular file, missing, or larger than [`MAX_NPY_BYTES`] ([`crate::confine`]).
+    #[error(transparent)]
+    File(#[from] crate::confine::ConfineError),
     #[error("not a .npy file: the first bytes are not \\x93NUMPY")]
     BadMagic,
     #[error(".npy version {major}.{minor} is not supported (1.0, 2.0, 3.0 are)")]
@@ -123,9 +130,10 @@ impl NpyArray {
         out
     }
 
-    /// Reads a `.npy` file.
+    /// Reads a `.npy` file the operator named: a regular file (their symlinks followed) of at
+    /// most [`MAX_NPY_BYTES`], through [`crate::confine::read_operator_file`].
     pub fn read(path: &Path) -> Result<Self, NpyError> {
-        let bytes = std::fs::read(path).map_err(|source| NpyError::Io { path: path.to_path_buf(), source })?;
+        let bytes = crate::confine::read_operator_file(path, MAX_NPY_BYTES)?;
         Self::from_bytes(&bytes)
     }
 
@@ -247,6 +255,22 @@ mod tests {
         let full = a.to_bytes();
         assert!(matches!(NpyArray::from_bytes(&full[..full.len() - 1]), Err(NpyError::Truncated { .. })));
         assert!(NpyArray::new(vec![2, 2], vec![0.0; 3]).is_err());
+    }
+
+    #[test]
+    fn files_are_read_bounded_and_regular_only() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("a.npy");
+        let a = NpyArray::new(vec![1, 4, 2, 2], (0..16).map(|i| i as f32).collect()).expect("array");
+        a.write(&path).expect("write");
+        assert_eq!(NpyArray::read(&path).expect("read"), a);
+        // A file larger than the bound is refused before it is read (a sparse file: no disk used).
+        let big = dir.path().join("big.npy");
+        std::fs::File::create(&big).and_then(|f| f.set_len(MAX_NPY_BYTES + 1)).expect("sparse file");
+        let e = NpyArray::read(&big).expect_err("too large");
+        assert!(matches!(e, NpyError::File(crate::confine::ConfineError::TooLarge { .. })), "{e}");
+        let e = NpyArray::read(dir.path()).expect_err("a folder");
+        assert!(matches!(e, NpyError::File(crate::confine::ConfineError::NotRegular { .. })), "{e}");
     }
 
     proptest::proptest! {

@@ -37,7 +37,9 @@ pub struct GraphScanError(pub &'static str);
 
 /// The number of stride-2 `Conv` nodes in the main graph of the ONNX file at `path`.
 pub fn count_stride2_convs(path: &Path) -> Result<usize, GraphScanError> {
-    let file = std::fs::File::open(path).map_err(|_| GraphScanError("cannot open the model file"))?;
+    // A package file, already confined when the package was opened; opened again here so that
+    // nothing swapped in since (a FIFO, a device) can block the scan.
+    let file = crate::confine::open_operator_file(path).map_err(|_| GraphScanError("cannot open the model file"))?;
     let len = file.metadata().map_err(|_| GraphScanError("cannot read the model file"))?.len();
     let mut reader = BufReader::with_capacity(1 << 16, file);
     let mut count = 0;

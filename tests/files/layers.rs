@@ -44,10 +44,11 @@ const LAYERS: &[Layer] = &[
     // reads of files a user or a request names, parse errors without file contents) is in
     // [`FOUNDATION`]: every row reads files through it. `roots` (the folders a daemon job may
     // touch) is used by the jobs that confine their paths.
-    Layer { name: "untrusted", prefixes: &["untrusted"], may_use: &[] },
     // `confine` (the one opener for paths that requests, datasets, manifests, packages and
-    // recordings name) is in [`FOUNDATION`] too: every row that reads such a path uses it.
+    // recordings name, and for the files the operator types) is in [`FOUNDATION`] too: every
+    // row that reads such a path uses it, and `untrusted`'s bounded reads are made through it.
     Layer { name: "confine", prefixes: &["confine"], may_use: &[] },
+    Layer { name: "untrusted", prefixes: &["untrusted"], may_use: &["confine"] },
     Layer { name: "roots", prefixes: &["roots"], may_use: &[] },
     // `features` (the Cargo features of the build and the error of a command that needs one
     // left out) is in [`FOUNDATION`]: `synth` refuses to load a model without `synth`, the

@@ -83,6 +83,10 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(16, 16, |x, y| image::Luma([(x * 1000 + y) as u16]))
         .save(dir.join("depth.png"))
         .expect("writing depth.png");
+    // An 8-bit RGB control image of the tiny package's size.
+    image::RgbImage::from_fn(64, 64, |x, y| image::Rgb([(x * 4) as u8, (y * 4) as u8, 128]))
+        .save(dir.join("control.png"))
+        .expect("writing control.png");
     write("bad.csv", b"a,b\n1,2\n");
     write("bad-row.csv", b"image_name,data_name,obj_id,pose_id,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6,move_1,move_2,move_3,move_4,move_5,move_6\nf.png,d,1,x,1,2,3,4,5,6,0,0,0,0,0,0\n");
     std::fs::create_dir_all(dir.join("not-a-dataset")).expect("mkdir");
@@ -192,6 +196,31 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "symlink",
         ),
         case("a recording that is a FIFO", &["replay", "fifo.rec", "--info"], 2, "not a regular file"),
+        case(
+            "a real image to compare with that is a FIFO",
+            &["sensor", "render", "--width", "64", "--height", "64", "--side-by-side", "fifo.rec", "--out", "s.png"],
+            2,
+            "not a regular file",
+        ),
+        case(
+            "initial latents that are a FIFO",
+            &[
+                "synth",
+                "one",
+                "--model",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
+                "--control",
+                "control.png",
+                "--prompt",
+                "p",
+                "--init-latents",
+                "fifo.rec",
+                "--out",
+                "o.png",
+            ],
+            2,
+            "not a regular file",
+        ),
         case(
             "synthetic twins on the daemon",
             &["synth", "--poses-of", "ds", "--out", "twins", "--daemon", "http://127.0.0.1:9"],
