@@ -36,14 +36,8 @@ pub struct Args {
     /// Every image is resized to N x N px before it is measured (128: the default model's).
     #[arg(long, value_name = "N", default_value_t = 128)]
     pub size: u32,
-    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Print the draw and check it against the workspace, move nothing.
-    #[arg(long)]
-    pub dry_run: bool,
     #[command(flatten)]
-    pub daemon: crate::cli::daemon::DaemonTarget,
+    pub rig: crate::cli::shared::RigTarget,
 }
 
 impl Args {
@@ -62,19 +56,16 @@ impl Args {
 
 /// Runs `rig audit`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.daemon.daemon.is_some() {
-        if args.dry_run || args.config.is_some() {
-            bail!(crate::cli::usage("--daemon runs the job on the daemon's rig: --dry-run and --config apply to a standalone run only"));
-        }
+    if let Some(daemon) = args.rig.daemon("the job", &[])? {
         let mut request = args.request();
         request.dataset = absolute(&request.dataset);
         request.stl = request.stl.as_deref().map(absolute);
-        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Audit(request));
+        return crate::cli::daemon::submit_and_follow(daemon, JobRequest::Audit(request));
     }
     if !args.dataset.is_dir() {
         bail!(crate::cli::usage(&format!("--dataset {}: no such directory", args.dataset.display())));
     }
-    let config = RigConfig::discover(args.config.as_deref())?;
+    let config = args.rig.rig_config()?;
     println!("{}", config.describe());
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     runtime.block_on(run_async(args, config))
@@ -83,7 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 async fn run_async(args: Args, config: RigConfig) -> anyhow::Result<()> {
     let prepared = args.request().prepare(&config)?;
     println!("{}", prepared.plan_line());
-    if args.dry_run {
+    if args.rig.dry_run {
         println!("dry run: poses checked against the workspace, nothing moved");
         return Ok(());
     }

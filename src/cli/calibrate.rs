@@ -77,14 +77,8 @@ pub struct Args {
     /// Seed of the simulated sensor's noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Print the press pattern and check it against the workspace, move nothing.
-    #[arg(long)]
-    pub dry_run: bool,
     #[command(flatten)]
-    pub daemon: crate::cli::daemon::DaemonTarget,
+    pub rig: crate::cli::shared::RigTarget,
 }
 
 impl Args {
@@ -102,15 +96,12 @@ impl Args {
 
 /// Runs `rig calibrate`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.daemon.daemon.is_some() {
-        if args.interactive || args.from_dataset.is_some() || args.sim_truth.is_some() || args.config.is_some() || args.dry_run {
-            bail!(crate::cli::usage(
-                "--daemon runs the automatic presses on the daemon's rig: --interactive, --from-dataset, --sim-truth, --config and --dry-run apply to a standalone run only"
-            ));
-        }
+    let standalone =
+        [("--interactive", args.interactive), ("--from-dataset", args.from_dataset.is_some()), ("--sim-truth", args.sim_truth.is_some())];
+    if let Some(daemon) = args.rig.daemon("the automatic presses", &standalone)? {
         let mut request = args.request();
         request.out = request.out.as_deref().map(super::shared::absolute);
-        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Calibrate(request));
+        return crate::cli::daemon::submit_and_follow(daemon, JobRequest::Calibrate(request));
     }
     let request = args.request();
     let out = request.out_path();
@@ -120,14 +111,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.interactive && !std::io::stdin().is_terminal() {
         bail!(crate::cli::usage("--interactive needs a terminal on stdin (run it in a terminal, or drop --interactive)"));
     }
-    let mut config = RigConfig::discover(args.config.as_deref())?;
+    let mut config = args.rig.rig_config()?;
     if let Some(truth) = &args.sim_truth {
         set_sim_truth(&mut config, args.sensor, truth)?;
     }
     println!("{}", config.describe());
     let pattern = request.prepare(&config)?;
     println!("{}", request.pattern_line(&pattern));
-    if args.dry_run {
+    if args.rig.dry_run {
         println!("dry run: pattern checked against the workspace, nothing moved");
         return Ok(());
     }

@@ -42,18 +42,12 @@ pub struct CollectArgs {
     /// Continue a killed run (or start one when none exists).
     #[arg(long)]
     pub resume: bool,
-    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Print the plan and check it against the workspace, move nothing.
-    #[arg(long)]
-    pub dry_run: bool,
     /// Record every byte exchanged with the arm and every captured frame into FILE, for
     /// `rig replay FILE`.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
     #[command(flatten)]
-    pub daemon: crate::cli::daemon::DaemonTarget,
+    pub rig: crate::cli::shared::RigTarget,
 }
 
 impl CollectArgs {
@@ -74,19 +68,14 @@ impl CollectArgs {
 
 /// Runs `rig collect`.
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
-    if args.daemon.daemon.is_some() {
-        if args.dry_run || args.record.is_some() || args.config.is_some() {
-            bail!(crate::cli::usage(
-                "--daemon runs the job on the daemon's rig: --dry-run, --record and --config apply to a standalone run only"
-            ));
-        }
+    if let Some(daemon) = args.rig.daemon("the job", &[("--record", args.record.is_some())])? {
         let mut request = args.request();
         request.stl = request.stl.as_deref().map(absolute);
         request.plan = request.plan.as_deref().map(absolute);
         request.out = absolute(&request.out);
-        return crate::cli::daemon::submit_and_follow(&args.daemon, JobRequest::Collect(request));
+        return crate::cli::daemon::submit_and_follow(daemon, JobRequest::Collect(request));
     }
-    let config = RigConfig::discover(args.config.as_deref())?;
+    let config = args.rig.rig_config()?;
     println!("{}", config.describe());
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     runtime.block_on(run_async(args, config))
@@ -98,7 +87,7 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     }
     let prepared = args.request().prepare(&config)?;
     println!("{}", prepared.plan_line());
-    if args.dry_run {
+    if args.rig.dry_run {
         println!("dry run: plan checked against the workspace, nothing moved");
         return Ok(());
     }

@@ -115,20 +115,7 @@ async fn wait_for_stop_signal() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--daemon URL` on the job commands: submit to a running daemon instead of running here.
-#[derive(Debug, Clone, ClapArgs)]
-pub struct DaemonTarget {
-    /// Submit the job to the rig daemon at URL (e.g. http://127.0.0.1:7700) and follow it,
-    /// instead of opening the rig here.
-    #[arg(long, value_name = "URL")]
-    pub daemon: Option<String>,
-    /// With --daemon: print the job id and return at once instead of following it.
-    #[arg(long, requires = "daemon")]
-    pub detach: bool,
-    /// With --daemon: the daemon's token (default: $RIG_DAEMON_TOKEN).
-    #[arg(long, value_name = "TOKEN", requires = "daemon")]
-    pub daemon_token: Option<String>,
-}
+pub use super::shared::DaemonTarget;
 
 /// How often a followed job is polled.
 const FOLLOW_PERIOD: Duration = Duration::from_millis(500);

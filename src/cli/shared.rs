@@ -3,8 +3,10 @@
 
 use std::path::PathBuf;
 
+use anyhow::bail;
 use clap::Args as ClapArgs;
 
+use crate::config::RigConfig;
 use crate::synth::runtime::{ArenaExtend, ConvSearch, CudaOptions};
 use crate::synth::{ExecutionProviderKind, ImageRange, RuntimeOptions, SchedulerKind};
 
@@ -123,4 +125,101 @@ pub(crate) fn cancel_on_interrupt(what: &'static str) -> anyhow::Result<tokio::s
         }
     });
     Ok(rx)
+}
+
+/// `--daemon URL` on the job commands: submit to a running daemon instead of running here.
+#[derive(Debug, Clone, ClapArgs)]
+pub struct DaemonTarget {
+    /// Submit the job to the rig daemon at URL (e.g. http://127.0.0.1:7700) and follow it,
+    /// instead of opening the rig here.
+    #[arg(long, value_name = "URL")]
+    pub daemon: Option<String>,
+    /// With --daemon: print the job id and return at once instead of following it.
+    #[arg(long, requires = "daemon")]
+    pub detach: bool,
+    /// With --daemon: the daemon's token (default: $RIG_DAEMON_TOKEN).
+    #[arg(long, value_name = "TOKEN", requires = "daemon")]
+    pub daemon_token: Option<String>,
+}
+
+/// Where a job that moves the arm runs (`rig collect`, `rig calibrate`, `rig audit`): on the
+/// rig configured here (`--config`, `--dry-run`) or on a daemon's rig (`--daemon`).
+#[derive(Debug, Clone, ClapArgs)]
+pub struct RigTarget {
+    /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Print what would run (the plan, the press pattern, the audit's draw) and check it against
+    /// the workspace; move nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+    #[command(flatten)]
+    pub daemon: DaemonTarget,
+}
+
+impl RigTarget {
+    /// The daemon to submit to, when `--daemon` was given; a usage error when a flag of a
+    /// standalone run was given with it. `standalone`: this command's own such flags, by name,
+    /// and whether each was given (`--config` and `--dry-run` are added here).
+    pub fn daemon(&self, job: &str, standalone: &[(&str, bool)]) -> anyhow::Result<Option<&DaemonTarget>> {
+        if self.daemon.daemon.is_none() {
+            return Ok(None);
+        }
+        let flags: Vec<(&str, bool)> =
+            standalone.iter().copied().chain([("--config", self.config.is_some()), ("--dry-run", self.dry_run)]).collect();
+        if flags.iter().any(|&(_, given)| given) {
+            let names: Vec<&str> = flags.iter().map(|&(name, _)| name).collect();
+            let list = match names.split_last() {
+                Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+                _ => names.join(""),
+            };
+            bail!(crate::report::usage(&format!("--daemon runs {job} on the daemon's rig: {list} apply to a standalone run only")));
+        }
+        Ok(Some(&self.daemon))
+    }
+
+    /// The rig configuration of a standalone run ([`RigConfig::discover`]).
+    pub fn rig_config(&self) -> anyhow::Result<RigConfig> {
+        Ok(RigConfig::discover(self.config.as_deref())?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        rig: RigTarget,
+        #[arg(long)]
+        record: bool,
+    }
+
+    fn target(args: &[&str]) -> Cli {
+        Cli::try_parse_from(std::iter::once("rig").chain(args.iter().copied())).expect("parses")
+    }
+
+    #[test]
+    fn a_daemon_run_refuses_the_flags_of_a_standalone_run_and_names_them_all() {
+        let standalone = target(&["--config", "rig.toml", "--dry-run"]);
+        assert!(standalone.rig.daemon("the job", &[]).expect("no daemon").is_none());
+        let daemon = target(&["--daemon", "http://127.0.0.1:9"]);
+        let to = daemon.rig.daemon("the job", &[("--record", daemon.record)]).expect("no standalone flag");
+        assert_eq!(to.and_then(|t| t.daemon.as_deref()), Some("http://127.0.0.1:9"));
+        for (args, record) in [
+            (&["--daemon", "u", "--dry-run"][..], false),
+            (&["--daemon", "u", "--config", "c.toml"][..], false),
+            (&["--daemon", "u"][..], true),
+        ] {
+            let e = target(args).rig.daemon("the job", &[("--record", record)]).expect_err("refused");
+            assert_eq!(crate::report::exit_code(&e), 2, "{e}");
+            assert_eq!(
+                e.to_string(),
+                "--daemon runs the job on the daemon's rig: --record, --config and --dry-run apply to a standalone run only"
+            );
+        }
+    }
 }
