@@ -47,11 +47,8 @@ kit_inputs="$repo/tests/data/mds-small"
 
 # --- 1. Python -------------------------------------------------------------------------------
 venv="$repo/.rig/exportcheck"
-if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import onnx, onnxruntime, numpy, PIL' 2>/dev/null; then
-  say "making $venv (onnx, onnxruntime, numpy, Pillow from PyPI)"
-  python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet --disable-pip-version-check "onnx==1.23.2" "onnxruntime==1.31.1" "numpy==2.4.6" "pillow==13.0.0"
-fi
+. "$repo/scripts/lib/pyvenv.sh"
+pyvenv "$venv" "onnx, onnxruntime, numpy, PIL" "onnx==1.23.2" "onnxruntime==1.31.1" "numpy==2.4.6" "pillow==13.0.0"
 py="$venv/bin/python"
 work=$(mktemp -d)
 

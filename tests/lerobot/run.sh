@@ -35,11 +35,8 @@ ort_lib="$repo/.rig/onnxruntime"
 
 # --- 1. pyarrow ------------------------------------------------------------------------------
 venv="$repo/.rig/pycheck"
-if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import pyarrow, PIL, numpy' 2>/dev/null; then
-  say "making $venv (pyarrow, Pillow, numpy from PyPI)"
-  python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet --disable-pip-version-check "pyarrow==26.0.1" "pillow==13.0.0" "numpy==2.2.6"
-fi
+. "$repo/scripts/lib/pyvenv.sh"
+pyvenv "$venv" "pyarrow, PIL, numpy" "pyarrow==26.0.1" "pillow==13.0.0" "numpy==2.2.6"
 
 # --- 2. data ---------------------------------------------------------------------------------
 work=$(mktemp -d)
