@@ -6,6 +6,11 @@
 //! [`synth`] fills the poses not collected through an ONNX diffusion model. [`sim`] provides
 //! the simulated MG400 and sensors behind the same seams.
 
+// A build without the `synth` or `lerobot` feature leaves out items the documentation links to
+// (the ONNX Runtime pipeline, the LeRobot writer): there those links stay plain text. The
+// default build's documentation is checked with every link resolving.
+#![cfg_attr(not(all(feature = "synth", feature = "lerobot")), allow(rustdoc::broken_intra_doc_links))]
+
 pub mod arm;
 pub mod bench;
 pub mod calibration;
