@@ -149,6 +149,13 @@ fn run_downstream(args: &Args, root: &std::path::Path) -> anyhow::Result<()> {
 
 /// Runs `rig eval`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The outputs are written when the (possibly hours-long) evaluation ends: their folders are
+    // checked first.
+    for (flag, path) in [("--markdown", &args.markdown), ("--json", &args.json), ("--pairs", &args.pairs)] {
+        if let Some(path) = path {
+            super::shared::output_folder_exists(flag, path)?;
+        }
+    }
     if let Some(root) = &args.downstream {
         return run_downstream(&args, root);
     }

@@ -98,6 +98,23 @@ impl RuntimeArgs {
     }
 }
 
+/// Refuses (usage error, exit 2) an output file whose folder does not exist, checked before a
+/// long run, so an hour of work is not lost to a mistyped `--out` at the end. `flag` names it.
+pub fn output_folder_exists(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    if !folder.is_dir() {
+        bail!(crate::report::usage(&format!(
+            "{flag} {}: the folder {} does not exist (rig writes the file there when the run ends; make the folder first)",
+            path.display(),
+            folder.display()
+        )));
+    }
+    Ok(())
+}
+
 /// `path` from this directory, for a daemon that may run in another.
 pub fn absolute(path: &std::path::Path) -> PathBuf {
     std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())

@@ -182,6 +182,10 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     if let Some(size) = args.size {
         crate::synth::limits::check_size("size", size, 1)?;
     }
+    super::shared::output_folder_exists("--out", &args.out)?;
+    if let Some(path) = &args.dump_raw {
+        super::shared::output_folder_exists("--dump-raw", path)?;
+    }
     let control = crate::dataset::durable::decode_image(
         &crate::untrusted::read_bytes(&args.control, crate::dataset::durable::MAX_IMAGE_BYTES)
             .with_context(|| format!("reading control image {}", args.control.display()))?,
