@@ -131,7 +131,7 @@ impl AuditRequest {
             ));
         }
         if let Some(sha) = &manifest.object.stl_sha256
-            && *sha != object.sha256
+            && !object.matches(sha)
         {
             return Err(JobError::bad_option(
                 "dataset",

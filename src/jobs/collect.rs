@@ -74,7 +74,7 @@ impl CollectRequest {
         let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
         let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b))?;
         check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
-        let setup = CollectSetup {
+        let mut setup = CollectSetup {
             object: ObjectInfo {
                 name: object.name.clone(),
                 stl_path: object.path.as_ref().map(|p| p.display().to_string()),
@@ -91,6 +91,18 @@ impl CollectRequest {
             arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
         };
+        if self.resume {
+            // A dataset an earlier rig build collected on a built-in object recorded another hash of the same
+            // mesh ([`ObjectChoice::legacy_sha256`]): it resumes under the hash it has.
+            let legacy = object.legacy_sha256();
+            let has_legacy = |sensor| {
+                crate::dataset::Manifest::load(&setup.dataset_dir(sensor))
+                    .is_ok_and(|m| m.object.stl_sha256.is_some_and(|h| h.eq_ignore_ascii_case(&legacy)))
+            };
+            if self.sensor.iter().any(has_legacy) {
+                setup.object.stl_sha256 = Some(legacy);
+            }
+        }
         Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, grid_len: spec.grid_len(), profile })
     }
 }

@@ -447,9 +447,7 @@ fn object_mesh(dir: &Path, manifest: &Manifest) -> Result<Mesh, FillError> {
         Ok(None) => load_object(&name).map_err(|e| err(e.to_string())),
         Err(missing @ (DatasetError::StlMissing { .. } | DatasetError::StlUnusable { .. })) => {
             match crate::geometry::objects::ObjectChoice::resolve(&name, None) {
-                Ok(library) if manifest.object.stl_sha256.as_ref().is_some_and(|h| h.eq_ignore_ascii_case(&library.sha256)) => {
-                    Ok((*library.mesh).clone())
-                }
+                Ok(library) if manifest.object.stl_sha256.as_ref().is_some_and(|h| library.matches(h)) => Ok((*library.mesh).clone()),
                 _ => Err(missing.into()),
             }
         }

@@ -150,6 +150,30 @@ fn existing_dataset_is_refused_without_resume() {
     assert_eq!(std::fs::read(tmp.path().join("sphere/tactip/poses.csv")).expect("csv"), before, "nothing overwritten");
 }
 
+/// A dataset an earlier rig build collected on a built-in object recorded another sha256 of the same mesh
+/// (its STL with the bare name as header): `--resume` takes it as the same object and keeps it.
+#[test]
+fn a_dataset_with_the_older_hash_of_a_built_in_object_resumes() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let args = collect_args(tmp.path(), 3, 5, "tactip");
+    let first = rig().args(&args).output().expect("rig collect");
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    let manifest = tmp.path().join("sphere/tactip/manifest.toml");
+    let object = rig::geometry::objects::ObjectChoice::resolve("sphere", None).expect("the library sphere");
+    let (current, legacy) = (object.sha256.clone(), object.legacy_sha256());
+    assert_ne!(current, legacy);
+    let text = std::fs::read_to_string(&manifest).expect("manifest");
+    assert!(text.contains(&current), "the new collection records the library file's hash");
+    std::fs::write(&manifest, text.replace(&current, &legacy)).expect("writing the older hash");
+    let resumed = rig().args(&args).arg("--resume").output().expect("rig collect --resume");
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    assert!(std::fs::read_to_string(&manifest).expect("manifest").contains(&legacy), "the dataset keeps the hash it has");
+    // Another mesh's hash is still refused.
+    std::fs::write(&manifest, std::fs::read_to_string(&manifest).expect("manifest").replace(&legacy, &"0".repeat(64))).expect("write");
+    let refused = rig().args(&args).arg("--resume").output().expect("rig collect --resume");
+    assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+}
+
 #[test]
 fn plan_outside_the_workspace_is_refused_before_anything_moves() {
     let tmp = tempfile::tempdir().expect("tempdir");
