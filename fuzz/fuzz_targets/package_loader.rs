@@ -6,7 +6,8 @@
 //! allows (the arrays a 1e12 `num_train_timesteps` once asked 4 TB for), and takes a step.
 //!
 //! `model.toml` and the scheduler compile from rig's own source files (`#[path]` modules:
-//! src/synth/model_toml.rs, scheduler.rs, limits.rs, settings.rs, src/untrusted.rs). The
+//! src/synth/model_toml.rs, scheduler.rs, limits.rs, settings.rs, src/untrusted.rs and the
+//! opener it reads through, src/confine.rs). The
 //! tokenizer is loaded with the calls `synth::text::PromptTokenizer::load` makes (that file
 //! needs ONNX Runtime, so the calls are repeated here): the `tokenizers` crate's JSON reader,
 //! the end-token lookup, fixed truncation and padding to 77, and one encode.
@@ -25,6 +26,8 @@ mod settings;
 mod tokenizer_json;
 #[path = "../../src/untrusted.rs"]
 mod untrusted;
+#[path = "../../src/confine.rs"]
+mod confine;
 
 use libfuzzer_sys::fuzz_target;
 use scheduler::{NoiseSchedule, Scheduler, SchedulerConfig, SchedulerKind};

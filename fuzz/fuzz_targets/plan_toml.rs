@@ -9,6 +9,8 @@ mod pose;
 mod plan;
 #[path = "../../src/untrusted.rs"]
 mod untrusted;
+#[path = "../../src/confine.rs"]
+mod confine;
 
 use libfuzzer_sys::fuzz_target;
 

@@ -7,6 +7,8 @@
 mod stl;
 #[path = "../../src/untrusted.rs"]
 mod untrusted;
+#[path = "../../src/confine.rs"]
+mod confine;
 
 use libfuzzer_sys::fuzz_target;
 

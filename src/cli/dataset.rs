@@ -200,7 +200,9 @@ fn export(dir: &Path, format: Format, out: Option<&Path>, obj_id: &str, images_o
     }
     match out {
         Some(path) => {
-            std::fs::write(path, &buf).with_context(|| format!("writing {}", path.display()))?;
+            // Replaced whole or not at all (a symlink there is replaced, not written through).
+            let (folder, name) = crate::confine::open_parent(path)?;
+            folder.write_atomic(&name, &buf).with_context(|| format!("writing {}", path.display()))?;
             eprintln!("wrote {} rows to {}", rows.len(), path.display());
         }
         None => std::io::stdout().write_all(&buf)?,

@@ -551,10 +551,13 @@ impl Pipeline {
         super::limits::check_guidance(r.guidance)?;
         super::limits::check_eta(r.eta)?;
         super::limits::check_conditioning_scale(r.conditioning_scale)?;
-        self.package
-            .schedule
-            .check_steps(r.scheduler, r.steps)
-            .map_err(|source| SynthError::Scheduler { path: self.package.file("scheduler/scheduler_config.json"), source })?;
+        // A step count the schedule cannot take is the request's (`--steps`), not the package's.
+        self.package.schedule.check_steps(r.scheduler, r.steps).map_err(|source| match source {
+            super::scheduler::SchedulerError::BadStepCount { .. } => {
+                SynthError::BadRequest { field: "steps", value: r.steps.to_string(), reason: source.to_string() }
+            }
+            source => SynthError::Scheduler { path: self.package.file("scheduler/scheduler_config.json"), source },
+        })?;
         if let Some(init) = r.init_latents {
             let want = self.latent_channels * (size.0 / f) as usize * (size.1 / f) as usize;
             if init.len() != want {

@@ -222,6 +222,25 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             "not a regular file",
         ),
         case(
+            "a trillion sampling steps",
+            &[
+                "synth",
+                "one",
+                "--model",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
+                "--control",
+                "control.png",
+                "--prompt",
+                "p",
+                "--steps",
+                "1000000000000",
+                "--out",
+                "o.png",
+            ],
+            2,
+            "steps = 1000000000000 is not valid",
+        ),
+        case(
             "an output in a folder that does not exist",
             &[
                 "synth",

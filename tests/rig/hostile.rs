@@ -445,6 +445,13 @@ fn symlinks_inside_a_dataset_are_never_followed() {
     assert!(all.contains("NOT clean"), "{all}");
     expect(&run(&w, &["dataset", "export", "ds", "--format", "mds", "--out", "x.csv", "--images-out", "exported"]), 2, "symlink");
     expect(&run(&w, &["dataset", "merge", "--out", "merged", "ds"]), 2, "not verify clean");
+    // An MDS export whose --out is a symlink replaces the link with the file, whole.
+    dataset(&w.join("ds4"), 2);
+    let secret_text = std::fs::read(sb.secret()).expect("secret");
+    symlink(sb.secret(), w.join("x4.csv")).expect("symlink");
+    expect(&run(&w, &["dataset", "export", "ds4", "--format", "mds", "--out", "x4.csv"]), 0, "wrote 2 rows");
+    assert!(!std::fs::symlink_metadata(w.join("x4.csv")).expect("lstat").file_type().is_symlink(), "the link is replaced");
+    assert_eq!(std::fs::read(sb.secret()).expect("secret"), secret_text, "nothing was written through the symlink");
     // A symlinked poses.csv or images/ makes the writers refuse, not write through.
     dataset(&w.join("ds2"), 2);
     std::fs::rename(w.join("ds2/poses.csv"), w.join("poses-moved.csv")).expect("mv");
