@@ -112,7 +112,8 @@ fn bad_requests_are_rejected() {
     for req in cases {
         assert!(matches!(p.generate(&req), Err(SynthError::BadRequest { .. })));
     }
-    assert!(matches!(p.generate(&rig::synth::GenerateRequest { steps: 0, ..base }), Err(SynthError::Scheduler { .. })));
+    // A step count the schedule cannot take is the request's, named as `steps`.
+    assert!(matches!(p.generate(&rig::synth::GenerateRequest { steps: 0, ..base }), Err(SynthError::BadRequest { field: "steps", .. })));
     // A non-native size works when it is a multiple of 8 (the models are spatially dynamic).
     let out = p.generate(&rig::synth::GenerateRequest { size: Some((48, 32)), ..base }).unwrap();
     assert_eq!(out.image.dimensions(), (48, 32));
