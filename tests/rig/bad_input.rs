@@ -28,6 +28,15 @@ fn case(input: &'static str, args: &[&str], code: i32, phrase: &'static str) -> 
     Case { input, args: args.iter().map(|s| s.to_string()).collect(), code, phrase }
 }
 
+/// `rig synth one` on the tiny test package with an 8-bit control image and a prompt, then
+/// `extra`: a bad input that must exit 2 saying `phrase`.
+fn one_on_the_tiny_package(input: &'static str, extra: &[&str], phrase: &'static str) -> Case {
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package");
+    let args: Vec<&str> =
+        ["synth", "one", "--model", model, "--control", "control.png", "--prompt", "p"].into_iter().chain(extra.iter().copied()).collect();
+    case(input, &args, 2, phrase)
+}
+
 /// The message a reader sees: from the `error:` line (clap's too) on, on one line, without
 /// the source excerpts TOML errors draw (`2 | speed = 3`, `  | ^^^`) and clap's usage hints,
 /// with the temp dir shortened.
@@ -202,59 +211,15 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
             2,
             "not a regular file",
         ),
-        case(
-            "initial latents that are a FIFO",
-            &[
-                "synth",
-                "one",
-                "--model",
-                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
-                "--control",
-                "control.png",
-                "--prompt",
-                "p",
-                "--init-latents",
-                "fifo.rec",
-                "--out",
-                "o.png",
-            ],
-            2,
-            "not a regular file",
-        ),
-        case(
+        one_on_the_tiny_package("initial latents that are a FIFO", &["--init-latents", "fifo.rec", "--out", "o.png"], "not a regular file"),
+        one_on_the_tiny_package(
             "a trillion sampling steps",
-            &[
-                "synth",
-                "one",
-                "--model",
-                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
-                "--control",
-                "control.png",
-                "--prompt",
-                "p",
-                "--steps",
-                "1000000000000",
-                "--out",
-                "o.png",
-            ],
-            2,
+            &["--steps", "1000000000000", "--out", "o.png"],
             "steps = 1000000000000 is not valid",
         ),
-        case(
+        one_on_the_tiny_package(
             "an output in a folder that does not exist",
-            &[
-                "synth",
-                "one",
-                "--model",
-                concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tiny-package"),
-                "--control",
-                "control.png",
-                "--prompt",
-                "p",
-                "--out",
-                "no-such-folder/o.png",
-            ],
-            2,
+            &["--out", "no-such-folder/o.png"],
             "the folder no-such-folder does not exist",
         ),
         case(
