@@ -99,6 +99,9 @@ pub struct RawSensor {
     pub warmup_frames: Option<u32>,
     /// Hardware backends: mmap buffers.
     pub buffers: Option<u32>,
+    /// The deepest the arm may press this sensor's skin, mm of indentation (default: the
+    /// sensor's own, [`crate::sensor::SensorKind::default_max_indentation_mm`]).
+    pub max_indentation_mm: Option<f64>,
 }
 
 /// `[sim]` as written in the file.
@@ -211,6 +214,37 @@ pub struct SensorConfig {
     pub height: u32,
     /// Rate, format and locked controls for hardware backends (size = `width` x `height`).
     pub camera: crate::camera::v4l2::CameraSettings,
+    /// `max_indentation_mm` as configured; `None`: the sensor's default.
+    pub max_indentation_mm: Option<f64>,
+}
+
+/// Largest press limit a configuration may set, mm: the standard TacTip's tip is a hemisphere
+/// 40 mm across, 20 mm deep, so a limit past that guards no skin and is taken for a typo.
+pub const MAX_PRESS_LIMIT_MM: f64 = 20.0;
+
+/// The deepest the arm may press one sensor's skin: mm of indentation into the object's top,
+/// counted from first touch (the work frame's contact depth plus a plan pose's `z_mm`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PressLimit {
+    pub sensor: crate::sensor::SensorKind,
+    pub max_indentation_mm: f64,
+    /// Set by `[sensors.<name>] max_indentation_mm`, not the sensor's default.
+    pub configured: bool,
+}
+
+impl std::fmt::Display for PressLimit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (mm, name) = (self.max_indentation_mm, self.sensor.name());
+        if self.configured {
+            write!(f, "{name}'s press limit of {mm} mm (set by [sensors.{name}] max_indentation_mm)")
+        } else {
+            write!(
+                f,
+                "{name}'s press limit of {mm} mm ({}'s default; [sensors.{name}] max_indentation_mm sets another)",
+                self.sensor.label()
+            )
+        }
+    }
 }
 
 /// Where a sensor's frames come from.
@@ -479,6 +513,14 @@ impl RigConfig {
             if !(1..=240).contains(&camera.fps) || !(2..=32).contains(&camera.buffers) {
                 return Err(invalid("sensors.*.fps", format!("sensor {name}: fps must be 1..240 and buffers 2..32")));
             }
+            if let Some(mm) = s.max_indentation_mm
+                && !(mm.is_finite() && mm > 0.0 && mm <= MAX_PRESS_LIMIT_MM)
+            {
+                return Err(invalid(
+                    "sensors.*.max_indentation_mm",
+                    format!("sensor {name}: must be above 0 and at most {MAX_PRESS_LIMIT_MM} mm, got {mm}"),
+                ));
+            }
             sensors.push(SensorConfig {
                 name,
                 backend,
@@ -487,6 +529,7 @@ impl RigConfig {
                 width,
                 height,
                 camera,
+                max_indentation_mm: s.max_indentation_mm,
             });
         }
         let faults = resolve_faults(&raw.sim.faults, path)?;
@@ -514,6 +557,17 @@ impl RigConfig {
             sensor_unit_seed: raw.sim.sensor_unit_seed,
             sim_stale_buffer_frames,
         })
+    }
+
+    /// The press limit of `sensor`: `[sensors.<name>] max_indentation_mm`, else the sensor's
+    /// default.
+    pub fn press_limit(&self, sensor: crate::sensor::SensorKind) -> PressLimit {
+        let configured = self.sensors.iter().find(|s| s.name == sensor.name()).and_then(|s| s.max_indentation_mm);
+        PressLimit {
+            sensor,
+            max_indentation_mm: configured.unwrap_or_else(|| sensor.default_max_indentation_mm()),
+            configured: configured.is_some(),
+        }
     }
 
     /// One line saying what rig will drive, printed first by commands that move hardware.

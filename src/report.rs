@@ -120,8 +120,10 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::jobs::RequestError,
         crate::synth::fill::FillError,
         crate::rigs::RigError,
+        crate::rigs::PreflightError,
         crate::io::modbus::ModbusError,
         crate::calibration::press::PressError,
+        crate::calibration::wizard::WizardError,
         crate::calibration::CalibrationError,
         crate::arm::profile::ProfileError,
         crate::geometry::stl::StlError,
@@ -130,6 +132,7 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::roots::PathError,
         crate::roots::RootsError,
         crate::jobs::JobError,
+        crate::fence::FenceError,
         crate::geometry::objects::ObjectResolveError,
         crate::arm::profile::ProfileLookupError,
         crate::record::replay::ReplayError,
@@ -206,7 +209,7 @@ impl Classify for crate::collect::CollectError {
             C::Dataset(e) => e.exit(),
             C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::PeripheralRetriesExhausted { .. } => Exit::HardwareFault,
             C::Peripheral(e) => e.exit(),
-            C::Unreachable { .. } | C::Mismatch { .. } => Exit::BadInput,
+            C::Mismatch { .. } => Exit::BadInput,
         }
     }
 }
@@ -378,15 +381,50 @@ impl Classify for crate::rigs::RigError {
     fn exit(&self) -> Exit {
         use crate::rigs::RigError as R;
         match self {
-            R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. } | R::BackendUnavailable { .. } => {
-                Exit::BadInput
-            }
+            R::UnknownSensor(_)
+            | R::Object { .. }
+            | R::Profile { .. }
+            | R::Calibration { .. }
+            | R::BackendUnavailable { .. }
+            | R::SimulatedSensorOnRealArm { .. } => Exit::BadInput,
             // A refused or lost arm connection, also when the rig is opened.
             R::Arm(e) => e.exit(),
             R::Camera { source, .. } => source.exit(),
             R::Modbus(e) => e.exit(),
-            R::Sim(_) => Exit::Failure,
+            R::Sim(_) | R::Moved { .. } => Exit::Failure,
         }
+    }
+}
+
+impl Classify for crate::fence::FenceError {
+    fn exit(&self) -> Exit {
+        use crate::fence::FenceError as F;
+        match self {
+            // rig refused to send the arm there: the plan, the rows or the pattern asked for it.
+            F::Unreachable { .. } | F::TooDeep { .. } => Exit::BadInput,
+        }
+    }
+}
+
+impl Classify for crate::calibration::wizard::WizardError {
+    fn exit(&self) -> Exit {
+        use crate::calibration::wizard::WizardError as W;
+        match self {
+            W::Io(_) => Exit::Failure,
+            W::Press(e) => e.exit(),
+        }
+    }
+}
+
+impl Classify for crate::rigs::PreflightError {
+    /// The worst of the devices that failed: a hardware fault (3) before bad input (2).
+    fn exit(&self) -> Exit {
+        let codes = self.failed.iter().map(|(_, e)| e.exit());
+        codes.fold(Exit::Success, |worst, e| match (worst, e) {
+            (Exit::HardwareFault, _) | (_, Exit::HardwareFault) => Exit::HardwareFault,
+            (Exit::BadInput, _) | (_, Exit::BadInput) => Exit::BadInput,
+            (_, e) => e,
+        })
     }
 }
 
@@ -396,8 +434,9 @@ impl Classify for crate::calibration::press::PressError {
         match self {
             P::Arm(e) => e.exit(),
             P::Camera(e) => e.exit(),
+            P::Fence(e) => e.exit(),
             P::Cancelled { .. } => Exit::Interrupted,
-            P::NoReference | P::Fit(_) => Exit::Failure,
+            P::NoReference | P::Fit(_) | P::Unchecked { .. } => Exit::Failure,
         }
     }
 }
@@ -475,6 +514,7 @@ impl Classify for crate::jobs::JobError {
             J::Fill { source, .. } => source.exit(),
             J::Model { source, .. } => source.exit(),
             J::Press(e) => e.exit(),
+            J::Fence(e) => e.exit(),
             J::Request(e) => e.exit(),
             J::Settings(e) => e.exit(),
             J::Replay(e) => e.exit(),

@@ -135,6 +135,8 @@ pub async fn run_wizard<S: PressStation, I: WizardIo>(
         }
     }
     let pattern = owned.as_ref().unwrap_or(pattern);
+    // The depths may have changed: the pattern as it will be pressed passes the fence first.
+    station.check_pattern(pattern)?;
     io.say("Taking the no-contact reference frame above the indenter...")?;
     station.take_reference().await?;
     let mut points: Vec<FitPoint> = Vec::new();
@@ -260,9 +262,15 @@ mod tests {
         truth: Calibration,
         presses: usize,
         finished: bool,
+        /// The pattern was handed to the fence before anything moved.
+        checked: bool,
     }
 
     impl PressStation for FakeStation {
+        fn check_pattern(&mut self, _pattern: &PressPattern) -> Result<(), PressError> {
+            self.checked = true;
+            Ok(())
+        }
         async fn take_reference(&mut self) -> Result<(), PressError> {
             Ok(())
         }
@@ -285,7 +293,7 @@ mod tests {
 
     fn run(script: &str) -> (WizardOutcome, String, FakeStation) {
         let truth = Calibration { rotation_deg: 4.0, scale_px_per_mm: [9.0, 8.0], ..Calibration::default_for(512, 512) };
-        let mut station = FakeStation { truth, presses: 0, finished: false };
+        let mut station = FakeStation { truth, presses: 0, finished: false, checked: false };
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
         let pattern = PressPattern::grid(2, 3.0, &[]);
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
@@ -298,7 +306,7 @@ mod tests {
         // Mounted; offset 1 accepted; offset 2's first press sees nothing -> redo, then
         // accepted; offsets 3 and 4 accepted; save.
         let (outcome, text, station) = run("\n\nr\n\na\n\ny\n");
-        assert!(station.finished);
+        assert!(station.finished && station.checked);
         assert_eq!(station.presses, 5, "{text}");
         let WizardOutcome::Save(fit) = outcome else { panic!("{text}") };
         assert_eq!(fit.inlier.len(), 4);
@@ -310,7 +318,7 @@ mod tests {
     #[test]
     fn asks_for_the_depths_when_the_pattern_presses_at_depths() {
         let truth = Calibration { scale_px_per_mm: [9.0, 8.0], ..Calibration::default_for(512, 512) };
-        let mut station = FakeStation { truth, presses: 0, finished: false };
+        let mut station = FakeStation { truth, presses: 0, finished: false, checked: false };
         // Mounted; a bad answer, then one depth; 4 + 9 presses (the second sees nothing: redo).
         let script = "\n2.5\n0.5\n\nr\n\n\n\n\n\n\n\n\n\n\n\n\ny\n";
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
