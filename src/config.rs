@@ -570,6 +570,93 @@ impl RigConfig {
         }
     }
 
+    /// What the configuration names, one line each, as `rig info` and `rig devices` list it:
+    /// the arm (address, profile, speed), the work frame, the capture settings, each sensor
+    /// (camera device, size, rate, format, locked controls, calibration, press limit; a sensor
+    /// with no `[sensors.<name>]` table is simulated), each Modbus peripheral. Nothing is
+    /// opened.
+    pub fn listing(&self) -> Vec<String> {
+        let profile = self.arm.profile.as_deref().unwrap_or("mg400-v1.6 (built in)");
+        let speed = self.arm.speed_factor;
+        let arm = match &self.arm.backend {
+            ArmBackend::Simulated { time_scale } => {
+                format!("arm: simulated MG400 ({time_scale}x real time), profile {profile}, speed factor {speed}%")
+            }
+            ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port } => format!(
+                "arm: MG400 at {host} (dashboard {dashboard_port}, motion {motion_port}, feedback {feedback_port}), profile {profile}, speed factor {speed}%"
+            ),
+            ArmBackend::Magician { serial_port } => {
+                format!(
+                    "arm: Magician on {}, profile {}, speed factor {speed}%",
+                    serial_port.display(),
+                    self.arm.profile.as_deref().unwrap_or("magician (built in)")
+                )
+            }
+        };
+        let wf = &self.work_frame;
+        let c = &self.collect;
+        let mut lines = vec![
+            arm,
+            format!(
+                "work frame: origin {}, contact depth {} mm, approach {} mm, tool offset {} mm",
+                wf.origin, wf.contact_depth_mm, wf.approach_mm, wf.tool_offset_mm
+            ),
+            format!(
+                "collect: settle {} s, {} frame(s) per pose{}, move timeout {} s, {} retries per pose",
+                c.settle_s,
+                c.frames_per_pose,
+                if c.average_frames { " averaged" } else { "" },
+                c.move_timeout_s,
+                c.retries_per_pose
+            ),
+        ];
+        for kind in crate::sensor::SensorKind::ALL {
+            let limit = self.press_limit(kind);
+            let press = if limit.configured {
+                format!("press limit {} mm (configured)", limit.max_indentation_mm)
+            } else {
+                format!("press limit {} mm ({}'s default)", limit.max_indentation_mm, kind.label())
+            };
+            let line = match self.sensors.iter().find(|s| s.name == kind.name()) {
+                None => format!("sensor {kind}: simulated (no [sensors.{kind}] table), 512x512; {press}"),
+                Some(s) => {
+                    let calibration = s.calibration.as_ref().map_or_else(|| "none set".to_string(), |p| p.display().to_string());
+                    let source = match &s.backend {
+                        SensorBackend::Simulated => format!("simulated, scene {}, {}x{}", s.scene, s.width, s.height),
+                        SensorBackend::V4l2 { device } | SensorBackend::Nokhwa { device } => {
+                            let backend = if matches!(s.backend, SensorBackend::V4l2 { .. }) { "v4l2" } else { "nokhwa" };
+                            let cam = &s.camera;
+                            let format = cam.pixel_format.map_or("auto (YUYV when it reaches the rate, else MJPEG)".to_string(), |f| {
+                                String::from_utf8_lossy(&f.fourcc()).into_owned()
+                            });
+                            let locked = |v: Option<i64>, unit: &str| v.map_or("auto".to_string(), |v| format!("{v}{unit}"));
+                            format!(
+                                "{backend} camera {device}, {}x{} at {} fps, format {format}, exposure {}, gain {}, white balance {}",
+                                s.width,
+                                s.height,
+                                cam.fps,
+                                locked(cam.exposure_100us, " x 100 us"),
+                                locked(cam.gain, ""),
+                                locked(cam.white_balance_k, " K")
+                            )
+                        }
+                    };
+                    format!("sensor {kind}: {source}, calibration {calibration}; {press}")
+                }
+            };
+            lines.push(line);
+        }
+        for p in self.modbus.values() {
+            let reads: Vec<&str> = p.read.iter().map(|r| r.name.as_str()).collect();
+            let reads = if reads.is_empty() { "nothing".to_string() } else { reads.join(", ") };
+            lines.push(format!("modbus {}: reads {reads}, timeout {} ms", p.describe(), p.timeout.as_millis()));
+        }
+        if !self.faults.is_empty() {
+            lines.push(format!("injected faults: {}", self.faults.describe()));
+        }
+        lines
+    }
+
     /// One line saying what rig will drive, printed first by commands that move hardware.
     pub fn describe(&self) -> String {
         let mut rig = self.describe_rig();

@@ -19,7 +19,7 @@
 //! **Indentation.** Plan poses live in the work frame ([`WorkFrame`]): `z_mm` is extra
 //! indentation beyond the work frame's `contact_depth_mm`, counted from `origin`, the tool pose
 //! at which the sensor tip just touches the object's top. The skin is therefore pressed
-//! `contact_depth_mm + z_mm` deep at a pose ([`indentation_mm`]), and that is what the press
+//! `contact_depth_mm + z_mm` deep at a pose ([`WorkFrame::press_depth_mm`]), and that is what the press
 //! limit bounds ([`PressLimit`]: `[sensors.<name>] max_indentation_mm`, else the sensor's
 //! default). Where an object's top rises above the origin's touching point within the plan's x
 //! and y, the skin there is pressed deeper by the rise: set the origin on the highest point.
@@ -35,12 +35,8 @@ use crate::arm::ArmError;
 use crate::arm::profile::FirmwareProfile;
 use crate::config::{PressLimit, RigConfig};
 use crate::plan::PlannedPose;
-use crate::pose::{Pose, WorkFrame};
+use crate::pose::{Pose, WorkFrame, within_press_limit};
 use crate::sensor::SensorKind;
-
-/// Rounding allowed above a limit, mm: plan values such as `-1 + 4 x 0.5` land a few ulps off
-/// the number a user wrote as the limit.
-const ROUNDING_MM: f64 = 1e-9;
 
 /// Where the poses a fence guards come from; names a pose in a refusal.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -78,12 +74,6 @@ pub enum FenceError {
         .poses.describe(Some(*.pose_id)), .plan_pose.z_mm
     )]
     TooDeep { poses: PoseSource, pose_id: u32, plan_pose: Pose, indentation_mm: f64, contact_depth_mm: f64, limit: PressLimit },
-}
-
-/// How deep a pose presses the skin, mm: the work frame's contact depth plus the pose's extra
-/// indentation (negative: above the surface).
-pub fn indentation_mm(work_frame: &WorkFrame, plan_pose: &Pose) -> f64 {
-    work_frame.contact_depth_mm + plan_pose.z_mm
 }
 
 /// The workspace and the press limit every pose of one run must keep to.
@@ -160,9 +150,9 @@ impl Fence {
     /// The press limit, then the workspace of the approach and the contact pose; returns the
     /// indentation.
     fn check_pose(&self, work_frame: &WorkFrame, pose_id: u32, plan_pose: &Pose, envelope: &mut Envelope) -> Result<f64, FenceError> {
-        let indentation = indentation_mm(work_frame, plan_pose);
+        let indentation = work_frame.press_depth_mm(plan_pose);
         if let Some(limit) = self.press
-            && !(indentation <= limit.max_indentation_mm + ROUNDING_MM)
+            && !within_press_limit(indentation, limit.max_indentation_mm)
         {
             return Err(FenceError::TooDeep {
                 poses: self.poses,

@@ -300,6 +300,79 @@ mod tests {
         assert_eq!(p.with_extra_depths(&[]).offsets.len(), 25);
     }
 
+    /// An arm that counts what it is asked to do and is wherever it is sent.
+    #[derive(Default)]
+    struct CountingArm {
+        enables: usize,
+        moves: usize,
+        at: Pose,
+    }
+
+    impl Arm for CountingArm {
+        async fn enable(&mut self) -> Result<(), ArmError> {
+            self.enables += 1;
+            Ok(())
+        }
+        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
+            self.moves += 1;
+            self.at = target;
+            Ok(())
+        }
+        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<crate::arm::Arrival, ArmError> {
+            Ok(crate::arm::Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
+        }
+        async fn pose(&mut self) -> Result<Pose, ArmError> {
+            Ok(self.at)
+        }
+        async fn stop(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
+            Ok(Vec::new())
+        }
+        async fn disable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+    }
+
+    /// A camera that sees a blank skin.
+    struct BlankCamera;
+
+    impl Camera for BlankCamera {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<crate::camera::Frame, CameraError> {
+            Ok(crate::camera::Frame { image: RgbImage::new(8, 8), t_capture_s: not_before_s, seq: 0 })
+        }
+    }
+
+    /// The station presses only offsets of a pattern that passed its fence: a pattern deeper
+    /// than the limit is refused before the arm is enabled or moved, and so is a press at an
+    /// offset no checked pattern holds.
+    #[tokio::test]
+    async fn the_station_presses_only_within_a_checked_pattern() {
+        use crate::config::PressLimit;
+        use crate::fence::PoseSource;
+        use crate::sensor::SensorKind;
+        let mut arm = CountingArm::default();
+        let limit = PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 2.5, configured: false };
+        let fence = Fence::new(crate::arm::profile::FirmwareProfile::default_mg400(), limit, PoseSource::Presses);
+        let detector = ContactDetector::for_sensor(SensorKind::ViTac, 8);
+        let options = CollectConfig { settle_s: 0.0, ..CollectConfig::default() };
+        let mut station = ArmStation::new(&mut arm, BlankCamera, WorkFrame::default(), options, detector, fence);
+        // 1.5 mm contact depth + 1.5 mm: 3 mm, past 2.5 mm.
+        let deep = PressPattern::grid(2, 2.0, &[1.5]);
+        let e = run_pattern(&mut station, &deep, &FitOptions::default(), |_, _| ControlFlow::Continue(())).await.unwrap_err();
+        assert!(matches!(e, PressError::Fence(FenceError::TooDeep { pose_id: 4, .. })), "{e}");
+        assert!(matches!(station.press(Pose::default()).await, Err(PressError::Unchecked { .. })));
+        let shallow = PressPattern::grid(2, 2.0, &[0.5]);
+        station.check_pattern(&shallow).expect("2 mm is within 2.5 mm");
+        assert!(matches!(station.press(Pose::new(9.0, 0.0, 0.0, 0.0)).await, Err(PressError::Unchecked { .. })));
+        drop(station);
+        assert_eq!((arm.enables, arm.moves), (0, 0), "nothing moved");
+    }
+
     #[test]
     fn sensor_point_is_the_negated_offset_turned_by_yaw() {
         assert_eq!(sensor_point_mm(&Pose::new(2.0, -1.0, 0.0, 0.0)), [-2.0, 1.0]);

@@ -36,10 +36,17 @@ pub enum Format {
 #[allow(rustdoc::invalid_html_tags)]
 #[derive(Debug, clap::Subcommand)]
 pub enum DatasetCommand {
-    /// Report missing images, orphan images, duplicated or malformed rows and leftovers of a
-    /// killed run; exits 1 when the dataset is not clean. Changes nothing.
+    /// Report missing images, orphan images, duplicated or malformed rows, leftovers of a
+    /// killed run and rows that press past the sensor's press limit; exits 1 when the dataset
+    /// is not clean. Changes nothing.
     #[command(after_help = crate::cli::examples::DATASET_VERIFY)]
-    Verify { dir: PathBuf },
+    Verify {
+        dir: PathBuf,
+        /// Rig configuration whose press limit the rows are checked against (default:
+        /// $RIG_CONFIG, then ./rig.toml; none: the sensor's default limit).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect, or the
     /// datasets under DIR as a LeRobot v3 dataset.
     #[command(after_help = crate::cli::examples::DATASET_EXPORT)]
@@ -110,10 +117,25 @@ pub enum DatasetCommand {
     },
 }
 
+/// The rows of the dataset at `dir` that press past the press limit of its sensor: the limit
+/// `config` sets (`[sensors.<name>] max_indentation_mm`), else the sensor's default, in the
+/// work frame its manifest recorded (else `config`'s). Nothing when the manifest is unreadable
+/// (verify reports that).
+fn rows_past_press_limit(dir: &Path, config: &crate::config::RigConfig) -> anyhow::Result<Vec<crate::dataset::VerifyIssue>> {
+    let Ok(manifest) = Manifest::load(dir) else { return Ok(Vec::new()) };
+    let limit = config.press_limit(manifest.sensor);
+    let work_frame = manifest.work_frame.unwrap_or(config.work_frame);
+    let rows = crate::dataset::press_limit::rows_past_press_limit(dir, &work_frame, limit.max_indentation_mm, &limit.to_string())
+        .with_context(|| format!("verifying {}", dir.display()))?;
+    Ok(rows)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        DatasetCommand::Verify { dir } => {
-            let report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
+        DatasetCommand::Verify { dir, config } => {
+            let config = crate::config::RigConfig::discover(config.as_deref())?;
+            let mut report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
+            report.issues.extend(rows_past_press_limit(&dir, &config)?);
             println!("{}: {report}", dir.display());
             if let Ok(Manifest { audit: Some(audit), .. }) = Manifest::load(&dir) {
                 for line in audit.lines() {

@@ -28,6 +28,7 @@ pub mod lerobot;
 pub mod manifest;
 pub mod merge;
 pub mod named;
+pub mod press_limit;
 pub mod verify;
 pub mod writer;
 
