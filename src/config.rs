@@ -816,6 +816,22 @@ mod tests {
         assert!(e.to_string().contains("twice"), "{e}");
     }
 
+    /// A sensor's press limit is its configured `max_indentation_mm`, else its default; a limit
+    /// that is not above 0 and at most 20 mm is refused.
+    #[test]
+    fn press_limits_are_read_checked_and_defaulted() {
+        use crate::sensor::SensorKind;
+        let c = RigConfig::parse("[sensors.vitac]\nmax_indentation_mm = 3.25\n", Path::new("x")).unwrap();
+        assert_eq!(c.press_limit(SensorKind::ViTac), PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 3.25, configured: true });
+        assert_eq!(c.press_limit(SensorKind::TacTip), PressLimit { sensor: SensorKind::TacTip, max_indentation_mm: 5.0, configured: false });
+        assert_eq!(RigConfig::builtin_sim().press_limit(SensorKind::ViTacTip).max_indentation_mm, 2.5);
+        for bad in ["0.0", "-1.0", "20.5", "nan", "inf"] {
+            let e = RigConfig::parse(&format!("[sensors.tactip]\nmax_indentation_mm = {bad}\n"), Path::new("x")).unwrap_err();
+            assert!(e.to_string().contains("max_indentation_mm") && e.to_string().contains("at most 20 mm"), "{bad}: {e}");
+        }
+        assert!(RigConfig::parse("[sensors.tactip]\nmax_indentation_mm = 20.0\n", Path::new("x")).is_ok());
+    }
+
     #[test]
     fn work_frame_is_read() {
         let c = RigConfig::parse(

@@ -48,12 +48,13 @@ impl Exit {
             Exit::BadInput => {
                 "bad input: command line, rig config, plan, object/STL, calibration, firmware profile, model package \
                  (model.toml, tokenizer, ONNX files), dataset files (manifest, CSV header and rows, images, symlinks), a recording file, \
-                 sampling settings and sizes out of range, a plan outside the workspace, a path outside the daemon's \
-                 data roots"
+                 sampling settings and sizes out of range, a pose outside the workspace or past the sensor's press \
+                 limit (a plan, an audit's rows, a calibration pattern), a path outside the daemon's data roots"
             }
             Exit::HardwareFault => {
                 "hardware fault: arm alarms, refused or lost connections once retries are spent (also when opening the \
-                 rig), camera failures, a required Modbus peripheral; `rig replay`: a divergence from the recording"
+                 rig), camera failures, a required Modbus peripheral, a device that failed a dry run's pre-flight; \
+                 `rig replay`: a divergence from the recording"
             }
             Exit::Interrupted => {
                 "interrupted: Ctrl-C or a cancelled daemon job (`rig collect` continues with `--resume`; `rig calibrate` \
