@@ -401,36 +401,6 @@ mod tests {
     use crate::dataset::{CaptureChain, CapturePart, Manifest, ObjectInfo};
     use crate::sensor::SensorKind;
 
-    /// An arm that is wherever it is sent, at once.
-    struct InstantArm {
-        at: Pose,
-    }
-
-    impl Arm for InstantArm {
-        async fn enable(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
-            self.at = target;
-            Ok(())
-        }
-        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<Arrival, ArmError> {
-            Ok(Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
-        }
-        async fn pose(&mut self) -> Result<Pose, ArmError> {
-            Ok(self.at)
-        }
-        async fn stop(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
-            Ok(Vec::new())
-        }
-        async fn disable(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-    }
-
     /// A measured camera: each frame asked for is one driver buffer, its sequence number
     /// `step` after the previous one (`step - 1` dropped), stamped `step` frame intervals of
     /// 1/30 s later.
@@ -473,7 +443,7 @@ mod tests {
             Some(CaptureChain { arm: CapturePart::new("arm", "mg400", false, None), sensors: vec![part], modbus: Vec::new() });
         let writer = DatasetWriter::start(dir, manifest, resume).unwrap();
         let (_stop, cancel) = watch::channel(false);
-        let mut arm = InstantArm { at: Pose::default() };
+        let mut arm = crate::arm::fake::CountingArm::default();
         let job = CollectJob {
             arm: &mut arm,
             sensors: vec![SensorStream { camera, writer, source: Source::Real }],

@@ -823,7 +823,10 @@ mod tests {
         use crate::sensor::SensorKind;
         let c = RigConfig::parse("[sensors.vitac]\nmax_indentation_mm = 3.25\n", Path::new("x")).unwrap();
         assert_eq!(c.press_limit(SensorKind::ViTac), PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 3.25, configured: true });
-        assert_eq!(c.press_limit(SensorKind::TacTip), PressLimit { sensor: SensorKind::TacTip, max_indentation_mm: 5.0, configured: false });
+        assert_eq!(
+            c.press_limit(SensorKind::TacTip),
+            PressLimit { sensor: SensorKind::TacTip, max_indentation_mm: 5.0, configured: false }
+        );
         assert_eq!(RigConfig::builtin_sim().press_limit(SensorKind::ViTacTip).max_indentation_mm, 2.5);
         for bad in ["0.0", "-1.0", "20.5", "nan", "inf"] {
             let e = RigConfig::parse(&format!("[sensors.tactip]\nmax_indentation_mm = {bad}\n"), Path::new("x")).unwrap_err();

@@ -300,41 +300,6 @@ mod tests {
         assert_eq!(p.with_extra_depths(&[]).offsets.len(), 25);
     }
 
-    /// An arm that counts what it is asked to do and is wherever it is sent.
-    #[derive(Default)]
-    struct CountingArm {
-        enables: usize,
-        moves: usize,
-        at: Pose,
-    }
-
-    impl Arm for CountingArm {
-        async fn enable(&mut self) -> Result<(), ArmError> {
-            self.enables += 1;
-            Ok(())
-        }
-        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
-            self.moves += 1;
-            self.at = target;
-            Ok(())
-        }
-        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<crate::arm::Arrival, ArmError> {
-            Ok(crate::arm::Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
-        }
-        async fn pose(&mut self) -> Result<Pose, ArmError> {
-            Ok(self.at)
-        }
-        async fn stop(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
-            Ok(Vec::new())
-        }
-        async fn disable(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-    }
-
     /// A camera that sees a blank skin.
     struct BlankCamera;
 
@@ -355,7 +320,7 @@ mod tests {
         use crate::config::PressLimit;
         use crate::fence::PoseSource;
         use crate::sensor::SensorKind;
-        let mut arm = CountingArm::default();
+        let mut arm = crate::arm::fake::CountingArm::default();
         let limit = PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 2.5, configured: false };
         let fence = Fence::new(crate::arm::profile::FirmwareProfile::default_mg400(), limit, PoseSource::Presses);
         let detector = ContactDetector::for_sensor(SensorKind::ViTac, 8);

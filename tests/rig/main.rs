@@ -26,3 +26,4 @@ mod preflight;
 mod press_limits;
 mod provenance;
 mod record_replay;
+mod run;

@@ -6,32 +6,13 @@
 //! Also `rig info --config` and `rig devices --config`.
 
 use std::path::Path;
-use std::process::{Command, Output};
 use std::sync::Arc;
 
 use rig::clock::MonotonicClock;
 use rig::config::RigConfig;
 use rig::sim::mg400::{SimMg400, SimMg400Config};
 
-fn rig_cmd(dir: &Path, args: &[&str]) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
-    c.args(args).current_dir(dir).env_remove("RIG_CONFIG").env("RIG_LOG", "error");
-    c
-}
-
-fn rig(dir: &Path, args: &[&str]) -> Output {
-    rig_cmd(dir, args).output().expect("running rig")
-}
-
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
-
-fn expect_code(o: &Output, code: i32) -> String {
-    let t = text(o);
-    assert_eq!(o.status.code(), Some(code), "{t}");
-    t
-}
+use crate::run::{expect_code, rig, rig_cmd};
 
 /// A loopback port nothing listens on (bound, then let go).
 fn closed_port() -> u16 {

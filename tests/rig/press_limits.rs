@@ -4,32 +4,20 @@
 //! naming the pose and the limit; `rig dataset verify` reports rows past the limit.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
-fn rig(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rig"))
-        .args(args)
-        .current_dir(dir)
-        .env_remove("RIG_CONFIG")
-        .env("RIG_LOG", "error")
-        .output()
-        .expect("running rig")
-}
-
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
-
-fn expect_code(o: &Output, code: i32) -> String {
-    let t = text(o);
-    assert_eq!(o.status.code(), Some(code), "{t}");
-    t
-}
+use crate::run::{expect_code, rig};
 
 /// The issue's plan: 20 to 30 mm of extra indentation, at one spot.
 const DEEP_PLAN: &str = "sampling = \"full\"\norder = \"optimised\"\nx_mm = { min = 0.0, max = 0.0, step = 1.0 }\n\
      y_mm = { min = 0.0, max = 0.0, step = 1.0 }\nz_mm = { min = 20.0, max = 30.0, step = 5.0 }\n\
      yaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n";
+
+/// `rig ARGS --dry-run`, then `rig ARGS`: both refused with exit 2 before anything moves;
+/// their outputs.
+fn refused_dry_and_real(dir: &Path, args: &[&str]) -> [String; 2] {
+    let dry: Vec<&str> = args.iter().copied().chain(["--dry-run"]).collect();
+    [expect_code(&rig(dir, &dry), 2), expect_code(&rig(dir, args), 2)]
+}
 
 /// A work frame whose first touch is `contact_depth_mm` deep (the default origin).
 fn frame_config(contact_depth_mm: f64) -> String {
@@ -41,10 +29,7 @@ fn a_plan_past_the_press_limit_is_refused_before_anything_moves() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path();
     std::fs::write(dir.join("deep.toml"), DEEP_PLAN).expect("plan");
-    for extra in [&["--dry-run"][..], &[][..]] {
-        let args: Vec<&str> =
-            ["collect", "--plan", "deep.toml", "--sensor", "tactip", "--out", "out"].into_iter().chain(extra.iter().copied()).collect();
-        let t = expect_code(&rig(dir, &args), 2);
+    for t in refused_dry_and_real(dir, &["collect", "--plan", "deep.toml", "--sensor", "tactip", "--out", "out"]) {
         assert!(
             t.contains("plan pose 0 (x 0.000 mm, y 0.000 mm, z 20.000 mm, yaw 0.000 deg) presses 21.500 mm into the skin"),
             "the refusal names the pose and its depth: {t}"
@@ -122,9 +107,7 @@ fn an_audit_of_rows_past_the_press_limit_is_refused_and_verify_reports_them() {
     let dir = tmp.path();
     let ds = dataset_with_synthetic_rows_at(dir, "30.0");
     let ds_arg = ds.to_str().expect("utf-8");
-    for extra in [&["--dry-run"][..], &[][..]] {
-        let args: Vec<&str> = ["audit", "--dataset", ds_arg, "--fraction", "1"].into_iter().chain(extra.iter().copied()).collect();
-        let t = expect_code(&rig(dir, &args), 2);
+    for t in refused_dry_and_real(dir, &["audit", "--dataset", ds_arg, "--fraction", "1"]) {
         assert!(t.contains("of the dataset's poses.csv") && t.contains("presses 31.500 mm into the skin"), "{t}");
         assert!(t.contains("vitac's press limit of 2.5 mm"), "{t}");
         assert!(!ds.join("audit").exists(), "nothing may start: {t}");
@@ -158,12 +141,7 @@ fn a_calibration_pressing_past_the_limit_is_refused_before_anything_moves() {
     // contact depth its deepest layer (from press 35) presses 2.7 mm, past ViTac's 2.5 mm
     // (TacTip's 5 mm allows it).
     std::fs::write(dir.join("deep.toml"), frame_config(2.2)).expect("config");
-    for extra in [&["--dry-run"][..], &[][..]] {
-        let args: Vec<&str> = ["calibrate", "--sensor", "vitac", "--config", "deep.toml", "--out", "cal.toml"]
-            .into_iter()
-            .chain(extra.iter().copied())
-            .collect();
-        let t = expect_code(&rig(dir, &args), 2);
+    for t in refused_dry_and_real(dir, &["calibrate", "--sensor", "vitac", "--config", "deep.toml", "--out", "cal.toml"]) {
         assert!(
             t.contains("calibration press 35 (x 0.000 mm, y 0.000 mm, z 0.500 mm, yaw 0.000 deg) presses 2.700 mm into the skin (contact depth 2.200 mm + z 0.500 mm)"),
             "{t}"
