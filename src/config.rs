@@ -13,7 +13,10 @@
 //! A real bench (see `examples/bench-rig.toml`) names the arm (`mg400` by address, `magician`
 //! by serial port), binds each sensor to a camera by USB identity (`port:1-2.3`,
 //! `serial:...`; see `camera::usb::DeviceSelector`), locks its exposure, gain and white
-//! balance, and lists Modbus peripherals under `[modbus.<name>]`.
+//! balance, and lists Modbus peripherals under `[modbus.<name>]`. Every sensor has a press
+//! limit, the deepest the arm may press its skin ([`RigConfig::press_limit`]: `[sensors.<name>]
+//! max_indentation_mm`, else the sensor's conservative default), which [`crate::fence`] holds
+//! every pose to.
 
 use std::path::{Path, PathBuf};
 

@@ -10,6 +10,11 @@
 //! arm moves; a `transport = "sim"` one is a simulated device ([`SimModbusServer`]) started
 //! here on loopback, a force sensor reading the simulated arm's truth.
 //!
+//! [`preflight`] opens the same devices the same way for a dry run, each whatever the others
+//! did, and moves nothing: the arm connected and read (mode, alarms, pose; never an enable or
+//! a motion command), one frame from each camera, one read of each Modbus peripheral. It
+//! reports every device ([`Preflight`]), so a dry run names all that fail.
+//!
 //! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
 //! simulator gets its controller switches, a task closes its sockets periodically, and each
 //! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
@@ -728,12 +733,13 @@ fn camera_label(config: &RigConfig, kind: SensorKind) -> String {
 /// are read at the end: a pre-flight that had sent it an enable or a motion command fails.
 pub async fn preflight(config: &RigConfig, object: &ObjectChoice, sensors: &SensorSet, seed: u64, clock: Arc<dyn Clock>) -> Preflight {
     let mut checks = Vec::new();
-    let sim = start_sim(config, &clock).await;
-    let arm = match &sim {
-        Ok(sim) => connect_arm(config, sim.as_ref(), &clock, None).await,
-        Err(e) => Err(RigError::Sim(std::io::Error::other(e.to_string()))),
+    let (sim, arm) = match start_sim(config, &clock).await {
+        Ok(sim) => {
+            let arm = connect_arm(config, sim.as_ref(), &clock, None).await;
+            (sim, arm)
+        }
+        Err(e) => (None, Err(e)),
     };
-    let sim = sim.ok().flatten();
     let mut arm = match arm {
         Ok(mut arm) => {
             let outcome = match arm.status().await {

@@ -60,8 +60,8 @@ pub enum PressOutcome {
 /// Presses the indenter at every offset of `pattern` with `sensor`'s `camera`, then fits; the
 /// pattern passes the fence of `sensor` first ([`fence`]), so nothing moves for a press outside
 /// the workspace or past the press limit. The arm is left disabled (retracted above the origin
-/// when the run got that far). `on_press`
-/// sees every press; the observer counts them and its cancel stops between presses.
+/// when the run got that far). `on_press` sees every press; the observer counts them and its
+/// cancel stops between presses.
 #[allow(clippy::too_many_arguments, reason = "the hardware, the job and its observers, each needed")]
 pub async fn press_and_fit<A: Arm, C: Camera>(
     arm: &mut A,
