@@ -32,6 +32,13 @@ fn dataset(dir: &Path, ids: &[u32]) {
     w.finish().expect("finish");
 }
 
+/// A dataset `top/name` of synthetic rows `ids`.
+fn shard(top: &Path, name: &str, ids: &[u32]) -> PathBuf {
+    let d = top.join(name);
+    dataset(&d, ids);
+    d
+}
+
 #[test]
 fn verify_reports_every_kind_of_damage() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -71,13 +78,8 @@ fn verify_reports_every_kind_of_damage() {
 #[test]
 fn merge_joins_shards_and_refuses_conflicts() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let shard = |name: &str, ids: &[u32]| -> PathBuf {
-        let d = tmp.path().join(name);
-        dataset(&d, ids);
-        d
-    };
-    let a = shard("a", &[0, 2, 4]);
-    let b = shard("b", &[1, 3, 4]); // 4 is in both, identical
+    let a = shard(tmp.path(), "a", &[0, 2, 4]);
+    let b = shard(tmp.path(), "b", &[1, 3, 4]); // 4 is in both, identical
     let out = tmp.path().join("out");
     let report = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merge");
     assert_eq!((report.appended, report.already_present), (5, 1));
@@ -130,13 +132,8 @@ fn snapshot(dir: &Path) -> std::collections::BTreeMap<PathBuf, (u64, u64, std::t
 #[test]
 fn a_merge_that_appends_nothing_reads_no_image_and_changes_nothing() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let shard = |name: &str, ids: &[u32]| -> PathBuf {
-        let d = tmp.path().join(name);
-        dataset(&d, ids);
-        d
-    };
-    let a = shard("a", &[0, 2, 4]);
-    let b = shard("b", &[1, 3]);
+    let a = shard(tmp.path(), "a", &[0, 2, 4]);
+    let b = shard(tmp.path(), "b", &[1, 3]);
     let out = tmp.path().join("out");
     let report = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merge");
     assert_eq!((report.appended, report.already_present), (5, 0));
@@ -156,7 +153,7 @@ fn a_merge_that_appends_nothing_reads_no_image_and_changes_nothing() {
 
     // A merge that has something to append reads the images: the unclean input is refused and
     // the output is left as it was.
-    let c = shard("c", &[5]);
+    let c = shard(tmp.path(), "c", &[5]);
     let err = merge(&[a.clone(), c.clone()], &out, MergeOptions::default()).expect_err("unclean input");
     assert!(matches!(&err, DatasetError::Unclean { dir, .. } if *dir == a), "{err}");
     assert!(snapshot(&out) == before);

@@ -9,7 +9,7 @@
 #    fills the poses not collected with the tiny test model, so the export holds simulated and
 #    synthetic frames, two episodes and three image keys.
 # 3. Exports it with `rig dataset export --format lerobot`, once as is (one data file) and once
-#    with --max-file-mb 3 (a dozen data files, episodes cut where the files are), and runs
+#    with --max-file-mb 3 (ten data files, episodes cut where the files are), and runs
 #    tools/check_lerobot.py on each with --datasets: every file within the size bound and read
 #    whole by pyarrow, the schema against meta/info.json, row and episode counts, each episode in
 #    the data file it names, every image decoded by Pillow, tasks, stats, and every frame against
@@ -75,7 +75,7 @@ say "collected 5 poses of edge and sphere with three simulated sensors, filled t
 
 # --- 3. export and check ---------------------------------------------------------------------
 # Once with the default bound (100 MB: one data file), once with files of at most 3 MB: a frame
-# of three 640 x 480 images is about 1.3 MB, so the 24 frames roll over a dozen data files and
+# of three 640 x 480 images is about 1 MB, so the 24 frames roll over ten data files and
 # the objects' episodes end with them.
 "$rig" dataset export "$work/datasets" --format lerobot --out "$work/lerobot" --fps 5 || fail "the export failed"
 "$rig" dataset export "$work/datasets" --format lerobot --out "$work/lerobot-rolled" --fps 5 --max-file-mb 3 \
