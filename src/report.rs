@@ -292,7 +292,7 @@ impl Classify for crate::dataset::lerobot::LerobotError {
         use crate::dataset::lerobot::LerobotError as L;
         match self {
             L::Dataset(e) => e.exit(),
-            L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) => Exit::BadInput,
+            L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) | L::RowTooLarge { .. } => Exit::BadInput,
             L::Write { .. } => Exit::Failure,
         }
     }

@@ -26,9 +26,9 @@ pub enum Format {
     Mds,
     /// tactile-bench: sensor_image,object_label,pose_x..pose_Rz,pose_id,source.
     TactileBench,
-    /// LeRobot v3 (parquet): one episode per object, one frame per pose, one image key per
-    /// sensor; --out is a new folder. DIR may be a dataset, an object folder or a folder of
-    /// objects.
+    /// LeRobot v3 (parquet): one frame per pose, one image key per sensor, episodes of one
+    /// object's poses, files of at most --max-file-mb; --out is a new folder. DIR may be a
+    /// dataset, an object folder or a folder of objects.
     Lerobot,
 }
 
@@ -68,6 +68,12 @@ pub enum DatasetCommand {
         /// lerobot only: meta/info.json's robot_type (default: from the capture chain's arm).
         #[arg(long)]
         robot_type: Option<String>,
+        /// lerobot only: the bound on each parquet file, MB of 10^6 bytes (LeRobot's
+        /// data_files_size_in_mb); a data file is closed before a frame would take it past the
+        /// bound, and an episode ends with it.
+        #[arg(long, default_value_t = crate::dataset::LEROBOT_FILE_MB, value_name = "MB",
+              value_parser = clap::value_parser!(u64).range(1..=crate::dataset::LEROBOT_MAX_FILE_MB))]
+        max_file_mb: u64,
         /// MDS obj_id column.
         #[arg(long, default_value = "1")]
         obj_id: String,
@@ -153,11 +159,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Err(FeatureMissing { feature: Feature::Lerobot, needed_by: "`rig dataset export --format lerobot`" }.into())
         }
         #[cfg(feature = "lerobot")]
-        DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, .. } => {
+        DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, max_file_mb, .. } => {
             let Some(out) = out else { bail!(crate::cli::usage("--format lerobot needs --out DIR (a new folder)")) };
-            let options = LerobotOptions { fps, task, robot_type };
+            let options = LerobotOptions { fps, task, robot_type, max_file_mb };
             let s = export_lerobot(&dir, &out, &options).with_context(|| format!("exporting {} as LeRobot", dir.display()))?;
             let sensors: Vec<&str> = s.sensors.iter().map(|k| k.name()).collect();
+            let largest_mb = s.data_files.iter().map(|f| f.bytes).max().unwrap_or(0) as f64 / 1e6;
             println!(
                 "wrote a LeRobot v3 dataset to {}: {} episode{}, {} frames, image keys for {}{}",
                 out.display(),
@@ -166,6 +173,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 s.frames,
                 sensors.join(", "),
                 if s.reencoded > 0 { format!(" ({} images re-encoded as 8-bit RGB)", s.reencoded) } else { String::new() }
+            );
+            println!(
+                "{} data file{}, the largest {largest_mb:.1} MB (at most {max_file_mb} MB each)",
+                s.data_files.len(),
+                if s.data_files.len() == 1 { "" } else { "s" }
             );
             Ok(())
         }
