@@ -65,12 +65,15 @@ use super::{DatasetError, Manifest, Source, durable, find_datasets, image_rel_pa
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
 
+mod error;
 mod rolling;
 mod stats;
 
+pub use error::LerobotError;
 pub use rolling::{CHUNKS_SIZE, chunk_file};
 pub use stats::QUANTILES;
 
+use error::{io_err, write_err};
 use rolling::{ParquetOut, RollingFiles};
 use stats::{FeatureStats, ImageStats, StatsByFeature, VecStats, stats_json};
 
@@ -147,39 +150,6 @@ pub struct DataFile {
     /// Relative to the output folder: `data/chunk-CCC/file-FFF.parquet`.
     pub path: String,
     pub bytes: u64,
-}
-
-/// Errors of the LeRobot export.
-#[derive(Debug, thiserror::Error)]
-pub enum LerobotError {
-    #[error(transparent)]
-    Dataset(#[from] DatasetError),
-    #[error("{root} holds no rig dataset (no manifest.toml in it, nor in <object>/<sensor>/ below it)")]
-    NoDatasets { root: PathBuf },
-    /// The datasets cannot form one LeRobot dataset as they are.
-    #[error("cannot export these datasets as one LeRobot dataset: {reason}")]
-    Layout { reason: String },
-    #[error("{out} exists and is not an empty folder; refusing to overwrite it (give a new --out)")]
-    OutNotEmpty { out: PathBuf },
-    #[error("{0}")]
-    BadOption(String),
-    /// One row (a frame with its images, or an episode's record) does not fit a file.
-    #[error(
-        "a row of {kind} takes about {row_bytes} bytes with the file's overhead, more than a file may hold ({bound_bytes} bytes): raise --max-file-mb"
-    )]
-    RowTooLarge { kind: &'static str, row_bytes: u64, bound_bytes: u64 },
-    #[error("writing {path}: {reason}")]
-    Write { path: PathBuf, reason: String },
-}
-
-/// An I/O error as the dataset module reports it (a full disk says what to do).
-fn io_err(op: &'static str, path: &Path) -> impl FnOnce(std::io::Error) -> LerobotError {
-    let to_dataset = DatasetError::io(op, path);
-    move |source| LerobotError::Dataset(to_dataset(source))
-}
-
-fn write_err(path: &Path, e: impl std::fmt::Display) -> LerobotError {
-    LerobotError::Write { path: path.to_path_buf(), reason: e.to_string() }
 }
 
 /// One sensor's dataset of an object, its rows reduced to what the export writes.

@@ -17,7 +17,7 @@ use arrow_schema::{DataType, Field, SchemaRef};
 use parquet::arrow::ArrowWriter;
 use parquet::file::properties::WriterProperties;
 
-use super::{LerobotError, io_err, write_err};
+use super::error::{LerobotError, io_err, write_err};
 
 /// Files per chunk folder (LeRobot's default `chunks_size`).
 pub const CHUNKS_SIZE: u64 = 1000;
