@@ -417,13 +417,22 @@ pub struct FitOutcome {
 }
 
 /// Rounds of the pattern search before it gives up (each halves the steps that found nothing).
-const FIT_ROUNDS: usize = 6;
+const FIT_ROUNDS: usize = 5;
+
+/// Values per parameter of the coarse scan that comes before the pattern search.
+const SCAN_POINTS: usize = 9;
+
+/// Sweeps of the coarse scan over all the parameters.
+const SCAN_SWEEPS: usize = 2;
 
 /// Fits `start` (one value per range) to the frames `train` (indices into
-/// `prepared.frames`) by a pattern search: each parameter in turn is moved a step either way
-/// and kept where the mean contact-region SSIM rises; a parameter's step halves after a pass
-/// that found nothing, starting at a quarter of its range. Deterministic; a candidate that
-/// cannot render scores nothing.
+/// `prepared.frames`). First a coarse scan: each parameter in turn is set to the best of
+/// [`SCAN_POINTS`] values spread evenly over its range, the others held, in
+/// [`SCAN_SWEEPS`] sweeps (the contact SSIM has several local peaks, and a local search alone
+/// ended in a different one on each fold of a cross-validation). Then a pattern search: each
+/// parameter in turn is moved a step either way and kept where the mean contact-region SSIM
+/// rises; a parameter's step halves after a pass that found nothing, starting at half the
+/// scan's spacing. Deterministic; a candidate that cannot render scores nothing.
 pub fn fit_parameters(
     prepared: &PreparedSensor,
     train: &[usize],
@@ -441,7 +450,23 @@ pub fn fit_parameters(
     let clamp = |v: f64, r: &ParameterRange| if v.is_finite() { v.clamp(r.min, r.max) } else { r.min };
     let mut best: Vec<f64> = start.iter().zip(ranges).map(|(v, r)| clamp(*v, r)).collect();
     let mut best_score = score_of(&best);
-    let mut steps: Vec<f64> = ranges.iter().map(|r| 0.25 * (r.max - r.min)).collect();
+    let spacing = |r: &ParameterRange| (r.max - r.min) / (SCAN_POINTS - 1) as f64;
+    for _ in 0..SCAN_SWEEPS {
+        for i in 0..best.len() {
+            for j in 0..SCAN_POINTS {
+                let mut candidate = best.clone();
+                candidate[i] = clamp(ranges[i].min + j as f64 * spacing(&ranges[i]), &ranges[i]);
+                if candidate[i] == best[i] {
+                    continue;
+                }
+                let score = score_of(&candidate);
+                if score > best_score + 1e-5 {
+                    (best, best_score) = (candidate, score);
+                }
+            }
+        }
+    }
+    let mut steps: Vec<f64> = ranges.iter().map(|r| 0.5 * spacing(r)).collect();
     for _ in 0..FIT_ROUNDS {
         for i in 0..best.len() {
             let mut moved = false;

@@ -130,6 +130,10 @@ mod optics {
     pub const GLOW_NEAR_PX: f32 = 22.0;
     /// Reach of the broad haze around the contact at 512x512, px.
     pub const GLOW_FAR_PX: f32 = 70.0;
+    /// Deepest press that still softens the see-through outline further, mm. Real skins are
+    /// pressed a few mm at most (the press limits stop the arm before); without the cap a depth
+    /// map of absurd heights would ask the blur for an absurd radius.
+    pub const DEEPEST_EDGE_PRESS_MM: f32 = 5.0;
     /// How far the object's outline is softened by the skin it is seen through, at 512x512, px.
     pub const SEE_THROUGH_BLUR_PX: f32 = 2.0;
     /// Direction the light comes from in the image (unit vector; up-left).
@@ -525,7 +529,8 @@ impl SensorSim {
                 }
                 // The outline softens as the skin wraps the object's edges, more the deeper
                 // the press.
-                let edge_px = optics::SEE_THROUGH_BLUR_PX * s + skin.edge_mm_per_mm * raw.max() * self.px_per_mm;
+                let press_mm = raw.max().min(optics::DEEPEST_EDGE_PRESS_MM);
+                let edge_px = optics::SEE_THROUGH_BLUR_PX * s + skin.edge_mm_per_mm * press_mm * self.px_per_mm;
                 let seen = stages::visibility(&depth, optics::SEE_THROUGH_GAP_MM, edge_px, skin, near_rows.clone(), visibility, scratch);
                 see_through = Some((glow, seen));
             });

@@ -77,7 +77,7 @@ macro_rules! parameter {
 /// Every parameter of [`SkinModel`], with the range a fit searches and its start.
 pub const SKIN_PARAMETERS: [SkinParameter; 8] = [
     parameter!(spread_mm, 0.25, 6.0, 2.0),
-    parameter!(spread_gain, 0.0, 3.0, 1.6),
+    parameter!(spread_gain, 0.0, 5.0, 1.6),
     parameter!(lateral_mm, 0.0, 3.0, 0.15),
     parameter!(max_travel_mm, 0.05, 2.0, 1.0),
     parameter!(touch_visibility, 0.0, 1.0, 0.5),
