@@ -90,7 +90,7 @@ impl SkinModel {
     /// The fitted skin of `kind` (see the module docs).
     pub fn of(kind: SensorKind) -> Self {
         // What the see-through kinds do not fit, they share with TacTip's fit (the spread) or
-        // take from the search's start.
+        // keep from the search's start (ViTacTip's edge, which its fit held at 0.05).
         let shared = SkinModel {
             spread_mm: 4.875,
             spread_gain: 3.0,
@@ -103,8 +103,8 @@ impl SkinModel {
         };
         match kind {
             SensorKind::TacTip => shared,
-            SensorKind::ViTac => SkinModel { spread_gain: 1.6, ..shared },
-            SensorKind::ViTacTip => SkinModel { spread_gain: 1.6, ..shared },
+            SensorKind::ViTac => SkinModel { spread_gain: 5.0, clear_mm: 0.02, glow_mm: 5.0, edge_mm_per_mm: 0.016, ..shared },
+            SensorKind::ViTacTip => SkinModel { spread_gain: 5.0, lateral_mm: 1.359, clear_mm: 0.876, glow_mm: 5.0, ..shared },
         }
     }
 
@@ -112,8 +112,8 @@ impl SkinModel {
     /// shows (the opaque TacTip has no see-through; ViTac has no pins; five frames do not
     /// pin down more than a few). The others keep the values of [`SkinModel::of`]:
     /// `max_travel_mm` is a guard, `touch_visibility` is not seen apart from `clear_mm` on
-    /// presses of 1-2.5 mm, the see-through kinds share TacTip's spread, and ViTacTip
-    /// ViTac's edge.
+    /// presses of 1-2.5 mm, the see-through kinds share TacTip's spread, and ViTacTip's edge
+    /// stays at the search's start.
     pub fn fitted_parameters(kind: SensorKind) -> Vec<SkinParameter> {
         let names: &[&str] = match kind {
             SensorKind::TacTip => &["spread_mm", "spread_gain", "lateral_mm"],
