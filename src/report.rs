@@ -271,7 +271,9 @@ impl Classify for crate::dataset::DatasetError {
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }
-            | D::BadImage { .. } => Exit::BadInput,
+            | D::BadImage { .. }
+            | D::BadOrder { .. }
+            | D::OrderMismatch { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }
             | D::ManifestWrite { .. }

@@ -95,6 +95,19 @@ pub enum DatasetError {
     TooLarge { path: PathBuf, max_bytes: u64 },
     #[error("{path} is not a readable image: {reason}")]
     BadImage { path: PathBuf, reason: String },
+    /// `order.csv` does not parse: wrong header, a line that is not a pose id, a pose twice.
+    #[error("{path} line {line}: {reason} (the kept order is `pose_id`, then one pose id per line, each once)")]
+    BadOrder { path: PathBuf, line: u64, reason: String },
+    /// `order.csv` parses but is not an order of the poses it is read for.
+    #[error(
+        "{path} is not an order of the poses this run visits (the plan's, or the audit's draw): {mismatch} (move the file \
+         away to order them again; the rows already collected stay)"
+    )]
+    OrderMismatch {
+        path: PathBuf,
+        #[source]
+        mismatch: crate::plan::OrderMismatch,
+    },
     #[error("{path} line {line}: malformed MDS row: {reason}")]
     MalformedMds { path: PathBuf, line: u64, reason: String },
     #[error("cannot write CSV: {source}")]

@@ -9,6 +9,8 @@
 //! poses.csv              one row per captured or synthesised pose (see [`PoseRow`])
 //! images/<pose_id>.png   the frame of that pose
 //! reference.png          the no-contact frame
+//! order.csv              the poses a collection visits, in its order, kept before its first
+//!                        pose (see [`order`]); absent in datasets no collection wrote
 //! ```
 //!
 //! Durability ([`DatasetWriter`]): an image is written to a temporary name in `images/`,
@@ -28,6 +30,7 @@ pub mod lerobot;
 pub mod manifest;
 pub mod merge;
 pub mod named;
+pub mod order;
 pub mod press_limit;
 pub mod verify;
 pub mod writer;

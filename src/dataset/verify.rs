@@ -8,6 +8,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_below};
+use super::order::{MAX_ORDER_BYTES, ORDER_FILE, parse_order};
 use super::writer::{image_file_pose_id, is_temp_name};
 use super::{CaptureChain, DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, Source, parse_csv};
 
@@ -39,6 +40,11 @@ pub enum VerifyIssue {
     WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     /// A row that presses past the sensor's press limit ([`super::press_limit`]).
     PastPressLimit { pose_id: u32, line: u64, depth_mm: f64, limit: String },
+    /// `order.csv` does not parse, or lists a pose outside the manifest's plan grid.
+    BadOrder { reason: String },
+    /// Captured rows (real or simulated) whose poses the kept order does not list: the order
+    /// is not the collection's.
+    UnorderedRows { rows: usize, first_pose_id: u32 },
 }
 
 impl fmt::Display for VerifyIssue {
@@ -66,6 +72,11 @@ impl fmt::Display for VerifyIssue {
             VerifyIssue::PastPressLimit { pose_id, line, depth_mm, limit } => {
                 write!(f, "past the press limit: pose_id {pose_id} on line {line} presses {depth_mm:.3} mm into the skin, beyond {limit}")
             }
+            VerifyIssue::BadOrder { reason } => write!(f, "kept order {ORDER_FILE}: {reason}"),
+            VerifyIssue::UnorderedRows { rows, first_pose_id } => write!(
+                f,
+                "kept order {ORDER_FILE}: {rows} captured rows are not in it (first: pose_id {first_pose_id}); it is not this collection's order"
+            ),
         }
     }
 }
@@ -94,6 +105,9 @@ pub struct VerifyReport {
     /// Symlinks and entries of the wrong kind.
     pub not_regular: usize,
     pub has_reference: bool,
+    /// Poses the kept order (`order.csv`) lists; `None` when the dataset keeps none (or it is
+    /// unreadable, an issue).
+    pub order: Option<usize>,
     pub issues: Vec<VerifyIssue>,
 }
 
@@ -166,6 +180,10 @@ impl fmt::Display for VerifyReport {
             if self.has_reference { "present" } else { "absent" }
         )?;
         writeln!(f, "{}", self.capture)?;
+        match self.order {
+            Some(n) => writeln!(f, "kept order: {n} poses ({ORDER_FILE})")?,
+            None => writeln!(f, "kept order: none")?,
+        }
         writeln!(
             f,
             "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}, bad images {}, not regular files {}",
@@ -190,10 +208,14 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     let parsed = parse_csv(&bytes);
     let mut report = VerifyReport::default();
 
+    let mut grid_len = None;
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
         Ok(true) => match Manifest::load(dir) {
-            Ok(m) => report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c))),
+            Ok(m) => {
+                grid_len = m.plan.as_ref().map(|p| p.grid_len());
+                report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c)));
+            }
             Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
         },
         Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
@@ -289,7 +311,37 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
             report.issues.push(VerifyIssue::MissingImage { pose_id: id, path: dir.join(super::image_rel_path(id)) });
         }
     }
+    check_order(dir, &parsed.lines, grid_len, &mut report);
     Ok(report)
+}
+
+/// The kept order, when the dataset has one: it parses, lists only poses of the plan's grid,
+/// and lists every captured row's pose (a collection keeps its order before its first pose).
+fn check_order(dir: &Path, lines: &[super::ParsedLine], grid_len: Option<u64>, report: &mut VerifyReport) {
+    let path = dir.join(ORDER_FILE);
+    match entry_exists(&path, Kind::File) {
+        Ok(false) => return,
+        Ok(true) => {}
+        Err(e) => return not_regular(report, &path, &e),
+    }
+    let ids = match read_below(dir, Path::new(ORDER_FILE), MAX_ORDER_BYTES).and_then(|bytes| parse_order(&bytes, &path)) {
+        Ok(ids) => ids,
+        Err(e) => return report.issues.push(VerifyIssue::BadOrder { reason: e.to_string() }),
+    };
+    report.order = Some(ids.len());
+    if let Some(&outside) = grid_len.and_then(|grid| ids.iter().find(|&&id| u64::from(id) >= grid)) {
+        report.issues.push(VerifyIssue::BadOrder { reason: format!("pose {outside} is outside the plan's grid") });
+    }
+    let listed: std::collections::HashSet<u32> = ids.into_iter().collect();
+    let unordered: Vec<u32> = lines
+        .iter()
+        .filter_map(|l| l.row.as_ref().ok())
+        .filter(|r| r.source.is_captured() && !listed.contains(&r.pose_id))
+        .map(|r| r.pose_id)
+        .collect();
+    if let Some(&first_pose_id) = unordered.first() {
+        report.issues.push(VerifyIssue::UnorderedRows { rows: unordered.len(), first_pose_id });
+    }
 }
 
 fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
