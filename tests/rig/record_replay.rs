@@ -98,8 +98,9 @@ fn first_frame_pixel_offset(bytes: &[u8]) -> usize {
     loop {
         let (kind, len) = (bytes[at], u32_at(at + 1));
         if kind == 2 {
-            // kind, length, then camera, t_s, t_capture_s, seq, width, height.
-            return at + 5 + 1 + 8 + 8 + 8 + 4 + 4;
+            // kind, length, then camera, t_s, t_capture_s, seq, width, height, encoding (PNG), and
+            // the PNG's signature and IHDR chunk (8 + 25 bytes): the first IDAT's data is 8 further.
+            return at + 5 + 1 + 8 + 8 + 8 + 4 + 4 + 1 + 8 + 25 + 8;
         }
         at += 5 + len + 4;
     }
