@@ -586,7 +586,8 @@ pub fn decode_preamble(bytes: &[u8], eof: bool) -> Result<Step<Preamble>, Format
         Some(m) if m == MAGIC => {}
         Some(_) => return Err(FormatError::BadMagic),
         None if !MAGIC.starts_with(bytes) || (eof && bytes.is_empty()) => return Err(FormatError::BadMagic),
-        None => return short(MAGIC.len(), "the magic"),
+        // The whole fixed part at once: the caller reads it in one go.
+        None => return short(PREAMBLE_HEAD, "the magic"),
     }
     let Some(version) = f.u16() else { return short(MAGIC.len() + 2, "the format version") };
     if !(OLDEST_READ_VERSION..=FORMAT_VERSION).contains(&version) {
@@ -640,7 +641,8 @@ impl RecordDecoder {
         };
         let mut f = Fields { bytes, pos: 0 };
         let Some(kind) = f.u8() else {
-            return if eof { Err(FormatError::MissingEnd { offset, records: record }) } else { Ok(Step::Need(1)) };
+            // Kind and length at once: the caller reads them in one go.
+            return if eof { Err(FormatError::MissingEnd { offset, records: record }) } else { Ok(Step::Need(RECORD_HEAD)) };
         };
         let Some(len_bytes) = f.array::<4>() else { return short(RECORD_HEAD, "a record length") };
         let len = u32::from_le_bytes(len_bytes) as usize;

@@ -3,20 +3,32 @@
 //! Recording (`rig collect --record FILE`): a [`Recorder`] owns the file. Each MG400 socket is
 //! wrapped in a [`RecordingStream`] that logs every byte the client writes or reads, with the
 //! rig-clock time, and each camera in a [`RecordingCamera`] that logs every frame handed to the
-//! job (raw RGB8 plus its capture timestamp and sequence number). Events land in the file in
-//! the order they happened; the [`RecordingHeader`] (command line, plan, work frame, collect
-//! options, firmware profile, sensors, seed) comes first. The byte layout is in [`mod@format`].
+//! job (its pixels as a PNG, lossless, plus its capture timestamp and sequence number). Events
+//! land in the file in the order they happened; the [`RecordingHeader`] (command line, plan,
+//! work frame, collect options, firmware profile, sensors, seed) comes first. The byte layout
+//! is in [`mod@format`].
 //!
 //! A lost socket is reopened as by an unrecorded client, and the reconnection is recorded too.
 //! So is each decision the client makes on the feedback, with the frame it went by (the
 //! client's [`Witness`]).
 //!
+//! Reading: a [`RecordingFile`] opens the file through [`crate::confine`] and reads the header;
+//! [`RecordReader`]s read the records on from there, one at a time, each with its own position
+//! on the one handle. A recording has no length bound: what a reader holds is the record it
+//! reads (at most [`format::MAX_RECORD_BYTES`], checked from the length field before the body
+//! is read) and a 64 KiB buffer, so `rig replay --info` ([`RecordingFile::scan`], a
+//! [`Summary`]) and a replay take the same memory for a recording of any length. Each frame
+//! is checked against its camera (one the header lists, at the header's resolution) from the
+//! record's fields, before its pixels are decoded ([`frame_image`]). [`Recording`] reads a
+//! whole file into memory, for tests and tools on short recordings.
+//!
 //! Replay (`rig replay FILE`): `jobs::replay::run` runs the real [`Mg400Client`] on
 //! [`replay::ReplayStream`]s (reopened where the recording reconnected) and gives the job
 //! [`replay::ReplayCamera`]s,
 //! all fed from one [`replay::ReplaySession`] that serves the recorded events in recorded
-//! order, checks that what the client writes is what was recorded, and stops at the first
-//! divergence with both sides named. See `replay` for how it stays deterministic.
+//! order, read from the file as they are served, checks that what the client writes is what
+//! was recorded, and stops at the first divergence with both sides named. See `replay` for how
+//! it stays deterministic.
 
 pub mod format;
 pub mod replay;
@@ -350,10 +362,22 @@ impl Read for At {
 /// Reads from `input` until `bytes` holds `need` bytes or the input ends; returns whether it
 /// ended. `need` comes from the decoder, which bounds it by the format's length bounds.
 fn read_more(input: &mut impl Read, bytes: &mut Vec<u8>, need: usize) -> std::io::Result<bool> {
-    let missing = need.saturating_sub(bytes.len());
-    bytes.reserve_exact(missing);
-    let got = input.take(missing as u64).read_to_end(bytes)?;
-    Ok(got < missing)
+    let mut have = bytes.len();
+    bytes.resize(need.max(have), 0);
+    while have < bytes.len() {
+        match input.read(&mut bytes[have..]) {
+            Ok(0) => break,
+            Ok(n) => have += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                bytes.truncate(have);
+                return Err(e);
+            }
+        }
+    }
+    let ended = have < bytes.len();
+    bytes.truncate(have);
+    Ok(ended)
 }
 
 /// A record read from a file, with where it is.
@@ -1109,6 +1133,46 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let recorder = Recorder::create(&dir.path().join("r.rec"), Arc::new(MockClock::new())).unwrap();
         assert!(matches!(recorder.finish(), Err(RecordError::NoHeader { .. })));
+    }
+
+    /// A recorded 24 x 16 PNG frame of smooth pixels and noise.
+    fn png_frame() -> Vec<u8> {
+        let image = image::RgbImage::from_fn(24, 16, |x, y| image::Rgb([x as u8 * 10, y as u8 * 15, ((x * 7 + y * 13) % 5) as u8]));
+        let FramePixels::Png(png) = frame_pixels(&image) else { panic!("an RGB8 image encodes as PNG") };
+        assert_eq!(frame_image(24, 16, FramePixels::Png(png.clone())), Ok(image));
+        png
+    }
+
+    proptest::proptest! {
+        /// What the format's check lets through (a PNG container of the record's size whose
+        /// chunks are IHDR, IDAT and IEND) decodes or fails, never panics, and never yields
+        /// another size than the record's.
+        #[test]
+        fn a_damaged_png_frame_fails_to_decode_without_panicking(
+            edits in proptest::collection::vec((proptest::prelude::any::<usize>(), proptest::prelude::any::<u8>()), 1..6),
+        ) {
+            let mut png = png_frame();
+            // The IDAT chunk's data (after the signature, IHDR, and the IDAT's length and type).
+            let idat = 8 + 25 + 8;
+            let idat_len = png.len() - idat - 4 - 12;
+            for (at, v) in edits {
+                png[idat + at % idat_len] = v;
+            }
+            if let Ok(image) = frame_image(24, 16, FramePixels::Png(png)) {
+                proptest::prop_assert_eq!(image.dimensions(), (24, 16));
+            }
+        }
+    }
+
+    #[test]
+    fn a_png_frame_of_another_size_or_colour_than_its_record_does_not_decode() {
+        let png = png_frame();
+        assert!(frame_image(24, 17, FramePixels::Png(png.clone())).is_err());
+        let grey = image::GrayImage::from_pixel(24, 16, image::Luma([9]));
+        let mut grey_png = Vec::new();
+        grey.write_to(&mut std::io::Cursor::new(&mut grey_png), image::ImageFormat::Png).unwrap();
+        assert!(frame_image(24, 16, FramePixels::Png(grey_png)).is_err());
+        assert!(frame_image(2, 2, FramePixels::Raw(vec![0; 11])).is_err());
     }
 
     #[test]

@@ -1,8 +1,12 @@
 //! Replay: re-running a recorded collection with no hardware.
 //!
-//! A [`ReplaySession`] holds the recorded events and a cursor. The client's three sockets are
+//! A [`ReplaySession`] holds a cursor on the recorded events: the event under it, and an
+//! [`EventSource`] that reads the next from the recording file when the cursor moves on (a
+//! look ahead, for the watchdog's message and the final check, reads on its own reader), so a
+//! replay holds one event, whatever the recording's length. The client's three sockets are
 //! [`ReplayStream`]s and the job's cameras are [`ReplayCamera`]s over that one session, so the
-//! real [`Mg400Client`] and the real collection job run unchanged ([`ReplayRig`]).
+//! real [`Mg400Client`] and the real collection job run unchanged ([`ReplayRig`]). The
+//! peripheral calls are read from the file by a reader of their own ([`ReplayPeripherals`]).
 //!
 //! Ordering, and why the replay does not depend on wall-clock timing: two tasks touch the
 //! hardware. The job's task (commands, replies, frames) is sequential, so its events must come
