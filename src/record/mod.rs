@@ -426,8 +426,16 @@ impl RecordReader {
         move |source| RecordError::Io { path, source }
     }
 
-    /// The next record; `None` after the end record.
+    /// The next record; `None` after the end record. After an error it reads nothing more.
     pub fn next_record(&mut self) -> Result<Option<RecordAt>, RecordError> {
+        let next = self.read_record();
+        if next.is_err() {
+            self.ended = true;
+        }
+        next
+    }
+
+    fn read_record(&mut self) -> Result<Option<RecordAt>, RecordError> {
         if self.ended {
             return Ok(None);
         }

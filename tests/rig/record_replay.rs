@@ -661,6 +661,27 @@ fn record_bytes(kind: u8, body: &[u8]) -> Vec<u8> {
     [&[kind][..], &len, body, &format::crc32(&[&[kind], &len, body]).to_le_bytes()].concat()
 }
 
+/// A PNG of `width` x `height` 8-bit RGB pixels as the format checks it (signature, IHDR, IDAT,
+/// IEND, checksummed chunks) whose IDAT data are not a zlib stream: it passes every check made
+/// without inflating it, and does not inflate.
+fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+    let ihdr = [&width.to_be_bytes()[..], &height.to_be_bytes(), &[8, 2, 0, 0, 0]].concat();
+    let chunk = |kind: &[u8; 4], data: &[u8]| {
+        [&(data.len() as u32).to_be_bytes()[..], kind, data, &format::crc32(&[kind, data]).to_be_bytes()].concat()
+    };
+    [&b"\x89PNG\r\n\x1a\n"[..], &chunk(b"IHDR", &ihdr), &chunk(b"IDAT", b"never inflated"), &chunk(b"IEND", b"")].concat()
+}
+
+/// `events` encoded in the current format under `header`.
+fn encode_recording(header: &str, events: &[Event]) -> Vec<u8> {
+    let mut bytes = format::encode_preamble(header);
+    for e in events {
+        bytes.extend(format::encode_event(e));
+    }
+    bytes.extend(format::encode_end(events.len() as u64));
+    bytes
+}
+
 /// Runs `rig` with `args` and its output into files in `dir`: its exit code, its output, and
 /// its peak resident memory in bytes (the kernel's count for this child alone, from `wait4`).
 fn run_measured(dir: &Path, args: &[&std::ffi::OsStr]) -> (Option<i32>, String, u64) {
@@ -747,27 +768,12 @@ fn a_frame_of_another_size_than_the_cameras_is_refused_before_anything_is_writte
 
     // The current format, PNG frames whose IHDR says what the record says (never inflated).
     let raw = format::decode(&original).expect("the fixture decodes");
-    let write = |header: &str, events: &[Event]| {
-        let mut bytes = format::encode_preamble(header);
-        for e in events {
-            bytes.extend(format::encode_event(e));
-        }
-        bytes.extend(format::encode_end(events.len() as u64));
-        bytes
-    };
-    let png_claiming = |width: u32, height: u32| {
-        let ihdr = [&width.to_be_bytes()[..], &height.to_be_bytes(), &[8, 2, 0, 0, 0]].concat();
-        let chunk = |kind: &[u8; 4], data: &[u8]| {
-            [&(data.len() as u32).to_be_bytes()[..], kind, data, &format::crc32(&[kind, data]).to_be_bytes()].concat()
-        };
-        [&b"\x89PNG\r\n\x1a\n"[..], &chunk(b"IHDR", &ihdr), &chunk(b"IDAT", b"never inflated"), &chunk(b"IEND", b"")].concat()
-    };
     let last_frame = raw.events.iter().rposition(|e| matches!(e, Event::Frame(_))).expect("a frame");
     let with_frame = |header: &str, width: u32, height: u32| {
         let mut events = raw.events.clone();
         let Event::Frame(f) = &mut events[last_frame] else { unreachable!("a frame") };
         (f.width, f.height, f.pixels) = (width, height, format::FramePixels::Png(png_claiming(width, height)));
-        let bytes = write(header, &events);
+        let bytes = encode_recording(header, &events);
         let at = record_spans(&bytes)[last_frame].0;
         (bytes, at)
     };
@@ -852,4 +858,33 @@ fn three_million_records_are_counted_and_replayed_in_bounded_memory() {
     assert!(rss < MAX_RSS_BYTES, "the replay took {} MB", rss >> 20);
     let csv = |d: &Path| std::fs::read_to_string(d.join("poses.csv")).expect("poses.csv");
     assert_eq!(csv(&fixture_v5().join("recorded-tactip")), csv(&replayed.join("sphere/tactip")));
+}
+
+/// A frame whose PNG passes every check made without inflating it (its size, its chunks, the
+/// record's checksum) but does not inflate: the replay stops at it with exit 2, naming it, and
+/// the dataset holds the pose before it.
+#[test]
+fn a_frame_whose_png_does_not_inflate_stops_the_replay_with_exit_2() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let raw = format::decode(&std::fs::read(fixture_v5().join("v5.rec")).expect("the fixture")).expect("the fixture decodes");
+    let mut events = raw.events.clone();
+    let last_frame = events.iter().rposition(|e| matches!(e, Event::Frame(_))).expect("a frame");
+    let Event::Frame(f) = &mut events[last_frame] else { unreachable!("a frame") };
+    f.pixels = format::FramePixels::Png(png_claiming(32, 24));
+    let bytes = encode_recording(&raw.header_json, &events);
+    let at = record_spans(&bytes)[last_frame].0;
+    let rec = tmp.path().join("bad-png.rec");
+    std::fs::write(&rec, bytes).expect("writing");
+    let o = rig().arg("replay").arg(&rec).arg("--info").output().expect("running rig replay --info");
+    assert!(o.status.success(), "--info inflates nothing: {}", text(&o));
+    let out = tmp.path().join("out");
+    let o = replay(&rec, &out);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains(&format!("record {last_frame} at byte {at}: frame ")) && text(&o).contains("does not decode"),
+        "{}",
+        text(&o)
+    );
+    let rows = std::fs::read_to_string(out.join("sphere/tactip/poses.csv")).expect("poses.csv");
+    assert_eq!(rows.lines().count(), 2, "the header and the first pose: {rows}");
 }
