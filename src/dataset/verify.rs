@@ -36,11 +36,11 @@ pub enum VerifyIssue {
     NotRegular { path: PathBuf, reason: String },
     /// An image (or `reference.png`) that does not decode: empty, truncated, not a PNG.
     BadImage { path: PathBuf, reason: String },
-    /// An image whose size differs from the dataset's.
-    WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     /// An image (or `reference.png`) whose size differs from the frame size the manifest's
     /// capture chain gives the dataset's camera.
     NotCameraFormat { path: PathBuf, found: (u32, u32), camera: (u32, u32) },
+    /// An image whose size differs from the dataset's.
+    WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
 }
 
 impl fmt::Display for VerifyIssue {
@@ -62,9 +62,6 @@ impl fmt::Display for VerifyIssue {
             VerifyIssue::BadManifest { reason } => write!(f, "manifest: {reason}"),
             VerifyIssue::NotRegular { path, reason } => write!(f, "{}: {reason}", path.display()),
             VerifyIssue::BadImage { path, reason } => write!(f, "unreadable image {}: {reason}", path.display()),
-            VerifyIssue::WrongSize { path, found, expected } => {
-                write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
-            }
             VerifyIssue::NotCameraFormat { path, found, camera } => write!(
                 f,
                 "image {} is {}x{} px, the manifest's camera format is {}x{}",
@@ -74,6 +71,9 @@ impl fmt::Display for VerifyIssue {
                 camera.0,
                 camera.1
             ),
+            VerifyIssue::WrongSize { path, found, expected } => {
+                write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
+            }
         }
     }
 }
