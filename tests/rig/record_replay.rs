@@ -684,6 +684,9 @@ fn encode_recording(header: &str, events: &[Event]) -> Vec<u8> {
 
 /// Runs `rig` with `args` and its output into files in `dir`: its exit code, its output, and
 /// its peak resident memory in bytes (the kernel's count for this child alone, from `wait4`).
+// The child is reaped by wait4(2), which `Child::wait` cannot stand in for: it does not give the
+// child's resource usage.
+#[allow(clippy::zombie_processes)]
 fn run_measured(dir: &Path, args: &[&std::ffi::OsStr]) -> (Option<i32>, String, u64) {
     let (out, err) = (dir.join("measured.out"), dir.join("measured.err"));
     let child = rig()
