@@ -66,6 +66,26 @@ pub enum RigError {
     /// A required Modbus peripheral could not be reached (or a simulated one started).
     #[error(transparent)]
     Modbus(#[from] ModbusError),
+    /// The arm's `serial_port` is not a serial device (a file, a FIFO, `/dev/null`, a device
+    /// that is not a terminal): the configuration's mistake.
+    #[error("arm.serial_port: {0}")]
+    SerialPort(#[source] crate::io::serial::SerialError),
+}
+
+/// A Magician that would not open because its port is not a terminal (`ENOTTY`): bad input,
+/// not a hardware fault; any other failure as it is.
+fn not_a_tty(path: &std::path::Path, e: crate::arm::ArmError) -> RigError {
+    let serial = match &e {
+        crate::arm::ArmError::Io { source, .. } => source.get_ref().and_then(|s| s.downcast_ref::<serialport::Error>()),
+        _ => None,
+    };
+    match serial {
+        Some(s) if crate::io::serial::is_not_a_tty(s) => RigError::SerialPort(crate::io::serial::SerialError::NotSerial {
+            path: path.to_path_buf(),
+            found: "a device that is not a terminal",
+        }),
+        _ => RigError::Arm(e),
+    }
 }
 
 /// The firmware profile the configuration names (the embedded MG400 V1.6 profile by default).
@@ -353,7 +373,11 @@ impl Rig {
                     _ => PathBuf::new(),
                 };
                 let magician_profile = MagicianProfile::named(config.arm.profile.as_deref())?;
-                RigArm::Magician(MagicianArm::open(&serial_port, magician_profile, Arc::clone(&clock))?)
+                // Its kind is looked at before it is opened: a file or FIFO is no port (and a
+                // FIFO would block the open), /dev/null answers nothing.
+                crate::io::serial::check_serial_device(&serial_port).map_err(RigError::SerialPort)?;
+                let arm = MagicianArm::open(&serial_port, magician_profile, Arc::clone(&clock)).map_err(|e| not_a_tty(&serial_port, e))?;
+                RigArm::Magician(arm)
             }
         };
         let socket_dropper = match (&sim, config.faults.drop_sockets_every_s) {
