@@ -267,7 +267,8 @@ impl Classify for crate::dataset::DatasetError {
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }
-            | D::BadImage { .. } => Exit::BadInput,
+            | D::BadImage { .. }
+            | D::WrongImageSize { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }
             | D::ManifestWrite { .. }
@@ -378,9 +379,12 @@ impl Classify for crate::rigs::RigError {
     fn exit(&self) -> Exit {
         use crate::rigs::RigError as R;
         match self {
-            R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. } | R::BackendUnavailable { .. } => {
-                Exit::BadInput
-            }
+            R::UnknownSensor(_)
+            | R::Object { .. }
+            | R::Profile { .. }
+            | R::Calibration { .. }
+            | R::BackendUnavailable { .. }
+            | R::SerialPort(_) => Exit::BadInput,
             // A refused or lost arm connection, also when the rig is opened.
             R::Arm(e) => e.exit(),
             R::Camera { source, .. } => source.exit(),
@@ -445,7 +449,9 @@ impl Classify for crate::confine::ConfineError {
 impl Classify for crate::dataset::named::NamedFileError {
     fn exit(&self) -> Exit {
         match self {
-            crate::dataset::named::NamedFileError::Outside { .. } => Exit::BadInput,
+            crate::dataset::named::NamedFileError::Outside { .. } | crate::dataset::named::NamedFileError::NotRegular { .. } => {
+                Exit::BadInput
+            }
             crate::dataset::named::NamedFileError::Confined { source, .. } => source.exit(),
         }
     }
