@@ -13,6 +13,7 @@
 
 pub mod arm;
 pub mod bench;
+pub mod bounds;
 pub mod calibration;
 pub mod camera;
 pub mod cli;

@@ -273,7 +273,8 @@ impl Classify for crate::dataset::DatasetError {
             | D::TooLarge { .. }
             | D::BadImage { .. }
             | D::BadOrder { .. }
-            | D::OrderMismatch { .. } => Exit::BadInput,
+            | D::OrderMismatch { .. }
+            | D::WrongImageSize { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }
             | D::ManifestWrite { .. }
@@ -389,7 +390,8 @@ impl Classify for crate::rigs::RigError {
             | R::Profile { .. }
             | R::Calibration { .. }
             | R::BackendUnavailable { .. }
-            | R::SimulatedSensorOnRealArm { .. } => Exit::BadInput,
+            | R::SimulatedSensorOnRealArm { .. }
+            | R::SerialPort(_) => Exit::BadInput,
             // A refused or lost arm connection, also when the rig is opened.
             R::Arm(e) => e.exit(),
             R::Camera { source, .. } => source.exit(),
@@ -487,7 +489,9 @@ impl Classify for crate::confine::ConfineError {
 impl Classify for crate::dataset::named::NamedFileError {
     fn exit(&self) -> Exit {
         match self {
-            crate::dataset::named::NamedFileError::Outside { .. } => Exit::BadInput,
+            crate::dataset::named::NamedFileError::Outside { .. } | crate::dataset::named::NamedFileError::NotRegular { .. } => {
+                Exit::BadInput
+            }
             crate::dataset::named::NamedFileError::Confined { source, .. } => source.exit(),
         }
     }

@@ -126,7 +126,9 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         });
     }
 
-    let cancel = super::shared::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
+    let cancel = super::shared::cancel_on_interrupt(
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm",
+    )?;
     let progress = indicatif::ProgressBar::new(setup.poses.len() as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")

@@ -108,6 +108,13 @@ pub enum DatasetError {
         #[source]
         mismatch: crate::plan::OrderMismatch,
     },
+    /// An image of another size than the dataset's (its reference frame's, or its first
+    /// image's): what `rig dataset verify` reports, refused by the readers.
+    #[error(
+        "image {path} is {}x{} px, the dataset's images are {}x{} px (`rig dataset verify` reports it; rig reads no dataset whose images differ in size)",
+        found.0, found.1, expected.0, expected.1
+    )]
+    WrongImageSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     #[error("{path} line {line}: malformed MDS row: {reason}")]
     MalformedMds { path: PathBuf, line: u64, reason: String },
     #[error("cannot write CSV: {source}")]
@@ -155,4 +162,13 @@ pub enum RowProblem {
     ImagePath { expected: String, found: String },
     #[error("a text field contains a line break")]
     Multiline,
+    /// A pose coordinate beyond what any rig can press ([`super::MAX_ROW_OFFSET_MM`],
+    /// [`super::MAX_ROW_YAW_DEG`]).
+    #[error("{field} = {} is beyond ±{max} (no rig presses there)", short_number(*value))]
+    PoseOutOfRange { field: &'static str, value: f64, max: f64 },
+}
+
+/// `value` as a person writes it: plainly, or in exponent form when it is huge (`1e308`).
+fn short_number(value: f64) -> String {
+    if value.abs() >= 1e9 { format!("{value:e}") } else { value.to_string() }
 }

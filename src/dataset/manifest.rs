@@ -438,8 +438,13 @@ impl Manifest {
 
     /// Writes `dir/manifest.toml` atomically.
     pub fn store(&self, dir: &Path) -> Result<(), DatasetError> {
+        self.store_in(&crate::confine::RootDir::open(dir).map_err(super::durable::dataset_error)?)
+    }
+
+    /// Writes `manifest.toml` atomically into the held dataset folder `root`.
+    pub fn store_in(&self, root: &crate::confine::RootDir) -> Result<(), DatasetError> {
         let text = toml::to_string(self).map_err(|source| DatasetError::ManifestWrite { source })?;
-        super::durable::write_atomic(dir, super::MANIFEST_FILE, text.as_bytes())
+        root.write_atomic(super::MANIFEST_FILE, text.as_bytes()).map_err(super::durable::dataset_error)
     }
 
     /// The first field that makes `requested` a different dataset from `self` (plan, object,

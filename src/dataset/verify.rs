@@ -3,6 +3,13 @@
 //! image decoded and its size checked against the reference frame's (or, without one, the
 //! first image's) and against the camera format the manifest's capture chain names. Nothing is
 //! modified; [`super::DatasetWriter::resume`] repairs what it can.
+//!
+//! The checks are the readers' too, so that what verify calls unclean no command takes as
+//! data: a row is checked by [`super::PoseRow::problem`] whoever parses it (verify reports a
+//! malformed row, [`super::read_rows`] refuses the dataset), and an image is read by
+//! [`DatasetImages`], which verify and the readers that train or measure on images
+//! (`rig eval --downstream`) share: through the opener, decoded with bounds, and of the
+//! dataset's size.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
@@ -49,6 +56,62 @@ pub enum VerifyIssue {
     /// Captured rows (real or simulated) whose poses the kept order does not list: the order
     /// is not the collection's.
     UnorderedRows { rows: usize, first_pose_id: u32 },
+}
+
+/// A dataset's images as verify reads them, for any reader: each read through the opener (no
+/// symlink below the dataset, a regular file, bounded), decoded with bounds, and refused
+/// ([`DatasetError::WrongImageSize`]) unless it has the dataset's size: the reference frame's,
+/// or without one, the first image's read.
+#[derive(Debug)]
+pub struct DatasetImages {
+    dir: PathBuf,
+    size: Option<(u32, u32)>,
+}
+
+impl DatasetImages {
+    /// The images of the dataset at `dir`, their size taken from its `reference.png` when it
+    /// has one (a reference that is a symlink or does not decode is an error).
+    pub fn open(dir: &Path) -> Result<Self, DatasetError> {
+        let mut images = Self::with_size(dir, None);
+        if entry_exists(&dir.join(REFERENCE_FILE), Kind::File)? {
+            images.read(Path::new(REFERENCE_FILE))?;
+        }
+        Ok(images)
+    }
+
+    /// The images of the dataset at `dir` whose size is `size` (`None`: the first image read
+    /// sets it).
+    pub fn with_size(dir: &Path, size: Option<(u32, u32)>) -> Self {
+        Self { dir: dir.to_path_buf(), size }
+    }
+
+    /// The dataset's folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The dataset's image size, once known.
+    pub fn size(&self) -> Option<(u32, u32)> {
+        self.size
+    }
+
+    /// Reads and decodes the image `rel` (a path below the dataset, `images/3.png`) and checks
+    /// its size; an image that decodes is returned with its size error, so verify can go on.
+    fn read_checked(&mut self, rel: &Path) -> Result<(image::DynamicImage, Result<(), DatasetError>), DatasetError> {
+        let path = self.dir.join(rel);
+        let bytes = read_below(&self.dir, rel, MAX_IMAGE_BYTES)?;
+        let image = decode_image(&bytes).map_err(|reason| DatasetError::BadImage { path: path.clone(), reason })?;
+        let found = (image.width(), image.height());
+        let expected = *self.size.get_or_insert(found);
+        let sized = if found == expected { Ok(()) } else { Err(DatasetError::WrongImageSize { path, found, expected }) };
+        Ok((image, sized))
+    }
+
+    /// Reads, decodes and checks the image `rel`: any failure verify would report is an error.
+    pub fn read(&mut self, rel: &Path) -> Result<image::DynamicImage, DatasetError> {
+        let (image, sized) = self.read_checked(rel)?;
+        sized.map(|()| image)
+    }
 }
 
 impl fmt::Display for VerifyIssue {
@@ -237,13 +300,13 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
         Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
     }
     // The dataset's image size: the reference frame's, else the first image's.
-    let mut expected_size = None;
+    let mut images = DatasetImages::with_size(dir, None);
     let reference = dir.join(REFERENCE_FILE);
     match entry_exists(&reference, Kind::File) {
         Ok(true) => {
             report.has_reference = true;
-            expected_size = check_image(dir, Path::new(REFERENCE_FILE), None, &mut report);
-            check_camera_format(&reference, expected_size, None, camera, &mut report);
+            let size = check_image(&mut images, Path::new(REFERENCE_FILE), &mut report);
+            check_camera_format(&reference, size, None, camera, &mut report);
         }
         Ok(false) => {}
         Err(e) => not_regular(&mut report, &reference, &e),
@@ -314,9 +377,9 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
                     report.orphan += 1;
                     report.issues.push(VerifyIssue::OrphanImage { path: path.clone() });
                 }
-                let size = check_image(dir, &Path::new(IMAGES_DIR).join(&name), expected_size, &mut report);
-                check_camera_format(&path, size, expected_size, camera, &mut report);
-                expected_size = expected_size.or(size);
+                let expected = images.size();
+                let size = check_image(&mut images, &Path::new(IMAGES_DIR).join(&name), &mut report);
+                check_camera_format(&path, size, expected, camera, &mut report);
             } else {
                 report.orphan += 1;
                 report.issues.push(VerifyIssue::OrphanImage { path });
@@ -374,24 +437,24 @@ fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
     report.issues.push(VerifyIssue::NotRegular { path: path.to_path_buf(), reason });
 }
 
-/// Decodes the image `rel` of the dataset at `dir` (read through the opener: no symlink below
-/// `dir`); records an issue when it does not decode or is not `expected` in size. Returns its
-/// size when it decoded.
-fn check_image(dir: &Path, rel: &Path, expected: Option<(u32, u32)>, report: &mut VerifyReport) -> Option<(u32, u32)> {
-    let path = &dir.join(rel);
-    let decoded = read_below(dir, rel, MAX_IMAGE_BYTES).map_err(|e| e.to_string()).and_then(|bytes| decode_image(&bytes));
-    match decoded {
-        Ok(image) => {
-            let found = (image.width(), image.height());
-            if let Some(expected) = expected.filter(|e| *e != found) {
-                report.bad_images += 1;
-                report.issues.push(VerifyIssue::WrongSize { path: path.to_path_buf(), found, expected });
-            }
+/// Reads the image `rel` through `images` (the readers' rules); records an issue when it does
+/// not decode or is not the dataset's size. Returns its size when it decodes.
+fn check_image(images: &mut DatasetImages, rel: &Path, report: &mut VerifyReport) -> Option<(u32, u32)> {
+    let path = images.dir.join(rel);
+    match images.read_checked(rel) {
+        Ok((image, Ok(()))) => Some((image.width(), image.height())),
+        Ok((_, Err(DatasetError::WrongImageSize { path, found, expected }))) => {
+            report.bad_images += 1;
+            report.issues.push(VerifyIssue::WrongSize { path, found, expected });
             Some(found)
         }
-        Err(reason) => {
+        Ok((_, Err(other))) | Err(other) => {
             report.bad_images += 1;
-            report.issues.push(VerifyIssue::BadImage { path: path.to_path_buf(), reason });
+            let reason = match other {
+                DatasetError::BadImage { reason, .. } => reason,
+                other => other.to_string(),
+            };
+            report.issues.push(VerifyIssue::BadImage { path, reason });
             None
         }
     }
