@@ -12,6 +12,10 @@
 
 use std::fmt::Display;
 
+/// Most pixels rig decodes in one image (4096 x 4096; a tactile frame is under 2 Mpx): the
+/// dataset readers' bound, and the largest frame a configured camera may give.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+
 /// One key's range: `min` to `max` inclusive (`min` itself excluded when `above_min`), in
 /// `unit`, and why it stops there.
 #[derive(Debug, Clone, Copy, PartialEq)]

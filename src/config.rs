@@ -497,12 +497,12 @@ impl RigConfig {
             };
             sensor_bound(&bounds::SENSOR_SIDE, "sensors.*.width", f64::from(width))?;
             sensor_bound(&bounds::SENSOR_SIDE, "sensors.*.height", f64::from(height))?;
-            if u64::from(width) * u64::from(height) > crate::dataset::durable::MAX_IMAGE_PIXELS {
+            if u64::from(width) * u64::from(height) > bounds::MAX_IMAGE_PIXELS {
                 return Err(invalid(
                     "sensors.*.width",
                     format!(
                         "sensor {name}: {width} x {height} px is more than the {} px in all the dataset readers decode",
-                        crate::dataset::durable::MAX_IMAGE_PIXELS
+                        bounds::MAX_IMAGE_PIXELS
                     ),
                 ));
             }

@@ -29,9 +29,10 @@ pub const MAX_CSV_LINE_BYTES: usize = 64 << 10;
 pub const MAX_IMAGE_BYTES: u64 = 64 << 20;
 /// Largest image side decoded, px.
 pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
-/// Most pixels decoded in one image (4096 x 4096; a tactile frame is under 2 Mpx): checked
-/// from the header before decoding, so an 8192 x 8192 16-bit PNG is refused, not decoded.
-pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+/// Most pixels decoded in one image: checked from the header before decoding, so an
+/// 8192 x 8192 16-bit PNG is refused, not decoded. Kept with the configuration bounds, which
+/// refuse a camera whose frames no reader would decode.
+pub const MAX_IMAGE_PIXELS: u64 = crate::bounds::MAX_IMAGE_PIXELS;
 /// Most memory the decoder may take for one image (16 Mpx of 16-bit RGBA is 128 MiB).
 const MAX_DECODE_BYTES: u64 = 256 << 20;
 

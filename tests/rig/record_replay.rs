@@ -682,29 +682,46 @@ fn encode_recording(header: &str, events: &[Event]) -> Vec<u8> {
     bytes
 }
 
+/// Starts the command in argv[2:] from a fresh fork of this small process, waits for it, writes
+/// its peak resident memory (KiB) to argv[1] and exits with its code. A child's `ru_maxrss`
+/// starts from the resident size of the process it was forked from (Linux carries the old
+/// memory's high-water mark across `execve`), so `rig` spawned straight from the test binary,
+/// which holds the memory of every test running beside it, would report that instead of its own.
+const MEASURE_PY: &str = "import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.argv[2], sys.argv[2:])
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], 'w') as f:
+    f.write(str(usage.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status) if os.WIFEXITED(status) else 128)
+";
+
 /// Runs `rig` with `args` and its output into files in `dir`: its exit code, its output, and
-/// its peak resident memory in bytes (the kernel's count for this child alone, from `wait4`).
-// The child is reaped by wait4(2), which `Child::wait` cannot stand in for: it does not give the
-// child's resource usage.
-#[allow(clippy::zombie_processes)]
+/// its peak resident memory in bytes (the kernel's count for that process alone, taken by
+/// [`MEASURE_PY`]).
 fn run_measured(dir: &Path, args: &[&std::ffi::OsStr]) -> (Option<i32>, String, u64) {
-    let (out, err) = (dir.join("measured.out"), dir.join("measured.err"));
-    let child = rig()
-        .args(args)
+    let (out, err, peak) = (dir.join("measured.out"), dir.join("measured.err"), dir.join("measured.peak"));
+    let rig = rig();
+    let mut measured = Command::new("python3");
+    measured.arg("-c").arg(MEASURE_PY).arg(&peak).arg(rig.get_program()).args(args);
+    if let Some(cwd) = rig.get_current_dir() {
+        measured.current_dir(cwd);
+    }
+    for (key, value) in rig.get_envs() {
+        match value {
+            Some(value) => measured.env(key, value),
+            None => measured.env_remove(key),
+        };
+    }
+    let status = measured
         .stdout(std::fs::File::create(&out).expect("stdout file"))
         .stderr(std::fs::File::create(&err).expect("stderr file"))
-        .spawn()
-        .expect("starting rig");
-    let pid = i32::try_from(child.id()).expect("pid");
-    let mut status = 0;
-    // SAFETY: an all-zero rusage is a valid value of this plain C struct.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: wait4(2) on our own child's pid, with pointers to live locals.
-    assert_eq!(unsafe { libc::wait4(pid, &mut status, 0, &mut usage) }, pid, "waiting for rig");
-    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
+        .status()
+        .expect("starting python3 and rig");
     let text = format!("{}{}", std::fs::read_to_string(out).expect("stdout"), std::fs::read_to_string(err).expect("stderr"));
-    // ru_maxrss is in kilobytes on Linux.
-    (code, text, u64::try_from(usage.ru_maxrss).expect("a size") * 1024)
+    let peak_kib: u64 = std::fs::read_to_string(&peak).expect("the peak").trim().parse().expect("a number of KiB");
+    (status.code(), text, peak_kib * 1024)
 }
 
 /// A recording written by the previous format version (5: raw frames, no encoding byte) still
