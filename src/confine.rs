@@ -205,7 +205,7 @@ impl RootDir {
     }
 
     /// Opens the regular file `rel` for reading. A FIFO, device, socket or folder is refused
-    /// without being opened ([`open_regular`](Self::open_regular)).
+    /// without being opened (see `open_regular`).
     pub fn open_file(&self, rel: impl AsRef<Path>) -> Result<File, ConfineError> {
         let (fd, _) = self.open_regular(rel.as_ref(), OFlags::RDONLY)?;
         Ok(File::from(fd))
