@@ -1048,9 +1048,15 @@ fn run_limited(cwd: &Path, args: &[&str], bytes: u64) -> Output {
     run_with_limit(cwd, args, libc::RLIMIT_AS, bytes)
 }
 
+/// The type `setrlimit` takes its resource as (glibc's own; an int elsewhere).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+type Resource = libc::__rlimit_resource_t;
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+type Resource = libc::c_int;
+
 /// `rig` with the resource limit `resource` (RLIMIT_AS, RLIMIT_DATA) set to `bytes`: an
 /// allocation past it fails (Rust aborts the process).
-fn run_with_limit(cwd: &Path, args: &[&str], resource: libc::__rlimit_resource_t, bytes: u64) -> Output {
+fn run_with_limit(cwd: &Path, args: &[&str], resource: Resource, bytes: u64) -> Output {
     use std::os::unix::process::CommandExt;
     let mut cmd = rig(cwd);
     cmd.args(args);
