@@ -249,6 +249,8 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         summary.skipped = plan.len() - todo.len();
         self.progress.set_length(plan.len() as u64);
         self.progress.set_position(summary.skipped as u64);
+        // Poses a resumed run finds done are not this run's rate.
+        self.progress.reset_eta();
         info!(total = plan.len(), todo = todo.len(), "collection starting");
 
         self.arm.enable().await?;

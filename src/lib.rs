@@ -33,6 +33,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod plan;
 pub mod pose;
+pub mod progress;
 pub mod record;
 pub mod report;
 pub mod rigs;

@@ -350,7 +350,9 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
         Err(e) => {
             return error(
                 StatusCode::BAD_REQUEST,
-                format!("bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\", ...the command's options}})"),
+                format!(
+                    "bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\" | \"audit\", ...the command's options}})"
+                ),
             );
         }
     };

@@ -42,7 +42,7 @@ use serde::{Deserialize, Serialize};
 use crate::pose::Pose;
 
 pub use error::{DatasetError, RowProblem};
-pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo};
+pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo, SynthesisInfo};
 pub use merge::{MergeOptions, MergeReport, merge};
 pub use verify::{CaptureNote, DatasetImages, VerifyIssue, VerifyReport, verify};
 pub use writer::DatasetWriter;

@@ -241,6 +241,12 @@ impl VerifyReport {
     pub fn is_clean(&self) -> bool {
         self.issues.is_empty()
     }
+
+    /// `clean` or `NOT clean`: the report's last line (`rig dataset verify` prefixes it with
+    /// the dataset, so a run over several datasets says which one each verdict is).
+    pub fn verdict(&self) -> &'static str {
+        if self.is_clean() { "clean" } else { "NOT clean" }
+    }
 }
 
 impl fmt::Display for VerifyReport {
@@ -268,7 +274,7 @@ impl fmt::Display for VerifyReport {
         for issue in &self.issues {
             writeln!(f, "  {issue}")?;
         }
-        write!(f, "{}", if self.is_clean() { "clean" } else { "NOT clean" })
+        write!(f, "{}", self.verdict())
     }
 }
 

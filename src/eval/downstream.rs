@@ -306,6 +306,8 @@ pub struct SensorResult {
     /// Rows per training set.
     pub train_size: usize,
     pub sets: Vec<SetResult>,
+    /// Components the captured images cannot show ([`super::downstream_notes`]).
+    pub ambiguous: Vec<super::downstream_notes::Ambiguity>,
 }
 
 /// The whole evaluation.
@@ -563,6 +565,9 @@ fn one_sensor(
         if needs_synthetic { load_samples(&mut readers_of(&synthetic_sets)?, &synthetic, size as u32)? } else { Vec::new() };
     let test_pixels: Vec<f32> = test.iter().flat_map(|s| s.pixels.iter().copied()).collect();
     let truth: Vec<[f32; OUTPUTS]> = test.iter().map(|s| s.label).collect();
+    let looked: Vec<(u32, [f32; OUTPUTS], &[f32])> =
+        test_rows.iter().chain(pool_rows.iter()).zip(test.iter().chain(&pool)).map(|((_, r), s)| (r.pose_id, s.label, &s.pixels[..])).collect();
+    let ambiguous = super::downstream_notes::ambiguous_components(&looked);
 
     let mut set_results: Vec<SetResult> = sets
         .iter()
@@ -620,14 +625,8 @@ fn one_sensor(
         synthetic_at_test_poses: at_test_poses,
         train_size: n,
         sets: set_results,
+        ambiguous,
     })
-}
-
-fn cell(s: Option<Spread>, digits: usize) -> String {
-    match s {
-        Some(s) => format!("{:.*} ± {:.*}", digits, s.mean, digits, s.sd),
-        None => "n/a".into(),
-    }
 }
 
 impl DownstreamReport {
@@ -642,7 +641,7 @@ impl DownstreamReport {
         );
         out += &format!(
             "Regressor: ResNet18 layout at width {}, {} px RGB, {} epochs, batch {}, AdamW lr {:e} (weight decay {}), L1 loss, \
-             photometric jitter ±{} (scale `{}`, device {}). Mean ± sd over {} seeds (from {}).{}\n\n",
+             photometric jitter ±{} (scale `{}`, device {}). {}{}\n\n",
             r.width,
             r.size_px,
             r.epochs,
@@ -652,8 +651,7 @@ impl DownstreamReport {
             r.photometric_jitter,
             serde_json::to_value(self.scale).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
             serde_json::to_value(self.device).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
-            self.seeds,
-            self.seed,
+            super::downstream_notes::seeds_sentence(self.seeds, self.seed),
             if self.shuffle_labels { " **Control: training labels shuffled.**" } else { "" }
         );
         out += "| sensor | trained on | n train | n test | X MAE (mm) | X RMSE (mm) | X R² | Z MAE (mm) | Z RMSE (mm) | Z R² | yaw MAE (deg) | yaw RMSE (deg) | yaw R² |\n";
@@ -663,6 +661,7 @@ impl DownstreamReport {
                 out += &format!("| {} | {} | {} | {} |", s.sensor.label(), set.label, s.train_size, s.test_rows);
                 for c in 0..OUTPUTS {
                     let digits = if c == 2 { 2 } else { 3 };
+                    let cell = |s, digits| super::downstream_notes::spread_cell(s, digits, set.seeds.len());
                     out += &format!(
                         " {} | {} | {} |",
                         cell(set.spread(c, |x| Some(x.mae)), digits),
@@ -690,6 +689,13 @@ impl DownstreamReport {
             self.sensors.iter().map(|s| s.sets.len()).sum::<usize>() * self.seeds as usize,
             self.seconds
         );
+        let warnings = super::downstream_notes::warnings(self);
+        if !warnings.is_empty() {
+            out += "\n";
+            for w in warnings {
+                out += &format!("{w}\n");
+            }
+        }
         out
     }
 

@@ -31,7 +31,7 @@ use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::config::RigConfig;
 use crate::dataset::{AuditSummary, DatasetError, Manifest, ObjectInfo, PoseRow, Source, read_rows};
-use crate::eval::audit::{AuditScores, score_audit, worst_poses_panel};
+use crate::eval::audit::{AuditScores, score_audit, verdict_line, worst_poses_panel};
 use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::Peripherals;
@@ -229,6 +229,9 @@ pub struct ScoredAudit {
     pub panel: Option<PathBuf>,
     /// `Some(false)` when the mean contact-region SSIM is below `--min-ssim` (or there is none).
     pub passed: Option<bool>,
+    /// The one-line verdict against the two baselines, with the likely cause
+    /// ([`crate::eval::audit::verdict_line`]).
+    pub verdict: String,
 }
 
 /// Runs an audit: collects the drawn poses (resuming what an earlier, killed run left) through
@@ -293,13 +296,14 @@ pub fn score(prepared: &PreparedAudit) -> Result<ScoredAudit, JobError> {
         }
         None => None,
     };
-    let report = report_markdown(prepared, &scores, &summary, &worst, panel_path.is_some(), passed);
+    let mut manifest = Manifest::load(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
+    let verdict = verdict_line(&scores.eval.comparisons, manifest.synthesis.as_ref());
+    let report = report_markdown(prepared, &scores, &summary, &worst, panel_path.is_some(), passed, &verdict);
     write(&root, REPORT_FILE, report.as_bytes())?;
 
-    let mut manifest = Manifest::load(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
     manifest.audit = Some(summary.clone());
     manifest.store(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
-    Ok(ScoredAudit { scores, summary, report: root.join(REPORT_FILE), panel: panel_path, passed })
+    Ok(ScoredAudit { scores, summary, report: root.join(REPORT_FILE), panel: panel_path, passed, verdict })
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), JobError> {
@@ -307,8 +311,8 @@ fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), JobError> {
         .map_err(|e| JobError::AuditWrite { path: dir.join(name), reason: e.to_string() })
 }
 
-/// `report.md`: the draw, the totals with their intervals, the verdict of `--min-ssim`, the
-/// worst poses, every pose, then `rig eval`'s table with the baselines.
+/// `report.md`: the draw, the totals with their intervals, the verdict against the baselines,
+/// the verdict of `--min-ssim`, the worst poses, every pose, then `rig eval`'s table with the baselines.
 fn report_markdown(
     prepared: &PreparedAudit,
     scores: &AuditScores,
@@ -316,6 +320,7 @@ fn report_markdown(
     worst: &[&crate::eval::audit::AuditPose],
     panel: bool,
     passed: Option<bool>,
+    verdict: &str,
 ) -> String {
     let r = &prepared.request;
     let mut s = format!("# rig audit: {}\n\n", r.dataset.display());
@@ -326,6 +331,7 @@ fn report_markdown(
         summary.audited_poses, summary.synthetic_poses, r.fraction, r.seed, AUDIT_DIR, prepared.object.name, prepared.sensor, r.size_px,
     );
     s += &scores.totals_markdown();
+    s += &format!("\n{}\n", verdict.replacen("verdict:", "**Verdict:**", 1));
     if let (Some(bound), Some(ok)) = (r.min_ssim, passed) {
         s += &format!("\n--min-ssim {bound}: {} (mean contact SSIM).\n", if ok { "passed" } else { "FAILED" });
     }
