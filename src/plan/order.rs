@@ -4,7 +4,7 @@
 //! ```text
 //! poses ──probe the cost──► metric (work-frame x, y, z, yaw, each scaled to seconds)
 //!       ──group──► sites (poses the metric cannot tell apart: the same approach pose)
-//!       ──k-d tree──► candidate neighbours per site (16 by the metric, the 10 cheapest by the real cost)
+//!       ──k-d tree──► candidate neighbours per site (24 by the metric, the 10 cheapest by the real cost)
 //!       ──► nearest-neighbour tour (through the candidates, else the tree's nearest live site)
 //!       ──► 2-opt and Or-opt over the candidates, don't-look bits ──► open path ──► poses
 //! ```
