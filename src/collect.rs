@@ -60,9 +60,6 @@ pub enum CollectError {
     Peripheral(Box<ModbusError>),
     #[error("{} gave up after {attempts} attempts: {last}", describe_pose(*.pose_id))]
     PeripheralRetriesExhausted { pose_id: Option<u32>, attempts: u32, last: Box<ModbusError> },
-    /// `pose_id` is `None` for the no-contact reference pose above the plan origin.
-    #[error("{} {plan_pose} is outside the arm's workspace ({which} pose {base_pose}): {limit}", describe_pose(*.pose_id))]
-    Unreachable { pose_id: Option<u32>, plan_pose: Pose, base_pose: Pose, which: &'static str, limit: String },
     #[error("{what} must be the same for every sensor")]
     Mismatch { what: &'static str },
 }
@@ -118,24 +115,6 @@ pub struct CollectSummary {
     /// retry of the pose.
     pub recovered_faults: usize,
     pub interrupted: bool,
-}
-
-/// Checks every pose of the plan (contact and approach) against the workspace before anything
-/// moves. `check` is the firmware profile's reachability test.
-pub fn check_plan(plan: &[PlannedPose], work_frame: &WorkFrame, check: impl Fn(&Pose) -> Result<(), ArmError>) -> Result<(), CollectError> {
-    let reference = Pose::default();
-    let poses = std::iter::once((None, &reference)).chain(plan.iter().map(|p| (Some(p.pose_id), &p.pose)));
-    for (pose_id, plan_pose) in poses {
-        for (which, base_pose) in [("approach", work_frame.approach_pose(plan_pose)), ("contact", work_frame.contact_pose(plan_pose))] {
-            let limit = match check(&base_pose) {
-                Ok(()) => continue,
-                Err(ArmError::Unreachable { limit, .. }) => limit,
-                Err(other) => other.to_string(),
-            };
-            return Err(CollectError::Unreachable { pose_id, plan_pose: *plan_pose, base_pose, which, limit });
-        }
-    }
-    Ok(())
 }
 
 /// The collection job. Borrow the arm; own the sensor streams and the peripherals.
@@ -422,52 +401,6 @@ mod tests {
     use crate::dataset::{CaptureChain, CapturePart, Manifest, ObjectInfo};
     use crate::sensor::SensorKind;
 
-    #[test]
-    fn plan_check_names_the_pose() {
-        let wf = WorkFrame::default();
-        let plan = vec![
-            PlannedPose { pose_id: 3, pose: Pose::new(0.0, 0.0, 0.0, 0.0) },
-            PlannedPose { pose_id: 7, pose: Pose::new(0.0, 0.0, 0.5, 0.0) },
-        ];
-        // A stand-in workspace: nothing below z = -21.9 mm.
-        let check = |p: &Pose| {
-            if p.z_mm < -21.9 { Err(ArmError::Unreachable { pose: *p, limit: "z below -21.9 mm".into() }) } else { Ok(()) }
-        };
-        let e = check_plan(&plan, &wf, check).unwrap_err();
-        assert!(matches!(e, CollectError::Unreachable { pose_id: Some(7), which: "contact", .. }), "{e}");
-        assert!(e.to_string().contains("z below"));
-    }
-
-    /// An arm that is wherever it is sent, at once.
-    struct InstantArm {
-        at: Pose,
-    }
-
-    impl Arm for InstantArm {
-        async fn enable(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
-            self.at = target;
-            Ok(())
-        }
-        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<Arrival, ArmError> {
-            Ok(Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
-        }
-        async fn pose(&mut self) -> Result<Pose, ArmError> {
-            Ok(self.at)
-        }
-        async fn stop(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-        async fn clear_error(&mut self) -> Result<Vec<crate::arm::Alarm>, ArmError> {
-            Ok(Vec::new())
-        }
-        async fn disable(&mut self) -> Result<(), ArmError> {
-            Ok(())
-        }
-    }
-
     /// A measured camera: each frame asked for is one driver buffer, its sequence number
     /// `step` after the previous one (`step - 1` dropped), stamped `step` frame intervals of
     /// 1/30 s later.
@@ -510,7 +443,7 @@ mod tests {
             Some(CaptureChain { arm: CapturePart::new("arm", "mg400", false, None), sensors: vec![part], modbus: Vec::new() });
         let writer = DatasetWriter::start(dir, manifest, resume).unwrap();
         let (_stop, cancel) = watch::channel(false);
-        let mut arm = InstantArm { at: Pose::default() };
+        let mut arm = crate::arm::fake::CountingArm::default();
         let job = CollectJob {
             arm: &mut arm,
             sensors: vec![SensorStream { camera, writer, source: Source::Real }],

@@ -13,7 +13,10 @@
 //! A real bench (see `examples/bench-rig.toml`) names the arm (`mg400` by address, `magician`
 //! by serial port), binds each sensor to a camera by USB identity (`port:1-2.3`,
 //! `serial:...`; see `camera::usb::DeviceSelector`), locks its exposure, gain and white
-//! balance, and lists Modbus peripherals under `[modbus.<name>]`.
+//! balance, and lists Modbus peripherals under `[modbus.<name>]`. Every sensor has a press
+//! limit, the deepest the arm may press its skin ([`RigConfig::press_limit`]: `[sensors.<name>]
+//! max_indentation_mm`, else the sensor's conservative default), which [`crate::fence`] holds
+//! every pose to.
 
 use std::path::{Path, PathBuf};
 
@@ -99,6 +102,9 @@ pub struct RawSensor {
     pub warmup_frames: Option<u32>,
     /// Hardware backends: mmap buffers.
     pub buffers: Option<u32>,
+    /// The deepest the arm may press this sensor's skin, mm of indentation (default: the
+    /// sensor's own, [`crate::sensor::SensorKind::default_max_indentation_mm`]).
+    pub max_indentation_mm: Option<f64>,
 }
 
 /// `[sim]` as written in the file.
@@ -211,6 +217,37 @@ pub struct SensorConfig {
     pub height: u32,
     /// Rate, format and locked controls for hardware backends (size = `width` x `height`).
     pub camera: crate::camera::v4l2::CameraSettings,
+    /// `max_indentation_mm` as configured; `None`: the sensor's default.
+    pub max_indentation_mm: Option<f64>,
+}
+
+/// Largest press limit a configuration may set, mm: the standard TacTip's tip is a hemisphere
+/// 40 mm across, 20 mm deep, so a limit past that guards no skin and is taken for a typo.
+pub const MAX_PRESS_LIMIT_MM: f64 = 20.0;
+
+/// The deepest the arm may press one sensor's skin: mm of indentation into the object's top,
+/// counted from first touch (the work frame's contact depth plus a plan pose's `z_mm`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PressLimit {
+    pub sensor: crate::sensor::SensorKind,
+    pub max_indentation_mm: f64,
+    /// Set by `[sensors.<name>] max_indentation_mm`, not the sensor's default.
+    pub configured: bool,
+}
+
+impl std::fmt::Display for PressLimit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (mm, name) = (self.max_indentation_mm, self.sensor.name());
+        if self.configured {
+            write!(f, "{name}'s press limit of {mm} mm (set by [sensors.{name}] max_indentation_mm)")
+        } else {
+            write!(
+                f,
+                "{name}'s press limit of {mm} mm ({}'s default; [sensors.{name}] max_indentation_mm sets another)",
+                self.sensor.label()
+            )
+        }
+    }
 }
 
 /// Where a sensor's frames come from.
@@ -479,6 +516,14 @@ impl RigConfig {
             if !(1..=240).contains(&camera.fps) || !(2..=32).contains(&camera.buffers) {
                 return Err(invalid("sensors.*.fps", format!("sensor {name}: fps must be 1..240 and buffers 2..32")));
             }
+            if let Some(mm) = s.max_indentation_mm
+                && !(mm.is_finite() && mm > 0.0 && mm <= MAX_PRESS_LIMIT_MM)
+            {
+                return Err(invalid(
+                    "sensors.*.max_indentation_mm",
+                    format!("sensor {name}: must be above 0 and at most {MAX_PRESS_LIMIT_MM} mm, got {mm}"),
+                ));
+            }
             sensors.push(SensorConfig {
                 name,
                 backend,
@@ -487,6 +532,7 @@ impl RigConfig {
                 width,
                 height,
                 camera,
+                max_indentation_mm: s.max_indentation_mm,
             });
         }
         let faults = resolve_faults(&raw.sim.faults, path)?;
@@ -514,6 +560,104 @@ impl RigConfig {
             sensor_unit_seed: raw.sim.sensor_unit_seed,
             sim_stale_buffer_frames,
         })
+    }
+
+    /// The press limit of `sensor`: `[sensors.<name>] max_indentation_mm`, else the sensor's
+    /// default.
+    pub fn press_limit(&self, sensor: crate::sensor::SensorKind) -> PressLimit {
+        let configured = self.sensors.iter().find(|s| s.name == sensor.name()).and_then(|s| s.max_indentation_mm);
+        PressLimit {
+            sensor,
+            max_indentation_mm: configured.unwrap_or_else(|| sensor.default_max_indentation_mm()),
+            configured: configured.is_some(),
+        }
+    }
+
+    /// What the configuration names, one line each, as `rig info` and `rig devices` list it:
+    /// the arm (address, profile, speed), the work frame, the capture settings, each sensor
+    /// (camera device, size, rate, format, locked controls, calibration, press limit; a sensor
+    /// with no `[sensors.<name>]` table is simulated), each Modbus peripheral. Nothing is
+    /// opened.
+    pub fn listing(&self) -> Vec<String> {
+        let profile = self.arm.profile.as_deref().unwrap_or("mg400-v1.6 (built in)");
+        let speed = self.arm.speed_factor;
+        let arm = match &self.arm.backend {
+            ArmBackend::Simulated { time_scale } => {
+                format!("arm: simulated MG400 ({time_scale}x real time), profile {profile}, speed factor {speed}%")
+            }
+            ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port } => format!(
+                "arm: MG400 at {host} (dashboard {dashboard_port}, motion {motion_port}, feedback {feedback_port}), profile {profile}, speed factor {speed}%"
+            ),
+            ArmBackend::Magician { serial_port } => {
+                format!(
+                    "arm: Magician on {}, profile {}, speed factor {speed}%",
+                    serial_port.display(),
+                    self.arm.profile.as_deref().unwrap_or("magician (built in)")
+                )
+            }
+        };
+        let wf = &self.work_frame;
+        let c = &self.collect;
+        let mut lines = vec![
+            arm,
+            format!(
+                "work frame: origin {}, contact depth {} mm, approach {} mm, tool offset {} mm",
+                wf.origin, wf.contact_depth_mm, wf.approach_mm, wf.tool_offset_mm
+            ),
+            format!(
+                "collect: settle {} s, {} frame(s) per pose{}, move timeout {} s, {} retries per pose",
+                c.settle_s,
+                c.frames_per_pose,
+                if c.average_frames { " averaged" } else { "" },
+                c.move_timeout_s,
+                c.retries_per_pose
+            ),
+        ];
+        for kind in crate::sensor::SensorKind::ALL {
+            let limit = self.press_limit(kind);
+            let press = if limit.configured {
+                format!("press limit {} mm (configured)", limit.max_indentation_mm)
+            } else {
+                format!("press limit {} mm ({}'s default)", limit.max_indentation_mm, kind.label())
+            };
+            let line = match self.sensors.iter().find(|s| s.name == kind.name()) {
+                None => format!("sensor {kind}: simulated (no [sensors.{kind}] table), 512x512; {press}"),
+                Some(s) => {
+                    let calibration = s.calibration.as_ref().map_or_else(|| "none set".to_string(), |p| p.display().to_string());
+                    let source = match &s.backend {
+                        SensorBackend::Simulated => format!("simulated, scene {}, {}x{}", s.scene, s.width, s.height),
+                        SensorBackend::V4l2 { device } | SensorBackend::Nokhwa { device } => {
+                            let backend = if matches!(s.backend, SensorBackend::V4l2 { .. }) { "v4l2" } else { "nokhwa" };
+                            let cam = &s.camera;
+                            let format = cam.pixel_format.map_or("auto (YUYV when it reaches the rate, else MJPEG)".to_string(), |f| {
+                                String::from_utf8_lossy(&f.fourcc()).into_owned()
+                            });
+                            let locked = |v: Option<i64>, unit: &str| v.map_or("auto".to_string(), |v| format!("{v}{unit}"));
+                            format!(
+                                "{backend} camera {device}, {}x{} at {} fps, format {format}, exposure {}, gain {}, white balance {}",
+                                s.width,
+                                s.height,
+                                cam.fps,
+                                locked(cam.exposure_100us, " x 100 us"),
+                                locked(cam.gain, ""),
+                                locked(cam.white_balance_k, " K")
+                            )
+                        }
+                    };
+                    format!("sensor {kind}: {source}, calibration {calibration}; {press}")
+                }
+            };
+            lines.push(line);
+        }
+        for p in self.modbus.values() {
+            let reads: Vec<&str> = p.read.iter().map(|r| r.name.as_str()).collect();
+            let reads = if reads.is_empty() { "nothing".to_string() } else { reads.join(", ") };
+            lines.push(format!("modbus {}: reads {reads}, timeout {} ms", p.describe(), p.timeout.as_millis()));
+        }
+        if !self.faults.is_empty() {
+            lines.push(format!("injected faults: {}", self.faults.describe()));
+        }
+        lines
     }
 
     /// One line saying what rig will drive, printed first by commands that move hardware.
@@ -673,6 +817,25 @@ mod tests {
         assert!(e.to_string().contains("gelsight") && e.to_string().contains("tactip, vitac or vitactip"), "{e}");
         let e = RigConfig::parse("[sensors.tactip]\n[sensors.TacTip]\n", Path::new("x")).unwrap_err();
         assert!(e.to_string().contains("twice"), "{e}");
+    }
+
+    /// A sensor's press limit is its configured `max_indentation_mm`, else its default; a limit
+    /// that is not above 0 and at most 20 mm is refused.
+    #[test]
+    fn press_limits_are_read_checked_and_defaulted() {
+        use crate::sensor::SensorKind;
+        let c = RigConfig::parse("[sensors.vitac]\nmax_indentation_mm = 3.25\n", Path::new("x")).unwrap();
+        assert_eq!(c.press_limit(SensorKind::ViTac), PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 3.25, configured: true });
+        assert_eq!(
+            c.press_limit(SensorKind::TacTip),
+            PressLimit { sensor: SensorKind::TacTip, max_indentation_mm: 5.0, configured: false }
+        );
+        assert_eq!(RigConfig::builtin_sim().press_limit(SensorKind::ViTacTip).max_indentation_mm, 2.5);
+        for bad in ["0.0", "-1.0", "20.5", "nan", "inf"] {
+            let e = RigConfig::parse(&format!("[sensors.tactip]\nmax_indentation_mm = {bad}\n"), Path::new("x")).unwrap_err();
+            assert!(e.to_string().contains("max_indentation_mm") && e.to_string().contains("at most 20 mm"), "{bad}: {e}");
+        }
+        assert!(RigConfig::parse("[sensors.tactip]\nmax_indentation_mm = 20.0\n", Path::new("x")).is_ok());
     }
 
     #[test]

@@ -24,6 +24,7 @@ pub mod daemon;
 pub mod dataset;
 pub mod eval;
 pub mod features;
+pub mod fence;
 pub mod geometry;
 pub mod imaging;
 pub mod io;

@@ -159,11 +159,28 @@ impl WorkFrame {
         }
     }
 
+    /// How deep a work-frame pose presses the skin into the object's top, mm: the contact
+    /// depth plus the pose's extra indentation (negative: above the surface). What a sensor's
+    /// press limit bounds.
+    pub fn press_depth_mm(&self, plan: &Pose) -> f64 {
+        self.contact_depth_mm + plan.z_mm
+    }
+
     /// Indentation of the sensor into the object's top in mm at a base-frame pose
     /// (negative: above the surface).
     pub fn indentation_mm(&self, base: &Pose) -> f64 {
         self.plan_pose(base).z_mm + self.contact_depth_mm
     }
+}
+
+/// Rounding allowed above a press limit, mm: plan values such as `-1 + 4 x 0.5` land a few
+/// ulps off the number a user wrote as the limit.
+const PRESS_ROUNDING_MM: f64 = 1e-9;
+
+/// Whether a press `depth_mm` deep keeps to `limit_mm` (up to float rounding); a depth that is
+/// not a number never does.
+pub fn within_press_limit(depth_mm: f64, limit_mm: f64) -> bool {
+    depth_mm <= limit_mm + PRESS_ROUNDING_MM
 }
 
 #[cfg(test)]
@@ -194,6 +211,8 @@ mod tests {
         let back = wf.plan_pose(&base);
         assert!(back.distance_mm(&plan) < 1e-9 && (back.yaw_deg - plan.yaw_deg).abs() < 1e-9);
         assert!((wf.indentation_mm(&base) - 2.0).abs() < 1e-9);
+        assert_eq!(wf.press_depth_mm(&plan), 2.0);
+        assert!(within_press_limit(-1.0 + 4.0 * 0.5 + 1.5, 2.5) && !within_press_limit(2.5001, 2.5) && !within_press_limit(f64::NAN, 2.5));
         assert!(wf.approach_pose(&plan).z_mm > base.z_mm);
     }
 }

@@ -48,12 +48,13 @@ impl Exit {
             Exit::BadInput => {
                 "bad input: command line, rig config, plan, object/STL, calibration, firmware profile, model package \
                  (model.toml, tokenizer, ONNX files), dataset files (manifest, CSV header and rows, images, symlinks), a recording file, \
-                 sampling settings and sizes out of range, a plan outside the workspace, a path outside the daemon's \
-                 data roots"
+                 sampling settings and sizes out of range, a pose outside the workspace or past the sensor's press \
+                 limit (a plan, an audit's rows, a calibration pattern), a path outside the daemon's data roots"
             }
             Exit::HardwareFault => {
                 "hardware fault: arm alarms, refused or lost connections once retries are spent (also when opening the \
-                 rig), camera failures, a required Modbus peripheral; `rig replay`: a divergence from the recording"
+                 rig), camera failures, a required Modbus peripheral, a device that failed a dry run's pre-flight; \
+                 `rig replay`: a divergence from the recording"
             }
             Exit::Interrupted => {
                 "interrupted: Ctrl-C or a cancelled daemon job (`rig collect` continues with `--resume`; `rig calibrate` \
@@ -120,8 +121,10 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::jobs::RequestError,
         crate::synth::fill::FillError,
         crate::rigs::RigError,
+        crate::rigs::PreflightError,
         crate::io::modbus::ModbusError,
         crate::calibration::press::PressError,
+        crate::calibration::wizard::WizardError,
         crate::calibration::CalibrationError,
         crate::arm::profile::ProfileError,
         crate::geometry::stl::StlError,
@@ -130,6 +133,7 @@ fn classify(cause: &(dyn std::error::Error + 'static)) -> Option<Exit> {
         crate::roots::PathError,
         crate::roots::RootsError,
         crate::jobs::JobError,
+        crate::fence::FenceError,
         crate::geometry::objects::ObjectResolveError,
         crate::arm::profile::ProfileLookupError,
         crate::record::replay::ReplayError,
@@ -206,7 +210,7 @@ impl Classify for crate::collect::CollectError {
             C::Dataset(e) => e.exit(),
             C::RetriesExhausted { .. } | C::CameraRetriesExhausted { .. } | C::PeripheralRetriesExhausted { .. } => Exit::HardwareFault,
             C::Peripheral(e) => e.exit(),
-            C::Unreachable { .. } | C::Mismatch { .. } => Exit::BadInput,
+            C::Mismatch { .. } => Exit::BadInput,
         }
     }
 }
@@ -290,7 +294,7 @@ impl Classify for crate::dataset::lerobot::LerobotError {
         use crate::dataset::lerobot::LerobotError as L;
         match self {
             L::Dataset(e) => e.exit(),
-            L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) => Exit::BadInput,
+            L::NoDatasets { .. } | L::Layout { .. } | L::OutNotEmpty { .. } | L::BadOption(_) | L::RowTooLarge { .. } => Exit::BadInput,
             L::Write { .. } => Exit::Failure,
         }
     }
@@ -380,15 +384,50 @@ impl Classify for crate::rigs::RigError {
     fn exit(&self) -> Exit {
         use crate::rigs::RigError as R;
         match self {
-            R::UnknownSensor(_) | R::Object { .. } | R::Profile { .. } | R::Calibration { .. } | R::BackendUnavailable { .. } => {
-                Exit::BadInput
-            }
+            R::UnknownSensor(_)
+            | R::Object { .. }
+            | R::Profile { .. }
+            | R::Calibration { .. }
+            | R::BackendUnavailable { .. }
+            | R::SimulatedSensorOnRealArm { .. } => Exit::BadInput,
             // A refused or lost arm connection, also when the rig is opened.
             R::Arm(e) => e.exit(),
             R::Camera { source, .. } => source.exit(),
             R::Modbus(e) => e.exit(),
-            R::Sim(_) => Exit::Failure,
+            R::Sim(_) | R::Moved { .. } => Exit::Failure,
         }
+    }
+}
+
+impl Classify for crate::fence::FenceError {
+    fn exit(&self) -> Exit {
+        use crate::fence::FenceError as F;
+        match self {
+            // rig refused to send the arm there: the plan, the rows or the pattern asked for it.
+            F::Unreachable { .. } | F::TooDeep { .. } => Exit::BadInput,
+        }
+    }
+}
+
+impl Classify for crate::calibration::wizard::WizardError {
+    fn exit(&self) -> Exit {
+        use crate::calibration::wizard::WizardError as W;
+        match self {
+            W::Io(_) => Exit::Failure,
+            W::Press(e) => e.exit(),
+        }
+    }
+}
+
+impl Classify for crate::rigs::PreflightError {
+    /// The worst of the devices that failed: a hardware fault (3) before bad input (2).
+    fn exit(&self) -> Exit {
+        let codes = self.failed.iter().map(|(_, e)| e.exit());
+        codes.fold(Exit::Success, |worst, e| match (worst, e) {
+            (Exit::HardwareFault, _) | (_, Exit::HardwareFault) => Exit::HardwareFault,
+            (Exit::BadInput, _) | (_, Exit::BadInput) => Exit::BadInput,
+            (_, e) => e,
+        })
     }
 }
 
@@ -398,8 +437,9 @@ impl Classify for crate::calibration::press::PressError {
         match self {
             P::Arm(e) => e.exit(),
             P::Camera(e) => e.exit(),
+            P::Fence(e) => e.exit(),
             P::Cancelled { .. } => Exit::Interrupted,
-            P::NoReference | P::Fit(_) => Exit::Failure,
+            P::NoReference | P::Fit(_) | P::Unchecked { .. } => Exit::Failure,
         }
     }
 }
@@ -477,6 +517,7 @@ impl Classify for crate::jobs::JobError {
             J::Fill { source, .. } => source.exit(),
             J::Model { source, .. } => source.exit(),
             J::Press(e) => e.exit(),
+            J::Fence(e) => e.exit(),
             J::Request(e) => e.exit(),
             J::Settings(e) => e.exit(),
             J::Replay(e) => e.exit(),

@@ -10,6 +10,11 @@
 //! arm moves; a `transport = "sim"` one is a simulated device ([`SimModbusServer`]) started
 //! here on loopback, a force sensor reading the simulated arm's truth.
 //!
+//! [`preflight`] opens the same devices the same way for a dry run, each whatever the others
+//! did, and moves nothing: the arm connected and read (mode, alarms, pose; never an enable or
+//! a motion command), one frame from each camera, one read of each Modbus peripheral. It
+//! reports every device ([`Preflight`]), so a dry run names all that fail.
+//!
 //! Faults from `[sim.faults]` ([`FaultConfig`]) are injected here too, at the seams: the
 //! simulator gets its controller switches, a task closes its sockets periodically, and each
 //! camera fails the frame requests it is told to (waiting, then [`CameraError::Timeout`]),
@@ -33,7 +38,7 @@ use crate::clock::{Clock, MonotonicClock};
 use crate::config::{ArmBackend, FaultConfig, RigConfig, SensorBackend};
 use crate::dataset::CapturePart;
 use crate::geometry::objects::{ObjectChoice, ObjectResolveError};
-use crate::io::modbus::{ModbusBench, ModbusError, ModbusTransport, SimPeripheralKind};
+use crate::io::modbus::{ModbusBench, ModbusError, ModbusPeripheral, ModbusPeripheralConfig, ModbusTransport, SimPeripheralKind};
 use crate::pose::Pose;
 use crate::sensor::{SensorKind, SensorKindParseError, SensorSet};
 use crate::sim::mg400::{SimFaults, SimMg400, SimMg400Config, SimPort};
@@ -57,6 +62,13 @@ pub enum RigError {
     Arm(#[from] crate::arm::ArmError),
     #[error("sensor {name}: backend {backend} is not available in this build of rig")]
     BackendUnavailable { name: String, backend: String },
+    /// A sensor with no camera configured is simulated, and a simulated sensor reads the
+    /// simulated arm's pose: on a real arm it has nothing to show.
+    #[error(
+        "sensor {name} is simulated (no camera backend in [sensors.{name}]), and a simulated sensor needs the simulated arm: \
+         configure its camera, or leave the sensor out with --sensor"
+    )]
+    SimulatedSensorOnRealArm { name: String },
     #[error("sensor {name}: {source}")]
     Camera {
         name: String,
@@ -66,6 +78,10 @@ pub enum RigError {
     /// A required Modbus peripheral could not be reached (or a simulated one started).
     #[error(transparent)]
     Modbus(#[from] ModbusError),
+    /// A pre-flight that should have moved nothing sent the simulated MG400 an enable or a
+    /// motion command (a fault of rig itself).
+    #[error("the simulated MG400 received {enable_requests} enable and {motion_requests} motion commands during the pre-flight")]
+    Moved { enable_requests: u64, motion_requests: u64 },
 }
 
 /// The firmware profile the configuration names (the embedded MG400 V1.6 profile by default).
@@ -316,46 +332,8 @@ impl Rig {
         clock: Arc<dyn Clock>,
         recorder: Option<crate::record::Recorder>,
     ) -> Result<Self, RigError> {
-        // The Magician has its own profile format; the MG400 profile then only feeds the
-        // motion-time model of plan ordering, so the embedded one stands in.
-        let profile = match config.arm.backend {
-            ArmBackend::Magician { .. } => FirmwareProfile::default_mg400(),
-            _ => profile_for(config)?,
-        };
-        let (arm_cfg, sim) = match &config.arm.backend {
-            ArmBackend::Simulated { .. } => {
-                let sim_cfg = SimMg400Config { profile: profile.clone(), faults: sim_faults(&config.faults), ..SimMg400Config::default() };
-                let sim = SimMg400::start(sim_cfg, Arc::clone(&clock)).await.map_err(RigError::Sim)?;
-                let cfg = Mg400Config::new(sim.dashboard_addr().ip().to_string(), profile.clone()).with_ports(
-                    sim.dashboard_addr().port(),
-                    sim.motion_addr().port(),
-                    sim.feedback_addr().port(),
-                );
-                (Some(cfg), Some(sim))
-            }
-            ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port } => {
-                (Some(Mg400Config::new(host.clone(), profile.clone()).with_ports(*dashboard_port, *motion_port, *feedback_port)), None)
-            }
-            ArmBackend::Magician { .. } => (None, None),
-        };
-        let arm = match arm_cfg {
-            Some(mut arm_cfg) => {
-                arm_cfg.speed_factor_pct = config.arm.speed_factor;
-                RigArm::Mg400(match recorder {
-                    Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(&clock), recorder).await?,
-                    None => Mg400Client::connect(arm_cfg, Arc::clone(&clock)).await?,
-                })
-            }
-            None => {
-                // Only the Magician backend builds no MG400 config.
-                let serial_port = match &config.arm.backend {
-                    ArmBackend::Magician { serial_port } => serial_port.clone(),
-                    _ => PathBuf::new(),
-                };
-                let magician_profile = MagicianProfile::named(config.arm.profile.as_deref())?;
-                RigArm::Magician(MagicianArm::open(&serial_port, magician_profile, Arc::clone(&clock))?)
-            }
-        };
+        let sim = start_sim(config, &clock).await?;
+        let arm = connect_arm(config, sim.as_ref(), &clock, recorder).await?;
         let socket_dropper = match (&sim, config.faults.drop_sockets_every_s) {
             (Some(sim), Some(every_s)) => {
                 let dropper = sim.connection_dropper();
@@ -372,74 +350,9 @@ impl Rig {
             }
             _ => None,
         };
-
         let mut cameras = Vec::new();
         for kind in &sensors.0 {
-            let sensor_cfg = config.sensors.iter().find(|s| s.name == kind.to_string());
-            let backend = sensor_cfg.map(|s| s.backend.clone()).unwrap_or(SensorBackend::Simulated);
-            match backend {
-                SensorBackend::Simulated => {
-                    let Some(sim) = &sim else {
-                        return Err(RigError::BackendUnavailable {
-                            name: kind.to_string(),
-                            backend: "sim (a simulated sensor needs the simulated arm)".into(),
-                        });
-                    };
-                    let (width, height) = sim_size(sensor_cfg);
-                    let scene_name = sensor_cfg.map(|s| s.scene.clone()).unwrap_or_else(|| "full".into());
-                    let (calib, calib_name) = sim_calibration(*kind, sensor_cfg, width, height)?;
-                    let scene = Scene::preset(&scene_name).map_err(|e| RigError::BackendUnavailable {
-                        name: kind.to_string(),
-                        backend: format!("sim scene {scene_name:?}: {e}"),
-                    })?;
-                    let px_per_mm = calib.scale_px_per_mm[0] as f32;
-                    let mut renderer = SensorSim::new(*kind, scene, width, height, px_per_mm, seed ^ sensor_salt(*kind));
-                    if let Some(unit) = config.sensor_unit_seed {
-                        renderer = renderer.with_unit_seed(unit ^ sensor_salt(*kind));
-                    }
-                    let depth_source = sim_depth_source(object, calib.clone(), width, height);
-                    let camera = SimCamera::new(
-                        kind.to_string(),
-                        renderer,
-                        depth_source,
-                        config.work_frame,
-                        sim.truth(),
-                        Arc::clone(&clock),
-                        1.0 / f64::from(SIM_FPS),
-                    )
-                    .with_stale_buffer(config.sim_stale_buffer_frames);
-                    cameras.push(RigCamera::Simulated {
-                        kind: *kind,
-                        camera,
-                        calibration: calib_name,
-                        timeouts: InjectedTimeouts::from_faults(&config.faults),
-                        resolution_px: [width, height],
-                    });
-                }
-                SensorBackend::V4l2 { ref device } | SensorBackend::Nokhwa { ref device } => {
-                    let is_v4l2 = matches!(backend, SensorBackend::V4l2 { .. });
-                    let Some(sensor_cfg) = sensor_cfg else {
-                        return Err(RigError::BackendUnavailable {
-                            name: kind.to_string(),
-                            backend: "hardware camera without a [sensors] entry".into(),
-                        });
-                    };
-                    let camera_err = |e: CameraError| RigError::Camera { name: kind.to_string(), source: e };
-                    let selector = DeviceSelector::parse(device)
-                        .map_err(|e| RigError::BackendUnavailable { name: kind.to_string(), backend: e.to_string() })?;
-                    let calibration = sensor_cfg.calibration.as_ref().map_or_else(|| "none".to_string(), |p| p.display().to_string());
-                    let name = kind.to_string();
-                    if is_v4l2 {
-                        let camera = V4l2Camera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        let settings = sensor_cfg.camera.clone();
-                        cameras.push(RigCamera::V4l2 { kind: *kind, camera, calibration, device: device.clone(), settings });
-                    } else {
-                        let camera = NokhwaCamera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(&clock)).map_err(camera_err)?;
-                        let settings = sensor_cfg.camera.clone();
-                        cameras.push(RigCamera::Nokhwa { kind: *kind, camera, calibration, device: device.clone(), settings });
-                    }
-                }
-            }
+            cameras.push(open_camera(config, *kind, object, seed, sim.as_ref(), &clock)?);
         }
         let (peripherals, modbus_sims) = open_peripherals(config, sim.as_ref()).await?;
         Ok(Self { arm, cameras, peripherals, sim, modbus_sims, socket_dropper })
@@ -479,9 +392,144 @@ impl Rig {
     }
 }
 
+/// The MG400 firmware profile of `config`. The Magician has its own profile format; the MG400
+/// profile then only feeds the motion-time model of plan ordering, so the embedded one stands
+/// in.
+fn mg400_profile(config: &RigConfig) -> Result<FirmwareProfile, RigError> {
+    match config.arm.backend {
+        ArmBackend::Magician { .. } => Ok(FirmwareProfile::default_mg400()),
+        _ => profile_for(config),
+    }
+}
+
+/// Starts the simulated MG400 in-process on loopback when `config` names the simulated arm.
+async fn start_sim(config: &RigConfig, clock: &Arc<dyn Clock>) -> Result<Option<SimMg400>, RigError> {
+    if !matches!(config.arm.backend, ArmBackend::Simulated { .. }) {
+        return Ok(None);
+    }
+    let profile = mg400_profile(config)?;
+    let sim_cfg = SimMg400Config { profile, faults: sim_faults(&config.faults), ..SimMg400Config::default() };
+    Ok(Some(SimMg400::start(sim_cfg, Arc::clone(clock)).await.map_err(RigError::Sim)?))
+}
+
+/// Connects to the arm `config` names (`sim`: the simulator [`start_sim`] started). Connecting
+/// neither enables the arm nor moves it.
+async fn connect_arm(
+    config: &RigConfig,
+    sim: Option<&SimMg400>,
+    clock: &Arc<dyn Clock>,
+    recorder: Option<crate::record::Recorder>,
+) -> Result<RigArm, RigError> {
+    let profile = mg400_profile(config)?;
+    let arm_cfg = match (&config.arm.backend, sim) {
+        (ArmBackend::Simulated { .. }, Some(sim)) => Mg400Config::new(sim.dashboard_addr().ip().to_string(), profile).with_ports(
+            sim.dashboard_addr().port(),
+            sim.motion_addr().port(),
+            sim.feedback_addr().port(),
+        ),
+        (ArmBackend::Simulated { .. }, None) => {
+            return Err(RigError::Sim(std::io::Error::other("the simulated MG400 is not running")));
+        }
+        (ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port }, _) => {
+            Mg400Config::new(host.clone(), profile).with_ports(*dashboard_port, *motion_port, *feedback_port)
+        }
+        (ArmBackend::Magician { serial_port }, _) => {
+            let magician_profile = MagicianProfile::named(config.arm.profile.as_deref())?;
+            return Ok(RigArm::Magician(MagicianArm::open(serial_port, magician_profile, Arc::clone(clock))?));
+        }
+    };
+    let mut arm_cfg = arm_cfg;
+    arm_cfg.speed_factor_pct = config.arm.speed_factor;
+    Ok(RigArm::Mg400(match recorder {
+        Some(recorder) => crate::record::connect_recorded(arm_cfg, Arc::clone(clock), recorder).await?,
+        None => Mg400Client::connect(arm_cfg, Arc::clone(clock)).await?,
+    }))
+}
+
+/// Opens the camera of sensor `kind` as `config` says (simulated, V4L2 or nokhwa); a simulated
+/// one renders `object` as the simulated arm `sim` presses it.
+fn open_camera(
+    config: &RigConfig,
+    kind: SensorKind,
+    object: &ObjectChoice,
+    seed: u64,
+    sim: Option<&SimMg400>,
+    clock: &Arc<dyn Clock>,
+) -> Result<RigCamera, RigError> {
+    let sensor_cfg = config.sensors.iter().find(|s| s.name == kind.to_string());
+    let backend = sensor_cfg.map(|s| s.backend.clone()).unwrap_or(SensorBackend::Simulated);
+    match backend {
+        SensorBackend::Simulated => {
+            let Some(sim) = sim else {
+                return Err(RigError::SimulatedSensorOnRealArm { name: kind.to_string() });
+            };
+            let (width, height) = sim_size(sensor_cfg);
+            let scene_name = sensor_cfg.map(|s| s.scene.clone()).unwrap_or_else(|| "full".into());
+            let (calib, calib_name) = sim_calibration(kind, sensor_cfg, width, height)?;
+            let scene = Scene::preset(&scene_name)
+                .map_err(|e| RigError::BackendUnavailable { name: kind.to_string(), backend: format!("sim scene {scene_name:?}: {e}") })?;
+            let px_per_mm = calib.scale_px_per_mm[0] as f32;
+            let mut renderer = SensorSim::new(kind, scene, width, height, px_per_mm, seed ^ sensor_salt(kind));
+            if let Some(unit) = config.sensor_unit_seed {
+                renderer = renderer.with_unit_seed(unit ^ sensor_salt(kind));
+            }
+            let depth_source = sim_depth_source(object, calib.clone(), width, height);
+            let camera = SimCamera::new(
+                kind.to_string(),
+                renderer,
+                depth_source,
+                config.work_frame,
+                sim.truth(),
+                Arc::clone(clock),
+                1.0 / f64::from(SIM_FPS),
+            )
+            .with_stale_buffer(config.sim_stale_buffer_frames);
+            Ok(RigCamera::Simulated {
+                kind,
+                camera,
+                calibration: calib_name,
+                timeouts: InjectedTimeouts::from_faults(&config.faults),
+                resolution_px: [width, height],
+            })
+        }
+        SensorBackend::V4l2 { ref device } | SensorBackend::Nokhwa { ref device } => {
+            let is_v4l2 = matches!(backend, SensorBackend::V4l2 { .. });
+            let Some(sensor_cfg) = sensor_cfg else {
+                return Err(RigError::BackendUnavailable {
+                    name: kind.to_string(),
+                    backend: "hardware camera without a [sensors] entry".into(),
+                });
+            };
+            let camera_err = |e: CameraError| RigError::Camera { name: kind.to_string(), source: e };
+            let selector = DeviceSelector::parse(device)
+                .map_err(|e| RigError::BackendUnavailable { name: kind.to_string(), backend: e.to_string() })?;
+            let calibration = sensor_cfg.calibration.as_ref().map_or_else(|| "none".to_string(), |p| p.display().to_string());
+            let name = kind.to_string();
+            let settings = sensor_cfg.camera.clone();
+            if is_v4l2 {
+                let camera = V4l2Camera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(clock)).map_err(camera_err)?;
+                Ok(RigCamera::V4l2 { kind, camera, calibration, device: device.clone(), settings })
+            } else {
+                let camera = NokhwaCamera::open(&name, &selector, &sensor_cfg.camera, Arc::clone(clock)).map_err(camera_err)?;
+                Ok(RigCamera::Nokhwa { kind, camera, calibration, device: device.clone(), settings })
+            }
+        }
+    }
+}
+
 /// The configured Modbus peripherals, connected, with the simulated ones started first (on
 /// loopback; the client then speaks Modbus TCP to them like to a real device).
 async fn open_peripherals(config: &RigConfig, sim: Option<&SimMg400>) -> Result<(ModbusBench, Vec<SimModbusServer>), RigError> {
+    let (configs, servers) = start_sim_peripherals(config, sim).await?;
+    Ok((ModbusBench::connect(&configs).await?, servers))
+}
+
+/// Starts the simulated Modbus devices (`transport = "sim"`) and returns every peripheral's
+/// configuration, the simulated ones pointed at their servers.
+async fn start_sim_peripherals(
+    config: &RigConfig,
+    sim: Option<&SimMg400>,
+) -> Result<(std::collections::BTreeMap<String, ModbusPeripheralConfig>, Vec<SimModbusServer>), RigError> {
     let mut configs = std::collections::BTreeMap::new();
     let mut servers = Vec::new();
     for (name, peripheral) in &config.modbus {
@@ -506,7 +554,7 @@ async fn open_peripherals(config: &RigConfig, sim: Option<&SimMg400>) -> Result<
         }
         configs.insert(name.clone(), peripheral);
     }
-    Ok((ModbusBench::connect(&configs).await?, servers))
+    Ok((configs, servers))
 }
 
 /// Image size of a simulated sensor (512 x 512 unless configured).
@@ -564,5 +612,207 @@ fn sensor_salt(kind: SensorKind) -> u64 {
         SensorKind::TacTip => 0x7AC7_1900,
         SensorKind::ViTac => 0x5EE7_4400,
         SensorKind::ViTacTip => 0xB07B_0000,
+    }
+}
+
+/// What a pre-flight found on one device.
+#[derive(Debug)]
+pub enum DeviceOutcome {
+    /// It answered; what it said.
+    Ready(String),
+    /// An optional Modbus peripheral that did not answer: the run goes on without its values.
+    Optional(ModbusError),
+    /// It could not be opened or did not answer.
+    Failed(RigError),
+}
+
+/// One device a pre-flight opened.
+#[derive(Debug)]
+pub struct DeviceCheck {
+    /// The device as the configuration names it (`arm: MG400 at 192.168.1.6:29999 (profile
+    /// mg400-v1.6)`, `camera tactip: v4l2 port:1-2.1`, `modbus force (tcp ... required)`).
+    pub device: String,
+    pub outcome: DeviceOutcome,
+}
+
+/// What [`preflight`] found, device by device, in the order it opened them.
+#[derive(Debug)]
+pub struct Preflight {
+    pub checks: Vec<DeviceCheck>,
+}
+
+/// Devices a pre-flight could not open or that did not answer (each named), with the exit
+/// code of the worst: 3 when any is a hardware fault.
+#[derive(Debug, thiserror::Error)]
+#[error("pre-flight: {} failed: {}", failed_count(.failed.len()), .failed.iter().map(|(d, e)| format!("{d}: {e}")).collect::<Vec<_>>().join("; "))]
+pub struct PreflightError {
+    pub failed: Vec<(String, RigError)>,
+}
+
+fn failed_count(n: usize) -> String {
+    if n == 1 { "1 device".to_string() } else { format!("{n} devices") }
+}
+
+impl Preflight {
+    /// One line per device: `  ok      arm: ...: mode 4 (Disabled), ...`, `  FAILED  camera
+    /// tactip: ...: <why>`, `  warning modbus light (...): <why>`.
+    pub fn lines(&self) -> Vec<String> {
+        self.checks
+            .iter()
+            .map(|c| match &c.outcome {
+                DeviceOutcome::Ready(what) => format!("  ok      {}: {what}", c.device),
+                DeviceOutcome::Optional(e) => format!("  warning {}: {e} (optional: the run goes on without its values)", c.device),
+                DeviceOutcome::Failed(e) => format!("  FAILED  {}: {e}", c.device),
+            })
+            .collect()
+    }
+
+    /// `Err` naming every device that failed.
+    pub fn result(self) -> Result<(), PreflightError> {
+        let failed: Vec<(String, RigError)> = self
+            .checks
+            .into_iter()
+            .filter_map(|c| match c.outcome {
+                DeviceOutcome::Failed(e) => Some((c.device, e)),
+                DeviceOutcome::Ready(_) | DeviceOutcome::Optional(_) => None,
+            })
+            .collect();
+        if failed.is_empty() { Ok(()) } else { Err(PreflightError { failed }) }
+    }
+}
+
+impl RigArm {
+    /// What a pre-flight reads from the arm: robot mode (MG400), active alarms and pose. Sends
+    /// no enable, no clear and no motion: nothing moves.
+    pub async fn status(&mut self) -> Result<String, ArmError> {
+        let (mode, alarms) = match self {
+            RigArm::Mg400(a) => {
+                let mode = a.robot_mode().await?;
+                (Some(mode), a.read_alarms().await?)
+            }
+            RigArm::Magician(a) => (None, a.alarms().await?),
+        };
+        let pose = self.pose().await?;
+        let alarms = if alarms.is_empty() {
+            "no alarms".to_string()
+        } else {
+            let list: Vec<String> = alarms.iter().map(|a| format!("{} ({})", a.id, a.description)).collect();
+            format!("active alarms {} (a run clears them when it enables the arm)", list.join(", "))
+        };
+        Ok(match mode {
+            Some(mode) => format!("mode {} ({mode:?}), {alarms}, at {pose}", mode.code()),
+            None => format!("{alarms}, at {pose}"),
+        })
+    }
+}
+
+/// The arm as a pre-flight names it.
+fn arm_label(config: &RigConfig) -> String {
+    let profile = config.arm.profile.as_deref().map_or_else(|| FirmwareProfile::default_mg400().name, str::to_string);
+    match &config.arm.backend {
+        ArmBackend::Simulated { .. } => format!("arm: simulated MG400 on loopback (profile {profile})"),
+        ArmBackend::Mg400 { host, dashboard_port, .. } => format!("arm: MG400 at {host}:{dashboard_port} (profile {profile})"),
+        ArmBackend::Magician { serial_port } => format!("arm: Magician on {}", serial_port.display()),
+    }
+}
+
+/// The camera of `kind` as a pre-flight names it.
+fn camera_label(config: &RigConfig, kind: SensorKind) -> String {
+    match config.sensors.iter().find(|s| s.name == kind.name()).map(|s| &s.backend) {
+        None | Some(SensorBackend::Simulated) => format!("camera {kind}: simulated"),
+        Some(SensorBackend::V4l2 { device }) => format!("camera {kind}: v4l2 {device}"),
+        Some(SensorBackend::Nokhwa { device }) => format!("camera {kind}: nokhwa {device}"),
+    }
+}
+
+/// Opens every device a run of `sensors` would open, without moving anything: connects to the
+/// arm and reads its mode, alarms and pose (never enables it); opens each sensor's camera at
+/// its configured format and takes one frame; connects each Modbus peripheral and makes one
+/// read (never a write). Every device is tried, whatever the others did, so the report names
+/// all that fail. On the simulated rig the simulated MG400 is started for it and its counters
+/// are read at the end: a pre-flight that had sent it an enable or a motion command fails.
+pub async fn preflight(config: &RigConfig, object: &ObjectChoice, sensors: &SensorSet, seed: u64, clock: Arc<dyn Clock>) -> Preflight {
+    let mut checks = Vec::new();
+    let (sim, arm) = match start_sim(config, &clock).await {
+        Ok(sim) => {
+            let arm = connect_arm(config, sim.as_ref(), &clock, None).await;
+            (sim, arm)
+        }
+        Err(e) => (None, Err(e)),
+    };
+    let mut arm = match arm {
+        Ok(mut arm) => {
+            let outcome = match arm.status().await {
+                Ok(status) => DeviceOutcome::Ready(status),
+                Err(e) => DeviceOutcome::Failed(e.into()),
+            };
+            checks.push(DeviceCheck { device: arm_label(config), outcome });
+            Some(arm)
+        }
+        Err(e) => {
+            checks.push(DeviceCheck { device: arm_label(config), outcome: DeviceOutcome::Failed(e) });
+            None
+        }
+    };
+    for &kind in &sensors.0 {
+        let outcome = match open_camera(config, kind, object, seed, sim.as_ref(), &clock) {
+            Ok(mut camera) => match camera.frame_after(clock.now_s()).await {
+                Ok(frame) => DeviceOutcome::Ready(frame_line(&camera, &frame)),
+                Err(e) => DeviceOutcome::Failed(RigError::Camera { name: kind.to_string(), source: e }),
+            },
+            Err(e) => DeviceOutcome::Failed(e),
+        };
+        checks.push(DeviceCheck { device: camera_label(config, kind), outcome });
+    }
+    let mut servers = Vec::new();
+    match start_sim_peripherals(config, sim.as_ref()).await {
+        Ok((configs, started)) => {
+            servers = started;
+            for (name, peripheral) in configs {
+                let device = format!("modbus {}", config.modbus.get(&name).map_or_else(|| peripheral.describe(), |p| p.describe()));
+                let required = peripheral.required;
+                let probed = match ModbusPeripheral::connect(peripheral).await {
+                    Ok(mut p) => p.probe().await,
+                    Err(e) => Err(e),
+                };
+                let outcome = match probed {
+                    Ok(read) => DeviceOutcome::Ready(read),
+                    Err(e) if !required => DeviceOutcome::Optional(e),
+                    Err(e) => DeviceOutcome::Failed(e.into()),
+                };
+                checks.push(DeviceCheck { device, outcome });
+            }
+        }
+        Err(e) => checks.push(DeviceCheck { device: "modbus".to_string(), outcome: DeviceOutcome::Failed(e) }),
+    }
+    // Close the client before the simulator goes away, then read what the simulator received.
+    drop(arm.take());
+    for server in servers {
+        server.shutdown();
+    }
+    if let Some(sim) = sim {
+        let stats = sim.stats();
+        let outcome = if stats.enable_requests == 0 && stats.motion_requests == 0 {
+            DeviceOutcome::Ready("received no enable and no motion command".to_string())
+        } else {
+            DeviceOutcome::Failed(RigError::Moved { enable_requests: stats.enable_requests, motion_requests: stats.motion_requests })
+        };
+        checks.push(DeviceCheck { device: "simulated MG400 controller".to_string(), outcome });
+        sim.shutdown().await;
+    }
+    Preflight { checks }
+}
+
+/// `one 512x512 frame` and, for a hardware camera, the format it streams.
+fn frame_line(camera: &RigCamera, frame: &Frame) -> String {
+    let size = format!("one {}x{} frame", frame.image.width(), frame.image.height());
+    match camera {
+        RigCamera::Simulated { .. } => size,
+        RigCamera::V4l2 { camera, .. } => {
+            let f = camera.format();
+            let fourcc = String::from_utf8_lossy(&f.format.fourcc()).into_owned();
+            format!("{size}, streaming {fourcc} {}x{} at {} fps from {}", f.width, f.height, f.fps, camera.path().display())
+        }
+        RigCamera::Nokhwa { settings, .. } => format!("{size}, asked {}x{} at {} fps", settings.width, settings.height, settings.fps),
     }
 }

@@ -68,6 +68,21 @@ impl SensorKind {
         Self::ALL.into_iter().find(|k| k.label() == label)
     }
 
+    /// The deepest rig presses this sensor's skin unless the rig configuration says otherwise
+    /// (`[sensors.<name>] max_indentation_mm`), mm of indentation into the object's top.
+    ///
+    /// Conservative on purpose: each is the deepest press published for that skin, never more.
+    /// TacTip: the Bristol lab's TacTip collection scripts (`tactile_gym_servo_control`) press
+    /// edges 2-3.5 mm and surfaces 0.5-5.5 mm deep; 5 mm stays inside that. ViTac and
+    /// ViTacTip: their transparent skins have no published press range beyond MultiDiffSense's
+    /// data, pressed at 1.5 mm contact depth plus at most 1 mm: 2.5 mm.
+    pub fn default_max_indentation_mm(&self) -> f64 {
+        match self {
+            SensorKind::TacTip => 5.0,
+            SensorKind::ViTac | SensorKind::ViTacTip => 2.5,
+        }
+    }
+
     /// MultiDiffSense's `sensor_context` sentence for this sensor (its `prompt_creation.py`).
     pub fn prompt_context(&self) -> &'static str {
         match self {

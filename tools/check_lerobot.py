@@ -4,18 +4,22 @@
     python3 tools/check_lerobot.py OUT [--datasets DIR] [--lerobot]
 
 Always (needs pyarrow and Pillow):
+- every data and episodes file is at most data_files_size_in_mb x 10^6 bytes, and each data file
+  is read whole with pyarrow's read_table, one file at a time (its images are dropped before the
+  next file is read);
 - meta/info.json: codebase_version v3.0, counts, features; every data file's columns are exactly
   the features, with the arrow types LeRobot's loader casts to (fixed-size float32 lists for
   vectors, struct<bytes, path> for images, string, bool, int64, float32);
 - row counts: the data files hold total_frames rows, `index` runs 0..N-1, each episode's rows
-  are dataset_from_index..dataset_to_index with frame_index 0..length-1;
+  are dataset_from_index..dataset_to_index with frame_index 0..length-1, all in the data file
+  the episode names;
 - every image decodes (Pillow) to the feature's height x width x 3;
 - meta/tasks.parquet maps task_index to the task text (its pandas index), meta/stats.json has
   every numeric and image feature.
 
 --datasets DIR: also compares every frame with the rig datasets it was exported from (pose_id,
-commanded pose = action, measured pose = observation.state where measured, source, and the image
-bytes or decoded pixels).
+commanded pose = action, measured pose = observation.state where measured, source, and the
+decoded pixels), taking each episode's object from meta/episodes' rig/object.
 
 --lerobot: also loads OUT with the `lerobot` package's LeRobotDataset from the local folder
 (HF_HUB_OFFLINE=1: no hub access) and iterates every frame, checking its pose, pose_id, task
@@ -54,7 +58,49 @@ def expected_type(pa, ft):
     fail(f"feature shape {shape} is not one rig writes")
 
 
-def check_arrow(out):
+def hist_stats(hist):
+    """min, max, mean, std and the quantiles of the values a 256-bin histogram counts, on [0, 1]
+    (numpy's linear quantile method, taken on the counts rather than on the sorted pixels)."""
+    import numpy as np
+
+    n = int(hist.sum())
+    values = np.arange(256, dtype=np.float64)
+    mean = float((values * hist).sum() / n)
+    std = float(np.sqrt(((values - mean) ** 2 * hist).sum() / n))
+    nonzero = np.nonzero(hist)[0]
+    cum = np.cumsum(hist)
+
+    def rank(k):
+        return float(np.searchsorted(cum, k, side="right"))
+
+    out = {"min": float(nonzero[0]), "max": float(nonzero[-1]), "mean": mean, "std": std}
+    for q in (1, 10, 50, 90, 99):
+        pos = q / 100 * (n - 1)
+        lo = int(np.floor(pos))
+        hi = min(lo + 1, n - 1)
+        out[f"q{q:02d}"] = rank(lo) + (rank(hi) - rank(lo)) * (pos - lo)
+    return {k: v / 255.0 for k, v in out.items()}
+
+
+def check_file_sizes(out, info, pattern, what):
+    bound = info["data_files_size_in_mb"] * 1_000_000
+    files = sorted(out.glob(pattern))
+    if not files:
+        fail(f"no {pattern}")
+    for f in files:
+        size = f.stat().st_size
+        if size > bound:
+            fail(f"{f}: {size} bytes, over data_files_size_in_mb {info['data_files_size_in_mb']} (x 10^6 bytes)")
+    largest = max(f.stat().st_size for f in files)
+    ok(f"{len(files)} {what} file(s), each at most {info['data_files_size_in_mb']} MB (largest {largest / 1e6:.2f} MB)")
+    return files
+
+
+def check_arrow(out, datasets=None):
+    """Reads each data file whole (pyarrow read_table), one at a time: its images are decoded,
+    counted into per-channel histograms and, with `datasets`, compared with the rig datasets'
+    rows, then dropped. Returns info and the frames without their images."""
+    import numpy as np
     import pyarrow as pa
     import pyarrow.parquet as pq
     from PIL import Image
@@ -63,12 +109,19 @@ def check_arrow(out):
     if info["codebase_version"] != "v3.0":
         fail(f"codebase_version {info['codebase_version']}")
     features = info["features"]
-    data_files = sorted((out / "data").glob("*/*.parquet"))
-    if not data_files:
-        fail("no data/*/*.parquet")
-    tables = []
+    image_keys = [k for k, ft in features.items() if ft["dtype"] == "image"]
+    data_files = check_file_sizes(out, info, "data/*/*.parquet", "data")
+    check_file_sizes(out, info, "meta/episodes/*/*.parquet", "episodes")
+    sources = load_datasets(datasets) if datasets else None
+    episodes = pa.concat_tables([pq.read_table(f) for f in sorted((out / "meta/episodes").glob("*/*.parquet"))]).to_pylist()
+    object_of = {ep["episode_index"]: ep["rig/object"] for ep in episodes}
+    slim = []
+    file_of_index = {}
+    hists = {k: np.zeros((3, 256), dtype=np.int64) for k in image_keys}
+    decoded = 0
+    compared = 0
     for f in data_files:
-        t = pq.read_table(f)
+        t = pq.read_table(f)  # the whole file at once
         names = set(t.schema.names)
         if names != set(features):
             fail(f"{f}: columns {sorted(names)} but features {sorted(features)}")
@@ -77,16 +130,38 @@ def check_arrow(out):
             got = t.schema.field(key).type
             if got != want:
                 fail(f"{f}: column {key} is {got}, LeRobot's loader wants {want}")
-        tables.append(t)
-    ok(f"{len(data_files)} data files, columns and types match the {len(features)} features")
-    table = pa.concat_tables(tables)
+        rel = str(f.relative_to(out))
+        for i in t.column("index").to_pylist():
+            file_of_index[i] = rel
+        for key in image_keys:
+            h, w, c = features[key]["shape"]
+            for cell in t.column(key).to_pylist():
+                img = Image.open(io.BytesIO(cell["bytes"]))
+                img.load()
+                if img.size != (w, h) or len(img.getbands()) != c:
+                    fail(f"{key}: an image is {img.size} {img.mode}, the feature says {w}x{h}x{c}")
+                pixels = np.asarray(img.convert("RGB")).reshape(-1, 3)
+                for ch in range(3):
+                    hists[key][ch] += np.bincount(pixels[:, ch], minlength=256)
+                decoded += 1
+        if sources is not None:
+            compared += check_against_datasets(t, info, sources, object_of)
+        slim.append(t.drop_columns(image_keys))
+    ok(f"{len(data_files)} data files read whole, columns and types match the {len(features)} features")
+    ok(f"{decoded} images decode to their features' shapes")
+    if sources is not None:
+        total = sum(len(rows) for per_sensor in sources.values() for _, rows in per_sensor.values())
+        if compared != total:
+            fail(f"compared {compared} sensor frames but the datasets hold {total} rows")
+        ok(f"every one of the {compared} sensor frames equals its dataset row (pose, source, pixels)")
+
+    table = pa.concat_tables(slim)
     n = table.num_rows
     if n != info["total_frames"]:
         fail(f"{n} rows but total_frames {info['total_frames']}")
     index = table.column("index").to_pylist()
     if index != list(range(n)):
         fail("index is not 0..N-1 in file order")
-    episodes = pq.read_table(sorted((out / "meta/episodes").glob("*/*.parquet"))).to_pylist()
     if len(episodes) != info["total_episodes"]:
         fail(f"{len(episodes)} episode rows but total_episodes {info['total_episodes']}")
     ep_col = table.column("episode_index").to_pylist()
@@ -95,9 +170,15 @@ def check_arrow(out):
         a, b = ep["dataset_from_index"], ep["dataset_to_index"]
         if b - a != ep["length"] or ep_col[a:b] != [ep["episode_index"]] * ep["length"] or fi_col[a:b] != list(range(ep["length"])):
             fail(f"episode {ep['episode_index']}: rows {a}..{b} do not hold it frame by frame")
+        named = info["data_path"].format(chunk_index=ep["data/chunk_index"], file_index=ep["data/file_index"])
+        if {file_of_index[i] for i in range(a, b)} != {named}:
+            fail(f"episode {ep['episode_index']}: its rows are not all in {named}, the data file it names")
+        for key in image_keys:
+            if ep[f"stats/{key}/count"] != [ep["length"]]:
+                fail(f"episode {ep['episode_index']}: stats/{key}/count {ep[f'stats/{key}/count']}, length {ep['length']}")
     if sum(ep["length"] for ep in episodes) != n:
         fail("episode lengths do not add up to the rows")
-    ok(f"{n} rows, {len(episodes)} episodes, index and frame ranges consistent")
+    ok(f"{n} rows, {len(episodes)} episodes, index and frame ranges consistent, each episode whole in the data file it names")
     tasks = pq.read_table(out / "meta/tasks.parquet")
     meta = json.loads(tasks.schema.metadata[b"pandas"])
     if meta["index_columns"] != ["task"]:
@@ -109,22 +190,6 @@ def check_arrow(out):
         if ep["tasks"] != [task_of[table.column("task_index")[ep["dataset_from_index"]].as_py()]]:
             fail(f"episode {ep['episode_index']} tasks {ep['tasks']}")
     ok(f"{len(task_of)} tasks: {list(task_of.values())}")
-    import numpy as np
-
-    decoded = 0
-    pixels = {}
-    for key, ft in features.items():
-        if ft["dtype"] != "image":
-            continue
-        h, w, c = ft["shape"]
-        for cell in table.column(key).to_pylist():
-            img = Image.open(io.BytesIO(cell["bytes"]))
-            img.load()
-            if img.size != (w, h) or len(img.getbands()) != c:
-                fail(f"{key}: an image is {img.size} {img.mode}, the feature says {w}x{h}x{c}")
-            pixels.setdefault(key, []).append(np.asarray(img.convert("RGB")))
-            decoded += 1
-    ok(f"{decoded} images decode to their features' shapes")
     stats = json.loads((out / "meta/stats.json").read_text())
     for key, ft in features.items():
         if ft["dtype"] in ("string", "bool"):
@@ -136,14 +201,15 @@ def check_arrow(out):
         if ft["dtype"] in ("string", "bool"):
             continue
         if ft["dtype"] == "image":
-            values = np.stack(pixels[key]).reshape(-1, 3).astype(np.float64) / 255.0
+            per_channel = [hist_stats(hists[key][ch]) for ch in range(3)]
+            want = {stat: np.asarray([c[stat] for c in per_channel]) for stat in per_channel[0]}
             shape = (3, 1, 1)
         else:
             values = np.asarray(table.column(key).to_pylist(), dtype=np.float64).reshape(n, -1)
             shape = (values.shape[1],)
-        want = {"min": values.min(axis=0), "max": values.max(axis=0), "mean": values.mean(axis=0), "std": values.std(axis=0)}
-        for q in (1, 10, 50, 90, 99):
-            want[f"q{q:02d}"] = np.quantile(values, q / 100, axis=0)
+            want = {"min": values.min(axis=0), "max": values.max(axis=0), "mean": values.mean(axis=0), "std": values.std(axis=0)}
+            for q in (1, 10, 50, 90, 99):
+                want[f"q{q:02d}"] = np.quantile(values, q / 100, axis=0)
         for stat, w in want.items():
             got = np.asarray(stats[key][stat], dtype=np.float64)
             if got.shape != shape or not np.allclose(got.reshape(-1), w, rtol=0, atol=1e-9):
@@ -152,23 +218,29 @@ def check_arrow(out):
     return info, table
 
 
-def check_against_datasets(table, info, datasets):
-    import numpy as np
-    from PIL import Image
-
-    sensors = [k.removeprefix("observation.images.") for k, ft in info["features"].items() if ft["dtype"] == "image"]
-    rows = table.to_pylist()
+def load_datasets(datasets):
+    """object -> sensor -> (dataset folder, pose_id -> poses.csv row)."""
     by_object = {}
     for manifest in sorted(datasets.rglob("manifest.toml")):
         d = manifest.parent
         with open(d / "poses.csv", newline="") as f:
-            by_object.setdefault(d.parent.name, {})[d.name] = {int(r["pose_id"]): (d, r) for r in csv.DictReader(f)}
-    episodes = sorted(by_object)
+            by_object.setdefault(d.parent.name, {})[d.name] = (d, {int(r["pose_id"]): r for r in csv.DictReader(f)})
+    return by_object
+
+
+def check_against_datasets(table, info, by_object, object_of):
+    """Compares the rows of one data file with the rig datasets (`object_of`: episode_index ->
+    the episode's object, meta/episodes' rig/object); returns the sensor frames compared."""
+    import numpy as np
+    from PIL import Image
+
+    sensors = [k.removeprefix("observation.images.") for k, ft in info["features"].items() if ft["dtype"] == "image"]
     checked = 0
-    for r in rows:
-        obj = episodes[r["episode_index"]]
+    for r in table.to_pylist():
+        obj = object_of[r["episode_index"]]
         for s in sensors:
-            d, src = by_object[obj][s][r["pose_id"]]
+            d, rows = by_object[obj][s]
+            src = rows[r["pose_id"]]
             cmd = [float(src[k]) for k in ("x_mm", "y_mm", "z_mm", "yaw_deg")]
             if not np.allclose(r["action"], np.float32(cmd), rtol=0, atol=0):
                 fail(f"{obj} pose {r['pose_id']}: action {r['action']} but commanded {cmd}")
@@ -183,10 +255,7 @@ def check_against_datasets(table, info, datasets):
             if not np.array_equal(ours, theirs):
                 fail(f"{obj} pose {r['pose_id']} {s}: pixels differ from {d / src['image']}")
             checked += 1
-    total = sum(len(p) for o in by_object.values() for p in o.values())
-    if checked != total:
-        fail(f"compared {checked} sensor frames but the datasets hold {total} rows")
-    ok(f"every one of the {checked} sensor frames equals its dataset row (pose, source, pixels)")
+    return checked
 
 
 def check_lerobot(out, table, info):
@@ -223,9 +292,7 @@ def main():
     p.add_argument("--datasets", type=Path, help="the rig datasets the export was made from")
     p.add_argument("--lerobot", action="store_true", help="also load it with lerobot's LeRobotDataset")
     a = p.parse_args()
-    info, table = check_arrow(a.out)
-    if a.datasets:
-        check_against_datasets(table, info, a.datasets)
+    info, table = check_arrow(a.out, a.datasets)
     if a.lerobot:
         check_lerobot(a.out, table, info)
 

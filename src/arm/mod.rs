@@ -118,3 +118,47 @@ pub trait Arm: Send {
         async { None }
     }
 }
+
+/// Arms for the unit tests of the jobs above this module.
+#[cfg(test)]
+pub(crate) mod fake {
+    use super::{Alarm, Arm, ArmError, Arrival, MoveKind};
+    use crate::pose::Pose;
+    use std::time::Duration;
+
+    /// An arm that is wherever it is sent, at once, and counts the enables and moves it was
+    /// asked for.
+    #[derive(Debug, Default)]
+    pub(crate) struct CountingArm {
+        pub enables: usize,
+        pub moves: usize,
+        pub at: Pose,
+    }
+
+    impl Arm for CountingArm {
+        async fn enable(&mut self) -> Result<(), ArmError> {
+            self.enables += 1;
+            Ok(())
+        }
+        async fn move_to(&mut self, target: Pose, _kind: MoveKind) -> Result<(), ArmError> {
+            self.moves += 1;
+            self.at = target;
+            Ok(())
+        }
+        async fn wait_arrived(&mut self, target: Pose, _timeout: Duration) -> Result<Arrival, ArmError> {
+            Ok(Arrival { measured: target, error_mm: 0.0, t_s: 0.0 })
+        }
+        async fn pose(&mut self) -> Result<Pose, ArmError> {
+            Ok(self.at)
+        }
+        async fn stop(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+        async fn clear_error(&mut self) -> Result<Vec<Alarm>, ArmError> {
+            Ok(Vec::new())
+        }
+        async fn disable(&mut self) -> Result<(), ArmError> {
+            Ok(())
+        }
+    }
+}

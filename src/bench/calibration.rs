@@ -123,6 +123,7 @@ pub async fn run_once(config: &BenchConfig, pattern: &PressPattern, work_dir: &P
         width: px,
         height: px,
         camera: CameraSettings { width: px, height: px, ..CameraSettings::default() },
+        max_indentation_mm: None,
     }];
     let profile = crate::rigs::profile_for(&rig_config)?;
     let modelled = modelled_arm_s(&profile, &rig_config.work_frame, pattern, rig_config.collect.settle_s);

@@ -107,6 +107,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         width: px,
         height: px,
         camera: CameraSettings { width: px, height: px, ..CameraSettings::default() },
+        max_indentation_mm: None,
     }];
     let distinct = poses(config.collect_poses.max(1));
     let plan: Vec<PlannedPose> = distinct
@@ -137,6 +138,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         disk_budget_bytes: None,
         arm: crate::jobs::collect::arm_part(&rig_config, &profile),
         modbus: Vec::new(),
+        fence: crate::fence::Fence::for_run(profile.clone(), &rig_config, &[kind], crate::fence::PoseSource::Plan),
     };
     let capture = camera.capture_part();
     let feeds = vec![SensorFeed { camera, sensor: kind, calibration: "default".into(), capture }];

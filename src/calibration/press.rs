@@ -5,7 +5,9 @@
 //! camera saw. [`ArmStation`] implements it over the [`Arm`] and [`Camera`] seams with the
 //! steps the collection job is built of ([`move_and_wait`], [`capture_settled`]): move above,
 //! descend, wait for arrival, settle, capture, retract. So the same run calibrates the
-//! simulated rig and a real bench.
+//! simulated rig and a real bench. Before the reference frame, the run hands the whole pattern
+//! to [`PressStation::check_pattern`]: [`ArmStation`] passes it through its [`Fence`] (the
+//! workspace, the sensor's press limit) and presses only offsets of a pattern that passed.
 //!
 //! Each detected press gives one [`FitPoint`]: the indenter's position in the sensor frame
 //! (the negated measured work-frame offset turned by the yaw, the render convention of
@@ -27,6 +29,7 @@ use super::fit::{FitError, FitOptions, PointFit, fit_points};
 use crate::arm::{Arm, ArmError, MoveKind, move_and_wait};
 use crate::camera::{Camera, CameraError, capture_settled};
 use crate::config::CollectConfig;
+use crate::fence::{Fence, FenceError};
 use crate::geometry::stl::Mesh;
 use crate::pose::{Pose, WorkFrame};
 
@@ -55,6 +58,13 @@ pub enum PressError {
     Fit(#[from] FitError),
     #[error("cancelled after {done} of {total} presses (the arm retracted; no calibration fitted)")]
     Cancelled { done: usize, total: usize },
+    /// A press outside the workspace or past the press limit, refused before anything moved.
+    #[error(transparent)]
+    Fence(#[from] FenceError),
+    /// A press asked for at an offset of no pattern that passed the fence (a caller that
+    /// skipped [`PressStation::check_pattern`]).
+    #[error("press at {offset} refused: it is not in a press pattern checked against the workspace and the press limit")]
+    Unchecked { offset: Pose },
 }
 
 /// Offsets (work frame, `z_mm` = extra indentation) the run presses at.
@@ -152,6 +162,9 @@ pub fn sensor_point_mm(offset: &Pose) -> [f64; 2] {
 
 /// What a calibration run needs from the rig.
 pub trait PressStation {
+    /// Refuses `pattern` when a press of it lies outside the workspace or past the press
+    /// limit; called before anything moves (a press whose pattern did not pass is refused).
+    fn check_pattern(&mut self, pattern: &PressPattern) -> Result<(), PressError>;
     /// Takes the no-contact reference frame.
     fn take_reference(&mut self) -> impl Future<Output = Result<(), PressError>>;
     /// Presses at `offset` and detects the contact.
@@ -169,15 +182,31 @@ pub struct ArmStation<'a, A: Arm, C: Camera> {
     pub detector: ContactDetector,
     /// The no-contact frame, once [`PressStation::take_reference`] has run.
     pub reference: Option<RgbImage>,
+    /// The workspace and the press limit of the sensor being calibrated.
+    fence: Fence,
+    /// The offsets of the last pattern that passed the fence: the only ones pressed.
+    checked: Vec<Pose>,
 }
 
-impl<A: Arm, C: Camera> ArmStation<'_, A, C> {
+impl<'a, A: Arm, C: Camera> ArmStation<'a, A, C> {
+    /// A station that presses within `fence` (no pattern checked yet).
+    pub fn new(arm: &'a mut A, camera: C, work_frame: WorkFrame, options: CollectConfig, detector: ContactDetector, fence: Fence) -> Self {
+        Self { arm, camera, work_frame, options, detector, reference: None, fence, checked: Vec::new() }
+    }
+
     fn timeout(&self) -> Duration {
         Duration::from_secs_f64(self.options.move_timeout_s)
     }
 }
 
 impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
+    fn check_pattern(&mut self, pattern: &PressPattern) -> Result<(), PressError> {
+        self.checked.clear();
+        self.fence.check_offsets(&self.work_frame, &pattern.offsets)?;
+        self.checked = pattern.offsets.clone();
+        Ok(())
+    }
+
     async fn take_reference(&mut self) -> Result<(), PressError> {
         self.arm.enable().await?;
         let above = self.work_frame.approach_pose(&Pose::default());
@@ -189,6 +218,12 @@ impl<A: Arm, C: Camera> PressStation for ArmStation<'_, A, C> {
     }
 
     async fn press(&mut self, offset: Pose) -> Result<Press, PressError> {
+        // Only an offset of the checked pattern, checked again in the work frame it is pressed
+        // in: nothing reaches the arm around the fence.
+        let Some(k) = self.checked.iter().position(|o| *o == offset) else {
+            return Err(PressError::Unchecked { offset });
+        };
+        self.fence.check_one(&self.work_frame, u32::try_from(k).unwrap_or(u32::MAX), &offset)?;
         let timeout = self.timeout();
         let above = self.work_frame.approach_pose(&offset);
         let contact_pose = self.work_frame.contact_pose(&offset);
@@ -219,14 +254,15 @@ pub struct PatternRun {
     pub fit: PointFit,
 }
 
-/// Takes the reference, presses every offset of `pattern`, fits. `on_press` sees each press
-/// as it happens (progress output).
+/// Checks `pattern` ([`PressStation::check_pattern`]), takes the reference, presses every
+/// offset, fits. `on_press` sees each press as it happens (progress output).
 pub async fn run_pattern<S: PressStation>(
     station: &mut S,
     pattern: &PressPattern,
     fit_options: &FitOptions,
     mut on_press: impl FnMut(usize, &Press) -> ControlFlow<()>,
 ) -> Result<PatternRun, PressError> {
+    station.check_pattern(pattern)?;
     station.take_reference().await?;
     let total = pattern.offsets.len();
     let mut presses = Vec::with_capacity(total);
@@ -262,6 +298,44 @@ mod tests {
         assert_eq!(other.offsets.len(), 25 + 9);
         assert_eq!(other.extra_depths_mm(), vec![1.0]);
         assert_eq!(p.with_extra_depths(&[]).offsets.len(), 25);
+    }
+
+    /// A camera that sees a blank skin.
+    struct BlankCamera;
+
+    impl Camera for BlankCamera {
+        fn name(&self) -> &str {
+            "tactip"
+        }
+        async fn frame_after(&mut self, not_before_s: f64) -> Result<crate::camera::Frame, CameraError> {
+            Ok(crate::camera::Frame { image: RgbImage::new(8, 8), t_capture_s: not_before_s, seq: 0 })
+        }
+    }
+
+    /// The station presses only offsets of a pattern that passed its fence: a pattern deeper
+    /// than the limit is refused before the arm is enabled or moved, and so is a press at an
+    /// offset no checked pattern holds.
+    #[tokio::test]
+    async fn the_station_presses_only_within_a_checked_pattern() {
+        use crate::config::PressLimit;
+        use crate::fence::PoseSource;
+        use crate::sensor::SensorKind;
+        let mut arm = crate::arm::fake::CountingArm::default();
+        let limit = PressLimit { sensor: SensorKind::ViTac, max_indentation_mm: 2.5, configured: false };
+        let fence = Fence::new(crate::arm::profile::FirmwareProfile::default_mg400(), limit, PoseSource::Presses);
+        let detector = ContactDetector::for_sensor(SensorKind::ViTac, 8);
+        let options = CollectConfig { settle_s: 0.0, ..CollectConfig::default() };
+        let mut station = ArmStation::new(&mut arm, BlankCamera, WorkFrame::default(), options, detector, fence);
+        // 1.5 mm contact depth + 1.5 mm: 3 mm, past 2.5 mm.
+        let deep = PressPattern::grid(2, 2.0, &[1.5]);
+        let e = run_pattern(&mut station, &deep, &FitOptions::default(), |_, _| ControlFlow::Continue(())).await.unwrap_err();
+        assert!(matches!(e, PressError::Fence(FenceError::TooDeep { pose_id: 4, .. })), "{e}");
+        assert!(matches!(station.press(Pose::default()).await, Err(PressError::Unchecked { .. })));
+        let shallow = PressPattern::grid(2, 2.0, &[0.5]);
+        station.check_pattern(&shallow).expect("2 mm is within 2.5 mm");
+        assert!(matches!(station.press(Pose::new(9.0, 0.0, 0.0, 0.0)).await, Err(PressError::Unchecked { .. })));
+        drop(station);
+        assert_eq!((arm.enables, arm.moves), (0, 0), "nothing moved");
     }
 
     #[test]

@@ -135,6 +135,8 @@ pub async fn run_wizard<S: PressStation, I: WizardIo>(
         }
     }
     let pattern = owned.as_ref().unwrap_or(pattern);
+    // The depths may have changed: the pattern as it will be pressed passes the fence first.
+    station.check_pattern(pattern)?;
     io.say("Taking the no-contact reference frame above the indenter...")?;
     station.take_reference().await?;
     let mut points: Vec<FitPoint> = Vec::new();
@@ -260,9 +262,31 @@ mod tests {
         truth: Calibration,
         presses: usize,
         finished: bool,
+        /// The pattern was handed to the fence before anything moved.
+        checked: bool,
+        /// The index of the press the stand-in fence refused.
+        refused: Option<usize>,
     }
 
     impl PressStation for FakeStation {
+        fn check_pattern(&mut self, pattern: &PressPattern) -> Result<(), PressError> {
+            // A stand-in fence: nothing deeper than 0.5 mm past the contact depth.
+            if let Some((k, o)) = pattern.offsets.iter().enumerate().find(|(_, o)| o.z_mm > 0.5) {
+                self.refused = Some(k);
+                let limit =
+                    crate::config::PressLimit { sensor: crate::sensor::SensorKind::TacTip, max_indentation_mm: 2.0, configured: true };
+                return Err(PressError::Fence(crate::fence::FenceError::TooDeep {
+                    poses: crate::fence::PoseSource::Presses,
+                    pose_id: k as u32,
+                    plan_pose: *o,
+                    indentation_mm: 1.5 + o.z_mm,
+                    contact_depth_mm: 1.5,
+                    limit,
+                }));
+            }
+            self.checked = true;
+            Ok(())
+        }
         async fn take_reference(&mut self) -> Result<(), PressError> {
             Ok(())
         }
@@ -285,7 +309,7 @@ mod tests {
 
     fn run(script: &str) -> (WizardOutcome, String, FakeStation) {
         let truth = Calibration { rotation_deg: 4.0, scale_px_per_mm: [9.0, 8.0], ..Calibration::default_for(512, 512) };
-        let mut station = FakeStation { truth, presses: 0, finished: false };
+        let mut station = FakeStation { truth, presses: 0, finished: false, checked: false, refused: None };
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
         let pattern = PressPattern::grid(2, 3.0, &[]);
         let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
@@ -298,7 +322,7 @@ mod tests {
         // Mounted; offset 1 accepted; offset 2's first press sees nothing -> redo, then
         // accepted; offsets 3 and 4 accepted; save.
         let (outcome, text, station) = run("\n\nr\n\na\n\ny\n");
-        assert!(station.finished);
+        assert!(station.finished && station.checked);
         assert_eq!(station.presses, 5, "{text}");
         let WizardOutcome::Save(fit) = outcome else { panic!("{text}") };
         assert_eq!(fit.inlier.len(), 4);
@@ -310,7 +334,7 @@ mod tests {
     #[test]
     fn asks_for_the_depths_when_the_pattern_presses_at_depths() {
         let truth = Calibration { scale_px_per_mm: [9.0, 8.0], ..Calibration::default_for(512, 512) };
-        let mut station = FakeStation { truth, presses: 0, finished: false };
+        let mut station = FakeStation { truth, presses: 0, finished: false, checked: false, refused: None };
         // Mounted; a bad answer, then one depth; 4 + 9 presses (the second sees nothing: redo).
         let script = "\n2.5\n0.5\n\nr\n\n\n\n\n\n\n\n\n\n\n\n\ny\n";
         let mut io = LineIo { input: script.as_bytes(), output: Vec::new() };
@@ -328,6 +352,22 @@ mod tests {
         assert_eq!(parse_depths("none", &[0.5]), Ok(vec![]));
         assert_eq!(parse_depths("-0.5, 0.5 0", &[]), Ok(vec![-0.5, 0.5]));
         assert!(parse_depths("x", &[]).is_err() && parse_depths("nan", &[]).is_err());
+    }
+
+    /// The depths the user answers change the pattern: the new pattern passes the fence before
+    /// the reference frame is taken, and a refused one ends the wizard with nothing pressed.
+    #[test]
+    fn the_pattern_after_the_depth_question_passes_the_fence_before_anything_moves() {
+        let truth = Calibration::default_for(512, 512);
+        let mut station = FakeStation { truth, presses: 0, finished: false, checked: false, refused: None };
+        let mut io = LineIo { input: "\n1.0\n".as_bytes(), output: Vec::new() };
+        let pattern = PressPattern::grid(2, 3.0, &[-0.5, 0.5]);
+        let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let e = rt.block_on(run_wizard(&mut io, &mut station, &pattern, &FitOptions::default(), "test", "out.toml")).unwrap_err();
+        let text = String::from_utf8_lossy(&io.output).into_owned();
+        assert!(e.to_string().contains("calibration press 5") && e.to_string().contains("press limit of 2 mm"), "{e}");
+        assert_eq!((station.refused, station.presses, station.checked), (Some(4), 0, false), "{text}");
+        assert!(!text.contains("Taking the no-contact reference"), "{text}");
     }
 
     #[test]

@@ -75,8 +75,13 @@ async fn run_async(args: Args, config: RigConfig) -> anyhow::Result<()> {
     let prepared = args.request().prepare(&config)?;
     println!("{}", prepared.plan_line());
     if args.rig.dry_run {
-        println!("dry run: poses checked against the workspace, nothing moved");
-        return Ok(());
+        let outputs = [
+            prepared.audit_dataset().display().to_string(),
+            prepared.audit_root().join(crate::jobs::audit::REPORT_FILE).display().to_string(),
+        ];
+        let sensors = SensorSet::one(prepared.sensor);
+        let seed = prepared.setup.plan_spec.seed;
+        return super::shared::dry_run(&config, &prepared.object, &sensors, seed, &prepared.envelope, &outputs).await;
     }
     let clock = crate::rigs::clock_for(&config);
     let sensors = SensorSet::one(prepared.sensor);

@@ -116,13 +116,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         set_sim_truth(&mut config, args.sensor, truth)?;
     }
     println!("{}", config.describe());
-    let pattern = request.prepare(&config)?;
+    let (pattern, envelope) = request.prepare(&config)?;
     println!("{}", request.pattern_line(&pattern));
-    if args.rig.dry_run {
-        println!("dry run: pattern checked against the workspace, nothing moved");
-        return Ok(());
-    }
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
+    if args.rig.dry_run {
+        let object = ObjectChoice::built_in("indenter", indenter_mesh());
+        let outputs = [out.display().to_string()];
+        return runtime.block_on(super::shared::dry_run(&config, &object, &SensorSet::one(args.sensor), args.seed, &envelope, &outputs));
+    }
     runtime.block_on(press_and_fit(&args, config, pattern, &out))
 }
 
@@ -145,6 +146,7 @@ fn set_sim_truth(config: &mut RigConfig, kind: SensorKind, truth: &Path) -> anyh
             width: calib.image_size[0],
             height: calib.image_size[1],
             camera: crate::camera::v4l2::CameraSettings { width: calib.image_size[0], height: calib.image_size[1], ..Default::default() },
+            max_indentation_mm: None,
         }),
     }
     Ok(())
@@ -157,17 +159,10 @@ async fn press_and_fit(args: &Args, config: RigConfig, pattern: PressPattern, ou
     let camera = rig.cameras.pop().context("the rig opened no camera")?;
     if args.interactive {
         let sensor_name = args.sensor.to_string();
-        let mut station = ArmStation {
-            arm: &mut rig.arm,
-            camera,
-            work_frame: config.work_frame,
-            options: config.collect.clone(),
-            detector: ContactDetector::for_sensor(
-                args.sensor,
-                config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width),
-            ),
-            reference: None,
-        };
+        let detector =
+            ContactDetector::for_sensor(args.sensor, config.sensors.iter().find(|s| s.name == sensor_name).map_or(512, |s| s.width));
+        let fence = crate::jobs::calibrate::fence(&config, args.sensor)?;
+        let mut station = ArmStation::new(&mut rig.arm, camera, config.work_frame, config.collect.clone(), detector, fence);
         // Ctrl-C: the answer being waited for (or the next one, after the current press) reads
         // as a quit, so the wizard retracts the arm; nothing is saved.
         let cancel = super::shared::cancel_on_interrupt("finishing the current press, then retracting the arm; nothing is saved")?;

@@ -88,8 +88,10 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     let prepared = args.request().prepare(&config)?;
     println!("{}", prepared.plan_line());
     if args.rig.dry_run {
-        println!("dry run: plan checked against the workspace, nothing moved");
-        return Ok(());
+        let setup = &prepared.setup;
+        let outputs: Vec<String> = prepared.sensors.0.iter().map(|&k| setup.dataset_dir(k).display().to_string()).collect();
+        return super::shared::dry_run(&config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, &prepared.envelope, &outputs)
+            .await;
     }
 
     let clock = crate::rigs::clock_for(&config);

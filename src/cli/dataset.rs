@@ -26,9 +26,9 @@ pub enum Format {
     Mds,
     /// tactile-bench: sensor_image,object_label,pose_x..pose_Rz,pose_id,source.
     TactileBench,
-    /// LeRobot v3 (parquet): one episode per object, one frame per pose, one image key per
-    /// sensor; --out is a new folder. DIR may be a dataset, an object folder or a folder of
-    /// objects.
+    /// LeRobot v3 (parquet): one frame per pose, one image key per sensor, episodes of one
+    /// object's poses, files of at most --max-file-mb; --out is a new folder. DIR may be a
+    /// dataset, an object folder or a folder of objects.
     Lerobot,
 }
 
@@ -36,10 +36,17 @@ pub enum Format {
 #[allow(rustdoc::invalid_html_tags)]
 #[derive(Debug, clap::Subcommand)]
 pub enum DatasetCommand {
-    /// Report missing images, orphan images, duplicated or malformed rows and leftovers of a
-    /// killed run; exits 1 when the dataset is not clean. Changes nothing.
+    /// Report missing images, orphan images, duplicated or malformed rows, leftovers of a
+    /// killed run and rows that press past the sensor's press limit; exits 1 when the dataset
+    /// is not clean. Changes nothing.
     #[command(after_help = crate::cli::examples::DATASET_VERIFY)]
-    Verify { dir: PathBuf },
+    Verify {
+        dir: PathBuf,
+        /// Rig configuration whose press limit the rows are checked against (default:
+        /// $RIG_CONFIG, then ./rig.toml; none: the sensor's default limit).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Write the dataset's rows (sorted by pose_id) in another tool's CSV dialect, or the
     /// datasets under DIR as a LeRobot v3 dataset.
     #[command(after_help = crate::cli::examples::DATASET_EXPORT)]
@@ -61,6 +68,12 @@ pub enum DatasetCommand {
         /// lerobot only: meta/info.json's robot_type (default: from the capture chain's arm).
         #[arg(long)]
         robot_type: Option<String>,
+        /// lerobot only: the bound on each parquet file, MB of 10^6 bytes (LeRobot's
+        /// data_files_size_in_mb); a data file is closed before a frame would take it past the
+        /// bound, and an episode ends with it.
+        #[arg(long, default_value_t = crate::dataset::LEROBOT_FILE_MB, value_name = "MB",
+              value_parser = clap::value_parser!(u64).range(1..=crate::dataset::LEROBOT_MAX_FILE_MB))]
+        max_file_mb: u64,
         /// MDS obj_id column.
         #[arg(long, default_value = "1")]
         obj_id: String,
@@ -110,10 +123,25 @@ pub enum DatasetCommand {
     },
 }
 
+/// The rows of the dataset at `dir` that press past the press limit of its sensor: the limit
+/// `config` sets (`[sensors.<name>] max_indentation_mm`), else the sensor's default, in the
+/// work frame its manifest recorded (else `config`'s). Nothing when the manifest is unreadable
+/// (verify reports that).
+fn rows_past_press_limit(dir: &Path, config: &crate::config::RigConfig) -> anyhow::Result<Vec<crate::dataset::VerifyIssue>> {
+    let Ok(manifest) = Manifest::load(dir) else { return Ok(Vec::new()) };
+    let limit = config.press_limit(manifest.sensor);
+    let work_frame = manifest.work_frame.unwrap_or(config.work_frame);
+    let rows = crate::dataset::press_limit::rows_past_press_limit(dir, &work_frame, limit.max_indentation_mm, &limit.to_string())
+        .with_context(|| format!("verifying {}", dir.display()))?;
+    Ok(rows)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        DatasetCommand::Verify { dir } => {
-            let report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
+        DatasetCommand::Verify { dir, config } => {
+            let config = crate::config::RigConfig::discover(config.as_deref())?;
+            let mut report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
+            report.issues.extend(rows_past_press_limit(&dir, &config)?);
             println!("{}: {report}", dir.display());
             if let Ok(Manifest { audit: Some(audit), .. }) = Manifest::load(&dir) {
                 for line in audit.lines() {
@@ -131,11 +159,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Err(FeatureMissing { feature: Feature::Lerobot, needed_by: "`rig dataset export --format lerobot`" }.into())
         }
         #[cfg(feature = "lerobot")]
-        DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, .. } => {
+        DatasetCommand::Export { dir, format: Format::Lerobot, out, fps, task, robot_type, max_file_mb, .. } => {
             let Some(out) = out else { bail!(crate::cli::usage("--format lerobot needs --out DIR (a new folder)")) };
-            let options = LerobotOptions { fps, task, robot_type };
+            let options = LerobotOptions { fps, task, robot_type, max_file_mb };
             let s = export_lerobot(&dir, &out, &options).with_context(|| format!("exporting {} as LeRobot", dir.display()))?;
             let sensors: Vec<&str> = s.sensors.iter().map(|k| k.name()).collect();
+            let largest_mb = s.data_files.iter().map(|f| f.bytes).max().unwrap_or(0) as f64 / 1e6;
             println!(
                 "wrote a LeRobot v3 dataset to {}: {} episode{}, {} frames, image keys for {}{}",
                 out.display(),
@@ -144,6 +173,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 s.frames,
                 sensors.join(", "),
                 if s.reencoded > 0 { format!(" ({} images re-encoded as 8-bit RGB)", s.reencoded) } else { String::new() }
+            );
+            println!(
+                "{} data file{}, the largest {largest_mb:.1} MB (at most {max_file_mb} MB each)",
+                s.data_files.len(),
+                if s.data_files.len() == 1 { "" } else { "s" }
             );
             Ok(())
         }

@@ -6,7 +6,8 @@
 /// `rig info`.
 pub const INFO: &str = "\
 Examples:
-  rig info";
+  rig info
+  rig info --config rig.toml";
 
 /// `rig collect`.
 pub const COLLECT: &str = "\
@@ -157,7 +158,8 @@ Examples:
 /// `rig devices`.
 pub const DEVICES: &str = "\
 Examples:
-  rig devices";
+  rig devices
+  rig devices --config rig.toml";
 
 /// `rig bench`.
 pub const BENCH: &str = "\

@@ -17,6 +17,7 @@ pub mod eval;
 pub mod examples;
 pub mod fill;
 pub mod generate;
+pub mod info;
 pub mod objects;
 pub mod plan;
 pub mod render;
@@ -41,9 +42,10 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Print the version and the configuration rig would use.
+    /// Print the version and what the rig configuration names (arm, work frame, cameras, press
+    /// limits, Modbus peripherals).
     #[command(after_help = examples::INFO)]
-    Info,
+    Info(info::Args),
     /// Drive the arm through a pose plan, capture every sensor, write the datasets.
     #[command(after_help = examples::COLLECT)]
     Collect(collect::CollectArgs),
@@ -89,7 +91,8 @@ pub enum Command {
     /// Re-run a recorded collection (`rig collect --record`) without hardware.
     #[command(after_help = examples::REPLAY)]
     Replay(replay::Args),
-    /// List cameras (formats, USB identities), serial ports and USB devices on this machine.
+    /// List cameras (formats, USB identities), serial ports and USB devices on this machine, and
+    /// which devices the rig configuration names were found.
     #[command(after_help = examples::DEVICES)]
     Devices(devices::Args),
     /// Measure what accuracy costs in time, knob by knob; write a Markdown report with SVG plots.
@@ -107,10 +110,7 @@ pub fn main() -> ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
-        Command::Info => {
-            println!("rig {} (features: {})", crate::version(), crate::features::built_list());
-            crate::config::RigConfig::discover(None).map(|c| println!("{}", c.describe())).map_err(anyhow::Error::from)
-        }
+        Command::Info(args) => info::run(args),
         Command::Collect(args) => collect::run(args),
         Command::Daemon(args) => daemon::run(args),
         Command::Sim(args) => sim::run(args),

@@ -166,8 +166,9 @@ pub struct RigTarget {
     /// Rig configuration file (default: $RIG_CONFIG, then ./rig.toml, else the simulated rig).
     #[arg(long)]
     pub config: Option<std::path::PathBuf>,
-    /// Print what would run (the plan, the press pattern, the audit's draw) and check it against
-    /// the workspace; move nothing.
+    /// Print what would run (the plan, the press pattern, the audit's draw), check every pose
+    /// against the workspace and the press limit, and open every device without moving
+    /// anything (pre-flight); exit 3 naming each device that failed.
     #[arg(long)]
     pub dry_run: bool,
     #[command(flatten)]
@@ -199,6 +200,40 @@ impl RigTarget {
     pub fn rig_config(&self) -> anyhow::Result<RigConfig> {
         Ok(RigConfig::discover(self.config.as_deref())?)
     }
+}
+
+/// What a dry run prints after its job's own line: the pre-flight of every device the job
+/// would open ([`crate::rigs::preflight`]: the arm connected and read, never enabled; one
+/// frame per camera; one read per Modbus peripheral), the envelope the poses visit, and the
+/// `outputs`. Fails (exit 3 when a device is missing or silent) naming every device that
+/// failed; nothing moves either way.
+pub(crate) async fn dry_run(
+    config: &RigConfig,
+    object: &crate::geometry::objects::ObjectChoice,
+    sensors: &crate::sensor::SensorSet,
+    seed: u64,
+    envelope: &crate::fence::Envelope,
+    outputs: &[String],
+) -> anyhow::Result<()> {
+    let which = match &config.source {
+        None => "the built-in simulated rig".to_string(),
+        Some(path) => format!("rig config {}", path.display()),
+    };
+    println!("pre-flight of {which} (nothing is enabled, nothing moves):");
+    let preflight = crate::rigs::preflight(config, object, sensors, seed, crate::rigs::clock_for(config)).await;
+    for line in preflight.lines() {
+        println!("{line}");
+    }
+    for line in envelope.lines() {
+        println!("{line}");
+    }
+    println!("output: {}", outputs.join(", "));
+    let result = preflight.result();
+    match &result {
+        Ok(()) => println!("dry run: poses checked against the workspace and the press limit, every device answered; nothing moved"),
+        Err(_) => println!("dry run: nothing moved"),
+    }
+    Ok(result?)
 }
 
 #[cfg(test)]

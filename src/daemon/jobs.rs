@@ -207,7 +207,7 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
 async fn run_calibrate(request: &CalibrateRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
     let observer = ctx.observer();
     let RigContext { rig, config, state, .. } = ctx;
-    let pattern = request.prepare(config)?;
+    let (pattern, _) = request.prepare(config)?;
     let opened = sensor_names(rig);
     rig.set_object(config, &ObjectChoice::built_in("indenter", crate::calibration::press::indenter_mesh()))?;
     let Rig { arm, cameras, .. } = rig;

@@ -31,6 +31,7 @@ pub mod manifest;
 pub mod merge;
 pub mod named;
 pub mod order;
+pub mod press_limit;
 pub mod verify;
 pub mod writer;
 
@@ -45,6 +46,12 @@ pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifes
 pub use merge::{MergeOptions, MergeReport, merge};
 pub use verify::{CaptureNote, VerifyIssue, VerifyReport, verify};
 pub use writer::DatasetWriter;
+
+/// The default bound on a LeRobot export's parquet files, MB of 10^6 bytes (LeRobot's default
+/// `data_files_size_in_mb`), and the largest accepted; here so that the command line offers them
+/// in builds without the `lerobot` feature too.
+pub const LEROBOT_FILE_MB: u64 = 100;
+pub const LEROBOT_MAX_FILE_MB: u64 = 2000;
 
 /// File names inside a dataset directory.
 pub const MANIFEST_FILE: &str = "manifest.toml";

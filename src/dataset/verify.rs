@@ -38,6 +38,8 @@ pub enum VerifyIssue {
     BadImage { path: PathBuf, reason: String },
     /// An image whose size differs from the dataset's.
     WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
+    /// A row that presses past the sensor's press limit ([`super::press_limit`]).
+    PastPressLimit { pose_id: u32, line: u64, depth_mm: f64, limit: String },
     /// `order.csv` does not parse, or lists a pose outside the manifest's plan grid.
     BadOrder { reason: String },
     /// Captured rows (real or simulated) whose poses the kept order does not list: the order
@@ -66,6 +68,9 @@ impl fmt::Display for VerifyIssue {
             VerifyIssue::BadImage { path, reason } => write!(f, "unreadable image {}: {reason}", path.display()),
             VerifyIssue::WrongSize { path, found, expected } => {
                 write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
+            }
+            VerifyIssue::PastPressLimit { pose_id, line, depth_mm, limit } => {
+                write!(f, "past the press limit: pose_id {pose_id} on line {line} presses {depth_mm:.3} mm into the skin, beyond {limit}")
             }
             VerifyIssue::BadOrder { reason } => write!(f, "kept order {ORDER_FILE}: {reason}"),
             VerifyIssue::UnorderedRows { rows, first_pose_id } => write!(

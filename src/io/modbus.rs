@@ -514,6 +514,31 @@ impl ModbusPeripheral {
         Ok(out)
     }
 
+    /// One read that changes nothing, for a pre-flight: the first configured reading; without
+    /// one, the holding register the first configured write goes to, read back (not written);
+    /// without either, the connection alone. Returns what was read, for the report.
+    pub async fn probe(&mut self) -> Result<String, ModbusError> {
+        if let Some(read) = self.config.read.first().cloned() {
+            let op = RegisterOp::Read { kind: read.kind, register: read.register, count: u16::from(read.words) };
+            let words = self.call(op).await?;
+            return Ok(match decode_reading(&read, &words) {
+                Some(value) => format!("read {}.{} = {value}", self.config.name, read.name),
+                None => format!("read {}.{}: {} registers, expected {}", self.config.name, read.name, words.len(), read.words),
+            });
+        }
+        let write = self.config.before_capture.first().or_else(|| self.config.after_capture.first()).cloned();
+        if let Some(w) = write {
+            let words = self.call(RegisterOp::Read { kind: RegisterKind::Holding, register: w.register, count: 1 }).await?;
+            return Ok(format!(
+                "read holding register {} = {}",
+                w.register,
+                words.first().map_or_else(|| "nothing".to_string(), u16::to_string)
+            ));
+        }
+        self.ensure_connected().await?;
+        Ok("connected (nothing configured to read)".to_string())
+    }
+
     /// Every configured reading with no value (what an optional peripheral that failed logs).
     pub fn empty_readings(&self) -> Vec<ModbusReading> {
         self.config.read.iter().map(|r| ModbusReading { name: format!("{}.{}", self.config.name, r.name), value: None }).collect()

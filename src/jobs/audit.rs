@@ -1,7 +1,7 @@
 //! The audit job: is a dataset's fill worth it? [`AuditRequest`] (what `rig audit` is asked),
 //! [`PreparedAudit`] (the draw and the collection it needs, checked before anything moves),
-//! [`run`] (the collection, through [`super::collect::run`]: the same job, the same workspace
-//! check, the same crash-safe, resumable dataset writer) and [`score`] (the comparison,
+//! [`run`] (the collection, through [`super::collect::run`]: the same job, the same fence
+//! (workspace and press limit), the same crash-safe, resumable dataset writer) and [`score`] (the comparison,
 //! [`crate::eval::audit`], its report and the summary in the dataset's manifest).
 //!
 //! ```text
@@ -29,10 +29,10 @@ use crate::arm::Arm;
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
 use crate::clock::Clock;
-use crate::collect::check_plan;
 use crate::config::RigConfig;
 use crate::dataset::{AuditSummary, DatasetError, Manifest, ObjectInfo, PoseRow, Source, read_rows};
 use crate::eval::audit::{AuditScores, score_audit, worst_poses_panel};
+use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::Peripherals;
 use crate::plan::{Order, PlannedPose};
@@ -63,8 +63,9 @@ pub fn draw(rows: &[PoseRow], fraction: f64, seed: u64) -> (Vec<u32>, Vec<u32>) 
     (ids, picked)
 }
 
-/// An audit resolved against a rig configuration: the poses drawn, checked against the
-/// workspace, and the collection that captures them.
+/// An audit resolved against a rig configuration: the poses drawn, checked against the fence
+/// (the workspace, the press limit of the dataset's sensor), and the collection that captures
+/// them.
 #[derive(Debug, Clone)]
 pub struct PreparedAudit {
     pub request: AuditRequest,
@@ -75,6 +76,8 @@ pub struct PreparedAudit {
     pub sensor: SensorKind,
     /// Synthetic poses in the dataset.
     pub synthetic_poses: usize,
+    /// What the drawn poses visit, as the fence found it.
+    pub envelope: Envelope,
 }
 
 impl PreparedAudit {
@@ -102,8 +105,9 @@ impl PreparedAudit {
 }
 
 impl AuditRequest {
-    /// Reads the dataset, draws the poses and checks every one against the workspace (nothing
-    /// moves for a pose outside it). A draw other than the one an existing audit folder holds
+    /// Reads the dataset, draws the poses and checks every one against the fence (nothing
+    /// moves for a pose outside the workspace or pressing past the sensor's limit: the rows
+    /// are the dataset's, which anyone may have edited). A draw other than the one an existing audit folder holds
     /// is refused (bad input), so one audit dataset never mixes two draws.
     pub fn prepare(&self, config: &RigConfig) -> Result<PreparedAudit, JobError> {
         self.check()?;
@@ -146,6 +150,9 @@ impl AuditRequest {
         }
         let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
         let sensor = manifest.sensor;
+        // Every drawn pose meets the fence before anything else is decided.
+        let fence = Fence::for_run(profile.clone(), config, &[sensor], PoseSource::DatasetRows);
+        let envelope = fence.check(&config.work_frame, &drawn)?;
         // The presses follow a travel order, computed once and kept in the audit dataset: a
         // rerun after a kill reads it back (checked to be this draw's poses).
         let audit_dataset = dir.join(AUDIT_DIR).join(&object.name).join(sensor.name());
@@ -162,7 +169,6 @@ impl AuditRequest {
             }
             None => crate::plan::order_poses(drawn, Order::Optimised, 0, &cost).poses,
         };
-        check_plan(&poses, &config.work_frame, |p| profile.check_reachable(p))?;
         let setup = CollectSetup {
             object: ObjectInfo {
                 name: object.name.clone(),
@@ -180,8 +186,9 @@ impl AuditRequest {
             disk_budget_bytes: config.faults.disk_budget_bytes,
             arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
+            fence,
         };
-        Ok(PreparedAudit { request: self.clone(), setup, object, sensor, synthetic_poses: synthetic.len() })
+        Ok(PreparedAudit { request: self.clone(), setup, object, sensor, synthetic_poses: synthetic.len(), envelope })
     }
 }
 

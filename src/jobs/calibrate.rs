@@ -13,19 +13,19 @@ use crate::calibration::detect::ContactDetector;
 use crate::calibration::fit::{FitOptions, PointFit};
 use crate::calibration::press::{ArmStation, Press, PressError, PressPattern, run_pattern};
 use crate::camera::Camera;
-use crate::collect::check_plan;
 use crate::config::RigConfig;
-use crate::plan::PlannedPose;
+use crate::fence::{Envelope, Fence, PoseSource};
 use crate::sensor::SensorKind;
 
 impl CalibrateRequest {
-    /// The press pattern, checked against the workspace of `config`'s arm (nothing moves for a
-    /// press outside it).
-    pub fn prepare(&self, config: &RigConfig) -> Result<PressPattern, JobError> {
+    /// The press pattern, checked against the fence of `config`'s arm and the sensor's press
+    /// limit (nothing moves for a press outside the workspace or past the limit), and what it
+    /// visits.
+    pub fn prepare(&self, config: &RigConfig) -> Result<(PressPattern, Envelope), JobError> {
         self.check()?;
         let pattern = PressPattern::grid(self.grid, self.span_mm, &self.depths_mm);
-        check_pattern(&pattern, config)?;
-        Ok(pattern)
+        let envelope = fence(config, self.sensor)?.check_offsets(&config.work_frame, &pattern.offsets)?;
+        Ok((pattern, envelope))
     }
 
     /// `pattern: N presses, ...`, as `rig calibrate` prints it.
@@ -41,13 +41,11 @@ impl CalibrateRequest {
     }
 }
 
-/// Checks every press of `pattern` (contact and approach) against the workspace of the arm
-/// `config` names.
-pub fn check_pattern(pattern: &PressPattern, config: &RigConfig) -> Result<(), JobError> {
+/// The fence of a calibration of `sensor` on `config`'s arm: its workspace and the sensor's
+/// press limit.
+pub fn fence(config: &RigConfig, sensor: SensorKind) -> Result<Fence, JobError> {
     let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
-    let plan: Vec<PlannedPose> = pattern.offsets.iter().zip(0u32..).map(|(p, pose_id)| PlannedPose { pose_id, pose: *p }).collect();
-    check_plan(&plan, &config.work_frame, |p| profile.check_reachable(p))?;
-    Ok(())
+    Ok(Fence::for_run(profile, config, &[sensor], PoseSource::Presses))
 }
 
 /// How a press run ended when it did not fail.
@@ -59,9 +57,11 @@ pub enum PressOutcome {
     Cancelled { done: usize, total: usize },
 }
 
-/// Presses the indenter at every offset of `pattern` with `sensor`'s `camera`, then fits. The
-/// arm is left disabled (retracted above the origin when the run got that far). `on_press`
-/// sees every press; the observer counts them and its cancel stops between presses.
+/// Presses the indenter at every offset of `pattern` with `sensor`'s `camera`, then fits; the
+/// pattern passes the fence of `sensor` first ([`fence`]), so nothing moves for a press outside
+/// the workspace or past the press limit. The arm is left disabled (retracted above the origin
+/// when the run got that far). `on_press` sees every press; the observer counts them and its
+/// cancel stops between presses.
 #[allow(clippy::too_many_arguments, reason = "the hardware, the job and its observers, each needed")]
 pub async fn press_and_fit<A: Arm, C: Camera>(
     arm: &mut A,
@@ -73,14 +73,9 @@ pub async fn press_and_fit<A: Arm, C: Camera>(
     on_press: &mut (dyn FnMut(usize, &Press) + Send),
 ) -> Result<PressOutcome, JobError> {
     let size = config.sensors.iter().find(|s| s.name == sensor.name()).map_or([512, 512], |s| [s.width, s.height]);
-    let mut station = ArmStation {
-        arm,
-        camera,
-        work_frame: config.work_frame,
-        options: config.collect.clone(),
-        detector: ContactDetector::for_sensor(sensor, size[0]),
-        reference: None,
-    };
+    let fence = fence(config, sensor)?;
+    let detector = ContactDetector::for_sensor(sensor, size[0]);
+    let mut station = ArmStation::new(arm, camera, config.work_frame, config.collect.clone(), detector, fence);
     let fit_options = FitOptions { image_size: size, ..FitOptions::default() };
     observer.progress.set_length(pattern.offsets.len() as u64);
     let run = run_pattern(&mut station, pattern, &fit_options, |k, press| {

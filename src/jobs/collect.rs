@@ -5,7 +5,7 @@
 //! ```text
 //! CollectRequest ──prepare(config)──► PreparedCollect ──► the front end opens (or already has)
 //!   (clap / JSON)   plan, object,      .setup: CollectSetup    the arm and the cameras
-//!                   workspace check                         │
+//!                   fence check                             │
 //!                                                           ▼
 //!   recording header ──────────────────────────────► run(setup, arm, cameras, peripherals)
 //!   (rig replay builds the setup it recorded)          datasets opened, CollectJob run
@@ -19,9 +19,10 @@ use crate::arm::Arm;
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
 use crate::clock::Clock;
-use crate::collect::{CollectJob, CollectSummary, SensorStream, check_plan};
+use crate::collect::{CollectJob, CollectSummary, SensorStream};
 use crate::config::{ArmBackend, CollectConfig, RigConfig};
 use crate::dataset::{CaptureChain, CapturePart, DatasetError, DatasetWriter, Manifest, ObjectInfo, Source, order};
+use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::{ModbusTransport, Peripherals};
 use crate::plan::{Plan, PlanSpec, PlannedPose};
@@ -29,7 +30,8 @@ use crate::pose::{Pose, WorkFrame};
 use crate::sensor::{SensorKind, SensorSet};
 
 /// A collection resolved against a rig configuration: the plan built and checked against the
-/// workspace (nothing moves for a pose outside it), the object loaded.
+/// fence (nothing moves for a pose outside the workspace or past the press limit), the object
+/// loaded.
 #[derive(Debug, Clone)]
 pub struct PreparedCollect {
     /// What the runner needs.
@@ -47,6 +49,8 @@ pub struct PreparedCollect {
     pub grid_len: u64,
     /// The firmware profile the plan was checked against.
     pub profile: FirmwareProfile,
+    /// What the plan visits, as the fence found it.
+    pub envelope: Envelope,
 }
 
 impl CollectRequest {
@@ -68,7 +72,8 @@ impl CollectRequest {
     }
 
     /// Resolves and checks the request against `config`: plan, object, firmware profile, and
-    /// every pose (contact, approach, the reference above the origin) inside the workspace.
+    /// every pose through the fence (contact, approach, the reference above the origin inside
+    /// the workspace; every press within the press limit of the sensors asked for).
     pub fn prepare(&self, config: &RigConfig) -> Result<PreparedCollect, JobError> {
         self.check()?;
         let spec = self.plan_spec()?;
@@ -89,7 +94,8 @@ impl CollectRequest {
             }
             None => (spec.order_sampled(sampled, &cost), None),
         };
-        check_plan(&plan.poses, &config.work_frame, |p| profile.check_reachable(p))?;
+        let fence = Fence::for_run(profile.clone(), config, &self.sensor.0, PoseSource::Plan);
+        let envelope = fence.check(&config.work_frame, &plan.poses)?;
         let mut setup = CollectSetup {
             object: ObjectInfo {
                 name: object.name.clone(),
@@ -106,6 +112,7 @@ impl CollectRequest {
             disk_budget_bytes: config.faults.disk_budget_bytes,
             arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
+            fence,
         };
         if self.resume {
             // A dataset an earlier rig build collected on a built-in object recorded another hash of the same
@@ -119,7 +126,7 @@ impl CollectRequest {
                 setup.object.stl_sha256 = Some(legacy);
             }
         }
-        Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, kept_order, grid_len: spec.grid_len(), profile })
+        Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, kept_order, grid_len: spec.grid_len(), profile, envelope })
     }
 }
 
@@ -187,6 +194,9 @@ pub struct CollectSetup {
     pub arm: CapturePart,
     /// The Modbus peripherals, as the manifests' capture chain names them.
     pub modbus: Vec<CapturePart>,
+    /// The workspace and press limit every pose keeps to, checked again by [`run`] before the
+    /// arm moves.
+    pub fence: Fence,
 }
 
 impl CollectSetup {
@@ -312,10 +322,11 @@ fn relative_to_working_folder(path: &Path) -> PathBuf {
     }
 }
 
-/// Runs a collection: opens (or resumes) one dataset per camera and drives the arm through
-/// `setup.poses`. The one place a [`CollectJob`] is built: `rig collect`, the daemon, `rig
-/// replay` and `rig bench` all come here. `stop_after` stops as if cancelled after that many
-/// poses (a replay stops where its recording was interrupted).
+/// Runs a collection: checks `setup.poses` against `setup.fence`, opens (or resumes) one
+/// dataset per camera and drives the arm through the poses. The one place a [`CollectJob`] is
+/// built: `rig collect`, `rig audit`, the daemon, `rig replay` and `rig bench` all come here,
+/// so no pose reaches the arm without passing the fence. `stop_after` stops as if cancelled
+/// after that many poses (a replay stops where its recording was interrupted).
 pub async fn run<A: Arm, C: Camera, P: Peripherals>(
     setup: &CollectSetup,
     arm: &mut A,
@@ -325,6 +336,7 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
     observer: Observer,
     stop_after: Option<usize>,
 ) -> Result<CollectOutcome, JobError> {
+    setup.fence.check(&setup.work_frame, &setup.poses)?;
     let mut sensors = Vec::new();
     let mut datasets = Vec::new();
     let order_ids: Vec<u32> = setup.poses.iter().map(|p| p.pose_id).collect();

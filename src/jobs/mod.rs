@@ -106,6 +106,9 @@ pub enum JobError {
     },
     #[error("{0}")]
     Press(#[from] crate::calibration::press::PressError),
+    /// A pose outside the workspace or past the press limit, refused before anything moved.
+    #[error("{0}")]
+    Fence(#[from] crate::fence::FenceError),
     #[error("saving the calibration {path}: {reason}")]
     SaveCalibration { path: PathBuf, reason: String },
     /// A request refused before anything was read or loaded: an option out of its bounds, a

@@ -266,3 +266,181 @@ fn the_export_refuses_what_cannot_be_one_lerobot_dataset() {
         .collect();
     assert!(leftovers.is_empty(), "temporary folders left: {leftovers:?}");
 }
+
+/// An image of noise (PNG cannot shrink it): `w` x `h` x 3 bytes and a little more on disk.
+fn noise(seed: u32, w: u32, h: u32) -> image::RgbImage {
+    let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+    image::RgbImage::from_fn(w, h, |_, _| {
+        let mut px = [0u8; 3];
+        for c in &mut px {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            *c = (state >> 24) as u8;
+        }
+        image::Rgb(px)
+    })
+}
+
+/// A dataset of captured rows `ids` with noise images of `w` x `h`.
+fn noisy_dataset(root: &Path, object: &str, sensor: SensorKind, ids: &[u32], w: u32, h: u32) {
+    let dir = root.join(object).join(sensor.name());
+    let mut wr = DatasetWriter::create(&dir, Manifest::new(sensor, ObjectInfo::named(object), None)).expect("create");
+    for &id in ids {
+        let c = commanded(id);
+        let row = PoseRow::captured(id, c, measured(c, id), f64::from(id), Source::Simulated);
+        wr.append(row, &noise(id * 7 + sensor as u32, w, h)).expect("append");
+    }
+    wr.finish().expect("finish");
+}
+
+/// The rows of every data file, in file order, each file read whole.
+fn read_data_files(out: &Path, files: &[rig::dataset::lerobot::DataFile]) -> Vec<(String, Vec<RecordBatch>)> {
+    files.iter().map(|f| (f.path.clone(), read_parquet(&out.join(&f.path)))).collect()
+}
+
+#[test]
+fn an_export_rolled_over_several_files_reads_back_frame_for_frame() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let root = tmp.path().join("datasets");
+    // About 49 kB per image, 98 kB per frame: some nine frames fit a file of 1 MB.
+    let edge: Vec<u32> = (0..30).collect();
+    let sphere: Vec<u32> = (100..112).collect();
+    for s in [SensorKind::TacTip, SensorKind::ViTac] {
+        noisy_dataset(&root, "edge", s, &edge, 128, 128);
+        noisy_dataset(&root, "sphere", s, &sphere, 128, 128);
+    }
+    let whole = tmp.path().join("whole");
+    let one = export_lerobot(&root, &whole, &LerobotOptions { fps: 4, ..LerobotOptions::default() }).expect("export");
+    assert_eq!((one.episodes, one.frames, one.data_files.len()), (2, 42, 1), "100 MB holds everything: {one:?}");
+
+    let rolled = tmp.path().join("rolled");
+    let opts = LerobotOptions { fps: 4, max_file_mb: 1, ..LerobotOptions::default() };
+    let summary = export_lerobot(&root, &rolled, &opts).expect("export");
+    assert_eq!(summary.frames, 42);
+    assert!(summary.data_files.len() >= 4, "4 MB of frames in files of 1 MB: {:?}", summary.data_files);
+    for (i, f) in summary.data_files.iter().enumerate() {
+        assert_eq!(f.path, format!("data/chunk-000/file-{i:03}.parquet"));
+        let on_disk = std::fs::metadata(rolled.join(&f.path)).expect("data file").len();
+        assert_eq!(on_disk, f.bytes);
+        assert!(on_disk <= 1_000_000, "{}: {on_disk} bytes, over --max-file-mb 1", f.path);
+    }
+    let mut names: Vec<String> = std::fs::read_dir(rolled.join("data/chunk-000"))
+        .expect("ls")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), summary.data_files.len(), "no other file in data/: {names:?}");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rolled.join("meta/info.json")).expect("info")).expect("json");
+    assert_eq!(info["data_files_size_in_mb"], 1);
+    assert_eq!(info["total_frames"], 42);
+    assert_eq!(info["total_episodes"].as_u64(), Some(summary.episodes as u64));
+
+    // Frame for frame, the rolled export holds what the one-file export holds.
+    let per_file = read_data_files(&rolled, &summary.data_files);
+    let rolled_batches: Vec<RecordBatch> = per_file.iter().flat_map(|(_, b)| b.clone()).collect();
+    let whole_batches = read_parquet(&whole.join("data/chunk-000/file-000.parquet"));
+    for column in ["pose_id", "index"] {
+        assert_eq!(column_i64(&rolled_batches, column), column_i64(&whole_batches, column), "{column}");
+    }
+    assert_eq!(column_i64(&rolled_batches, "index"), (0..42).collect::<Vec<_>>());
+    assert_eq!(column_pose(&rolled_batches, "action"), column_pose(&whole_batches, "action"));
+    assert_eq!(column_pose(&rolled_batches, "observation.state"), column_pose(&whole_batches, "observation.state"));
+    assert_eq!(column_strings(&rolled_batches, "source.vitac"), column_strings(&whole_batches, "source.vitac"));
+    let ids = column_i64(&rolled_batches, "pose_id");
+    for s in [SensorKind::TacTip, SensorKind::ViTac] {
+        let mut k = 0;
+        for b in &rolled_batches {
+            let st = b.column_by_name(&format!("observation.images.{}", s.name())).expect("image column").as_struct();
+            let bytes = st.column_by_name("bytes").expect("bytes").as_binary::<i32>();
+            for i in 0..st.len() {
+                let object = if ids[k] < 100 { "edge" } else { "sphere" };
+                let file = root.join(object).join(s.name()).join(format!("images/{}.png", ids[k]));
+                assert_eq!(bytes.value(i), std::fs::read(&file).expect("image").as_slice(), "{}", file.display());
+                k += 1;
+            }
+        }
+        assert_eq!(k, 42);
+    }
+
+    // Episodes: each lies whole in the data file it names, starts at frame 0, and holds one
+    // object's poses; an object's poses run on across its episodes.
+    let mut episode_files: Vec<String> = std::fs::read_dir(rolled.join("meta/episodes/chunk-000"))
+        .expect("ls")
+        .map(|e| e.expect("entry").path().to_string_lossy().into_owned())
+        .collect();
+    episode_files.sort();
+    let episodes: Vec<RecordBatch> = episode_files.iter().flat_map(|f| read_parquet(Path::new(f))).collect();
+    let lengths = column_i64(&episodes, "length");
+    let from = column_i64(&episodes, "dataset_from_index");
+    let to = column_i64(&episodes, "dataset_to_index");
+    let file_index = column_i64(&episodes, "data/file_index");
+    let objects = column_strings(&episodes, "rig/object");
+    assert_eq!(lengths.len(), summary.episodes);
+    assert!(summary.episodes > 2, "the objects' episodes end with the files: {lengths:?}");
+    assert_eq!(column_i64(&episodes, "episode_index"), (0..summary.episodes as i64).collect::<Vec<_>>());
+    assert_eq!(lengths.iter().sum::<i64>(), 42);
+    let mut next = 0;
+    for e in 0..lengths.len() {
+        assert_eq!((from[e], to[e] - from[e]), (next, lengths[e]), "episode {e}");
+        next = to[e];
+        let (_, batches) = &per_file[file_index[e] as usize];
+        let index = column_i64(batches, "index");
+        assert!(index.contains(&from[e]) && index.contains(&(to[e] - 1)), "episode {e} is not whole in its file");
+        let in_file: Vec<i64> = column_i64(batches, "episode_index").into_iter().filter(|&x| x == e as i64).collect();
+        assert_eq!(in_file.len() as i64, lengths[e], "episode {e}: rows in its file");
+        let frame_index: Vec<i64> = (from[e]..to[e]).map(|i| column_i64(&rolled_batches, "frame_index")[i as usize]).collect();
+        assert_eq!(frame_index, (0..lengths[e]).collect::<Vec<_>>());
+        let poses: Vec<i64> = (from[e]..to[e]).map(|i| ids[i as usize]).collect();
+        assert!(poses.iter().all(|&p| (p < 100) == (objects[e] == "edge")), "episode {e} ({}) holds {poses:?}", objects[e]);
+    }
+    let timestamps: Vec<f32> = rolled_batches
+        .iter()
+        .flat_map(|b| b.column_by_name("timestamp").expect("ts").as_primitive::<Float32Type>().values().to_vec())
+        .collect();
+    let frame_index = column_i64(&rolled_batches, "frame_index");
+    assert!(timestamps.iter().zip(&frame_index).all(|(&t, &f)| t == f as f32 / 4.0));
+
+    // The dataset's stats are the same whichever way the frames are cut (the episode-wise ones
+    // differ: frame_index and episode_index do), and count every frame.
+    let stats = |dir: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("meta/stats.json")).expect("stats")).expect("json")
+    };
+    let (a, b) = (stats(&whole), stats(&rolled));
+    for key in ["action", "observation.state", "pose_id", "index", "observation.images.tactip", "observation.images.vitac"] {
+        assert_eq!(a[key], b[key], "{key}");
+    }
+    assert_eq!(b["observation.images.vitac"]["count"], serde_json::json!([42]));
+    // `stats/<key>/count` is a one-element list per episode.
+    let counts: Vec<i64> = episodes
+        .iter()
+        .flat_map(|b| {
+            let list = b.column_by_name("stats/observation.images.tactip/count").expect("count").as_list::<i32>();
+            (0..list.len()).map(|i| list.value(i).as_primitive::<Int64Type>().values().to_vec()).collect::<Vec<_>>()
+        })
+        .map(|v| if let [n] = v[..] { n } else { panic!("count {v:?}") })
+        .collect();
+    assert_eq!(counts, lengths);
+}
+
+#[test]
+fn a_frame_larger_than_a_file_is_refused() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let root = tmp.path().join("datasets");
+    // Two images of about 0.6 MB: a frame of 1.2 MB, more than a file of 1 MB.
+    for s in [SensorKind::TacTip, SensorKind::ViTac] {
+        noisy_dataset(&root, "edge", s, &[1, 2], 460, 440);
+    }
+    let out = tmp.path().join("out");
+    let opts = LerobotOptions { max_file_mb: 1, ..LerobotOptions::default() };
+    let err = export_lerobot(&root, &out, &opts).expect_err("too large");
+    assert!(matches!(err, LerobotError::RowTooLarge { bound_bytes: 1_000_000, .. }), "{err}");
+    assert!(err.to_string().contains("--max-file-mb"), "{err}");
+    assert!(!out.exists(), "a refused export leaves nothing behind");
+    for bad in [0, 2001] {
+        let opts = LerobotOptions { max_file_mb: bad, ..LerobotOptions::default() };
+        assert!(matches!(export_lerobot(&root, &out, &opts), Err(LerobotError::BadOption(_))), "--max-file-mb {bad}");
+    }
+    export_lerobot(&root, &out, &LerobotOptions { max_file_mb: 2, ..LerobotOptions::default() }).expect("2 MB holds a frame");
+}

@@ -1,5 +1,6 @@
-//! `verify` finds each kind of damage; `merge` joins shards and refuses conflicts; the CLI's
-//! `rig dataset verify` exits 1 on a damaged dataset; no bytes make the parsers panic.
+//! `verify` finds each kind of damage; `merge` joins shards and refuses conflicts, and a merge
+//! that appends nothing reads no image and writes nothing; the CLI's `rig dataset verify` exits
+//! 1 on a damaged dataset; no bytes make the parsers panic.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -29,6 +30,13 @@ fn dataset(dir: &Path, ids: &[u32]) {
         w.append(synth_row(id, id as u64), &img(id as u8)).expect("append");
     }
     w.finish().expect("finish");
+}
+
+/// A dataset `top/name` of synthetic rows `ids`.
+fn shard(top: &Path, name: &str, ids: &[u32]) -> PathBuf {
+    let d = top.join(name);
+    dataset(&d, ids);
+    d
 }
 
 #[test]
@@ -108,13 +116,8 @@ fn verify_checks_the_kept_order() {
 #[test]
 fn merge_joins_shards_and_refuses_conflicts() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let shard = |name: &str, ids: &[u32]| -> PathBuf {
-        let d = tmp.path().join(name);
-        dataset(&d, ids);
-        d
-    };
-    let a = shard("a", &[0, 2, 4]);
-    let b = shard("b", &[1, 3, 4]); // 4 is in both, identical
+    let a = shard(tmp.path(), "a", &[0, 2, 4]);
+    let b = shard(tmp.path(), "b", &[1, 3, 4]); // 4 is in both, identical
     let out = tmp.path().join("out");
     let report = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merge");
     assert_eq!((report.appended, report.already_present), (5, 1));
@@ -142,6 +145,73 @@ fn merge_joins_shards_and_refuses_conflicts() {
     DatasetWriter::create(&d, m).expect("create").finish().expect("finish");
     let err = merge(&[a, d], &tmp.path().join("out2"), MergeOptions::default()).unwrap_err();
     assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
+}
+
+/// Every file below `dir`: relative path -> (inode, length, mtime, bytes).
+fn snapshot(dir: &Path) -> std::collections::BTreeMap<PathBuf, (u64, u64, std::time::SystemTime, Vec<u8>)> {
+    use std::os::unix::fs::MetadataExt;
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).expect("ls") {
+            let path = e.expect("entry").path();
+            let meta = std::fs::symlink_metadata(&path).expect("lstat");
+            if meta.is_dir() {
+                stack.push(path);
+            } else {
+                let rel = path.strip_prefix(dir).expect("below").to_path_buf();
+                out.insert(rel, (meta.ino(), meta.len(), meta.modified().expect("mtime"), std::fs::read(&path).expect("read")));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn a_merge_that_appends_nothing_reads_no_image_and_changes_nothing() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let a = shard(tmp.path(), "a", &[0, 2, 4]);
+    let b = shard(tmp.path(), "b", &[1, 3]);
+    let out = tmp.path().join("out");
+    let report = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merge");
+    assert_eq!((report.appended, report.already_present), (5, 0));
+    let before = snapshot(&out);
+    assert_eq!(before.len(), 7, "manifest, poses.csv and five images: {:?}", before.keys().collect::<Vec<_>>());
+
+    // An image of an input that no longer decodes (same length, other bytes): verify would
+    // refuse the input, so merging again succeeds only if no image is read.
+    let png = a.join("images/2.png");
+    let len = std::fs::metadata(&png).expect("png").len() as usize;
+    std::fs::write(&png, vec![0xAB; len]).expect("corrupt");
+    assert!(!verify(&a).expect("verify").is_clean());
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    let again = merge(&[a.clone(), b.clone()], &out, MergeOptions::default()).expect("merging again reads no image");
+    assert_eq!((again.appended, again.already_present), (0, 5));
+    assert!(snapshot(&out) == before, "the output changed: a merge that appends nothing writes nothing");
+
+    // A merge that has something to append reads the images: the unclean input is refused and
+    // the output is left as it was.
+    let c = shard(tmp.path(), "c", &[5]);
+    let err = merge(&[a.clone(), c.clone()], &out, MergeOptions::default()).expect_err("unclean input");
+    assert!(matches!(&err, DatasetError::Unclean { dir, .. } if *dir == a), "{err}");
+    assert!(snapshot(&out) == before);
+
+    // A pose the output has, with the same row but an image of another size, is a conflict
+    // found without reading either image.
+    let d = tmp.path().join("d");
+    let mut w = DatasetWriter::create(&d, manifest()).expect("create");
+    w.append(synth_row(3, 3), &RgbImage::from_fn(9, 9, |x, y| image::Rgb([x as u8 * 20, y as u8 * 20, 7]))).expect("append");
+    w.finish().expect("finish");
+    let err = merge(&[d], &out, MergeOptions::default()).expect_err("conflict");
+    assert!(matches!(err, DatasetError::MergeConflict { pose_id: 3, .. }), "{err}");
+    assert!(snapshot(&out) == before);
+
+    // The CLI says what it did (and exits 0).
+    let cli =
+        Command::new(env!("CARGO_BIN_EXE_rig")).args(["dataset", "merge", "--out"]).arg(&out).arg(&a).arg(&b).output().expect("run rig");
+    assert_eq!(cli.status.code(), Some(0), "{}", String::from_utf8_lossy(&cli.stderr));
+    assert!(String::from_utf8_lossy(&cli.stdout).contains("0 rows appended, 5 already present"));
+    assert!(snapshot(&out) == before);
 }
 
 #[test]

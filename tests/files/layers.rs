@@ -75,15 +75,21 @@ const LAYERS: &[Layer] = &[
     // the arm, the cameras, the Modbus peripherals and the collection, so it sits on them; its
     // `[sensors.<name>]` sections name sensors through `sensor`'s one parser.
     Layer { name: "config", prefixes: &["config"], may_use: &["pose", "sensor", "camera", "io"] },
+    // Not in the table: the fence in front of the arm ("Trust boundaries": every pose that
+    // reaches an arm checked against the firmware profile's workspace and the sensor's press
+    // limit, in one place). It sits on the arm (the profile), the work frame, the plan's poses
+    // and the configuration (the press limits); the calibration and the collection use it.
+    Layer { name: "fence", prefixes: &["fence"], may_use: &["arm", "pose", "plan", "sensor", "config"] },
     // The calibration model (px/mm map, store): the bottom of `calibration`, under geometry.
     Layer { name: "calibration::model", prefixes: &["calibration::model"], may_use: &[] },
     Layer { name: "geometry", prefixes: &["geometry"], may_use: &["pose", "calibration::model"] },
     // differs: `sensor` (the detector and the contact fit's target are chosen per sensor kind)
-    // and `config` (a press captures as the collection does: `CollectConfig`).
+    // and `config` (a press captures as the collection does: `CollectConfig`); `fence` (each
+    // press is checked against the workspace and the press limit before the arm moves).
     Layer {
         name: "calibration",
         prefixes: &["calibration"],
-        may_use: &["calibration::model", "geometry", "imaging", "arm", "camera", "sensor", "config"],
+        may_use: &["calibration::model", "geometry", "imaging", "arm", "camera", "sensor", "config", "fence"],
     },
     // differs: `camera` and `io` (the simulated sensors implement `Camera`; the simulated
     // Modbus devices are of an `io::modbus::SimPeripheralKind`) and `clock` (the simulated

@@ -8,12 +8,14 @@
 # 2. Collects a small plan of two objects (edge, sphere) with the three simulated sensors, and
 #    fills the poses not collected with the tiny test model, so the export holds simulated and
 #    synthetic frames, two episodes and three image keys.
-# 3. Exports it with `rig dataset export --format lerobot` and runs tools/check_lerobot.py on it
-#    with --datasets: the schema against meta/info.json, row and episode counts, every image
-#    decoded by Pillow, tasks, stats, and every frame against its dataset row (pose, source,
-#    pixels).
+# 3. Exports it with `rig dataset export --format lerobot`, once as is (one data file) and once
+#    with --max-file-mb 3 (ten data files, episodes cut where the files are), and runs
+#    tools/check_lerobot.py on each with --datasets: every file within the size bound and read
+#    whole by pyarrow, the schema against meta/info.json, row and episode counts, each episode in
+#    the data file it names, every image decoded by Pillow, tasks, stats, and every frame against
+#    its dataset row (pose, source, pixels).
 # 4. Opt-in: with RIG_LEROBOT_PYTHON set to a Python that has the `lerobot` package, also loads
-#    the export with LeRobotDataset from the local folder (HF_HUB_OFFLINE=1) and iterates every
+#    both exports with LeRobotDataset from the local folder (HF_HUB_OFFLINE=1) and iterates every
 #    frame (tools/check_lerobot.py --lerobot).
 #
 # RIG_BIN: the rig binary (default: target/release/rig, built here). Everything is written to a
@@ -72,15 +74,27 @@ done
 say "collected 5 poses of edge and sphere with three simulated sensors, filled the other 7 of each"
 
 # --- 3. export and check ---------------------------------------------------------------------
+# Once with the default bound (100 MB: one data file), once with files of at most 3 MB: a frame
+# of three 640 x 480 images is about 1 MB, so the 24 frames roll over ten data files and
+# the objects' episodes end with them.
 "$rig" dataset export "$work/datasets" --format lerobot --out "$work/lerobot" --fps 5 || fail "the export failed"
-"$venv/bin/python" tools/check_lerobot.py "$work/lerobot" --datasets "$work/datasets" || fail "tools/check_lerobot.py"
-frames=$("$venv/bin/python" -c 'import json, sys; print(json.load(open(sys.argv[1]))["total_frames"])' "$work/lerobot/meta/info.json")
-[ "$frames" = 24 ] || fail "the export holds $frames frames, not 2 objects x 12 poses"
+"$rig" dataset export "$work/datasets" --format lerobot --out "$work/lerobot-rolled" --fps 5 --max-file-mb 3 \
+  || fail "the export with --max-file-mb 3 failed"
+for export in lerobot lerobot-rolled; do
+  "$venv/bin/python" tools/check_lerobot.py "$work/$export" --datasets "$work/datasets" || fail "tools/check_lerobot.py $export"
+  frames=$("$venv/bin/python" -c 'import json, sys; print(json.load(open(sys.argv[1]))["total_frames"])' "$work/$export/meta/info.json")
+  [ "$frames" = 24 ] || fail "$export holds $frames frames, not 2 objects x 12 poses"
+done
+files=$(find "$work/lerobot-rolled/data" -name '*.parquet' | wc -l)
+[ "$files" -ge 4 ] || fail "--max-file-mb 3 wrote $files data files; the check meant to read several"
+say "the export with --max-file-mb 3 has $files data files, each read whole by pyarrow"
 
 # --- 4. LeRobotDataset (opt-in) --------------------------------------------------------------
 if [ -n "${RIG_LEROBOT_PYTHON:-}" ]; then
-  HF_HOME="$work/hf" HF_HUB_OFFLINE=1 "$RIG_LEROBOT_PYTHON" tools/check_lerobot.py "$work/lerobot" --lerobot \
-    || fail "LeRobotDataset did not load the export"
+  for export in lerobot lerobot-rolled; do
+    HF_HOME="$work/hf" HF_HUB_OFFLINE=1 "$RIG_LEROBOT_PYTHON" tools/check_lerobot.py "$work/$export" --lerobot \
+      || fail "LeRobotDataset did not load $export"
+  done
 else
   say "LeRobotDataset check skipped (opt-in: RIG_LEROBOT_PYTHON=<python with lerobot>)"
 fi

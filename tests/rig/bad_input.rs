@@ -80,6 +80,11 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     write("uses-bad-calibration.toml", b"[sensors.tactip]\ncalibration = \"bad-calibration.toml\"\n");
     write("far.toml", b"[work_frame]\norigin = { x_mm = 500.0, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n");
     write(
+        "deep-plan.toml",
+        b"sampling = \"full\"\norder = \"optimised\"\nx_mm = { min = 0.0, max = 0.0, step = 1.0 }\ny_mm = { min = 0.0, max = 0.0, step = 1.0 }\nz_mm = { min = 20.0, max = 30.0, step = 5.0 }\nyaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
+    );
+    write("zero-limit.toml", b"[sensors.vitac]\nmax_indentation_mm = 0.0\n");
+    write(
         "negative-step.toml",
         b"sampling = \"lhs\"\nn_poses = 1\nseed = 1\norder = \"optimised\"\nx_mm = { min = -5.0, max = 5.0, step = -1.0 }\ny_mm = { min = -5.0, max = 5.0, step = 1.0 }\nz_mm = { min = 0.0, max = 1.0, step = 0.5 }\nyaw_deg = { min = 0.0, max = 0.0, step = 1.0 }\n",
     );
@@ -149,6 +154,18 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("zero poses asked for", &["collect", "--poses", "0", "--dry-run"], 2, "0 poses"),
         case("more poses than the grid has", &["collect", "--poses", "100000000", "--dry-run"], 2, "only"),
         case("plan outside the arm's workspace", &["collect", "--config", "far.toml", "--dry-run"], 2, "outside the arm's workspace"),
+        case(
+            "plan pressing past the sensor's press limit",
+            &["collect", "--plan", "deep-plan.toml", "--sensor", "tactip", "--dry-run"],
+            2,
+            "beyond tactip's press limit of 5 mm",
+        ),
+        case(
+            "press limit out of range in the rig config",
+            &["collect", "--config", "zero-limit.toml", "--dry-run"],
+            2,
+            "max_indentation_mm",
+        ),
         case(
             "collecting into an existing dataset without --resume",
             &["collect", "--poses", "2", "--seed", "1", "--sensor", "tactip", "--out", "ds"],

@@ -13,7 +13,12 @@ use serde_json::json;
 /// A daemon on the built-in simulated rig whose jobs may touch `roots` only (the first is the
 /// base of relative paths).
 async fn start(token: Option<&str>, roots: &[&Path]) -> (Daemon, DaemonClient) {
-    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    start_on(RigConfig::builtin_sim(), token, roots).await
+}
+
+/// [`start`] on the rig `config` describes.
+async fn start_on(config: RigConfig, token: Option<&str>, roots: &[&Path]) -> (Daemon, DaemonClient) {
+    let mut options = DaemonOptions::local(config);
     let dirs: Vec<std::path::PathBuf> = roots.iter().map(|r| r.to_path_buf()).collect();
     options.roots = Some(rig::roots::DataRoots::new(&dirs, roots[0]).expect("data roots"));
     // Frames come from the jobs only: the tests see what the jobs publish.
@@ -385,6 +390,41 @@ async fn a_calibrate_job_presses_fits_and_saves() {
     let at = status.arm.pose.expect("arm pose");
     let above = RigConfig::builtin_sim().work_frame.approach_pose(&rig::pose::Pose::default());
     assert!(at.distance_mm(&above) < 0.5, "arm at {at:?}, approach pose {above:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// The daemon's jobs build the same requests and pass the same fence: on a bench whose work
+/// frame touches 3 mm deep, a ViTac collection and a ViTac calibration (pressing 2 to 4 and
+/// 2.5 to 3.5 mm) fail with exit 2 naming the pose and the 2.5 mm limit, before the arm moves
+/// and before anything is written; a TacTip collection within its 5 mm goes on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn jobs_pressing_past_the_press_limit_fail_before_the_arm_moves() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let config = RigConfig::parse(
+        "[work_frame]\norigin = { x_mm = 300.0, y_mm = 0.0, z_mm = -20.0, yaw_deg = 0.0 }\ncontact_depth_mm = 3.0\n",
+        Path::new("deep.toml"),
+    )
+    .expect("config");
+    let (daemon, client) = start_on(config, None, &[tmp.path()]).await;
+    let before: StatusView = client.get_json("/api/status").await.expect("status");
+    let collect =
+        submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "vitac", "poses": 4, "out": tmp.path().join("a")})).await;
+    let calibrate = submit(&client, json!({"kind": "calibrate", "sensor": "vitac", "grid": 2, "out": tmp.path().join("vitac.toml")})).await;
+    let within =
+        submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 2, "out": tmp.path().join("b")})).await;
+    for (id, what) in [(collect.id, "plan pose"), (calibrate.id, "calibration press")] {
+        let failed = poll_until(&client, id, final_state).await.pop().expect("view");
+        assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
+        let error = failed.error.clone().unwrap_or_default();
+        assert!(error.contains(what) && error.contains("into the skin (contact depth 3.000 mm"), "{failed:?}");
+        assert!(error.contains("vitac's press limit of 2.5 mm"), "{failed:?}");
+    }
+    assert!(!tmp.path().join("a").exists() && !tmp.path().join("vitac.toml").exists(), "nothing may be written");
+    let after: StatusView = client.get_json("/api/status").await.expect("status");
+    assert_eq!(after.arm.pose, before.arm.pose, "the arm did not move");
+    let next = poll_until(&client, within.id, final_state).await.pop().expect("view");
+    assert_eq!(next.state, JobState::Done, "{next:?}");
+    assert_eq!(rows(&tmp.path().join("b/edge/tactip")), 2);
     daemon.shutdown().await.expect("clean shutdown");
 }
 

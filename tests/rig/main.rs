@@ -22,5 +22,8 @@ mod hw_magician;
 mod hw_modbus;
 mod mg400_client;
 mod mg400_hardware;
+mod preflight;
+mod press_limits;
 mod provenance;
 mod record_replay;
+mod run;

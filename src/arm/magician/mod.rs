@@ -249,7 +249,8 @@ impl MagicianArm {
         result.map_err(|e| arm_error(context, e))
     }
 
-    async fn alarms(&self) -> Result<Vec<Alarm>, ArmError> {
+    /// The active alarms, named (read only: nothing is cleared).
+    pub async fn alarms(&self) -> Result<Vec<Alarm>, ArmError> {
         match self.request(Command::GetAlarmsState, "reading alarms").await? {
             Reply::Alarms(codes) => {
                 Ok(codes.into_iter().map(|c| Alarm { source: 0, id: i64::from(c), description: alarm_description(c) }).collect())

@@ -30,6 +30,10 @@ pub struct SimStats {
     pub frozen: bool,
     /// Connections accepted on the dashboard port.
     pub dashboard_connections: u64,
+    /// `EnableRobot` requests received, accepted or not (a dry run must send none).
+    pub enable_requests: u64,
+    /// Motion requests received (MovJ, MovL, JointMovJ), accepted or not.
+    pub motion_requests: u64,
 }
 
 /// A queued motion command.
@@ -208,6 +212,7 @@ impl Controller {
         }
         match request {
             Request::EnableRobot { load_kg, centre_mm } => {
+                self.stats.enable_requests += 1;
                 if load_kg.is_some_and(|l| !(0.0..=0.75).contains(&l)) {
                     return reply(ErrorId::ParameterRange { index: 1 }, String::new());
                 }
@@ -336,6 +341,7 @@ impl Controller {
     }
 
     fn enqueue(&mut self, motion: Motion, call: &RequestCall) -> Answer {
+        self.stats.motion_requests += 1;
         if !self.alarms.is_empty() || !self.enabled {
             return Answer::Reply(Reply::new(ErrorId::Failed, String::new(), call.text.clone()));
         }
