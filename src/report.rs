@@ -549,6 +549,9 @@ impl Classify for crate::record::replay::ReplayError {
             R::Dataset(e) => e.exit(),
             // The replay no longer follows the recording.
             R::Diverged(_) | R::Leftover { .. } | R::PeripheralsDiverged(_) => Exit::HardwareFault,
+            // The recording could not be read on: damaged (bad input), or the disk failed.
+            R::Recording(e) if e.is_bad_input() => Exit::BadInput,
+            R::Recording(_) => Exit::Failure,
         }
     }
 }

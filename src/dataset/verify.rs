@@ -1,7 +1,8 @@
 //! Read-only check of a dataset directory: rows against images, duplicates, malformed lines,
 //! leftovers of a killed run, symlinks and other entries that are not regular files, and every
 //! image decoded and its size checked against the reference frame's (or, without one, the
-//! first image's). Nothing is modified; [`super::DatasetWriter::resume`] repairs what it can.
+//! first image's) and against the camera format the manifest's capture chain names. Nothing is
+//! modified; [`super::DatasetWriter::resume`] repairs what it can.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
@@ -36,6 +37,9 @@ pub enum VerifyIssue {
     NotRegular { path: PathBuf, reason: String },
     /// An image (or `reference.png`) that does not decode: empty, truncated, not a PNG.
     BadImage { path: PathBuf, reason: String },
+    /// An image (or `reference.png`) whose size differs from the frame size the manifest's
+    /// capture chain gives the dataset's camera.
+    NotCameraFormat { path: PathBuf, found: (u32, u32), camera: (u32, u32) },
     /// An image whose size differs from the dataset's.
     WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     /// A row that presses past the sensor's press limit ([`super::press_limit`]).
@@ -66,6 +70,15 @@ impl fmt::Display for VerifyIssue {
             VerifyIssue::BadManifest { reason } => write!(f, "manifest: {reason}"),
             VerifyIssue::NotRegular { path, reason } => write!(f, "{}: {reason}", path.display()),
             VerifyIssue::BadImage { path, reason } => write!(f, "unreadable image {}: {reason}", path.display()),
+            VerifyIssue::NotCameraFormat { path, found, camera } => write!(
+                f,
+                "image {} is {}x{} px, the manifest's camera format is {}x{}",
+                path.display(),
+                found.0,
+                found.1,
+                camera.0,
+                camera.1
+            ),
             VerifyIssue::WrongSize { path, found, expected } => {
                 write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
             }
@@ -209,11 +222,14 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     let mut report = VerifyReport::default();
 
     let mut grid_len = None;
+    // The frame size the manifest gives the camera, if it gives one.
+    let mut camera = None;
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
         Ok(true) => match Manifest::load(dir) {
             Ok(m) => {
                 grid_len = m.plan.as_ref().map(|p| p.grid_len());
+                camera = camera_format(&m);
                 report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c)));
             }
             Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
@@ -227,6 +243,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
         Ok(true) => {
             report.has_reference = true;
             expected_size = check_image(dir, Path::new(REFERENCE_FILE), None, &mut report);
+            check_camera_format(&reference, expected_size, None, camera, &mut report);
         }
         Ok(false) => {}
         Err(e) => not_regular(&mut report, &reference, &e),
@@ -298,6 +315,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
                     report.issues.push(VerifyIssue::OrphanImage { path: path.clone() });
                 }
                 let size = check_image(dir, &Path::new(IMAGES_DIR).join(&name), expected_size, &mut report);
+                check_camera_format(&path, size, expected_size, camera, &mut report);
                 expected_size = expected_size.or(size);
             } else {
                 report.orphan += 1;
@@ -376,6 +394,34 @@ fn check_image(dir: &Path, rel: &Path, expected: Option<(u32, u32)>, report: &mu
             report.issues.push(VerifyIssue::BadImage { path: path.to_path_buf(), reason });
             None
         }
+    }
+}
+
+/// The frame size the manifest's capture chain gives the dataset's camera (the `resolution_px`
+/// of the sensor part named like the dataset's sensor), if it gives one.
+fn camera_format(manifest: &Manifest) -> Option<(u32, u32)> {
+    let sensor = manifest.sensor.to_string();
+    let part = manifest.capture.as_ref()?.sensors.iter().find(|p| p.name == sensor)?;
+    part.resolution_px.map(|[width, height]| (width, height))
+}
+
+/// Records an issue when an image that decoded to `found` is not the camera's size. Apart from
+/// the check against the dataset's size (the reference's), which images of one wrong size all
+/// pass: a dataset of 1 x 1 images whose manifest says 64 x 64 is not clean. An image already
+/// counted as of the wrong size for the dataset (`dataset`) is not counted twice.
+fn check_camera_format(
+    path: &Path,
+    found: Option<(u32, u32)>,
+    dataset: Option<(u32, u32)>,
+    camera: Option<(u32, u32)>,
+    report: &mut VerifyReport,
+) {
+    let (Some(found), Some(camera)) = (found, camera) else { return };
+    if found != camera {
+        if dataset.is_none_or(|size| size == found) {
+            report.bad_images += 1;
+        }
+        report.issues.push(VerifyIssue::NotCameraFormat { path: path.to_path_buf(), found, camera });
     }
 }
 

@@ -243,3 +243,33 @@ proptest! {
         let _ = rig::dataset::export::parse_mds(&bytes, Path::new("x.csv"));
     }
 }
+
+/// (Issue 44, break 3.) Images of one size that is not the camera's: a dataset of 1 x 1 images
+/// whose manifest's capture chain says the camera gives 64 x 64 frames is not clean (the images
+/// agree with each other and with `reference.png`, so only the manifest can tell).
+#[test]
+fn images_of_another_size_than_the_manifests_camera_are_reported() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("ds");
+    let mut m = manifest();
+    let camera = rig::dataset::CapturePart::new("vitac", "sim", true, None).with_stream(None, None, [64, 64], 30);
+    m.capture = Some(rig::dataset::CaptureChain {
+        arm: rig::dataset::CapturePart::new("arm", "sim-mg400", true, None),
+        sensors: vec![rig::dataset::CapturePart::new("tactip", "sim", true, None).with_stream(None, None, [4, 4], 30), camera],
+        modbus: Vec::new(),
+    });
+    let one_pixel = RgbImage::from_pixel(1, 1, image::Rgb([1, 2, 3]));
+    let mut w = DatasetWriter::create(&dir, m).expect("create");
+    w.write_reference(&one_pixel).expect("reference");
+    for id in [1, 2] {
+        w.append(synth_row(id, 0), &one_pixel).expect("append");
+    }
+    w.finish().expect("finish");
+    let r = verify(&dir).expect("verify");
+    assert_eq!(r.bad_images, 3, "{r}");
+    assert!(r.issues.contains(&VerifyIssue::NotCameraFormat { path: dir.join("images/2.png"), found: (1, 1), camera: (64, 64) }), "{r}");
+    let out = Command::new(env!("CARGO_BIN_EXE_rig")).args(["dataset", "verify"]).arg(&dir).output().expect("run rig");
+    assert_eq!(out.status.code(), Some(1), "{}", String::from_utf8_lossy(&out.stdout));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("reference.png is 1x1 px, the manifest's camera format is 64x64"), "{stdout}");
+}
