@@ -6,7 +6,7 @@
 //!
 //! | stage | command | N |
 //! |---|---|---|
-//! | ordering | `rig collect --plan P --poses N --dry-run` (sample, order, check the workspace) | poses |
+//! | ordering | `rig collect --plan P --poses N --dry-run` (sample, order, check the workspace and the press limit, the pre-flight of the simulated rig: a fixed cost) | poses |
 //! | collection | `rig collect --plan P --poses N` on the simulated rig, one sensor | poses (frames) |
 //! | verify | `rig dataset verify` of that dataset | frames |
 //! | merge | `rig dataset merge --out NEW` of that dataset | frames |
@@ -295,7 +295,7 @@ pub fn report(config: &BenchConfig, costs: &[(Stage, Vec<(usize, ChildCost)>)]) 
         notes: vec![
             format!(
                 "Each stage is a `rig` command run as a child process at three sizes: the ordering at {} poses (`rig collect \
-                 --dry-run`: sampling, ordering, the workspace check), the others at {} frames (a collection on the simulated rig, \
+                 --dry-run`: sampling, ordering, the workspace and press checks, the pre-flight of the simulated rig), the others at {} frames (a collection on the simulated rig, \
                  one sensor, {px} x {px} px frames, its clock {SIM_TIME_SCALE}x real time and no settle time; `rig dataset verify`, \
                  `rig dataset merge --out NEW` and `rig dataset export --format lerobot` of that dataset; `rig replay --info` and \
                  `rig replay` of the same collection recorded with `rig collect --record`). The plan is a Latin hypercube on the \
