@@ -4,7 +4,7 @@
 //! ```text
 //! poses ──probe the cost──► metric (work-frame x, y, z, yaw, each scaled to seconds)
 //!       ──group──► sites (poses the metric cannot tell apart: the same approach pose)
-//!       ──k-d tree──► candidate neighbours per site (16 by the metric, the 10 cheapest by the real cost)
+//!       ──k-d tree──► candidate neighbours per site (24 by the metric, the 10 cheapest by the real cost)
 //!       ──► nearest-neighbour tour (through the candidates, else the tree's nearest live site)
 //!       ──► 2-opt and Or-opt over the candidates, don't-look bits ──► open path ──► poses
 //! ```
@@ -585,18 +585,12 @@ mod tests {
         move |a: &Pose, b: &Pose| m.time_s(a, b)
     }
 
-    /// The 100 x 100 x 10 x 10 grid of the scale figures (docs/src/benchmarks.md).
+    /// The 100 x 100 x 10 x 10 grid of the scale figures (`plans/lab-scale.toml`, Latin
+    /// hypercube), `n_poses` of it in the sampler's order.
     fn lab_grid(n_poses: usize, seed: u64) -> PlanSpec {
-        PlanSpec {
-            x_mm: AxisRange::new(-5.0, 4.9, 0.1),
-            y_mm: AxisRange::new(-5.0, 4.9, 0.1),
-            z_mm: AxisRange::new(-1.0, 0.8, 0.2),
-            yaw_deg: AxisRange::new(-90.0, 72.0, 18.0),
-            sampling: Sampling::Lhs,
-            n_poses: Some(n_poses),
-            seed,
-            order: Order::AsSampled,
-        }
+        let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/lab-scale.toml");
+        let spec = PlanSpec::load(&file).expect("plans/lab-scale.toml");
+        PlanSpec { n_poses: Some(n_poses), seed, order: Order::AsSampled, ..spec }
     }
 
     fn sampled(spec: &PlanSpec, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Vec<PlannedPose> {

@@ -8,6 +8,10 @@
 //! batching, order or sharding. A shard `i/n` takes the missing poses with
 //! `pose_id % n == i - 1` and writes them to its own dataset directory, which
 //! `rig dataset merge` joins later.
+//!
+//! The fill never orders the plan and reads no kept order (`order.csv`, see
+//! [`crate::dataset::order`]): it moves no arm, so a visiting order saves nothing. It walks the
+//! grid in pose-id order, which is what the shards split on, in O(grid) time and memory.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
