@@ -1,7 +1,10 @@
 //! End to end: the daemon's page in headless Chromium while a collection runs. The page is
 //! loaded twice (`--dump-dom` after a virtual-time budget, so its polling has run); both
 //! loads must show every sensor's frame (an image fetched through the token-checked API) and
-//! the job's progress, and the second must show newer frames and more progress.
+//! the job's progress, and the second must show newer frames and more progress. A second
+//! test drives the page's job controls (forms, Cancel, Resume) through Chromium's DevTools
+//! protocol on `--remote-debugging-pipe` ([`DevTools`]), since `--dump-dom` cannot click; a
+//! third checks that a page on another origin cannot queue a job.
 //!
 //! Needs Debian's `chromium` (`scripts/setup.sh` installs it). Without it the test fails,
 //! unless `RIG_SKIP_BROWSER=1` says to skip it.
