@@ -565,8 +565,12 @@ fn one_sensor(
         if needs_synthetic { load_samples(&mut readers_of(&synthetic_sets)?, &synthetic, size as u32)? } else { Vec::new() };
     let test_pixels: Vec<f32> = test.iter().flat_map(|s| s.pixels.iter().copied()).collect();
     let truth: Vec<[f32; OUTPUTS]> = test.iter().map(|s| s.label).collect();
-    let looked: Vec<(u32, [f32; OUTPUTS], &[f32])> =
-        test_rows.iter().chain(pool_rows.iter()).zip(test.iter().chain(&pool)).map(|((_, r), s)| (r.pose_id, s.label, &s.pixels[..])).collect();
+    let looked: Vec<(u32, [f32; OUTPUTS], &[f32])> = test_rows
+        .iter()
+        .chain(pool_rows.iter())
+        .zip(test.iter().chain(&pool))
+        .map(|((_, r), s)| (r.pose_id, s.label, &s.pixels[..]))
+        .collect();
     let ambiguous = super::downstream_notes::ambiguous_components(&looked);
 
     let mut set_results: Vec<SetResult> = sets
