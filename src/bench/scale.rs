@@ -1,7 +1,7 @@
 //! Scale: what the work costs as it grows. Each stage is a `rig` command, run as a child
 //! process at three sizes N1 < N2 < N3, with its wall time and its own peak resident memory
-//! (the child's `ru_maxrss` from `wait4`, so one stage's memory never hides another's, and
-//! the bench's own memory is not counted), and the growth exponent of each fitted on a log-log
+//! (the child's `ru_maxrss` from `wait4`, so one stage's memory never hides another's), and
+//! the growth exponent of each fitted on a log-log
 //! scale (the least-squares slope of ln(cost) against ln(N): 1 is linear, 0 flat, 2 quadratic).
 //!
 //! | stage | command | N |
@@ -19,6 +19,12 @@
 //! seed 0. The simulated rig runs [`SIM_TIME_SCALE`] times faster than real time with no settle
 //! time, frames of `scale_image_px` square: the stages' cost, not the arm's, is measured. The
 //! scratch datasets of a size are removed before the next size starts.
+//!
+//! A floor under every peak: Linux starts a child's `ru_maxrss` from the size of the process
+//! that started it (the high-water mark of the memory it replaced at `execve`), so no peak reads
+//! below the bench's own size when it started the child. The bench keeps itself small (it
+//! only starts children) and the report states its own peak ([`own_peak_bytes`]), the highest
+//! that floor can be.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -106,6 +112,15 @@ pub fn growth_exponent(points: &[(f64, f64)]) -> f64 {
     let sxx: f64 = logs.iter().map(|p| (p.0 - mx) * (p.0 - mx)).sum();
     let sxy: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
     if sxx > 0.0 { sxy / sxx } else { f64::NAN }
+}
+
+/// This process's own peak resident memory in bytes (`VmHWM` of `/proc/self/status`), where
+/// the system reports it.
+pub fn own_peak_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.trim_start_matches("VmHWM:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kib * 1024)
 }
 
 /// Waits for `child` and returns its exit status and its own peak resident set size in bytes
@@ -304,11 +319,14 @@ pub fn report(config: &BenchConfig, costs: &[(Stage, Vec<(usize, ChildCost)>)]) 
                 sizes(&config.scale_frames),
                 px = config.scale_image_px
             ),
-            "*wall* is the child's wall time; *peak* its own peak resident memory (`ru_maxrss` of `wait4`, the process's fixed \
-             footprint of about 15-20 MB included); each *exponent* is the least-squares slope of ln(cost) against ln(N) over \
+            format!(
+                "*wall* is the child's wall time; *peak* its own peak resident memory (`ru_maxrss` of `wait4`, the process's fixed \
+             footprint of about 15-20 MB included; Linux counts it from the size of the process that started the child, so no \
+             peak reads below the bench's own, {floor}); each *exponent* is the least-squares slope of ln(cost) against ln(N) over \
              the three sizes: 1 grows linearly, 0 is flat, 2 quadratic. *ms per item* is the wall time at N3 over N3 (per pose, \
-             per frame). The plot shows log10 wall time against log10 N, each stage labelled with its time exponent."
-                .to_string(),
+             per frame). The plot shows log10 wall time against log10 N, each stage labelled with its time exponent.",
+                floor = own_peak_bytes().map_or_else(|| "not reported here".to_string(), |b| format!("at most {:.1} MB", b as f64 / 1e6))
+            ),
         ],
         plot: Plot {
             title: "Scale: wall time against size (log-log)".into(),
@@ -343,20 +361,26 @@ mod tests {
         assert_eq!(lab_scale_plan(1).axis_counts(), [100, 100, 10, 10]);
     }
 
-    /// A child's peak memory is its own: a child that builds a 64 MB string reports at least
-    /// that, and a small child after it reports much less (`RUSAGE_CHILDREN` would report the
-    /// large one again). A failed child is an error with the end of its output.
+    /// A child's peak memory is its own: a child that builds a string far larger than this test
+    /// process reports at least that, and a small child after it reports much less
+    /// (`RUSAGE_CHILDREN` would report the large one again), though never less than this
+    /// process's own size (the floor the report states). A failed child is an error with the
+    /// end of its output.
     #[test]
     fn a_childs_peak_is_its_own() {
         let dir = tempfile::tempdir().expect("tempdir");
         let log = dir.path().join("log");
         let awk = Path::new("awk");
-        let big = run_child(awk, &os(&[&"BEGIN { s = \"x\"; for (i = 0; i < 26; i++) s = s s; print length(s) }"]), dir.path(), &log)
-            .expect("big child");
-        assert_eq!(std::fs::read_to_string(&log).expect("log").trim(), "67108864");
+        let floor = own_peak_bytes().expect("VmHWM in /proc/self/status");
+        // A string of 2^k bytes, at least 64 MiB and four times this process's peak.
+        let doublings = (floor.max(16 << 20) * 4).next_power_of_two().trailing_zeros();
+        let program = format!("BEGIN {{ s = \"x\"; for (i = 0; i < {doublings}; i++) s = s s; print length(s) }}");
+        let big = run_child(awk, &os(&[&program]), dir.path(), &log).expect("big child");
+        assert_eq!(std::fs::read_to_string(&log).expect("log").trim(), (1u64 << doublings).to_string());
         let small = run_child(awk, &os(&[&"BEGIN { print 1 }"]), dir.path(), &log).expect("small child");
-        assert!(big.peak_bytes >= 64 << 20, "{big:?}");
-        assert!(small.peak_bytes < big.peak_bytes / 4, "{small:?} after {big:?}");
+        assert!(big.peak_bytes >= 1 << doublings, "{big:?}");
+        let floor_now = own_peak_bytes().expect("VmHWM");
+        assert!(small.peak_bytes <= floor_now + (16 << 20) && small.peak_bytes < big.peak_bytes / 2, "{small:?} after {big:?}, this process {floor_now} bytes");
         let failed = run_child(awk, &os(&[&"BEGIN { print \"no luck\"; exit 3 }"]), dir.path(), &log);
         assert!(matches!(failed, Err(BenchError::Child { ref output, .. }) if output.contains("no luck")), "{failed:?}");
     }
