@@ -380,7 +380,10 @@ mod tests {
         let small = run_child(awk, &os(&[&"BEGIN { print 1 }"]), dir.path(), &log).expect("small child");
         assert!(big.peak_bytes >= 1 << doublings, "{big:?}");
         let floor_now = own_peak_bytes().expect("VmHWM");
-        assert!(small.peak_bytes <= floor_now + (16 << 20) && small.peak_bytes < big.peak_bytes / 2, "{small:?} after {big:?}, this process {floor_now} bytes");
+        assert!(
+            small.peak_bytes <= floor_now + (16 << 20) && small.peak_bytes < big.peak_bytes / 2,
+            "{small:?} after {big:?}, this process {floor_now} bytes"
+        );
         let failed = run_child(awk, &os(&[&"BEGIN { print \"no luck\"; exit 3 }"]), dir.path(), &log);
         assert!(matches!(failed, Err(BenchError::Child { ref output, .. }) if output.contains("no luck")), "{failed:?}");
     }

@@ -571,7 +571,7 @@ fn one_sensor(
         .zip(test.iter().chain(&pool))
         .map(|((_, r), s)| (r.pose_id, s.label, &s.pixels[..]))
         .collect();
-    let ambiguous = super::downstream_notes::ambiguous_components(&looked);
+    let ambiguous = super::downstream_notes::ambiguous_components(&looked, COMPONENTS.map(|c| c.0));
 
     let mut set_results: Vec<SetResult> = sets
         .iter()
@@ -665,7 +665,9 @@ impl DownstreamReport {
                 out += &format!("| {} | {} | {} | {} |", s.sensor.label(), set.label, s.train_size, s.test_rows);
                 for c in 0..OUTPUTS {
                     let digits = if c == 2 { 2 } else { 3 };
-                    let cell = |s, digits| super::downstream_notes::spread_cell(s, digits, set.seeds.len());
+                    let cell = |s: Option<Spread>, digits| {
+                        super::downstream_notes::spread_cell(s.map(|s| (s.mean, s.sd)), digits, set.seeds.len())
+                    };
                     out += &format!(
                         " {} | {} | {} |",
                         cell(set.spread(c, |x| Some(x.mae)), digits),
@@ -693,7 +695,8 @@ impl DownstreamReport {
             self.sensors.iter().map(|s| s.sets.len()).sum::<usize>() * self.seeds as usize,
             self.seconds
         );
-        let warnings = super::downstream_notes::warnings(self);
+        let warnings =
+            super::downstream_notes::warnings(self.sensors.iter().map(|s| (s.sensor.label().to_string(), s.test_rows, &s.ambiguous[..])));
         if !warnings.is_empty() {
             out += "\n";
             for w in warnings {

@@ -110,6 +110,9 @@ const LAYERS: &[Layer] = &[
     // calibration.
     Layer { name: "eval", prefixes: &["eval"], may_use: &["metrics", "imaging", "dataset", "geometry"] },
     Layer { name: "record", prefixes: &["record"], may_use: &["arm", "camera", "collect"] },
+    // Not in the table: a job's progress as a person reads it (a bar in a terminal, plain lines
+    // in a log), named by object and sensor; the jobs and the CLI report through it.
+    Layer { name: "progress", prefixes: &["progress"], may_use: &["sensor"] },
     Layer { name: "jobs", prefixes: &["jobs"], may_use: &[EVERYTHING_BELOW] },
     Layer { name: "rigs", prefixes: &["rigs"], may_use: &[EVERYTHING_BELOW] },
     // Not in the table: the exit code and message of a failed command, shared by the CLI and
