@@ -57,6 +57,10 @@ pub enum ConfineError {
     NotRegular { path: PathBuf, found: &'static str },
     #[error("{path} is not a folder")]
     NotFolder { path: PathBuf },
+    /// Opening found something other than a folder and a look right after found a folder:
+    /// the entry was swapped while rig opened it (a symlink or a file put in its place and back).
+    #[error("{path} changed while rig opened it (swapped for a symlink or a file and back); rig follows no symlink below {root}")]
+    Changed { root: PathBuf, path: PathBuf },
     #[error("{path} is larger than the {max_bytes} bytes rig reads from such a file")]
     TooLarge { path: PathBuf, max_bytes: u64 },
     #[error("{path} does not exist")]
@@ -84,6 +88,7 @@ impl ConfineError {
             | ConfineError::Symlink { path, .. }
             | ConfineError::NotRegular { path, .. }
             | ConfineError::NotFolder { path }
+            | ConfineError::Changed { path, .. }
             | ConfineError::TooLarge { path, .. }
             | ConfineError::Missing { path }
             | ConfineError::NotText { path }
@@ -554,6 +559,11 @@ impl RootDir {
         let path = self.path.join(done);
         match rustix::fs::statat(at, part, AtFlags::SYMLINK_NOFOLLOW) {
             Ok(st) if FileType::from_raw_mode(st.st_mode) == FileType::Symlink => ConfineError::Symlink { root: self.path.clone(), path },
+            // `O_DIRECTORY | O_NOFOLLOW` said "not a folder" yet the entry is one now: it was
+            // swapped between the two calls.
+            Ok(st) if e == Errno::NOTDIR && want_folder && FileType::from_raw_mode(st.st_mode) == FileType::Directory => {
+                ConfineError::Changed { root: self.path.clone(), path }
+            }
             Ok(_) if e == Errno::NOTDIR && want_folder => ConfineError::NotFolder { path },
             Ok(st) if e == Errno::NOTDIR => {
                 ConfineError::NotRegular { path, found: EntryKind::of(FileType::from_raw_mode(st.st_mode)).describe() }
@@ -566,7 +576,15 @@ impl RootDir {
         let path = self.path.join(rel);
         match e {
             Errno::NOENT => ConfineError::Missing { path },
-            Errno::NOTDIR => ConfineError::NotFolder { path },
+            // `O_DIRECTORY | O_NOFOLLOW` on a symlink answers ENOTDIR: look at what is there
+            // (a look only; nothing is opened through it).
+            Errno::NOTDIR => {
+                match rustix::fs::statat(&self.fd, rel, AtFlags::SYMLINK_NOFOLLOW).map(|st| FileType::from_raw_mode(st.st_mode)) {
+                    Ok(FileType::Symlink) => ConfineError::Symlink { root: self.path.clone(), path },
+                    Ok(FileType::Directory) => ConfineError::Changed { root: self.path.clone(), path },
+                    _ => ConfineError::NotFolder { path },
+                }
+            }
             Errno::LOOP => ConfineError::Symlink { root: self.path.clone(), path },
             Errno::XDEV => ConfineError::Escapes { root: self.path.clone(), path },
             e => io("opening", &path)(e),
@@ -689,6 +707,29 @@ mod tests {
             assert_eq!(root.open_dir("a").expect("dir").read_text("b/file.txt", 100).expect("read"), "inside");
             assert!(matches!(root.read("a/nope.txt", 100), Err(ConfineError::Missing { .. })));
             assert!(matches!(root.read("nope/x.txt", 100), Err(ConfineError::Missing { .. })));
+        }
+    }
+
+    /// The race the dataset writer meets when `images/` is swapped with a symlink and back:
+    /// the open answers ENOTDIR (a symlink under `O_DIRECTORY | O_NOFOLLOW`) and the look
+    /// right after finds a folder again. That is a change under rig's feet, named as such
+    /// (with the word symlink), never "not a folder".
+    #[test]
+    fn a_folder_that_was_not_one_a_moment_ago_is_reported_as_changed() {
+        let (_tmp, top) = fixture();
+        for root in roots(&top) {
+            let walked = root.classify_failure(root.fd.as_fd(), OsStr::new("a"), Path::new("a"), true, Errno::NOTDIR);
+            assert!(matches!(walked, ConfineError::Changed { .. }), "{walked}");
+            assert!(walked.to_string().contains("symlink") && walked.is_bad_input(), "{walked}");
+            let kernel = root.open_error(Path::new("a"), Errno::NOTDIR);
+            assert!(matches!(kernel, ConfineError::Changed { .. }), "{kernel}");
+            // Still a symlink, or a file: said as they are.
+            symlink(top.join("outside/a"), top.join("root/now-a-link")).expect("symlink");
+            let link = root.open_error(Path::new("now-a-link"), Errno::NOTDIR);
+            assert!(matches!(link, ConfineError::Symlink { .. }), "{link}");
+            let file = root.classify_failure(root.fd.as_fd(), OsStr::new("file.txt"), Path::new("file.txt"), true, Errno::NOTDIR);
+            assert!(matches!(file, ConfineError::NotFolder { .. }), "{file}");
+            std::fs::remove_file(top.join("root/now-a-link")).expect("rm");
         }
     }
 
