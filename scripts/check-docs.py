@@ -3,7 +3,8 @@
 
     scripts/check-docs.py [ROOT]        check the repository (default: this script's ../)
     scripts/check-docs.py --self-test   check the checker on a tiny book with known faults
-    scripts/check-docs.py --tour RIG [ROOT]   run the README's tour with the rig binary RIG (below)
+    scripts/check-docs.py --tour RIG [--after-demo] [ROOT]
+                                            run the README's tour with the rig binary RIG (below)
 
 Files checked: README.md, CHANGELOG.md, TESTING.md and docs/src/**/*.md. For each link,
 image and link reference definition (and <a href>/<img src> in raw HTML):
@@ -31,6 +32,9 @@ under it, in order (a `...` line skips any number of lines; decimals such as tim
 values match any decimal, every other character must be equal). `command &` starts a background
 job (its lines must appear while it runs; the next step waits up to 60 s for the first), and
 `kill %N` stops the Nth background job with SIGTERM and checks it exits 0 with its lines.
+With --after-demo, scripts/demo.sh runs first with the same binary (RIG_DEMO_BIN) into the
+temp folder's datasets/, as a new user runs the demo and then the tour: the tour must not
+trip over what the demo left.
 """
 
 import os
@@ -400,7 +404,7 @@ def missing_lines(expected, output):
     return []
 
 
-def run_tour(root, rig_bin):
+def run_tour(root, rig_bin, after_demo=False):
     import shutil
     import signal
     import subprocess
@@ -422,6 +426,14 @@ def run_tour(root, rig_bin):
         for var in ("RIG_CONFIG", "RIG_DAEMON_TOKEN"):
             env.pop(var, None)
         background = []  # (line_no, command, Popen, log path, expected)
+        if after_demo:
+            demo_env = dict(env, RIG_DEMO_BIN=rig_bin, RIG_DEMO_OUT=os.path.join(work, "datasets"))
+            demo = subprocess.run([os.path.join(root, "scripts", "demo.sh")], env=demo_env, stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True, errors="replace")
+            print(f"tour: scripts/demo.sh {'ok' if demo.returncode == 0 else 'FAILED'} ({time.monotonic() - t0:.0f} s)")
+            if demo.returncode != 0:
+                print(f"check-docs --tour: scripts/demo.sh exited {demo.returncode}:\n{demo.stdout}", file=sys.stderr)
+                return 1
 
         def log_of(job):
             with open(job[3], encoding="utf-8", errors="replace") as f:
@@ -503,11 +515,14 @@ def main(argv):
     if argv[1:2] == ["--self-test"]:
         return self_test()
     if argv[1:2] == ["--tour"]:
-        if len(argv) not in (3, 4):
-            print("usage: scripts/check-docs.py --tour PATH/TO/rig [ROOT]", file=sys.stderr)
+        rest = argv[2:]
+        after_demo = "--after-demo" in rest
+        rest = [a for a in rest if a != "--after-demo"]
+        if len(rest) not in (1, 2):
+            print("usage: scripts/check-docs.py --tour PATH/TO/rig [--after-demo] [ROOT]", file=sys.stderr)
             return 2
-        root = argv[3] if len(argv) == 4 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
-        return run_tour(root, argv[2])
+        root = rest[1] if len(rest) == 2 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+        return run_tour(root, rest[0], after_demo)
     root = argv[1] if len(argv) > 1 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
     errors = check(root)
     for e in errors:

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # The test command: installs what the tests need, checks the guide's links, runs the platform
-# checks (the build without optional features, the macOS type-check), runs the whole suite,
+# checks (the build without optional features, the macOS type-check), checks the dependencies'
+# licences and sources (cargo deny, deny.toml), runs the whole suite,
 # runs the SLURM example on a private single-node SLURM (tests/slurm/run.sh, as root;
 # RIG_SKIP_SLURM=1 skips it), checks the LeRobot export with pyarrow (tests/lerobot/run.sh;
 # RIG_SKIP_LEROBOT=1 skips it), checks model-package rewrites (tests/export/run.sh;
 # RIG_SKIP_EXPORT=1 skips it), checks that the API docs build without warnings, then smoke-runs
 # every fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
-# RIG_DOCS_TOUR=1 also runs the README tour as written after the test build.
+# RIG_DOCS_TOUR=1 also runs the demo and then the README tour as written after the test build.
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
 # not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
@@ -26,6 +27,16 @@ if command -v mdbook >/dev/null 2>&1; then
   mdbook build docs --dest-dir "$book_dir"
   rm -rf "$book_dir"
 fi
+# The dependency tree's licences and sources (deny.toml): a crate under a licence not allowed
+# there, a git dependency or another registry fails here. Offline: these three checks read
+# Cargo.lock and the crates' metadata (the advisory database, which needs GitHub, is not
+# checked; no advisory database is fetched). cargo-deny is installed on first use: `cargo
+# install cargo-deny --locked` compiled for 16 min 43 s on a busy 2-core machine (other builds
+# running); the check itself takes about 4 s.
+if ! cargo deny --version >/dev/null 2>&1; then
+  cargo install cargo-deny --locked
+fi
+cargo deny --locked check licenses bans sources
 # A fresh clone builds once: incremental caches would only double target/ on a small disk.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
@@ -49,10 +60,12 @@ fi
 cargo check --target x86_64-apple-darwin --no-default-features --features synth,lerobot,downstream --all-targets --locked
 cargo test --all-targets --locked
 # The README tour, run as written with the binary just built (scripts/check-docs.py --tour): every
-# step's exit status and key output lines. It collects and synthesises for minutes (11 min 44 s
-# on a busy 2-core machine), so it runs only with RIG_DOCS_TOUR=1.
+# step's exit status and key output lines, after scripts/demo.sh has run in the same folder, as
+# a new user runs them. It collects and synthesises for minutes (the tour alone took 11 min 44 s
+# on a busy 2-core machine; the demo before it adds its own collection and fill), so it runs
+# only with RIG_DOCS_TOUR=1.
 if [ "${RIG_DOCS_TOUR:-0}" = 1 ]; then
-  python3 scripts/check-docs.py --tour "${CARGO_TARGET_DIR:-target}/debug/rig"
+  python3 scripts/check-docs.py --tour "${CARGO_TARGET_DIR:-target}/debug/rig" --after-demo
 fi
 # examples/slurm end to end on a single-node SLURM it starts and stops (installs slurm-wlm and
 # munge with apt when missing), with the rig binary the tests above just built.

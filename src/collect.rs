@@ -6,8 +6,12 @@
 //! instant from each sensor that still lacks the pose, writes image and row durably, and
 //! retracts. A no-contact reference frame is taken first. A recoverable arm fault (alarm,
 //! timeout, dropped socket) is cleared and the pose retried, and so is a camera timeout; a
-//! cancel request (Ctrl-C) retracts, disables the arm and leaves every dataset consistent for
-//! `--resume`. A fault that ends the run (retries spent, a dead camera, a full disk) also
+//! cancel request (Ctrl-C, SIGTERM, a daemon cancel) lets the current pose finish for at most
+//! [`CANCEL_GRACE`], abandons it past that (whatever it waits on: an arm that does not arrive,
+//! a camera, a Modbus device that never answers), retracts (at most
+//! [`CANCEL_RETRACT_TIMEOUT`]), disables the arm (at most [`CANCEL_DISABLE_TIMEOUT`]) and
+//! leaves every dataset consistent for `--resume`: the arm is disabled within 5 s of the
+//! request. A fault that ends the run (retries spent, a dead camera, a full disk) also
 //! lifts the arm off the sensor and disables it before the error is returned.
 //!
 //! Modbus peripherals ([`Peripherals`]) act around every capture: their `before_capture`
@@ -117,6 +121,30 @@ pub struct CollectSummary {
     pub interrupted: bool,
 }
 
+/// How long a cancelled collection lets its current pose go on before abandoning it (rows are
+/// written whole or not at all, so an abandoned pose is simply not done).
+pub const CANCEL_GRACE: Duration = Duration::from_secs(1);
+/// Longest the retract after a cancel may take before the arm is disabled where it stands.
+pub const CANCEL_RETRACT_TIMEOUT: Duration = Duration::from_secs(2);
+/// Longest a cancelled collection waits for the arm to take the disable command.
+pub const CANCEL_DISABLE_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// How a step of the job ended without an error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StepEnd {
+    Done,
+    /// Cancelled, and the step did not end within [`CANCEL_GRACE`]: dropped where it was.
+    Abandoned,
+}
+
+/// Resolves [`CANCEL_GRACE`] after `cancel` turns true (never, when nobody can cancel).
+async fn grace_after_cancel(mut cancel: watch::Receiver<bool>) {
+    if cancel.wait_for(|c| *c).await.is_err() {
+        std::future::pending::<()>().await;
+    }
+    tokio::time::sleep(CANCEL_GRACE).await;
+}
+
 /// The collection job. Borrow the arm; own the sensor streams and the peripherals.
 pub struct CollectJob<'a, A: Arm, C: Camera, P: Peripherals = NoPeripherals> {
     pub arm: &'a mut A,
@@ -221,6 +249,8 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         summary.skipped = plan.len() - todo.len();
         self.progress.set_length(plan.len() as u64);
         self.progress.set_position(summary.skipped as u64);
+        // Poses a resumed run finds done are not this run's rate.
+        self.progress.reset_eta();
         info!(total = plan.len(), todo = todo.len(), "collection starting");
 
         self.arm.enable().await?;
@@ -228,48 +258,91 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
         let above_origin = self.work_frame.approach_pose(&origin);
 
         // The no-contact reference frame, for every sensor that has none yet.
-        if self.sensors.iter().any(|s| !has_reference(&s.writer))
-            && let Err(e) = self.with_retries(Step::Reference, above_origin, &mut summary).await
-        {
-            return Err(self.stop_after(above_origin, e).await);
+        if self.sensors.iter().any(|s| !has_reference(&s.writer)) {
+            match self.with_retries(Step::Reference, above_origin, &mut summary).await {
+                Ok(StepEnd::Done) => {}
+                Ok(StepEnd::Abandoned) => {
+                    summary.remaining = todo.len();
+                    summary.interrupted = true;
+                }
+                Err(e) => return Err(self.stop_after(above_origin, e).await),
+            }
         }
 
         for (k, planned) in todo.iter().enumerate() {
-            if self.cancelled() || self.stop_after.is_some_and(|n| k >= n) {
+            if summary.interrupted || self.cancelled() || self.stop_after.is_some_and(|n| k >= n) {
                 summary.remaining = todo.len() - k;
                 summary.interrupted = true;
                 break;
             }
-            if let Err(e) = self.with_retries(Step::Pose(planned), above_origin, &mut summary).await {
-                return Err(self.stop_after(above_origin, e).await);
+            match self.with_retries(Step::Pose(planned), above_origin, &mut summary).await {
+                Ok(StepEnd::Done) => {}
+                Ok(StepEnd::Abandoned) => {
+                    summary.remaining = todo.len() - k;
+                    summary.interrupted = true;
+                    break;
+                }
+                Err(e) => return Err(self.stop_after(above_origin, e).await),
             }
             summary.captured += 1;
             self.progress.inc(1);
         }
 
-        // Leave the arm above the object, disabled; close the datasets.
-        let end = self.go(above_origin, MoveKind::Linear).await;
+        // Leave the arm above the object, disabled; close the datasets. After a cancel both are
+        // bounded, so the arm is disabled within 5 s of it.
+        let end = if self.cancelled() {
+            match tokio::time::timeout(CANCEL_RETRACT_TIMEOUT, self.go(above_origin, MoveKind::Linear)).await {
+                Ok(end) => end,
+                Err(_) => Err(ArmError::Timeout { what: "retracting after the cancel".into(), after: CANCEL_RETRACT_TIMEOUT }),
+            }
+        } else {
+            self.go(above_origin, MoveKind::Linear).await
+        };
         if let Err(e) = &end {
-            warn!(error = %e, "could not retract at the end");
+            warn!(error = %e, "could not retract at the end; disabling the arm where it stands");
         }
-        self.arm.disable().await?;
+        if self.cancelled() {
+            tokio::time::timeout(CANCEL_DISABLE_TIMEOUT, self.arm.disable())
+                .await
+                .map_err(|_| ArmError::Timeout { what: "disabling the arm after the cancel".into(), after: CANCEL_DISABLE_TIMEOUT })??;
+        } else {
+            self.arm.disable().await?;
+        }
         Ok((summary, end))
     }
 
     /// Runs one step, clearing and retrying it after a recoverable arm fault (alarm, timeout,
     /// dropped socket) or a camera timeout, up to `retries_per_pose` times.
-    async fn with_retries(&mut self, step: Step<'_>, above_origin: Pose, summary: &mut CollectSummary) -> Result<(), CollectError> {
+    /// A cancel lets the step go on for [`CANCEL_GRACE`], then abandons it
+    /// ([`StepEnd::Abandoned`]), and a cancelled step is not retried.
+    async fn with_retries(&mut self, step: Step<'_>, above_origin: Pose, summary: &mut CollectSummary) -> Result<StepEnd, CollectError> {
         let pose_id = step.pose_id();
         let label = describe_pose(pose_id);
         let mut attempt = 0u32;
         loop {
+            if attempt > 0 && self.cancelled() {
+                return Ok(StepEnd::Abandoned);
+            }
             attempt += 1;
-            let result = match step {
-                Step::Reference => self.reference_frames(above_origin).await,
-                Step::Pose(planned) => self.one_pose(planned).await,
+            let abandon = grace_after_cancel(self.cancel.clone());
+            let result = {
+                let run = async {
+                    match step {
+                        Step::Reference => self.reference_frames(above_origin).await,
+                        Step::Pose(planned) => self.one_pose(planned).await,
+                    }
+                };
+                tokio::select! {
+                    biased;
+                    result = run => result,
+                    () = abandon => {
+                        warn!(?pose_id, "cancelled: abandoning the step after {CANCEL_GRACE:?}");
+                        return Ok(StepEnd::Abandoned);
+                    }
+                }
             };
             match result {
-                Ok(()) => return Ok(()),
+                Ok(()) => return Ok(StepEnd::Done),
                 Err(CollectError::Arm(e)) if e.is_recoverable() && attempt <= self.options.retries_per_pose => {
                     warn!(?pose_id, attempt, error = %e, "arm fault; clearing and retrying");
                     self.progress.println(format!("{label}: {e}; clearing and retrying"));
@@ -389,7 +462,7 @@ impl<'a, A: Arm, C: Camera, P: Peripherals> CollectJob<'a, A, C, P> {
 pub use crate::arm::move_and_wait as go;
 
 fn has_reference(writer: &DatasetWriter) -> bool {
-    writer.dir().join("reference.png").is_file()
+    writer.has_reference()
 }
 
 #[cfg(test)]

@@ -405,24 +405,30 @@ impl RigConfig {
 
     /// Validates a raw configuration and fills in defaults.
     pub fn resolve(raw: RawConfig, path: &Path) -> Result<Self, ConfigError> {
+        use crate::bounds;
         let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.to_path_buf(), field, problem };
+        // Every number within its documented range ([`crate::bounds`]).
+        let within = |bound: &bounds::Bound, field: &'static str, value: f64| bound.check(value).map(|_| ()).map_err(|p| invalid(field, p));
         let backend = match raw.arm.backend.as_deref().unwrap_or("sim") {
             "sim" | "simulated" => {
                 let time_scale = raw.arm.sim_time_scale.unwrap_or(DEFAULT_SIM_TIME_SCALE);
-                if !(time_scale.is_finite() && time_scale > 0.0 && time_scale <= 1000.0) {
-                    return Err(invalid("arm.sim_time_scale", format!("must be in (0, 1000], got {time_scale}")));
-                }
+                within(&bounds::ARM_SIM_TIME_SCALE, "arm.sim_time_scale", time_scale)?;
                 ArmBackend::Simulated { time_scale }
             }
             "mg400" => {
                 let host =
                     raw.arm.host.clone().ok_or_else(|| invalid("arm.host", "is required for backend mg400 (e.g. 192.168.1.6)".into()))?;
-                ArmBackend::Mg400 {
-                    host,
-                    dashboard_port: raw.arm.dashboard_port.unwrap_or(29999),
-                    motion_port: raw.arm.motion_port.unwrap_or(30003),
-                    feedback_port: raw.arm.feedback_port.unwrap_or(30004),
+                if host.is_empty() || host.len() > 253 {
+                    return Err(invalid("arm.host", format!("must be a host name or address of 1 to 253 bytes, got {} bytes", host.len())));
                 }
+                let (dashboard_port, motion_port, feedback_port) =
+                    (raw.arm.dashboard_port.unwrap_or(29999), raw.arm.motion_port.unwrap_or(30003), raw.arm.feedback_port.unwrap_or(30004));
+                for (field, port) in
+                    [("arm.dashboard_port", dashboard_port), ("arm.motion_port", motion_port), ("arm.feedback_port", feedback_port)]
+                {
+                    within(&bounds::ARM_PORT, field, f64::from(port))?;
+                }
+                ArmBackend::Mg400 { host, dashboard_port, motion_port, feedback_port }
             }
             "magician" => ArmBackend::Magician {
                 serial_port: raw
@@ -434,20 +440,18 @@ impl RigConfig {
             other => return Err(invalid("arm.backend", format!("must be sim, mg400 or magician, got {other:?}"))),
         };
         let speed_factor = raw.arm.speed_factor.unwrap_or(100);
-        if !(1..=100).contains(&speed_factor) {
-            return Err(invalid("arm.speed_factor", format!("must be 1..100 percent, got {speed_factor}")));
-        }
+        within(&bounds::ARM_SPEED_FACTOR, "arm.speed_factor", f64::from(speed_factor))?;
         let work_frame = raw.work_frame.unwrap_or_default();
-        if !work_frame.origin.is_finite()
-            || !work_frame.contact_depth_mm.is_finite()
-            || !work_frame.approach_mm.is_finite()
-            || !work_frame.tool_offset_mm.is_finite()
+        let origin = work_frame.origin;
+        for (field, value) in
+            [("work_frame.origin.x_mm", origin.x_mm), ("work_frame.origin.y_mm", origin.y_mm), ("work_frame.origin.z_mm", origin.z_mm)]
         {
-            return Err(invalid("work_frame", "has a non-finite value".into()));
+            within(&bounds::WORK_FRAME_ORIGIN_MM, field, value)?;
         }
-        if work_frame.approach_mm <= 0.0 {
-            return Err(invalid("work_frame.approach_mm", format!("must be above 0 mm, got {}", work_frame.approach_mm)));
-        }
+        within(&bounds::WORK_FRAME_ORIGIN_YAW, "work_frame.origin.yaw_deg", origin.yaw_deg)?;
+        within(&bounds::WORK_FRAME_CONTACT_DEPTH, "work_frame.contact_depth_mm", work_frame.contact_depth_mm)?;
+        within(&bounds::WORK_FRAME_APPROACH, "work_frame.approach_mm", work_frame.approach_mm)?;
+        within(&bounds::WORK_FRAME_TOOL_OFFSET, "work_frame.tool_offset_mm", work_frame.tool_offset_mm)?;
         let d = CollectConfig::default();
         let collect = CollectConfig {
             settle_s: raw.collect.settle_s.unwrap_or(d.settle_s),
@@ -456,15 +460,10 @@ impl RigConfig {
             move_timeout_s: raw.collect.move_timeout_s.unwrap_or(d.move_timeout_s),
             retries_per_pose: raw.collect.retries_per_pose.unwrap_or(d.retries_per_pose),
         };
-        if !(collect.settle_s.is_finite() && collect.settle_s >= 0.0 && collect.settle_s <= 60.0) {
-            return Err(invalid("collect.settle_s", format!("must be in [0, 60] s, got {}", collect.settle_s)));
-        }
-        if collect.frames_per_pose == 0 || collect.frames_per_pose > 100 {
-            return Err(invalid("collect.frames_per_pose", format!("must be 1..100, got {}", collect.frames_per_pose)));
-        }
-        if !(collect.move_timeout_s.is_finite() && collect.move_timeout_s > 0.0) {
-            return Err(invalid("collect.move_timeout_s", format!("must be above 0 s, got {}", collect.move_timeout_s)));
-        }
+        within(&bounds::COLLECT_SETTLE, "collect.settle_s", collect.settle_s)?;
+        within(&bounds::COLLECT_FRAMES, "collect.frames_per_pose", f64::from(collect.frames_per_pose))?;
+        within(&bounds::COLLECT_MOVE_TIMEOUT, "collect.move_timeout_s", collect.move_timeout_s)?;
+        within(&bounds::COLLECT_RETRIES, "collect.retries_per_pose", f64::from(collect.retries_per_pose))?;
         let mut sensors = Vec::new();
         for (key, s) in raw.sensors {
             // `[sensors.TacTip]` and `[sensors.tactip]` are one sensor: the one parser, the
@@ -493,6 +492,20 @@ impl RigConfig {
             }
             let width = s.width.unwrap_or(512);
             let height = s.height.unwrap_or(512);
+            let sensor_bound = |bound: &bounds::Bound, field: &'static str, value: f64| {
+                bound.check(value).map(|_| ()).map_err(|p| invalid(field, format!("sensor {name}: {p}")))
+            };
+            sensor_bound(&bounds::SENSOR_SIDE, "sensors.*.width", f64::from(width))?;
+            sensor_bound(&bounds::SENSOR_SIDE, "sensors.*.height", f64::from(height))?;
+            if u64::from(width) * u64::from(height) > bounds::MAX_IMAGE_PIXELS {
+                return Err(invalid(
+                    "sensors.*.width",
+                    format!(
+                        "sensor {name}: {width} x {height} px is more than the {} px in all the dataset readers decode",
+                        bounds::MAX_IMAGE_PIXELS
+                    ),
+                ));
+            }
             let defaults = crate::camera::v4l2::CameraSettings::default();
             let pixel_format = match s.pixel_format.as_deref() {
                 None => None,
@@ -513,8 +526,17 @@ impl RigConfig {
                 buffers: s.buffers.unwrap_or(defaults.buffers),
                 warmup_frames: s.warmup_frames.unwrap_or(defaults.warmup_frames),
             };
-            if !(1..=240).contains(&camera.fps) || !(2..=32).contains(&camera.buffers) {
-                return Err(invalid("sensors.*.fps", format!("sensor {name}: fps must be 1..240 and buffers 2..32")));
+            sensor_bound(&bounds::SENSOR_FPS, "sensors.*.fps", f64::from(camera.fps))?;
+            sensor_bound(&bounds::SENSOR_BUFFERS, "sensors.*.buffers", f64::from(camera.buffers))?;
+            sensor_bound(&bounds::SENSOR_WARMUP, "sensors.*.warmup_frames", f64::from(camera.warmup_frames))?;
+            for (bound, field, value) in [
+                (&bounds::SENSOR_EXPOSURE, "sensors.*.exposure_100us", camera.exposure_100us),
+                (&bounds::SENSOR_GAIN, "sensors.*.gain", camera.gain),
+                (&bounds::SENSOR_WHITE_BALANCE, "sensors.*.white_balance_k", camera.white_balance_k),
+            ] {
+                if let Some(v) = value {
+                    bound.check(v).map_err(|p| invalid(field, format!("sensor {name}: {p}")))?;
+                }
             }
             if let Some(mm) = s.max_indentation_mm
                 && !(mm.is_finite() && mm > 0.0 && mm <= MAX_PRESS_LIMIT_MM)
@@ -537,9 +559,7 @@ impl RigConfig {
         }
         let faults = resolve_faults(&raw.sim.faults, path)?;
         let sim_stale_buffer_frames = raw.sim.stale_buffer_frames.unwrap_or(0);
-        if sim_stale_buffer_frames > 64 {
-            return Err(invalid("sim.stale_buffer_frames", format!("must be 0..=64, got {sim_stale_buffer_frames}")));
-        }
+        within(&bounds::SIM_STALE_FRAMES, "sim.stale_buffer_frames", f64::from(sim_stale_buffer_frames))?;
         if !faults.is_empty() && !matches!(backend, ArmBackend::Simulated { .. }) {
             return Err(invalid("sim.faults", "only applies to the simulated arm (arm.backend = \"sim\")".into()));
         }
@@ -688,32 +708,28 @@ impl RigConfig {
 
 /// Validates `[sim.faults]`.
 fn resolve_faults(raw: &RawFaults, path: &Path) -> Result<FaultConfig, ConfigError> {
+    use crate::bounds;
     let invalid = |field: &'static str, problem: String| ConfigError::Invalid { path: path.to_path_buf(), field, problem };
-    if raw.feedback_garbage_every == Some(0) {
-        return Err(invalid("sim.faults.feedback_garbage_every", "must be at least 1".into()));
+    let within = |bound: &bounds::Bound, field: &'static str, value: f64| bound.check(value).map(|_| ()).map_err(|p| invalid(field, p));
+    if let Some(every) = raw.feedback_garbage_every {
+        within(&bounds::FAULT_EVERY, "sim.faults.feedback_garbage_every", f64::from(every))?;
     }
     let moves = raw.collision_at_moves.clone().unwrap_or_default();
-    if moves.contains(&0) {
-        return Err(invalid("sim.faults.collision_at_moves", "counts moves from 1".into()));
-    }
     let frames = raw.camera_timeout_at_frames.clone().unwrap_or_default();
-    if frames.contains(&0) {
-        return Err(invalid("sim.faults.camera_timeout_at_frames", "counts frames from 1".into()));
+    for (field, list) in [("sim.faults.collision_at_moves", &moves), ("sim.faults.camera_timeout_at_frames", &frames)] {
+        within(&bounds::FAULT_COUNTS, field, list.len().max(1) as f64)?;
+        if let Some(&bad) = list.iter().find(|&&n| !bounds::FAULT_COUNTS.contains(n as f64)) {
+            return Err(invalid(field, format!("counts from 1: each {}, got {bad}", bounds::FAULT_COUNTS.range())));
+        }
     }
-    if let Some(every_s) = raw.drop_sockets_every_s
-        && !(every_s.is_finite() && every_s > 0.0)
-    {
-        return Err(invalid("sim.faults.drop_sockets_every_s", format!("must be above 0 s, got {every_s}")));
+    if let Some(every_s) = raw.drop_sockets_every_s {
+        within(&bounds::FAULT_DROP_SOCKETS, "sim.faults.drop_sockets_every_s", every_s)?;
     }
     // A delay past the client's reply timeout would turn every command into a timeout.
     let reply_delay_ms = raw.reply_delay_ms.unwrap_or(0);
-    if reply_delay_ms > 10_000 {
-        return Err(invalid("sim.faults.reply_delay_ms", format!("must be at most 10000 ms, got {reply_delay_ms}")));
-    }
+    bounds::FAULT_REPLY_DELAY.check(reply_delay_ms).map_err(|p| invalid("sim.faults.reply_delay_ms", p))?;
     let camera_timeout_ms = raw.camera_timeout_ms.unwrap_or(100);
-    if camera_timeout_ms > 60_000 {
-        return Err(invalid("sim.faults.camera_timeout_ms", format!("must be at most 60000 ms, got {camera_timeout_ms}")));
-    }
+    bounds::FAULT_CAMERA_TIMEOUT.check(camera_timeout_ms).map_err(|p| invalid("sim.faults.camera_timeout_ms", p))?;
     let mut faults = FaultConfig {
         controller: ControllerFaults {
             reply_delay: std::time::Duration::from_millis(reply_delay_ms),
@@ -770,6 +786,38 @@ mod tests {
         assert!(e.to_string().contains("frames_per_pose"));
         let e = RigConfig::parse("[arm]\nspeed_factor = 0\n", Path::new("x")).unwrap_err();
         assert!(e.to_string().contains("speed_factor"));
+    }
+
+    /// Every number a configuration holds has a range ([`crate::bounds`]): a Modbus timeout of
+    /// 2^64 - 1 ms, a move timeout of 10^9 s, a camera of 10^5 px a side are refused, naming
+    /// the key and its range.
+    #[test]
+    fn numbers_out_of_their_range_are_refused() {
+        for (text, key, range) in [
+            (
+                "[modbus.f]\ntransport = \"tcp\"\naddress = \"127.0.0.1:1\"\ntimeout_ms = 18446744073709551615\n",
+                "timeout_ms",
+                "1 to 60000 ms",
+            ),
+            ("[collect]\nmove_timeout_s = 1e9\n", "collect.move_timeout_s", "above 0 and at most 600 s"),
+            ("[collect]\nretries_per_pose = 4000000000\n", "collect.retries_per_pose", "0 to 100"),
+            ("[sensors.tactip]\nwidth = 100000\n", "sensors.*.width", "16 to 8192 px"),
+            ("[sensors.tactip]\nwidth = 8192\nheight = 8192\n", "sensors.*.width", "16777216 px"),
+            ("[sensors.tactip]\nexposure_100us = -5\n", "sensors.*.exposure_100us", "1 to 100000"),
+            (
+                "[work_frame]\norigin = { x_mm = 1e300, y_mm = 0.0, z_mm = 0.0, yaw_deg = 0.0 }\n",
+                "work_frame.origin.x_mm",
+                "-2000 to 2000 mm",
+            ),
+            ("[arm]\nbackend = \"mg400\"\nhost = \"h\"\ndashboard_port = 0\n", "arm.dashboard_port", "1 to 65535"),
+            ("[sim.faults]\ndrop_sockets_every_s = 1e12\n", "sim.faults.drop_sockets_every_s", "at most 3600 s"),
+        ] {
+            let e = RigConfig::parse(text, Path::new("x")).expect_err(text).to_string();
+            assert!(e.contains(key) && e.contains(range), "{text}: {e}");
+        }
+        let c =
+            RigConfig::parse("[modbus.f]\ntransport = \"tcp\"\naddress = \"127.0.0.1:1\"\ntimeout_ms = 60000\n", Path::new("x")).unwrap();
+        assert_eq!(c.modbus["f"].timeout, std::time::Duration::from_secs(60));
     }
 
     #[test]

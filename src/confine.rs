@@ -57,12 +57,20 @@ pub enum ConfineError {
     NotRegular { path: PathBuf, found: &'static str },
     #[error("{path} is not a folder")]
     NotFolder { path: PathBuf },
+    /// Opening found something other than a folder and a look right after found a folder:
+    /// the entry was swapped while rig opened it (a symlink or a file put in its place and back).
+    #[error("{path} changed while rig opened it (swapped for a symlink or a file and back); rig follows no symlink below {root}")]
+    Changed { root: PathBuf, path: PathBuf },
     #[error("{path} is larger than the {max_bytes} bytes rig reads from such a file")]
     TooLarge { path: PathBuf, max_bytes: u64 },
     #[error("{path} does not exist")]
     Missing { path: PathBuf },
     #[error("{path} is not UTF-8 text")]
     NotText { path: PathBuf },
+    /// A file rig appends to has another name somewhere (`st_nlink` > 1): appending would grow
+    /// a file outside the folder too.
+    #[error("{path} has {links} hard links; rig appends only to a file with no other name (copy it to break the link)")]
+    HardLinked { path: PathBuf, links: u64 },
     #[error("{op} {path}: {source}")]
     Io {
         op: &'static str,
@@ -80,9 +88,11 @@ impl ConfineError {
             | ConfineError::Symlink { path, .. }
             | ConfineError::NotRegular { path, .. }
             | ConfineError::NotFolder { path }
+            | ConfineError::Changed { path, .. }
             | ConfineError::TooLarge { path, .. }
             | ConfineError::Missing { path }
             | ConfineError::NotText { path }
+            | ConfineError::HardLinked { path, .. }
             | ConfineError::Io { path, .. } => path,
         }
     }
@@ -160,6 +170,13 @@ pub struct RootDir {
     resolution: Resolution,
 }
 
+/// The held folder's descriptor (to lock it, or to sync it).
+impl AsFd for RootDir {
+    fn as_fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        self.fd.as_fd()
+    }
+}
+
 impl RootDir {
     /// Opens the folder the operator named (a path typed on the command line, a configured
     /// data root, a folder already confined by [`crate::roots::DataRoots`]): its own symlinks
@@ -192,24 +209,93 @@ impl RootDir {
         Ok(RootDir { fd, path: self.path.join(rel), resolution: self.resolution })
     }
 
-    /// Opens the regular file `rel` for reading (a FIFO, device, socket or folder is refused
-    /// after an open that cannot block, before anything is read).
+    /// Opens the regular file `rel` for reading. A FIFO, device, socket or folder is refused
+    /// without being opened (see `open_regular`).
     pub fn open_file(&self, rel: impl AsRef<Path>) -> Result<File, ConfineError> {
+        let (fd, _) = self.open_regular(rel.as_ref(), OFlags::RDONLY)?;
+        Ok(File::from(fd))
+    }
+
+    /// Opens the regular file `rel` for reading and appending (`poses.csv`), refused like
+    /// [`open_file`](Self::open_file) and also when it has another name (a hard link: appending
+    /// would grow a file elsewhere too).
+    pub fn open_append(&self, rel: impl AsRef<Path>) -> Result<File, ConfineError> {
         let rel = rel.as_ref();
+        let (fd, links) = self.open_regular(rel, OFlags::RDWR | OFlags::APPEND)?;
+        if links > 1 {
+            return Err(ConfineError::HardLinked { path: self.path.join(rel), links });
+        }
+        Ok(File::from(fd))
+    }
+
+    /// Opens the regular file `rel` with `access`, returning it (blocking mode) and its link
+    /// count. Its kind is looked at before it is opened: on Linux the path is resolved to an
+    /// `O_PATH` descriptor (which opens nothing: no driver sees it, a FIFO does not block, a
+    /// serial port's DTR line stays down), checked with `fstat`, and only a regular file is then
+    /// opened, through that descriptor (`/proc/self/fd/N`, so the file checked is the file
+    /// opened). Where `/proc` is missing, or on another Unix, `rel` is resolved again
+    /// non-blocking and must be the same file (device and inode) as the one checked.
+    fn open_regular(&self, rel: &Path, access: OFlags) -> Result<(OwnedFd, u64), ConfineError> {
         let parts = self.parts(rel)?;
+        let path = self.path.join(rel);
         if parts.is_empty() {
             return Err(ConfineError::NotRegular { path: self.path.clone(), found: EntryKind::Folder.describe() });
         }
-        let fd = self.resolve_parts(rel, &parts, OFlags::RDONLY | OFlags::NONBLOCK)?;
-        let path = self.path.join(rel);
+        let checked = self.regular_stat(rel, &parts)?;
+        #[cfg(target_os = "linux")]
+        let reopened = match &checked.1 {
+            Some(handle) => {
+                let proc_path = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(handle));
+                match rustix::fs::open(proc_path.as_str(), access | OFlags::NONBLOCK | OFlags::CLOEXEC, Mode::empty()) {
+                    Ok(fd) => Some(fd),
+                    Err(Errno::NOENT | Errno::NOTDIR) => None,
+                    Err(e) => return Err(self.open_error(rel, e)),
+                }
+            }
+            None => None,
+        };
+        #[cfg(not(target_os = "linux"))]
+        let reopened: Option<OwnedFd> = None;
+        let fd = match reopened {
+            Some(fd) => fd,
+            None => self.resolve_parts(rel, &parts, access | OFlags::NONBLOCK)?,
+        };
         let stat = rustix::fs::fstat(&fd).map_err(io("inspecting", &path))?;
         let kind = EntryKind::of(FileType::from_raw_mode(stat.st_mode));
         if kind != EntryKind::File {
             return Err(ConfineError::NotRegular { path, found: kind.describe() });
         }
+        if (stat.st_dev, stat.st_ino) != (checked.0.st_dev, checked.0.st_ino) {
+            // Swapped between the look and the open: refuse rather than guess.
+            return Err(ConfineError::Io { op: "opening", path, source: std::io::Error::other("the file changed while it was opened") });
+        }
         // Reads of a regular file never block; clear the flag so the File behaves as usual.
-        rustix::fs::fcntl_setfl(&fd, OFlags::empty()).map_err(io("opening", &path))?;
-        Ok(File::from(fd))
+        rustix::fs::fcntl_setfl(&fd, access & OFlags::APPEND).map_err(io("opening", &path))?;
+        Ok((fd, stat.st_nlink as u64))
+    }
+
+    /// What `rel` is, looked at without opening it: its `fstat` and (Linux) the `O_PATH`
+    /// descriptor it was taken on; an error unless it is a regular file.
+    fn regular_stat(&self, rel: &Path, parts: &[&OsStr]) -> Result<(rustix::fs::Stat, Option<OwnedFd>), ConfineError> {
+        let path = self.path.join(rel);
+        #[cfg(target_os = "linux")]
+        let (stat, handle) = {
+            let handle = self.resolve_parts(rel, parts, OFlags::PATH)?;
+            (rustix::fs::fstat(&handle).map_err(io("inspecting", &path))?, Some(handle))
+        };
+        #[cfg(not(target_os = "linux"))]
+        let (stat, handle) = {
+            let (last, folders) = parts.split_last().ok_or_else(|| ConfineError::NotRegular { path: path.clone(), found: "a folder" })?;
+            let parent_rel: PathBuf = folders.iter().collect();
+            let parent = self.resolve_parts(&parent_rel, folders, OFlags::RDONLY | OFlags::DIRECTORY)?;
+            let stat = rustix::fs::statat(&parent, *last, AtFlags::SYMLINK_NOFOLLOW).map_err(|e| self.open_error(rel, e))?;
+            (stat, None::<OwnedFd>)
+        };
+        match EntryKind::of(FileType::from_raw_mode(stat.st_mode)) {
+            EntryKind::File => Ok((stat, handle)),
+            EntryKind::Symlink => Err(ConfineError::Symlink { root: self.path.clone(), path }),
+            kind => Err(ConfineError::NotRegular { path, found: kind.describe() }),
+        }
     }
 
     /// The bytes of the regular file `rel`, refused when larger than `max_bytes` (checked on
@@ -313,12 +399,23 @@ impl RootDir {
     /// folder, written, fsynced, renamed over `<name>` (replacing a symlink there rather than
     /// writing through it), the folder fsynced. A failed write removes its temp file.
     pub fn write_atomic(&self, rel: impl AsRef<Path>, bytes: &[u8]) -> Result<(), ConfineError> {
+        self.write_atomic_with(rel, |f| f.write_all(bytes))
+    }
+
+    /// [`write_atomic`](Self::write_atomic) with the content written by `fill` (a test can make
+    /// it fail as a full disk would).
+    pub fn write_atomic_with(
+        &self,
+        rel: impl AsRef<Path>,
+        fill: impl FnOnce(&mut File) -> std::io::Result<()>,
+    ) -> Result<(), ConfineError> {
         let rel = rel.as_ref();
         let (dir, name) = self.parent_of(rel)?;
         let mut tmp_name = OsString::from(".");
         tmp_name.push(&name);
         tmp_name.push(".tmp");
         let tmp_path = dir.path.join(&tmp_name);
+        // A temp file left by a killed run (or planted): removing it removes a link, never its target.
         match rustix::fs::unlinkat(&dir.fd, tmp_name.as_os_str(), AtFlags::empty()) {
             Ok(()) | Err(Errno::NOENT) => {}
             Err(e) => return Err(io("removing", &tmp_path)(e)),
@@ -331,15 +428,31 @@ impl RootDir {
         )
         .map_err(io("creating", &tmp_path))?;
         let mut file = File::from(fd);
-        let written = file.write_all(bytes).and_then(|()| file.sync_all());
+        let written = fill(&mut file).and_then(|()| file.sync_all());
         drop(file);
         let renamed = written
             .and_then(|()| rustix::fs::renameat(&dir.fd, tmp_name.as_os_str(), &dir.fd, name.as_os_str()).map_err(std::io::Error::from));
         if let Err(e) = renamed {
+            // A full disk must not leave the temp file behind (it would make a dataset unclean).
             let _ = rustix::fs::unlinkat(&dir.fd, tmp_name.as_os_str(), AtFlags::empty());
             return Err(ConfineError::Io { op: "writing", path: self.path.join(rel), source: e });
         }
-        rustix::fs::fsync(&dir.fd).map_err(io("syncing", &dir.path))
+        dir.sync()
+    }
+
+    /// Makes renames and removals in this folder durable (`fsync` on the held descriptor).
+    pub fn sync(&self) -> Result<(), ConfineError> {
+        rustix::fs::fsync(&self.fd).map_err(io("syncing", &self.path))
+    }
+
+    /// Removes the empty folder `rel` (never following a symlink); absent is fine.
+    pub fn remove_dir(&self, rel: impl AsRef<Path>) -> Result<(), ConfineError> {
+        let rel = rel.as_ref();
+        let (dir, name) = self.parent_of(rel)?;
+        match rustix::fs::unlinkat(&dir.fd, name.as_os_str(), AtFlags::REMOVEDIR) {
+            Ok(()) | Err(Errno::NOENT) => Ok(()),
+            Err(e) => Err(io("removing", &self.path.join(rel))(e)),
+        }
     }
 
     /// Removes the file (or symlink: the link, never its target) `rel`; absent is fine.
@@ -446,6 +559,11 @@ impl RootDir {
         let path = self.path.join(done);
         match rustix::fs::statat(at, part, AtFlags::SYMLINK_NOFOLLOW) {
             Ok(st) if FileType::from_raw_mode(st.st_mode) == FileType::Symlink => ConfineError::Symlink { root: self.path.clone(), path },
+            // `O_DIRECTORY | O_NOFOLLOW` said "not a folder" yet the entry is one now: it was
+            // swapped between the two calls.
+            Ok(st) if e == Errno::NOTDIR && want_folder && FileType::from_raw_mode(st.st_mode) == FileType::Directory => {
+                ConfineError::Changed { root: self.path.clone(), path }
+            }
             Ok(_) if e == Errno::NOTDIR && want_folder => ConfineError::NotFolder { path },
             Ok(st) if e == Errno::NOTDIR => {
                 ConfineError::NotRegular { path, found: EntryKind::of(FileType::from_raw_mode(st.st_mode)).describe() }
@@ -458,7 +576,15 @@ impl RootDir {
         let path = self.path.join(rel);
         match e {
             Errno::NOENT => ConfineError::Missing { path },
-            Errno::NOTDIR => ConfineError::NotFolder { path },
+            // `O_DIRECTORY | O_NOFOLLOW` on a symlink answers ENOTDIR: look at what is there
+            // (a look only; nothing is opened through it).
+            Errno::NOTDIR => {
+                match rustix::fs::statat(&self.fd, rel, AtFlags::SYMLINK_NOFOLLOW).map(|st| FileType::from_raw_mode(st.st_mode)) {
+                    Ok(FileType::Symlink) => ConfineError::Symlink { root: self.path.clone(), path },
+                    Ok(FileType::Directory) => ConfineError::Changed { root: self.path.clone(), path },
+                    _ => ConfineError::NotFolder { path },
+                }
+            }
             Errno::LOOP => ConfineError::Symlink { root: self.path.clone(), path },
             Errno::XDEV => ConfineError::Escapes { root: self.path.clone(), path },
             e => io("opening", &path)(e),
@@ -584,6 +710,29 @@ mod tests {
         }
     }
 
+    /// The race the dataset writer meets when `images/` is swapped with a symlink and back:
+    /// the open answers ENOTDIR (a symlink under `O_DIRECTORY | O_NOFOLLOW`) and the look
+    /// right after finds a folder again. That is a change under rig's feet, named as such
+    /// (with the word symlink), never "not a folder".
+    #[test]
+    fn a_folder_that_was_not_one_a_moment_ago_is_reported_as_changed() {
+        let (_tmp, top) = fixture();
+        for root in roots(&top) {
+            let walked = root.classify_failure(root.fd.as_fd(), OsStr::new("a"), Path::new("a"), true, Errno::NOTDIR);
+            assert!(matches!(walked, ConfineError::Changed { .. }), "{walked}");
+            assert!(walked.to_string().contains("symlink") && walked.is_bad_input(), "{walked}");
+            let kernel = root.open_error(Path::new("a"), Errno::NOTDIR);
+            assert!(matches!(kernel, ConfineError::Changed { .. }), "{kernel}");
+            // Still a symlink, or a file: said as they are.
+            symlink(top.join("outside/a"), top.join("root/now-a-link")).expect("symlink");
+            let link = root.open_error(Path::new("now-a-link"), Errno::NOTDIR);
+            assert!(matches!(link, ConfineError::Symlink { .. }), "{link}");
+            let file = root.classify_failure(root.fd.as_fd(), OsStr::new("file.txt"), Path::new("file.txt"), true, Errno::NOTDIR);
+            assert!(matches!(file, ConfineError::NotFolder { .. }), "{file}");
+            std::fs::remove_file(top.join("root/now-a-link")).expect("rm");
+        }
+    }
+
     #[test]
     fn a_symlink_at_any_depth_is_refused() {
         let (_tmp, top) = fixture();
@@ -653,6 +802,34 @@ mod tests {
         }
         std::fs::write(top.join("root/bin"), [0xff, 0xfe]).expect("write");
         assert!(matches!(RootDir::open(&top.join("root")).expect("root").read_text("bin", 10), Err(ConfineError::NotText { .. })));
+    }
+
+    /// A file with another name is opened for reading but never for appending (appending would
+    /// grow the file outside too); a file with one name is appended to.
+    #[test]
+    fn appends_refuse_a_file_with_another_name() {
+        let (_tmp, top) = fixture();
+        std::fs::hard_link(top.join("outside/file.txt"), top.join("root/linked.txt")).expect("hard link");
+        for root in roots(&top) {
+            let e = root.open_append("linked.txt").expect_err("two names");
+            assert!(matches!(e, ConfineError::HardLinked { links: 2, .. }) && e.is_bad_input(), "{e}");
+            assert_eq!(root.read_text("linked.txt", 100).expect("reading is fine"), "sentinel");
+            root.open_append("file.txt").expect("one name").write_all(b"+").expect("append");
+            assert!(matches!(root.open_append("a"), Err(ConfineError::NotRegular { found: "a folder", .. })));
+        }
+        assert_eq!(std::fs::read_to_string(top.join("outside/file.txt")).expect("read"), "sentinel");
+        assert_eq!(std::fs::read_to_string(top.join("root/file.txt")).expect("read"), "inside++");
+    }
+
+    /// Devices are refused from their kind alone: named here, never opened.
+    #[test]
+    fn devices_are_refused_before_any_open() {
+        let dev = RootDir::open(Path::new("/dev")).expect("/dev is a folder");
+        for name in ["null", "zero"] {
+            let e = dev.read(name, 100).expect_err(name);
+            assert!(matches!(e, ConfineError::NotRegular { found: "a FIFO, socket or device", .. }), "{name}: {e}");
+        }
+        assert!(matches!(read_named_file(Path::new("/dev/zero"), 100), Err(ConfineError::NotRegular { .. })));
     }
 
     #[test]

@@ -13,6 +13,7 @@
 
 pub mod arm;
 pub mod bench;
+pub mod bounds;
 pub mod calibration;
 pub mod camera;
 pub mod cli;
@@ -32,6 +33,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod plan;
 pub mod pose;
+pub mod progress;
 pub mod record;
 pub mod report;
 pub mod rigs;

@@ -271,7 +271,10 @@ impl Classify for crate::dataset::DatasetError {
             | D::Symlink { .. }
             | D::NotRegular { .. }
             | D::TooLarge { .. }
-            | D::BadImage { .. } => Exit::BadInput,
+            | D::BadImage { .. }
+            | D::BadOrder { .. }
+            | D::OrderMismatch { .. }
+            | D::WrongImageSize { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }
             | D::ManifestWrite { .. }
@@ -387,7 +390,8 @@ impl Classify for crate::rigs::RigError {
             | R::Profile { .. }
             | R::Calibration { .. }
             | R::BackendUnavailable { .. }
-            | R::SimulatedSensorOnRealArm { .. } => Exit::BadInput,
+            | R::SimulatedSensorOnRealArm { .. }
+            | R::SerialPort(_) => Exit::BadInput,
             // A refused or lost arm connection, also when the rig is opened.
             R::Arm(e) => e.exit(),
             R::Camera { source, .. } => source.exit(),
@@ -485,7 +489,9 @@ impl Classify for crate::confine::ConfineError {
 impl Classify for crate::dataset::named::NamedFileError {
     fn exit(&self) -> Exit {
         match self {
-            crate::dataset::named::NamedFileError::Outside { .. } => Exit::BadInput,
+            crate::dataset::named::NamedFileError::Outside { .. } | crate::dataset::named::NamedFileError::NotRegular { .. } => {
+                Exit::BadInput
+            }
             crate::dataset::named::NamedFileError::Confined { source, .. } => source.exit(),
         }
     }
@@ -547,6 +553,9 @@ impl Classify for crate::record::replay::ReplayError {
             R::Dataset(e) => e.exit(),
             // The replay no longer follows the recording.
             R::Diverged(_) | R::Leftover { .. } | R::PeripheralsDiverged(_) => Exit::HardwareFault,
+            // The recording could not be read on: damaged (bad input), or the disk failed.
+            R::Recording(e) if e.is_bad_input() => Exit::BadInput,
+            R::Recording(_) => Exit::Failure,
         }
     }
 }

@@ -82,6 +82,26 @@ pub enum RigError {
     /// motion command (a fault of rig itself).
     #[error("the simulated MG400 received {enable_requests} enable and {motion_requests} motion commands during the pre-flight")]
     Moved { enable_requests: u64, motion_requests: u64 },
+    /// The arm's `serial_port` is not a serial device (a file, a FIFO, `/dev/null`, a device
+    /// that is not a terminal): the configuration's mistake.
+    #[error("arm.serial_port: {0}")]
+    SerialPort(#[source] crate::io::serial::SerialError),
+}
+
+/// A Magician that would not open because its port is not a terminal (`ENOTTY`): bad input,
+/// not a hardware fault; any other failure as it is.
+fn not_a_tty(path: &std::path::Path, e: crate::arm::ArmError) -> RigError {
+    let serial = match &e {
+        crate::arm::ArmError::Io { source, .. } => source.get_ref().and_then(|s| s.downcast_ref::<serialport::Error>()),
+        _ => None,
+    };
+    match serial {
+        Some(s) if crate::io::serial::is_not_a_tty(s) => RigError::SerialPort(crate::io::serial::SerialError::NotSerial {
+            path: path.to_path_buf(),
+            found: "a device that is not a terminal",
+        }),
+        _ => RigError::Arm(e),
+    }
 }
 
 /// The firmware profile the configuration names (the embedded MG400 V1.6 profile by default).
@@ -435,7 +455,11 @@ async fn connect_arm(
         }
         (ArmBackend::Magician { serial_port }, _) => {
             let magician_profile = MagicianProfile::named(config.arm.profile.as_deref())?;
-            return Ok(RigArm::Magician(MagicianArm::open(serial_port, magician_profile, Arc::clone(clock))?));
+            // Its kind is looked at before it is opened: a file or FIFO is no port (and a
+            // FIFO would block the open), /dev/null answers nothing.
+            crate::io::serial::check_serial_device(serial_port).map_err(RigError::SerialPort)?;
+            let arm = MagicianArm::open(serial_port, magician_profile, Arc::clone(clock)).map_err(|e| not_a_tty(serial_port, e))?;
+            return Ok(RigArm::Magician(arm));
         }
     };
     let mut arm_cfg = arm_cfg;

@@ -62,6 +62,38 @@ pub enum PathError {
     Symlink { field: String, given: PathBuf },
     #[error("{field} {given}: cannot be resolved ({kind})")]
     Unresolvable { field: String, given: PathBuf, kind: std::io::ErrorKind },
+    /// Longer than a path rig can make files below ([`check_length`]); the path itself is not
+    /// echoed (it may be kilobytes long).
+    #[error(
+        "{field}: the path is {problem}; rig takes paths of at most {MAX_PATH_BYTES} bytes (room left below PATH_MAX for the \
+         folders and files a job makes in it) and {MAX_NAME_BYTES} bytes a component (NAME_MAX)"
+    )]
+    TooLong { field: String, given: PathBuf, problem: String },
+}
+
+/// Longest path a request may name, bytes, once made absolute: PATH_MAX (4096 with its NUL)
+/// less room for what a job makes below it (`<object>/<sensor>/images/.<pose_id>.png.tmp` is
+/// at most about 140 bytes).
+pub const MAX_PATH_BYTES: usize = 3584;
+/// Longest component of a path, bytes (NAME_MAX).
+pub const MAX_NAME_BYTES: usize = 255;
+
+/// Refuses a path no file below could be made at: longer than [`MAX_PATH_BYTES`] or with a
+/// component longer than [`MAX_NAME_BYTES`]. Checked when a request is checked, before the job
+/// is queued, so the job cannot fail on it later.
+pub fn check_length(field: &str, path: &Path) -> Result<(), PathError> {
+    use std::os::unix::ffi::OsStrExt;
+    let too_long = |problem: String| Err(PathError::TooLong { field: field.into(), given: path.into(), problem });
+    let total = path.as_os_str().as_bytes().len();
+    if total > MAX_PATH_BYTES {
+        return too_long(format!("{total} bytes long"));
+    }
+    if let Some(longest) = path.components().map(|c| c.as_os_str().as_bytes().len()).max()
+        && longest > MAX_NAME_BYTES
+    {
+        return too_long(format!("{total} bytes long with a component of {longest} bytes"));
+    }
+    Ok(())
 }
 
 impl PathError {
@@ -74,7 +106,8 @@ impl PathError {
             | PathError::ParentDir { given, .. }
             | PathError::DanglingSymlink { given, .. }
             | PathError::Symlink { given, .. }
-            | PathError::Unresolvable { given, .. } => Some(given),
+            | PathError::Unresolvable { given, .. }
+            | PathError::TooLong { given, .. } => Some(given),
         }
     }
 }
@@ -216,7 +249,9 @@ impl DataRoots {
         if given.as_os_str().is_empty() {
             return Err(PathError::Empty { field: field.into() });
         }
-        Ok(self.base.join(given))
+        let absolute = self.base.join(given);
+        check_length(field, &absolute)?;
+        Ok(absolute)
     }
 
     fn outside(&self, field: &str, given: &Path) -> PathError {
@@ -293,6 +328,21 @@ mod tests {
         let e = f.roots.input("plan", &f.top.join("outside/nope")).expect_err("outside");
         assert!(matches!(e, PathError::Outside { .. }), "{e}");
         assert!(matches!(f.roots.input("plan", Path::new("")), Err(PathError::Empty { .. })));
+    }
+
+    /// A path no file could be made below (30 components of 255 bytes, or one of 256) is
+    /// refused whether it is given or made absolute from the base; NAME_MAX itself is fine.
+    #[test]
+    fn paths_too_long_for_files_below_are_refused() {
+        let f = fixture();
+        let long = vec!["d".repeat(255); 30].join("/");
+        let e = f.roots.output("out", &Path::new("root/out").join(&long)).expect_err("7.7 kB");
+        assert!(matches!(e, PathError::TooLong { .. }) && e.to_string().contains("bytes a component"), "{e}");
+        assert!(!e.to_string().contains(&long), "the path is not echoed");
+        assert!(matches!(check_length("out", Path::new(&"n".repeat(256))), Err(PathError::TooLong { .. })));
+        check_length("out", Path::new(&"n".repeat(255))).expect("NAME_MAX is a name");
+        let deep_but_fine = vec!["d".repeat(200); 10].join("/");
+        f.roots.output("out", &Path::new("root/out").join(deep_but_fine)).expect("2 kB of path");
     }
 
     #[test]

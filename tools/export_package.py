@@ -14,12 +14,16 @@ Two sources, both read from local files only (nothing is downloaded):
    gives the tokenizer and the text model's architecture, and its weights only when the
    checkpoint has none. The tool prints where each part came from (tools/cldm_checkpoint.py).
    model.toml gets MultiDiffSense's sampling as defaults: DDIM, 50 steps, eta 0, guidance 1
-   (what its generate and test scripts save), and the config's resolution.
+   (what its generate and test scripts save), the config's resolution, and
+   control_colour_map = "viridis" (its control image; rig refuses a grey one).
 
 2. a diffusers ControlNet pipeline saved with save_pretrained (folders unet/, vae/, text_encoder/,
    tokenizer/, scheduler/, controlnet/), or a diffusers SD 1.5 folder plus --controlnet DIR:
 
        python tools/export_package.py --diffusers path/to/pipeline [--controlnet path/to/controlnet] --out models/mine
+
+   model.toml declares no control colour map: the package reads any 8-bit RGB control image,
+   grey included, as diffusers' depth and edge ControlNets are given.
 
 Writes model.toml, tokenizer/tokenizer.json, {text_encoder,controlnet,unet,vae_decoder}/model.onnx
 and scheduler/scheduler_config.json, then runs each ONNX model in onnxruntime against PyTorch.
@@ -129,10 +133,14 @@ def main():
         vae_scale_factor = config.vae_scale_factor
         scheduler_config = config.scheduler_config()
         sampling = dict(MDS_SAMPLING)
+        # MultiDiffSense's control: the depth map colour-mapped with viridis (rig refuses grey).
+        control_colour_map = "viridis"
     else:
         text_encoder, controlnet, unet, vae, backend, pad_token, scheduler_config = load_diffusers(args.diffusers, args.controlnet)
         resolution = args.resolution or 512
         vae_scale_factor = 2 ** (len(vae.config.block_out_channels) - 1)
+        # A diffusers ControlNet reads whatever its pipeline is given (depth and edge ones: grey).
+        control_colour_map = None
     for key, value in (("sampler", args.sampler), ("sampling_steps", args.sampling_steps), ("eta", args.eta),
                        ("guidance", args.guidance)):
         if value is not None:
@@ -153,7 +161,7 @@ def main():
                   vae_scale_factor=vae_scale_factor)
     name = args.name or os.path.splitext(os.path.basename(os.path.normpath(args.original_ckpt or args.diffusers)))[0]
     write_model_toml(out, name, resolution, resolution, vae.config.scaling_factor, vae_scale_factor=vae_scale_factor,
-                     end_token=pad_token, **sampling)
+                     end_token=pad_token, control_colour_map=control_colour_map, **sampling)
     write_scheduler_config(out, scheduler_config)
     t_export = time.time() - t0 - t_load
 

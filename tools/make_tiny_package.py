@@ -192,7 +192,7 @@ def main():
 
     text_encoder, unet, controlnet, vae = build_models(tok.get_vocab_size(), eos, bos)
     export_models(out, text_encoder, controlnet, unet, vae, HEIGHT, WIDTH)
-    write_model_toml(out, "tiny-random-multidiffsense", WIDTH, HEIGHT, 0.18215)
+    write_model_toml(out, "tiny-random-multidiffsense", WIDTH, HEIGHT, 0.18215, control_colour_map="viridis")
     write_scheduler_config(out, SCHEDULER_CONFIG)
 
     ddim = DDIMScheduler.from_config(SCHEDULER_CONFIG)

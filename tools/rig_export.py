@@ -176,7 +176,11 @@ def export_models(out_dir, text_encoder, controlnet, unet, vae, height, width, o
 
 def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("TacTip", "ViTac", "ViTacTip"),
                      prompt_template="multidiffsense", hint_encoding="rgb01", vae_scale_factor=None,
-                     sampling_steps=None, guidance=None, sampler=None, eta=None, end_token=None):
+                     sampling_steps=None, guidance=None, sampler=None, eta=None, end_token=None,
+                     control_colour_map=None):
+    """Writes OUT_DIR/model.toml. control_colour_map="viridis" declares MultiDiffSense's control
+    image (the depth map colour-mapped with viridis: rig then refuses a grey control image); left
+    None, the package reads any 8-bit RGB control image, as diffusers' ControlNet pipelines do."""
     mods = ", ".join(f'"{m}"' for m in modalities)
     text = (
         f"name = {json.dumps(name)}\n"
@@ -186,6 +190,9 @@ def write_model_toml(out_dir, name, width, height, latent_scale, modalities=("Ta
         f"latent_scale = {latent_scale}\n"
         f'hint_encoding = "{hint_encoding}"  # control image RGB scaled to [0, 1]\n'
     )
+    if control_colour_map is not None:
+        text += (f'control_colour_map = "{control_colour_map}"  # MultiDiffSense\'s control: the depth map colour-mapped '
+                 f'with {control_colour_map} (grey refused)\n')
     if vae_scale_factor is not None:
         text += f"vae_scale_factor = {vae_scale_factor}  # image pixels per latent pixel\n"
     if sampling_steps is not None:

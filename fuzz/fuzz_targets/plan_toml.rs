@@ -5,7 +5,7 @@
 
 #[path = "../../src/pose.rs"]
 mod pose;
-#[path = "../../src/plan.rs"]
+#[path = "../../src/plan/mod.rs"]
 mod plan;
 #[path = "../../src/untrusted.rs"]
 mod untrusted;

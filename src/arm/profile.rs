@@ -229,8 +229,54 @@ impl FirmwareProfile {
         if !(k.link2_mm > 0.0 && k.link3_mm > 0.0 && k.r_offset_mm.is_finite() && k.z_offset_mm.is_finite()) {
             return Err(invalid("kinematics", "link lengths must be positive and offsets finite".into()));
         }
-        if self.transport.max_queued_commands == 0 {
-            return Err(invalid("transport.max_queued_commands", "must be at least 1".into()));
+        // Every number within its documented range ([`crate::bounds`]).
+        use crate::bounds;
+        let within = |bound: &bounds::Bound, field: &'static str, value: f64| bound.check(value).map(|_| ()).map_err(|p| invalid(field, p));
+        let t = &self.transport;
+        for (field, port) in [
+            ("transport.dashboard_port", t.dashboard_port),
+            ("transport.motion_port", t.motion_port),
+            ("transport.feedback_port", t.feedback_port),
+        ] {
+            within(&bounds::PROFILE_PORT, field, f64::from(port))?;
+        }
+        within(&bounds::PROFILE_FRAME_LEN, "transport.feedback_frame_len", t.feedback_frame_len as f64)?;
+        within(&bounds::PROFILE_FEEDBACK_PERIOD, "transport.feedback_period_ms", t.feedback_period_ms as f64)?;
+        within(&bounds::PROFILE_QUEUE, "transport.max_queued_commands", t.max_queued_commands as f64)?;
+        for (field, r) in [
+            ("joint_limits.j1_deg", l.j1_deg),
+            ("joint_limits.j2_deg", l.j2_deg),
+            ("joint_limits.j3_deg", l.j3_deg),
+            ("joint_limits.j4_deg", l.j4_deg),
+            ("joint_limits.j3_minus_j2_deg", l.j3_minus_j2_deg),
+        ] {
+            for v in r {
+                within(&bounds::PROFILE_JOINT, field, v)?;
+            }
+        }
+        within(&bounds::PROFILE_JOINT, "joint_limits.j2_min_when_j3_nonpositive_deg", l.j2_min_when_j3_nonpositive_deg)?;
+        for (field, v) in [
+            ("workspace.radius_mm", self.workspace.radius_mm[0]),
+            ("workspace.radius_mm", self.workspace.radius_mm[1]),
+            ("workspace.z_mm", self.workspace.z_mm[0]),
+            ("workspace.z_mm", self.workspace.z_mm[1]),
+            ("kinematics.link2_mm", k.link2_mm),
+            ("kinematics.link3_mm", k.link3_mm),
+            ("kinematics.r_offset_mm", k.r_offset_mm),
+            ("kinematics.z_offset_mm", k.z_offset_mm),
+        ] {
+            within(&bounds::PROFILE_REACH, field, v)?;
+        }
+        if self.workspace.radius_mm[0] < 0.0 {
+            return Err(invalid("workspace.radius_mm", format!("a radius is at least 0 mm, got {}", self.workspace.radius_mm[0])));
+        }
+        for v in s.joint_speed_deg_s.iter().chain(&s.joint_acc_deg_s2).chain([
+            &s.linear_speed_mm_s,
+            &s.linear_acc_mm_s2,
+            &s.yaw_speed_deg_s,
+            &s.yaw_acc_deg_s2,
+        ]) {
+            within(&bounds::PROFILE_SPEED, "speed", *v)?;
         }
         Ok(())
     }

@@ -33,6 +33,9 @@ pub enum BenchError {
     Metrics(#[from] crate::metrics::MetricsError),
     #[error("{0}")]
     Object(#[from] crate::geometry::objects::ObjectError),
+    /// A stage's `rig` command (a child process) failed.
+    #[error("`{command}` failed ({status}):\n{output}")]
+    Child { command: String, status: String, output: String },
     #[error("{knob}: nothing to measure ({reason})")]
     Empty { knob: Knob, reason: &'static str },
 }

@@ -16,12 +16,13 @@ pub enum Knob {
     PlanOrder,
     Sensor,
     Loops,
+    Scale,
 }
 
 impl Knob {
     /// Every knob, in report order.
-    pub const ALL: [Knob; 7] =
-        [Knob::Synthesis, Knob::Control, Knob::Collection, Knob::Calibration, Knob::PlanOrder, Knob::Sensor, Knob::Loops];
+    pub const ALL: [Knob; 8] =
+        [Knob::Synthesis, Knob::Control, Knob::Collection, Knob::Calibration, Knob::PlanOrder, Knob::Sensor, Knob::Loops, Knob::Scale];
 
     /// The name used on the command line and for the plot file (`<name>.svg`).
     pub fn name(self) -> &'static str {
@@ -33,6 +34,7 @@ impl Knob {
             Knob::PlanOrder => "plan-order",
             Knob::Sensor => "sensor",
             Knob::Loops => "loops",
+            Knob::Scale => "scale",
         }
     }
 }
@@ -45,7 +47,7 @@ impl fmt::Display for Knob {
 
 /// A knob name that is not one of [`Knob::ALL`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops)")]
+#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops, scale)")]
 pub struct KnobParseError {
     pub given: String,
 }
@@ -106,6 +108,15 @@ pub struct BenchConfig {
     /// The Python that runs the inner loops' peers (scikit-image for SSIM); `None` leaves the
     /// peers out.
     pub peer_python: Option<PathBuf>,
+    /// Scale: the three plan sizes the ordering is measured at, poses.
+    pub scale_plan_poses: Vec<usize>,
+    /// Scale: the three sizes of the frame stages (collection, verify, merge, export, replay).
+    pub scale_frames: Vec<usize>,
+    /// Scale: side of the simulated sensor's frames, px.
+    pub scale_image_px: u32,
+    /// The `rig` executable the scale stages run as child processes; `None`: this executable
+    /// (a test sets the binary cargo built).
+    pub rig_exe: Option<PathBuf>,
 }
 
 impl BenchConfig {
@@ -135,6 +146,10 @@ impl BenchConfig {
             sensor_frames: 3,
             loop_repeats: 5,
             peer_python: None,
+            scale_plan_poses: vec![1_000, 3_000, 10_000],
+            scale_frames: vec![50, 150, 500],
+            scale_image_px: 128,
+            rig_exe: None,
         }
     }
 
@@ -149,6 +164,8 @@ impl BenchConfig {
             plan_seeds: vec![0, 1, 2],
             sensor_frames: 10,
             loop_repeats: 20,
+            scale_plan_poses: vec![10_000, 30_000, 100_000],
+            scale_frames: vec![500, 1_500, 5_000],
             ..Self::quick(synth_model)
         }
     }

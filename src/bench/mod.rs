@@ -13,6 +13,7 @@
 //! | plan order | [`plan_order`] | (none: same poses) | total motion time |
 //! | sensor-simulator stages | [`sensor`] | SSIM to the full scene | ms per frame |
 //! | inner loops against the code they replaced and their peers | [`loops`] | difference from rig's value | ms per call, ratios |
+//! | scale: ordering, collection, verify, merge, LeRobot export, replay at three sizes | [`scale`] | (none: what the work costs as it grows) | wall s and peak memory, growth exponents |
 //!
 //! Data flow: [`BenchConfig`] (sizes, counts, which knobs) -> one `measure` function per knob
 //! -> [`KnobReport`] (columns, rows, a [`plot::Plot`]) -> [`write_report`]. A knob that fails
@@ -31,6 +32,7 @@ pub mod loops;
 pub mod machine;
 pub mod plan_order;
 pub mod plot;
+pub mod scale;
 pub mod sensor;
 pub mod synthesis;
 mod table;
@@ -75,6 +77,7 @@ pub async fn run(config: &BenchConfig, work_dir: &Path, mut progress: impl FnMut
             Knob::PlanOrder => plan_order::measure(config),
             Knob::Sensor => sensor::measure(config),
             Knob::Loops => loops::measure(config, &work_dir.join("loops")),
+            Knob::Scale => scale::measure(config, &work_dir.join("scale")),
         };
         match result {
             Ok(report) => {

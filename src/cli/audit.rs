@@ -94,15 +94,15 @@ async fn run_async(args: Args, config: RigConfig) -> anyhow::Result<()> {
             SensorFeed { camera, sensor, calibration, capture }
         })
         .collect();
-    let cancel = super::shared::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
-    let progress = indicatif::ProgressBar::new(prepared.setup.poses.len() as u64);
-    progress.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let cancel = super::shared::cancel_on_interrupt(
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm",
+    )?;
+    let progress = super::shared::progress()?;
+    progress.bar().set_prefix(format!("{} audit", crate::progress::dataset_name(&prepared.request.dataset)));
     let peripherals = std::mem::take(&mut rig.peripherals);
-    let outcome =
-        crate::jobs::audit::run(&prepared, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), Observer { progress, cancel }).await;
+    let observer = Observer { progress: progress.bar().clone(), cancel };
+    let outcome = crate::jobs::audit::run(&prepared, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), observer).await;
+    progress.finish();
     rig.shutdown().await;
     let outcome = outcome?;
     println!("{}", outcome.collected.line("the same rig audit command"));
@@ -115,6 +115,7 @@ async fn run_async(args: Args, config: RigConfig) -> anyhow::Result<()> {
     if let Some(panel) = &scored.panel {
         println!("worst poses: {}", panel.display());
     }
+    println!("{}", scored.verdict);
     if scored.passed == Some(false) {
         eprintln!(
             "error: mean contact SSIM {} is below --min-ssim {}",

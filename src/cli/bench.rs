@@ -26,7 +26,7 @@ pub struct Args {
     #[arg(long, default_value = "out/bench")]
     pub out: PathBuf,
     /// Measure only these knobs (comma-separated): synthesis, control, collection,
-    /// calibration, plan-order, sensor, loops.
+    /// calibration, plan-order, sensor, loops, scale.
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<Knob>,
     /// Model package for the synthesis knob (default: models/default if present, else the tiny

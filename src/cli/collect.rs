@@ -126,15 +126,15 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         });
     }
 
-    let cancel = super::shared::cancel_on_interrupt("finishing the current pose, then retracting and disabling the arm")?;
-    let progress = indicatif::ProgressBar::new(setup.poses.len() as u64);
-    progress.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let cancel = super::shared::cancel_on_interrupt(
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm",
+    )?;
+    let progress = super::shared::progress()?;
+    progress.bar().set_prefix(crate::progress::collection_name(&setup.object.name, &prepared.sensors));
     let peripherals = crate::record::RecordingPeripherals::new(std::mem::take(&mut rig.peripherals), recorder.clone());
-    let outcome =
-        crate::jobs::collect::run(setup, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), Observer { progress, cancel }, None).await;
+    let observer = Observer { progress: progress.bar().clone(), cancel };
+    let outcome = crate::jobs::collect::run(setup, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), observer, None).await;
+    progress.finish();
     // Close the recording even when the run failed: its replay reproduces the failure. An
     // interrupt is recorded as where the job stopped, for the replay to stop there too.
     if let (Some(recorder), Ok(o)) = (&recorder, &outcome)

@@ -53,6 +53,11 @@ pub struct Args {
 
 /// Runs `rig daemon`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.idle_refresh_ms != 0
+        && let Err(problem) = crate::bounds::DAEMON_IDLE_REFRESH.check(args.idle_refresh_ms)
+    {
+        anyhow::bail!(crate::cli::usage(&format!("--idle-refresh-ms {problem} (or 0: off)")));
+    }
     let config = RigConfig::discover(args.config.as_deref())?;
     println!("{}", config.describe());
     let roots = crate::roots::DataRoots::from_working_folder(&args.roots)?;

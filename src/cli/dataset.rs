@@ -142,12 +142,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let config = crate::config::RigConfig::discover(config.as_deref())?;
             let mut report = verify(&dir).with_context(|| format!("verifying {}", dir.display()))?;
             report.issues.extend(rows_past_press_limit(&dir, &config)?);
-            println!("{}: {report}", dir.display());
+            // The details, the audit's summary, then the verdict naming the dataset last.
+            let text = report.to_string();
+            let details = text.strip_suffix(report.verdict()).unwrap_or(&text);
+            print!("{}: {details}", dir.display());
             if let Ok(Manifest { audit: Some(audit), .. }) = Manifest::load(&dir) {
                 for line in audit.lines() {
                     println!("{line}");
                 }
             }
+            println!("{}: {}", dir.display(), report.verdict());
             if !report.is_clean() {
                 bail!("{} is not clean ({} issues)", dir.display(), report.issues.len());
             }

@@ -23,6 +23,13 @@ Examples:
   rig daemon --listen 127.0.0.1:7700 --sensor tactip --object edge
   rig collect --object edge --poses 6 --daemon http://127.0.0.1:7700";
 
+/// `rig arm`.
+pub const ARM: &str = "\
+Examples:
+  rig arm send --addr 192.168.1.6 \"RobotMode()\"
+  rig arm send --addr 192.168.1.6 \"GetPose()\"
+  rig arm send --addr 127.0.0.1 --port 41000 \"GetErrorID()\"";
+
 /// `rig sim`.
 pub const SIM: &str = "\
 Examples:

@@ -139,18 +139,17 @@ pub fn run(args: FillArgs) -> anyhow::Result<()> {
     crate::synth::fill::check_model_dir(&model)?;
     let mut pipeline =
         Pipeline::load(&model, &args.runtime.options()).with_context(|| format!("loading model package {}", model.display()))?;
-    let progress = indicatif::ProgressBar::new(0);
-    progress.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {per_sec}  eta {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    for warning in request.upscale_warnings(&targets, &pipeline) {
+        eprintln!("{warning}");
+    }
+    let progress = super::shared::progress()?;
     let (_, cancel) = tokio::sync::watch::channel(false);
-    let observer = Observer { progress: progress.clone(), cancel };
+    let observer = Observer { progress: progress.bar().clone(), cancel };
     let mut print = |report: &FillReport| {
         progress.suspend(|| println!("{}", report.line()));
     };
     crate::jobs::fill::run(&request, &targets, &mut pipeline, &observer, &mut |_| {}, &mut print)?;
-    progress.finish_and_clear();
+    progress.finish();
     println!("timing: {}", pipeline.timing().line());
     Ok(())
 }

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser, Subcommand};
 
+pub mod arm;
 pub mod audit;
 pub mod bench;
 pub mod calibrate;
@@ -55,6 +56,9 @@ pub enum Command {
     /// Run the simulated MG400 (real protocol on loopback) until Ctrl-C.
     #[command(after_help = examples::SIM)]
     Sim(sim::Args),
+    /// The MG400 by hand: send one dashboard command and print its reply (no motion).
+    #[command(after_help = examples::ARM)]
+    Arm(arm::Args),
     /// Pose plans: show a plan's grid, sampled poses and motion time.
     #[command(after_help = examples::PLAN)]
     Plan(plan::Args),
@@ -114,6 +118,7 @@ pub fn main() -> ExitCode {
         Command::Collect(args) => collect::run(args),
         Command::Daemon(args) => daemon::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Arm(args) => arm::run(args),
         Command::Plan(args) => plan::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Sensor(args) => sensor::run(args),

@@ -187,8 +187,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn load_reference(path: &Path, width: u32, height: u32) -> anyhow::Result<image::RgbImage> {
     let bad = |why: String| anyhow::Error::new(usage(&format!("--reference {}: {why}", path.display())));
     let bytes = crate::confine::read_operator_file(path, MAX_IMAGE_BYTES).map_err(|e| bad(e.to_string()))?;
-    let image =
-        image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+    let image = crate::dataset::durable::decode_image(&bytes).map_err(|e| bad(format!("not a readable image ({e})")))?;
     if image.dimensions() != (width, height) {
         return Err(bad(format!(
             "{}x{} px, the output is {width}x{height} (give --size {}x{})",

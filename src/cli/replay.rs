@@ -15,7 +15,7 @@ use crate::geometry::objects::ObjectChoice;
 use crate::jobs::JobError;
 use crate::plan::{PlanSpec, PlannedPose};
 use crate::record::replay::ReplayError;
-use crate::record::{RecordedSensor, Recording, RecordingHeader};
+use crate::record::{RecordedSensor, RecordingFile, RecordingHeader};
 use crate::rigs::RigCamera;
 
 /// Arguments of `rig replay`.
@@ -36,10 +36,14 @@ pub struct Args {
 
 /// Runs `rig replay`.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let recording = match Recording::read(&args.file) {
+    // The header, then a scan of every record (checksums, frame sizes, the end record), one
+    // record at a time, before anything is replayed or written.
+    let opened = RecordingFile::open(&args.file).and_then(|file| file.scan().map(|summary| (file, summary)));
+    let (recording, summary) = match opened {
         Ok(r) => r,
         // A file that is not a whole recording is bad input (exit 2).
-        Err(e) => bail!(crate::cli::UsageError(e.to_string())),
+        Err(e) if e.is_bad_input() => bail!(crate::cli::UsageError(e.to_string())),
+        Err(e) => return Err(e.into()),
     };
     let h = &recording.header;
     if args.info {
@@ -52,17 +56,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             h.seed,
             h.profile.name
         );
-        println!("{}", recording.summary());
+        println!("{summary}");
         return Ok(());
     }
-    println!("replaying {} ({} events, rig {}): {}", args.file.display(), recording.events.len(), h.rig_version, h.command_line.join(" "));
+    println!("replaying {} ({} events, rig {}): {}", args.file.display(), summary.events, h.rig_version, h.command_line.join(" "));
     if !(args.stall_s.is_finite() && args.stall_s > 0.0) {
         bail!(crate::cli::usage("--stall-s must be a positive number of seconds"));
     }
     // One thread: the client's feedback reader and the job interleave only where the
     // recording says (see `record::replay`).
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().context("starting the async runtime")?;
-    let outcome = runtime.block_on(crate::jobs::replay::run(&recording, &args.out, Duration::from_secs_f64(args.stall_s)));
+    let outcome = runtime.block_on(crate::jobs::replay::run(&recording, &summary, &args.out, Duration::from_secs_f64(args.stall_s)));
     match outcome {
         Ok(o) => {
             println!(

@@ -144,6 +144,12 @@ pub(crate) fn cancel_on_interrupt(what: &'static str) -> anyhow::Result<tokio::s
     Ok(rx)
 }
 
+/// The progress display of a job run here: a bar in a terminal, plain lines elsewhere
+/// ([`crate::progress`]); a bad `$RIG_PROGRESS_INTERVAL_S` is bad input.
+pub(crate) fn progress() -> anyhow::Result<crate::progress::Progress> {
+    crate::progress::Progress::for_stderr().map_err(|e| anyhow::Error::new(crate::cli::usage(&e.to_string())))
+}
+
 /// `--daemon URL` on the job commands: submit to a running daemon instead of running here.
 #[derive(Debug, Clone, ClapArgs)]
 pub struct DaemonTarget {

@@ -202,11 +202,9 @@ fn run_one(args: OneArgs) -> anyhow::Result<()> {
     // The control image must be what the package was conditioned on (its hint_encoding),
     // checked against model.toml before the ONNX models are loaded.
     let model = model_dir(args.model.as_deref())?;
-    let hint = crate::synth::package::ModelPackage::open(&model)
-        .with_context(|| format!("loading model package {}", model.display()))?
-        .config
-        .hint_encoding;
-    let control = crate::synth::hint::control_for(&control, hint, &args.control)?;
+    let config =
+        crate::synth::package::ModelPackage::open(&model).with_context(|| format!("loading model package {}", model.display()))?.config;
+    let control = crate::synth::hint::control_for(&control, config.hint_encoding, config.control_colour_map, &args.control)?;
     let mut pipeline = load(&model, &args.runtime)?;
     // Without the package's say: 50 steps at guidance 9, as in MultiDiffSense's paper.
     let s = &args.sampling;
@@ -354,6 +352,14 @@ fn run_info(args: InfoArgs) -> anyhow::Result<()> {
     );
     println!("latent scale {}", c.latent_scale);
     println!("hint         {:?}", c.hint_encoding);
+    println!(
+        "control      {}",
+        match c.control_colour_map {
+            Some(crate::synth::package::ControlColourMap::Viridis) =>
+                "the depth map colour-mapped with viridis (a grey control image is refused)",
+            None => "any 8-bit RGB or grey image (no control_colour_map declared)",
+        }
+    );
     let s = &p.schedule.config;
     println!(
         "scheduler    {} betas {}..{} over {} steps, {} spacing, steps_offset {}, set_alpha_to_one {}",

@@ -13,10 +13,12 @@
 //!
 //! Every request passes [`guard`] first, in this order:
 //!
-//! 1. **Host** ([`HostRule`]): the `Host` header's name (its port is ignored) must be
-//!    `localhost`, a loopback IP, the IP the daemon listens on (any IP literal when it listens
-//!    on `0.0.0.0` or `[::]`), or a name given with `--allow-host`; otherwise 403. A page on
-//!    another site that rebinds its DNS name to 127.0.0.1 sends its own name: refused.
+//! 1. **Host** ([`HostRule`]): a request carries exactly one `Host` header (none or two: 400)
+//!    and its target is a path, never an absolute URL (400); the `Host` header's name (its
+//!    port is ignored) must be `localhost`, a loopback IP, the IP the daemon listens on (any IP
+//!    literal when it listens on `0.0.0.0` or `[::]`), or a name given with `--allow-host`;
+//!    otherwise 403. A page on another site that rebinds its DNS name to 127.0.0.1 sends its
+//!    own name: refused.
 //! 2. **State-changing requests** (any method but `GET` and `HEAD`) must carry the daemon's
 //!    token (`Authorization: Bearer`) or an `X-Rig-Client` header (any value), 403 otherwise;
 //!    an `Origin` header, when present, must name an allowed host too; a body must be
@@ -163,17 +165,26 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 /// The `Host`, CSRF and body rules of the module docs, before any handler runs.
 pub async fn guard(State(api): State<ApiState>, request: Request, next: Next) -> Response {
     let headers = request.headers();
-    let host = headers.get(header::HOST).and_then(|v| v.to_str().ok()).or_else(|| request.uri().authority().map(|a| a.as_str()));
-    match host {
-        Some(h) if api.hosts.allows(h) => {}
-        Some(_) => {
-            return error(
-                StatusCode::FORBIDDEN,
-                "the Host header names neither this daemon's address nor a loopback name (start the daemon with --allow-host NAME \
-                 to answer to another name)",
-            );
-        }
-        None => return error(StatusCode::BAD_REQUEST, "the request has no Host header"),
+    // An absolute-form target (`GET http://evil.example/api/status`) names a host of its own,
+    // which a server may take over the Host header: only proxies are sent those, so none is
+    // answered.
+    if request.uri().scheme().is_some() || request.uri().authority().is_some() {
+        return error(StatusCode::BAD_REQUEST, "the request target must be a path (origin form, /api/...), not an absolute URL");
+    }
+    // Exactly one Host: with two, which one a check reads and which one a proxy or a log
+    // believes may differ.
+    let mut hosts = headers.get_all(header::HOST).iter();
+    let host = match (hosts.next(), hosts.next()) {
+        (Some(h), None) => h.to_str().ok(),
+        (None, _) => return error(StatusCode::BAD_REQUEST, "the request has no Host header"),
+        (Some(_), Some(_)) => return error(StatusCode::BAD_REQUEST, "the request has more than one Host header"),
+    };
+    if !host.is_some_and(|h| api.hosts.allows(h)) {
+        return error(
+            StatusCode::FORBIDDEN,
+            "the Host header names neither this daemon's address nor a loopback name (start the daemon with --allow-host NAME \
+             to answer to another name)",
+        );
     }
     let changes_state = !matches!(*request.method(), Method::GET | Method::HEAD);
     if changes_state {
@@ -339,7 +350,9 @@ async fn submit_job(State(api): State<ApiState>, headers: HeaderMap, body: Bytes
         Err(e) => {
             return error(
                 StatusCode::BAD_REQUEST,
-                format!("bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\", ...the command's options}})"),
+                format!(
+                    "bad job: {e} (expected {{\"kind\": \"collect\" | \"synth\" | \"calibrate\" | \"audit\", ...the command's options}})"
+                ),
             );
         }
     };

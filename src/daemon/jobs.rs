@@ -148,6 +148,7 @@ async fn run_audit(request: &AuditRequest, ctx: RigContext<'_>) -> Result<JobEnd
     if scored.passed == Some(false) {
         message += "; below --min-ssim";
     }
+    message += &format!("; {}", scored.verdict);
     Ok(JobEnd { message, cancelled: false, done })
 }
 
@@ -185,7 +186,7 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
         };
         let result = crate::jobs::fill::run(&request, &targets, &mut loaded, &observer, &mut on_pose, &mut |_| {});
         let end = result.map(|o| {
-            let lines: Vec<String> = o.reports.iter().map(|r| r.line()).collect();
+            let lines: Vec<String> = o.reports.iter().flat_map(|r| std::iter::once(r.line()).chain(r.warning())).collect();
             let message = match (o.cancelled, lines.is_empty()) {
                 (true, true) => "cancelled (what was written stays and resumes)".to_string(),
                 (true, false) => format!("cancelled; {}", lines.join("; ")),

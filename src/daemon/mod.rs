@@ -206,7 +206,9 @@ impl Daemon {
     /// Stops cleanly: no new jobs, queued ones cancelled, the running one stopped at a safe
     /// point, the arm retracted and disabled, the rig closed, then the HTTP server stopped.
     pub async fn shutdown(self) -> Result<(), DaemonError> {
-        self.state.begin_shutdown();
+        for line in self.state.begin_shutdown() {
+            tracing::warn!("{line}");
+        }
         // The worker bounds each stage itself (the job's grace, the retract, the disable);
         // this is the net under those bounds.
         let worker = match tokio::time::timeout(SHUTDOWN_DEADLINE, self.worker).await {

@@ -424,9 +424,13 @@ impl DaemonState {
     }
 
     /// Stops accepting jobs, cancels the queued ones and asks the running one to stop.
-    pub fn begin_shutdown(&self) {
+    ///
+    /// Returns a line for each running job it cancels, saying where that job stood, for the
+    /// daemon's log.
+    pub fn begin_shutdown(&self) -> Vec<String> {
         let mut inner = self.lock();
         inner.accepting = false;
+        let mut cancelled_running = Vec::new();
         for job in &mut inner.jobs {
             match job.view.state {
                 JobState::Queued => {
@@ -437,6 +441,12 @@ impl DaemonState {
                 }
                 JobState::Running => {
                     let _ = job.cancel.send(true);
+                    let (done, total) = (job.progress.position(), job.progress.length().unwrap_or(0));
+                    cancelled_running.push(format!(
+                        "shutdown: cancelling running {} job {} at {done}/{total} (what it wrote stays; the same job resumes it)",
+                        job.view.spec.kind(),
+                        job.view.id
+                    ));
                 }
                 _ => {}
             }
@@ -444,6 +454,7 @@ impl DaemonState {
         forget_old_jobs(&mut inner);
         drop(inner);
         self.wake.notify_one();
+        cancelled_running
     }
 
     /// True until [`begin_shutdown`](Self::begin_shutdown).
@@ -596,7 +607,11 @@ mod tests {
         assert!(!*running.cancel.borrow());
         assert_eq!(state.cancel(a.id).expect("cancel").state, JobState::Running, "stops at its next safe point");
         assert!(*running.cancel.borrow());
-        state.begin_shutdown();
+        running.progress.set_length(200);
+        running.progress.set_position(77);
+        let lines = state.begin_shutdown();
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(lines[0].starts_with(&format!("shutdown: cancelling running collect job {} at 77/200", a.id)), "{lines:?}");
         assert_eq!(state.submit(spec()).map(|j| j.id), Err(SubmitError::ShuttingDown));
         assert_eq!(state.job(b.id).map(|j| j.state), Some(JobState::Cancelled));
         assert!(state.start_next().is_none());

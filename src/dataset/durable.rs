@@ -13,9 +13,8 @@
 //! written, fsynced, renamed over `<name>` (which replaces a symlink there rather than writing
 //! through it), then the folder is fsynced. A failed write (a full disk) removes its temp file.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::Write;
-use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
 
 use super::error::DatasetError;
@@ -30,9 +29,10 @@ pub const MAX_CSV_LINE_BYTES: usize = 64 << 10;
 pub const MAX_IMAGE_BYTES: u64 = 64 << 20;
 /// Largest image side decoded, px.
 pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
-/// Most pixels decoded in one image (4096 x 4096; a tactile frame is under 2 Mpx): checked
-/// from the header before decoding, so an 8192 x 8192 16-bit PNG is refused, not decoded.
-pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+/// Most pixels decoded in one image: checked from the header before decoding, so an
+/// 8192 x 8192 16-bit PNG is refused, not decoded. Kept with the configuration bounds, which
+/// refuse a camera whose frames no reader would decode.
+pub const MAX_IMAGE_PIXELS: u64 = crate::bounds::MAX_IMAGE_PIXELS;
 /// Most memory the decoder may take for one image (16 Mpx of 16-bit RGBA is 128 MiB).
 const MAX_DECODE_BYTES: u64 = 256 << 20;
 
@@ -62,27 +62,6 @@ fn kind_name(kind: Kind) -> &'static str {
     }
 }
 
-/// Opens a regular file inside a dataset without following a symlink; `append` opens it for
-/// reading and appending.
-pub fn open_regular(path: &Path, append: bool) -> Result<File, DatasetError> {
-    let mut options = OpenOptions::new();
-    options.read(true).custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK | libc::O_CLOEXEC);
-    if append {
-        options.append(true);
-    }
-    let file = match options.open(path) {
-        Ok(f) => f,
-        // O_NOFOLLOW on a symlink: ELOOP.
-        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => return Err(DatasetError::Symlink { path: path.to_path_buf() }),
-        Err(e) => return Err(DatasetError::io(if append { "opening" } else { "reading" }, path)(e)),
-    };
-    let meta = file.metadata().map_err(DatasetError::io("reading", path))?;
-    if !meta.is_file() {
-        return Err(DatasetError::NotRegular { path: path.to_path_buf(), expected: kind_name(Kind::File) });
-    }
-    Ok(file)
-}
-
 /// Reads `rel` (a path a dataset's own files name, such as a row's `images/3.png`) below the
 /// dataset folder `dir` through [`crate::confine`]: no symlink in any component (`images/`
 /// included), a regular file, at most `max_bytes`.
@@ -90,35 +69,89 @@ pub fn read_below(dir: &Path, rel: &Path, max_bytes: u64) -> Result<Vec<u8>, Dat
     Ok(crate::confine::RootDir::open(dir)?.read(rel, max_bytes)?)
 }
 
-/// Decodes image bytes with bounds on the side and the memory the decoder may take.
+/// Decodes image bytes with bounds on the side, the pixel count and the memory the decoder may
+/// take. A PNG (every image rig writes or reads in a dataset) goes to the `png` crate directly,
+/// with its ancillary chunks bounded: the colour profile (`iCCP`) and text chunks (`tEXt`,
+/// `zTXt`, `iTXt`) are skipped unread (rig uses neither, and an `iCCP` of 800 KB can inflate to
+/// 800 MB, three million `tEXt` chunks would each be kept), and what the decoder allocates for
+/// itself is capped at [`MAX_PNG_DECODER_BYTES`]. The pixel count is checked from the header
+/// before anything else is read. Other formats (a JPEG control image) go through `image` with
+/// the same side and memory bounds.
 pub fn decode_image(bytes: &[u8]) -> Result<image::DynamicImage, String> {
-    let reader = || image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string());
-    // The header alone: the pixel count is bounded before anything is allocated for pixels.
-    let (width, height) = reader()?.into_dimensions().map_err(|e| e.to_string())?;
-    if u64::from(width) * u64::from(height) > MAX_IMAGE_PIXELS {
-        return Err(format!("{width}x{height} px is more than the {MAX_IMAGE_PIXELS} pixels rig decodes"));
+    if bytes.starts_with(PNG_SIGNATURE) {
+        return decode_png(bytes);
     }
-    let mut reader = reader()?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE_PX);
     limits.max_image_height = Some(MAX_IMAGE_SIDE_PX);
     limits.max_alloc = Some(MAX_DECODE_BYTES);
-    reader.limits(limits);
-    reader.decode().map_err(|e| e.to_string())
+    let reader = || {
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string())?;
+        reader.limits(limits.clone());
+        Ok::<_, String>(reader)
+    };
+    // The header alone: the pixel count is bounded before anything is allocated for pixels.
+    let (width, height) = reader()?.into_dimensions().map_err(|e| e.to_string())?;
+    check_pixels(width, height)?;
+    reader()?.decode().map_err(|e| e.to_string())
 }
 
-/// The folder `path` inside a dataset, created when absent; refused when it is a symlink or
-/// not a folder.
-pub fn ensure_folder(path: &Path) -> Result<(), DatasetError> {
-    if entry_exists(path, Kind::Folder)? {
-        return Ok(());
+/// The eight bytes every PNG starts with.
+const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+
+/// Most memory the PNG decoder may allocate for itself (line buffers, chunk data), beside the
+/// pixels it decodes into.
+pub const MAX_PNG_DECODER_BYTES: usize = 32 << 20;
+
+fn check_pixels(width: u32, height: u32) -> Result<(), String> {
+    if width > MAX_IMAGE_SIDE_PX || height > MAX_IMAGE_SIDE_PX || u64::from(width) * u64::from(height) > MAX_IMAGE_PIXELS {
+        return Err(format!("{width}x{height} px is more than the {MAX_IMAGE_PIXELS} pixels ({MAX_IMAGE_SIDE_PX} px a side) rig decodes"));
     }
-    match std::fs::create_dir(path) {
-        Ok(()) => Ok(()),
-        // Made by someone else meanwhile: check what it is.
-        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => entry_exists(path, Kind::Folder).map(|_| ()),
-        Err(e) => Err(DatasetError::io("creating", path)(e)),
-    }
+    Ok(())
+}
+
+/// [`decode_image`] for a PNG: see there for the bounds.
+fn decode_png(bytes: &[u8]) -> Result<image::DynamicImage, String> {
+    use image::{DynamicImage, ImageBuffer};
+    use png::{BitDepth, ColorType};
+    let mut options = png::DecodeOptions::default();
+    options.set_ignore_iccp_chunk(true);
+    options.set_ignore_text_chunk(true);
+    let mut decoder = png::Decoder::new_with_options(std::io::Cursor::new(bytes), options);
+    decoder.set_limits(png::Limits { bytes: MAX_PNG_DECODER_BYTES });
+    // Palettes, bit depths under 8 and tRNS expanded: 8- or 16-bit grey, grey-alpha, RGB or RGBA.
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let header = decoder.read_header_info().map_err(|e| e.to_string())?;
+    check_pixels(header.width, header.height)?;
+    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let size = reader.output_buffer_size().filter(|&n| n as u64 <= MAX_DECODE_BYTES).ok_or("the decoded image is too large")?;
+    let mut buf = vec![0u8; size];
+    let frame = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    buf.truncate(frame.buffer_size());
+    let (w, h) = (frame.width, frame.height);
+    let wrong = || format!("{w}x{h} px in {:?} {:?} does not match its pixel data", frame.color_type, frame.bit_depth);
+    let image = match frame.bit_depth {
+        BitDepth::Sixteen => {
+            // Samples are big-endian on the wire.
+            let samples: Vec<u16> = buf.chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect();
+            match frame.color_type {
+                ColorType::Grayscale => ImageBuffer::from_raw(w, h, samples).map(DynamicImage::ImageLuma16),
+                ColorType::GrayscaleAlpha => ImageBuffer::from_raw(w, h, samples).map(DynamicImage::ImageLumaA16),
+                ColorType::Rgb => ImageBuffer::from_raw(w, h, samples).map(DynamicImage::ImageRgb16),
+                ColorType::Rgba => ImageBuffer::from_raw(w, h, samples).map(DynamicImage::ImageRgba16),
+                ColorType::Indexed => None,
+            }
+        }
+        BitDepth::Eight => match frame.color_type {
+            ColorType::Grayscale => ImageBuffer::from_raw(w, h, buf).map(DynamicImage::ImageLuma8),
+            ColorType::GrayscaleAlpha => ImageBuffer::from_raw(w, h, buf).map(DynamicImage::ImageLumaA8),
+            ColorType::Rgb => ImageBuffer::from_raw(w, h, buf).map(DynamicImage::ImageRgb8),
+            ColorType::Rgba => ImageBuffer::from_raw(w, h, buf).map(DynamicImage::ImageRgba8),
+            ColorType::Indexed => None,
+        },
+        _ => None,
+    };
+    image.ok_or_else(wrong)
 }
 
 /// Writes `dir/name` atomically and durably (see the module docs).
@@ -126,35 +159,23 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), DatasetE
     write_atomic_with(dir, name, |f| f.write_all(bytes))
 }
 
-/// [`write_atomic`] with the content written by `fill` (a test can make it fail).
+/// [`write_atomic`] with the content written by `fill` (a test can make it fail). Goes
+/// through the held folder ([`crate::confine::RootDir::write_atomic_with`]): the temp file is
+/// created and renamed relative to one descriptor of `dir`.
 pub(crate) fn write_atomic_with(dir: &Path, name: &str, fill: impl FnOnce(&mut File) -> std::io::Result<()>) -> Result<(), DatasetError> {
-    let tmp = dir.join(format!(".{name}.tmp"));
-    let dest = dir.join(name);
-    // A temp file left by a killed run (or planted): removing it removes a link, never its target.
-    match std::fs::remove_file(&tmp) {
-        Ok(()) => {}
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) => return Err(DatasetError::io("removing", &tmp)(e)),
+    let folder = crate::confine::RootDir::open(dir).map_err(dataset_error)?;
+    folder.write_atomic_with(name, fill).map_err(dataset_error)
+}
+
+/// A confined operation's error as the dataset module says it: a symlink is
+/// [`DatasetError::Symlink`], a failed write keeps its "disk full" reading.
+pub(crate) fn dataset_error(e: crate::confine::ConfineError) -> DatasetError {
+    use crate::confine::ConfineError;
+    match e {
+        ConfineError::Symlink { path, .. } => DatasetError::Symlink { path },
+        ConfineError::Io { op, path, source } => DatasetError::io(op, path)(source),
+        other => DatasetError::Confined(other),
     }
-    let mut f = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
-        .open(&tmp)
-        .map_err(DatasetError::io("creating", &tmp))?;
-    let written =
-        fill(&mut f).map_err(DatasetError::io("writing", &tmp)).and_then(|()| f.sync_all().map_err(DatasetError::io("syncing", &tmp)));
-    drop(f);
-    if let Err(e) = written {
-        // A full disk must not leave the temp file behind (it would make the dataset unclean).
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    if let Err(e) = std::fs::rename(&tmp, &dest) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(DatasetError::io("renaming into place", &dest)(e));
-    }
-    fsync_dir(dir)
 }
 
 /// Makes renames and removals in `dir` durable.
@@ -188,7 +209,6 @@ mod tests {
         use crate::confine::ConfineError;
         let below = |rel: &str, max: u64| read_below(d, Path::new(rel), max);
         assert!(matches!(below("link", 100), Err(DatasetError::Confined(ConfineError::Symlink { .. }))));
-        assert!(matches!(open_regular(&d.join("link"), true), Err(DatasetError::Symlink { .. })));
         assert!(matches!(below("folder", 100), Err(DatasetError::Confined(ConfineError::NotRegular { .. }))));
         assert!(matches!(below("file", 0), Err(DatasetError::Confined(ConfineError::TooLarge { .. }))));
         assert_eq!(below("file", 1).expect("regular"), b"x");
@@ -199,9 +219,6 @@ mod tests {
         assert!(matches!(entry_exists(&d.join("folder-link"), Kind::Folder), Err(DatasetError::Symlink { .. })));
         assert!(matches!(entry_exists(&d.join("file"), Kind::Folder), Err(DatasetError::NotRegular { .. })));
         assert!(!entry_exists(&d.join("absent"), Kind::File).expect("absent"));
-        assert!(matches!(ensure_folder(&d.join("folder-link")), Err(DatasetError::Symlink { .. })));
-        ensure_folder(&d.join("new")).expect("created");
-        assert!(d.join("new").is_dir());
 
         // A write over a symlinked name replaces the link; the target is untouched.
         write_atomic(d, "link", b"new").expect("write");
@@ -234,6 +251,65 @@ mod tests {
         for bad in ["", ".", "..", "../x.png", "a/b.png", "/etc", "a\\b", "x\0y"] {
             assert!(!is_plain_file_name(bad), "{bad:?}");
         }
+    }
+
+    /// The PNG decoder gives what `image` gives for every colour type and depth rig may meet
+    /// (8- and 16-bit grey, grey-alpha, RGB, RGBA, and a palette expanded to RGB), and skips
+    /// text and colour-profile chunks without changing the pixels.
+    #[test]
+    fn pngs_of_every_colour_type_decode_as_image_decodes_them() {
+        use image::DynamicImage as D;
+        let rgb = image::RgbImage::from_fn(5, 3, |x, y| image::Rgb([x as u8 * 40, y as u8 * 70, 200]));
+        let rgb16 = image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(5, 3, |x, y| image::Rgb([x as u16 * 9000, y as u16 * 300, 65535]));
+        for original in [
+            D::ImageRgb8(rgb.clone()),
+            D::ImageRgba8(D::ImageRgb8(rgb.clone()).to_rgba8()),
+            D::ImageLuma8(D::ImageRgb8(rgb.clone()).to_luma8()),
+            D::ImageLumaA8(D::ImageRgb8(rgb.clone()).to_luma_alpha8()),
+            D::ImageRgb16(rgb16.clone()),
+            D::ImageLuma16(D::ImageRgb16(rgb16).to_luma16()),
+        ] {
+            let mut png = Vec::new();
+            original.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).expect("encode");
+            assert_eq!(decode_image(&png).expect("decode"), original, "{:?}", original.color());
+            // A text chunk and a colour profile after the header change nothing.
+            let mut with = png[..33].to_vec();
+            for (kind, data) in [(&b"tEXt"[..], &b"Comment\0hello"[..]), (b"iCCP", b"p\0\0\x78\x01\x03\x00\x00\x00\x00\x01")] {
+                with.extend_from_slice(&(data.len() as u32).to_be_bytes());
+                let start = with.len();
+                with.extend_from_slice(kind);
+                with.extend_from_slice(data);
+                let crc = crc32(&with[start..]);
+                with.extend_from_slice(&crc.to_be_bytes());
+            }
+            with.extend_from_slice(&png[33..]);
+            assert_eq!(decode_image(&with).expect("decode"), original, "{:?} with ancillary chunks", original.color());
+        }
+        // A palette image (2 bits an index) comes out as 8-bit RGB.
+        let mut png = Vec::new();
+        {
+            let mut encoder = png::Encoder::new(&mut png, 4, 1);
+            encoder.set_color(png::ColorType::Indexed);
+            encoder.set_depth(png::BitDepth::Two);
+            encoder.set_palette(vec![0, 0, 0, 255, 0, 0, 0, 255, 0, 0, 0, 255]);
+            let mut writer = encoder.write_header().expect("header");
+            writer.write_image_data(&[0b0001_1011]).expect("data");
+        }
+        let decoded = decode_image(&png).expect("palette").to_rgb8();
+        let pixels: Vec<[u8; 3]> = decoded.pixels().map(|p| p.0).collect();
+        assert_eq!(pixels, vec![[0, 0, 0], [255, 0, 0], [0, 255, 0], [0, 0, 255]]);
+    }
+
+    /// CRC-32 (IEEE), as PNG chunks use.
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = 0xFFFF_FFFFu32;
+        for &b in bytes {
+            c ^= u32::from(b);
+            for _ in 0..8 {
+                c = if c & 1 != 0 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+            }
+        }
+        c ^ 0xFFFF_FFFF
     }
 
     #[test]

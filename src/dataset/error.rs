@@ -95,6 +95,26 @@ pub enum DatasetError {
     TooLarge { path: PathBuf, max_bytes: u64 },
     #[error("{path} is not a readable image: {reason}")]
     BadImage { path: PathBuf, reason: String },
+    /// `order.csv` does not parse: wrong header, a line that is not a pose id, a pose twice.
+    #[error("{path} line {line}: {reason} (the kept order is `pose_id`, then one pose id per line, each once)")]
+    BadOrder { path: PathBuf, line: u64, reason: String },
+    /// `order.csv` parses but is not an order of the poses it is read for.
+    #[error(
+        "{path} is not an order of the poses this run visits (the plan's, or the audit's draw): {mismatch} (move the file \
+         away to order them again; the rows already collected stay)"
+    )]
+    OrderMismatch {
+        path: PathBuf,
+        #[source]
+        mismatch: crate::plan::OrderMismatch,
+    },
+    /// An image of another size than the dataset's (its reference frame's, or its first
+    /// image's): what `rig dataset verify` reports, refused by the readers.
+    #[error(
+        "image {path} is {}x{} px, the dataset's images are {}x{} px (`rig dataset verify` reports it; rig reads no dataset whose images differ in size)",
+        found.0, found.1, expected.0, expected.1
+    )]
+    WrongImageSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     #[error("{path} line {line}: malformed MDS row: {reason}")]
     MalformedMds { path: PathBuf, line: u64, reason: String },
     #[error("cannot write CSV: {source}")]
@@ -142,4 +162,13 @@ pub enum RowProblem {
     ImagePath { expected: String, found: String },
     #[error("a text field contains a line break")]
     Multiline,
+    /// A pose coordinate beyond what any rig can press ([`super::MAX_ROW_OFFSET_MM`],
+    /// [`super::MAX_ROW_YAW_DEG`]).
+    #[error("{field} = {} is beyond ±{max} (no rig presses there)", short_number(*value))]
+    PoseOutOfRange { field: &'static str, value: f64, max: f64 },
+}
+
+/// `value` as a person writes it: plainly, or in exponent form when it is huge (`1e308`).
+fn short_number(value: f64) -> String {
+    if value.abs() >= 1e9 { format!("{value:e}") } else { value.to_string() }
 }

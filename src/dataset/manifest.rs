@@ -327,6 +327,66 @@ pub struct Manifest {
     /// The last `rig audit` of this dataset's synthetic poses (`rig dataset verify` prints it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub audit: Option<AuditSummary>,
+    /// The model and the image sizes of the last synthesis into this dataset; `None` in
+    /// manifests that predate the field and in datasets never synthesised into.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub synthesis: Option<SynthesisInfo>,
+}
+
+/// What `rig synth` wrote into a dataset's manifest (`[synthesis]`): which model made its
+/// synthetic images, at what resolution, and at what size they were written, so a reader (and
+/// `rig audit`) knows whether they were resampled.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SynthesisInfo {
+    /// The model package's name (`model.toml`) and its folder as given.
+    pub model: String,
+    pub model_dir: String,
+    /// The model's own resolution, px (width, height).
+    pub model_resolution_px: [u32; 2],
+    /// The size the synthetic images were written at, px (width, height): the dataset's frames'
+    /// (its `reference.png`) in a fill, the model's or the frames' in twins.
+    pub image_resolution_px: [u32; 2],
+}
+
+impl SynthesisInfo {
+    /// How many times larger than the model's output the written images are (the larger of
+    /// the two axes' ratios; 1 when they were written at the model's size, below 1 when
+    /// shrunk).
+    pub fn upscale(&self) -> f64 {
+        let ratio = |i: usize| self.image_resolution_px[i] as f64 / self.model_resolution_px[i].max(1) as f64;
+        ratio(0).max(ratio(1))
+    }
+
+    /// True when the images are larger than the model's output.
+    pub fn upscales(&self) -> bool {
+        self.upscale() > 1.0 + 1e-9
+    }
+
+    /// The upscale as a factor: `4x`, `2.5x`.
+    pub fn upscale_text(&self) -> String {
+        let k = self.upscale();
+        if (k - k.round()).abs() < 0.05 { format!("{}x", k.round()) } else { format!("{k:.1}x") }
+    }
+
+    /// The warning a synthesis prints when it upscales (`None` when it does not): by how much,
+    /// what that does to the images, and what would avoid it.
+    pub fn upscale_warning(&self, dataset: &Path) -> Option<String> {
+        if !self.upscales() {
+            return None;
+        }
+        let [mw, mh] = self.model_resolution_px;
+        let [iw, ih] = self.image_resolution_px;
+        Some(format!(
+            "warning: {}: model {} works at {mw}x{mh} px and the dataset's frames are {iw}x{ih} px, so each synthetic image is \
+             upscaled {} (bilinear): it holds no detail finer than {} frame pixels, and sharp features (TacTip pins, edges) come \
+             out blurred and dimmer than captured ones. A model trained at {iw} px would need no upscale; `rig synth --poses-of` \
+             (--twin-size model) with `rig eval` judges this model at its own {mw} px. The manifest records both sizes ([synthesis])",
+            dataset.display(),
+            self.model,
+            self.upscale_text(),
+            self.upscale_text().trim_end_matches('x'),
+        ))
+    }
 }
 
 /// A figure of an audit: its mean over the audited poses with a 95% bootstrap interval, over
@@ -414,6 +474,7 @@ impl Manifest {
             work_frame: None,
             capture: None,
             audit: None,
+            synthesis: None,
         }
     }
 
@@ -438,8 +499,13 @@ impl Manifest {
 
     /// Writes `dir/manifest.toml` atomically.
     pub fn store(&self, dir: &Path) -> Result<(), DatasetError> {
+        self.store_in(&crate::confine::RootDir::open(dir).map_err(super::durable::dataset_error)?)
+    }
+
+    /// Writes `manifest.toml` atomically into the held dataset folder `root`.
+    pub fn store_in(&self, root: &crate::confine::RootDir) -> Result<(), DatasetError> {
         let text = toml::to_string(self).map_err(|source| DatasetError::ManifestWrite { source })?;
-        super::durable::write_atomic(dir, super::MANIFEST_FILE, text.as_bytes())
+        root.write_atomic(super::MANIFEST_FILE, text.as_bytes()).map_err(super::durable::dataset_error)
     }
 
     /// The first field that makes `requested` a different dataset from `self` (plan, object,
@@ -675,5 +741,37 @@ auto_exposure = 1
         (edited.stream_s, edited.measured_fps) = (Some(-1.0), Some(f64::NAN));
         edited.add_stream_run(31, 0, Some((30, 1.0)));
         assert_eq!((edited.stream_s, edited.measured_fps), (Some(1.0), Some(30.0)));
+    }
+
+    #[test]
+    fn the_synthesis_record_says_how_much_a_fill_upscales_and_older_manifests_read_without_it() {
+        let info = |model: u32, written: [u32; 2]| SynthesisInfo {
+            model: "default".into(),
+            model_dir: "models/default".into(),
+            model_resolution_px: [model, model],
+            image_resolution_px: written,
+        };
+        let tactip = info(128, [512, 512]);
+        assert!(tactip.upscales());
+        assert_eq!(tactip.upscale_text(), "4x");
+        let warning = tactip.upscale_warning(Path::new("datasets/sphere/tactip")).expect("a 4x upscale warns");
+        assert!(warning.starts_with("warning: datasets/sphere/tactip: model default works at 128x128 px"), "{warning}");
+        assert!(warning.contains("frames are 512x512 px") && warning.contains("upscaled 4x"), "{warning}");
+        assert!(warning.contains("A model trained at 512 px"), "{warning}");
+        assert_eq!(info(128, [640, 480]).upscale_text(), "5x", "the larger axis' ratio");
+        assert_eq!(info(256, [640, 480]).upscale_text(), "2.5x");
+        for same_or_smaller in [info(128, [128, 128]), info(256, [128, 128])] {
+            assert!(!same_or_smaller.upscales());
+            assert_eq!(same_or_smaller.upscale_warning(Path::new("d")), None);
+        }
+
+        let m = Manifest::new(SensorKind::TacTip, ObjectInfo::named("sphere"), Some(PlanSpec::default()));
+        let old = toml::to_string(&m).unwrap();
+        assert!(!old.contains("synthesis"), "{old}");
+        assert_eq!(toml::from_str::<Manifest>(&old).unwrap().synthesis, None);
+        let filled = Manifest { synthesis: Some(tactip.clone()), ..m };
+        let text = toml::to_string(&filled).unwrap();
+        assert!(text.contains("[synthesis]") && text.contains("model_resolution_px = [128, 128]"), "{text}");
+        assert_eq!(toml::from_str::<Manifest>(&text).unwrap().synthesis, Some(tactip));
     }
 }

@@ -9,6 +9,8 @@
 //! poses.csv              one row per captured or synthesised pose (see [`PoseRow`])
 //! images/<pose_id>.png   the frame of that pose
 //! reference.png          the no-contact frame
+//! order.csv              the poses a collection visits, in its order, kept before its first
+//!                        pose (see [`order`]); absent in datasets no collection wrote
 //! ```
 //!
 //! Durability ([`DatasetWriter`]): an image is written to a temporary name in `images/`,
@@ -28,6 +30,7 @@ pub mod lerobot;
 pub mod manifest;
 pub mod merge;
 pub mod named;
+pub mod order;
 pub mod press_limit;
 pub mod verify;
 pub mod writer;
@@ -39,9 +42,9 @@ use serde::{Deserialize, Serialize};
 use crate::pose::Pose;
 
 pub use error::{DatasetError, RowProblem};
-pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo};
+pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo, SynthesisInfo};
 pub use merge::{MergeOptions, MergeReport, merge};
-pub use verify::{CaptureNote, VerifyIssue, VerifyReport, verify};
+pub use verify::{CaptureNote, DatasetImages, VerifyIssue, VerifyReport, verify};
 pub use writer::DatasetWriter;
 
 /// The default bound on a LeRobot export's parquet files, MB of 10^6 bytes (LeRobot's default
@@ -278,12 +281,32 @@ impl PoseRow {
         if meas.iter().flatten().any(|v| !v.is_finite()) || self.t_capture_s.is_some_and(|t| !t.is_finite()) {
             return Some(RowProblem::NonFiniteMeasurement);
         }
+        // Finite is not enough: z = 1e308 would reach a regressor or a renderer as a number.
+        let coordinates = [
+            ("x_mm", Some(self.x_mm), MAX_ROW_OFFSET_MM),
+            ("y_mm", Some(self.y_mm), MAX_ROW_OFFSET_MM),
+            ("z_mm", Some(self.z_mm), MAX_ROW_OFFSET_MM),
+            ("yaw_deg", Some(self.yaw_deg), MAX_ROW_YAW_DEG),
+            ("meas_x_mm", self.meas_x_mm, MAX_ROW_OFFSET_MM),
+            ("meas_y_mm", self.meas_y_mm, MAX_ROW_OFFSET_MM),
+            ("meas_z_mm", self.meas_z_mm, MAX_ROW_OFFSET_MM),
+            ("meas_yaw_deg", self.meas_yaw_deg, MAX_ROW_YAW_DEG),
+        ];
+        if let Some((field, Some(value), max)) = coordinates.into_iter().find(|(_, v, max)| v.is_some_and(|v| v.abs() > *max)) {
+            return Some(RowProblem::PoseOutOfRange { field, value, max });
+        }
         if self.image != image_rel_path(self.pose_id) {
             return Some(RowProblem::ImagePath { expected: image_rel_path(self.pose_id), found: self.image.clone() });
         }
         None
     }
 }
+
+/// Largest work-frame offset of a row's pose (x, y, z, commanded or measured), mm: beyond the
+/// reach of any desktop arm from the object it presses.
+pub const MAX_ROW_OFFSET_MM: f64 = 1000.0;
+/// Largest work-frame yaw of a row, degrees (two turns either way).
+pub const MAX_ROW_YAW_DEG: f64 = 720.0;
 
 /// The image path of a pose relative to the dataset directory.
 pub fn image_rel_path(pose_id: u32) -> String {
@@ -461,6 +484,27 @@ pub fn require_folder(dir: &std::path::Path) -> Result<(), DatasetError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A finite pose far beyond any rig (z = 1e308) is a row problem: verify reports the line
+    /// as malformed and every reader refuses it, as it does a NaN.
+    #[test]
+    fn poses_beyond_any_rig_are_row_problems() {
+        let mut row = PoseRow::real(3, Pose::new(1.0, -2.5, 0.5, 15.0), Pose::new(1.01, -2.49, 0.52, 15.1), 12.25);
+        assert_eq!(row.problem(), None);
+        row.z_mm = 1e308;
+        assert!(matches!(row.problem(), Some(RowProblem::PoseOutOfRange { field: "z_mm", .. })));
+        row.z_mm = 0.5;
+        row.meas_yaw_deg = Some(-1e6);
+        assert!(matches!(row.problem(), Some(RowProblem::PoseOutOfRange { field: "meas_yaw_deg", .. })));
+        let mut bytes = header_line().into_bytes();
+        row.meas_yaw_deg = Some(15.0);
+        row.x_mm = 1000.5;
+        let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
+        w.serialize(&row).unwrap();
+        bytes.extend(w.into_inner().unwrap());
+        let p = parse_csv(&bytes);
+        assert!(p.lines[0].row.as_ref().is_err_and(|e| e.contains("x_mm = 1000.5")), "{:?}", p.lines[0].row);
+    }
 
     #[test]
     fn row_round_trip_and_torn_tail() {

@@ -15,9 +15,15 @@
 //!    size bound, used only when its bytes hash to that sha256.
 //!
 //! Anything else (an absolute calibration path, an absolute STL without a hash, a path with
-//! `..`) is refused without being looked at, and every failure of case 3 (missing, not a file,
-//! too large, another file) gives the same [`NamedFileError::Outside`]: nothing is learned about
-//! a file outside the dataset and the working folder.
+//! `..`) is refused without being looked at, and every failure of case 3 (missing, too large,
+//! another file) gives the same [`NamedFileError::Outside`]: nothing is learned about a
+//! regular file outside the dataset and the working folder.
+//!
+//! A path that names something other than a regular file (`/dev/ptmx`, `/dev/zero`, a FIFO, a
+//! folder) is never opened, in any of the three places: its kind is looked at first
+//! ([`crate::confine`]), and it is refused as [`NamedFileError::NotRegular`] (or, below the
+//! dataset or the working folder, [`NamedFileError::Confined`]), an error no caller replaces
+//! with a library object. This says that such a path is not a regular file, and no more.
 
 use std::path::{Component, Path};
 
@@ -35,6 +41,10 @@ pub enum NamedFileError {
          (copy the file into the dataset and name it relative to the dataset)"
     )]
     Outside { field: &'static str, named: String },
+    /// A path (outside the dataset and the working folder) that names a device, FIFO, socket or
+    /// folder: refused before it is opened, and never replaced by a library object.
+    #[error("{field} {named:?} is not a regular file (it is {found}); rig opens no device, FIFO or socket a manifest names")]
+    NotRegular { field: &'static str, named: String, found: &'static str },
     /// Below the dataset or the working folder, but not a file rig may read there.
     #[error("{field}: {source}")]
     Confined {
@@ -72,6 +82,8 @@ pub fn read_named(
     let Some(expected) = sha256 else { return Err(outside()) };
     match crate::confine::read_named_file(path, max_bytes) {
         Ok(bytes) if hex::encode(Sha256::digest(&bytes)).eq_ignore_ascii_case(expected) => Ok(Some(bytes)),
+        // Looked at, never opened: said, so that no caller takes something else in its place.
+        Err(ConfineError::NotRegular { found, .. }) => Err(NamedFileError::NotRegular { field, named: named.to_string(), found }),
         _ => Err(outside()),
     }
 }
@@ -109,6 +121,15 @@ mod tests {
             messages.push(e.to_string().replace(named, "X"));
         }
         assert!(messages.windows(2).all(|w| w[0] == w[1]), "{messages:?}");
+        // A FIFO (or a device: only named) with a hash is refused for what it is, never opened.
+        let fifo = top.join("part.stl");
+        let c = std::ffi::CString::new(fifo.to_str().expect("utf-8")).expect("c string");
+        // SAFETY: mkfifo on a NUL-terminated path in the test's temp folder.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        for named in [fifo.display().to_string(), "/dev/zero".to_string(), "/dev/null".to_string()] {
+            let e = read_named(&ds, "stl_path", &named, Some("00"), 100).expect_err(&named);
+            assert!(matches!(e, NamedFileError::NotRegular { .. }) && e.to_string().contains("not a regular file"), "{e}");
+        }
         // With the right hash, an STL outside is read.
         let sha = hex::encode(Sha256::digest(b"SECRET 200 bytes"));
         assert!(read_named(&ds, "stl_path", &existing, Some(&sha), 100).expect("hash matches").is_some());

@@ -1,6 +1,6 @@
 //! Rows that press past a sensor's press limit: `rig dataset verify` reports them, since `rig
 //! audit` presses a dataset's rows again and refuses (before the arm moves) any past the
-//! limit ([`crate::fence`]). Kept apart from [`super::verify`], which checks the files.
+//! limit ([`crate::fence`]). Kept apart from [`mod@super::verify`], which checks the files.
 
 use std::path::Path;
 
@@ -11,7 +11,7 @@ use crate::pose::{WorkFrame, within_press_limit};
 /// The rows of `dir/poses.csv` whose commanded pose presses deeper than `max_indentation_mm`
 /// in `work_frame` (the contact depth plus the row's `z_mm`), as issues naming `limit` (how
 /// the limit reads, e.g. `vitac's press limit of 2.5 mm`). Malformed lines are left to
-/// [`super::verify`].
+/// [`mod@super::verify`].
 pub fn rows_past_press_limit(
     dir: &Path,
     work_frame: &WorkFrame,

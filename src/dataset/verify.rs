@@ -1,13 +1,22 @@
 //! Read-only check of a dataset directory: rows against images, duplicates, malformed lines,
 //! leftovers of a killed run, symlinks and other entries that are not regular files, and every
 //! image decoded and its size checked against the reference frame's (or, without one, the
-//! first image's). Nothing is modified; [`super::DatasetWriter::resume`] repairs what it can.
+//! first image's) and against the camera format the manifest's capture chain names. Nothing is
+//! modified; [`super::DatasetWriter::resume`] repairs what it can.
+//!
+//! The checks are the readers' too, so that what verify calls unclean no command takes as
+//! data: a row is checked by [`super::PoseRow::problem`] whoever parses it (verify reports a
+//! malformed row, [`super::read_rows`] refuses the dataset), and an image is read by
+//! [`DatasetImages`], which verify and the readers that train or measure on images
+//! (`rig eval --downstream`) share: through the opener, decoded with bounds, and of the
+//! dataset's size.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_below};
+use super::order::{MAX_ORDER_BYTES, ORDER_FILE, parse_order};
 use super::writer::{image_file_pose_id, is_temp_name};
 use super::{CaptureChain, DatasetError, IMAGES_DIR, MANIFEST_FILE, Manifest, POSES_FILE, REFERENCE_FILE, Source, parse_csv};
 
@@ -35,10 +44,74 @@ pub enum VerifyIssue {
     NotRegular { path: PathBuf, reason: String },
     /// An image (or `reference.png`) that does not decode: empty, truncated, not a PNG.
     BadImage { path: PathBuf, reason: String },
+    /// An image (or `reference.png`) whose size differs from the frame size the manifest's
+    /// capture chain gives the dataset's camera.
+    NotCameraFormat { path: PathBuf, found: (u32, u32), camera: (u32, u32) },
     /// An image whose size differs from the dataset's.
     WrongSize { path: PathBuf, found: (u32, u32), expected: (u32, u32) },
     /// A row that presses past the sensor's press limit ([`super::press_limit`]).
     PastPressLimit { pose_id: u32, line: u64, depth_mm: f64, limit: String },
+    /// `order.csv` does not parse, or lists a pose outside the manifest's plan grid.
+    BadOrder { reason: String },
+    /// Captured rows (real or simulated) whose poses the kept order does not list: the order
+    /// is not the collection's.
+    UnorderedRows { rows: usize, first_pose_id: u32 },
+}
+
+/// A dataset's images as verify reads them, for any reader: each read through the opener (no
+/// symlink below the dataset, a regular file, bounded), decoded with bounds, and refused
+/// ([`DatasetError::WrongImageSize`]) unless it has the dataset's size: the reference frame's,
+/// or without one, the first image's read.
+#[derive(Debug)]
+pub struct DatasetImages {
+    dir: PathBuf,
+    size: Option<(u32, u32)>,
+}
+
+impl DatasetImages {
+    /// The images of the dataset at `dir`, their size taken from its `reference.png` when it
+    /// has one (a reference that is a symlink or does not decode is an error).
+    pub fn open(dir: &Path) -> Result<Self, DatasetError> {
+        let mut images = Self::with_size(dir, None);
+        if entry_exists(&dir.join(REFERENCE_FILE), Kind::File)? {
+            images.read(Path::new(REFERENCE_FILE))?;
+        }
+        Ok(images)
+    }
+
+    /// The images of the dataset at `dir` whose size is `size` (`None`: the first image read
+    /// sets it).
+    pub fn with_size(dir: &Path, size: Option<(u32, u32)>) -> Self {
+        Self { dir: dir.to_path_buf(), size }
+    }
+
+    /// The dataset's folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The dataset's image size, once known.
+    pub fn size(&self) -> Option<(u32, u32)> {
+        self.size
+    }
+
+    /// Reads and decodes the image `rel` (a path below the dataset, `images/3.png`) and checks
+    /// its size; an image that decodes is returned with its size error, so verify can go on.
+    fn read_checked(&mut self, rel: &Path) -> Result<(image::DynamicImage, Result<(), DatasetError>), DatasetError> {
+        let path = self.dir.join(rel);
+        let bytes = read_below(&self.dir, rel, MAX_IMAGE_BYTES)?;
+        let image = decode_image(&bytes).map_err(|reason| DatasetError::BadImage { path: path.clone(), reason })?;
+        let found = (image.width(), image.height());
+        let expected = *self.size.get_or_insert(found);
+        let sized = if found == expected { Ok(()) } else { Err(DatasetError::WrongImageSize { path, found, expected }) };
+        Ok((image, sized))
+    }
+
+    /// Reads, decodes and checks the image `rel`: any failure verify would report is an error.
+    pub fn read(&mut self, rel: &Path) -> Result<image::DynamicImage, DatasetError> {
+        let (image, sized) = self.read_checked(rel)?;
+        sized.map(|()| image)
+    }
 }
 
 impl fmt::Display for VerifyIssue {
@@ -60,12 +133,26 @@ impl fmt::Display for VerifyIssue {
             VerifyIssue::BadManifest { reason } => write!(f, "manifest: {reason}"),
             VerifyIssue::NotRegular { path, reason } => write!(f, "{}: {reason}", path.display()),
             VerifyIssue::BadImage { path, reason } => write!(f, "unreadable image {}: {reason}", path.display()),
+            VerifyIssue::NotCameraFormat { path, found, camera } => write!(
+                f,
+                "image {} is {}x{} px, the manifest's camera format is {}x{}",
+                path.display(),
+                found.0,
+                found.1,
+                camera.0,
+                camera.1
+            ),
             VerifyIssue::WrongSize { path, found, expected } => {
                 write!(f, "image {} is {}x{} px, the dataset's images are {}x{}", path.display(), found.0, found.1, expected.0, expected.1)
             }
             VerifyIssue::PastPressLimit { pose_id, line, depth_mm, limit } => {
                 write!(f, "past the press limit: pose_id {pose_id} on line {line} presses {depth_mm:.3} mm into the skin, beyond {limit}")
             }
+            VerifyIssue::BadOrder { reason } => write!(f, "kept order {ORDER_FILE}: {reason}"),
+            VerifyIssue::UnorderedRows { rows, first_pose_id } => write!(
+                f,
+                "kept order {ORDER_FILE}: {rows} captured rows are not in it (first: pose_id {first_pose_id}); it is not this collection's order"
+            ),
         }
     }
 }
@@ -94,6 +181,9 @@ pub struct VerifyReport {
     /// Symlinks and entries of the wrong kind.
     pub not_regular: usize,
     pub has_reference: bool,
+    /// Poses the kept order (`order.csv`) lists; `None` when the dataset keeps none (or it is
+    /// unreadable, an issue).
+    pub order: Option<usize>,
     pub issues: Vec<VerifyIssue>,
 }
 
@@ -151,6 +241,12 @@ impl VerifyReport {
     pub fn is_clean(&self) -> bool {
         self.issues.is_empty()
     }
+
+    /// `clean` or `NOT clean`: the report's last line (`rig dataset verify` prefixes it with
+    /// the dataset, so a run over several datasets says which one each verdict is).
+    pub fn verdict(&self) -> &'static str {
+        if self.is_clean() { "clean" } else { "NOT clean" }
+    }
 }
 
 impl fmt::Display for VerifyReport {
@@ -166,6 +262,10 @@ impl fmt::Display for VerifyReport {
             if self.has_reference { "present" } else { "absent" }
         )?;
         writeln!(f, "{}", self.capture)?;
+        match self.order {
+            Some(n) => writeln!(f, "kept order: {n} poses ({ORDER_FILE})")?,
+            None => writeln!(f, "kept order: none")?,
+        }
         writeln!(
             f,
             "missing {}, orphan {}, duplicated {}, malformed {}, temp files {}, bad images {}, not regular files {}",
@@ -174,7 +274,7 @@ impl fmt::Display for VerifyReport {
         for issue in &self.issues {
             writeln!(f, "  {issue}")?;
         }
-        write!(f, "{}", if self.is_clean() { "clean" } else { "NOT clean" })
+        write!(f, "{}", self.verdict())
     }
 }
 
@@ -190,21 +290,29 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     let parsed = parse_csv(&bytes);
     let mut report = VerifyReport::default();
 
+    let mut grid_len = None;
+    // The frame size the manifest gives the camera, if it gives one.
+    let mut camera = None;
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
         Ok(true) => match Manifest::load(dir) {
-            Ok(m) => report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c))),
+            Ok(m) => {
+                grid_len = m.plan.as_ref().map(|p| p.grid_len());
+                camera = camera_format(&m);
+                report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c)));
+            }
             Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
         },
         Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
     }
     // The dataset's image size: the reference frame's, else the first image's.
-    let mut expected_size = None;
+    let mut images = DatasetImages::with_size(dir, None);
     let reference = dir.join(REFERENCE_FILE);
     match entry_exists(&reference, Kind::File) {
         Ok(true) => {
             report.has_reference = true;
-            expected_size = check_image(dir, Path::new(REFERENCE_FILE), None, &mut report);
+            let size = check_image(&mut images, Path::new(REFERENCE_FILE), &mut report);
+            check_camera_format(&reference, size, None, camera, &mut report);
         }
         Ok(false) => {}
         Err(e) => not_regular(&mut report, &reference, &e),
@@ -275,8 +383,9 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
                     report.orphan += 1;
                     report.issues.push(VerifyIssue::OrphanImage { path: path.clone() });
                 }
-                let size = check_image(dir, &Path::new(IMAGES_DIR).join(&name), expected_size, &mut report);
-                expected_size = expected_size.or(size);
+                let expected = images.size();
+                let size = check_image(&mut images, &Path::new(IMAGES_DIR).join(&name), &mut report);
+                check_camera_format(&path, size, expected, camera, &mut report);
             } else {
                 report.orphan += 1;
                 report.issues.push(VerifyIssue::OrphanImage { path });
@@ -289,7 +398,37 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
             report.issues.push(VerifyIssue::MissingImage { pose_id: id, path: dir.join(super::image_rel_path(id)) });
         }
     }
+    check_order(dir, &parsed.lines, grid_len, &mut report);
     Ok(report)
+}
+
+/// The kept order, when the dataset has one: it parses, lists only poses of the plan's grid,
+/// and lists every captured row's pose (a collection keeps its order before its first pose).
+fn check_order(dir: &Path, lines: &[super::ParsedLine], grid_len: Option<u64>, report: &mut VerifyReport) {
+    let path = dir.join(ORDER_FILE);
+    match entry_exists(&path, Kind::File) {
+        Ok(false) => return,
+        Ok(true) => {}
+        Err(e) => return not_regular(report, &path, &e),
+    }
+    let ids = match read_below(dir, Path::new(ORDER_FILE), MAX_ORDER_BYTES).and_then(|bytes| parse_order(&bytes, &path)) {
+        Ok(ids) => ids,
+        Err(e) => return report.issues.push(VerifyIssue::BadOrder { reason: e.to_string() }),
+    };
+    report.order = Some(ids.len());
+    if let Some(&outside) = grid_len.and_then(|grid| ids.iter().find(|&&id| u64::from(id) >= grid)) {
+        report.issues.push(VerifyIssue::BadOrder { reason: format!("pose {outside} is outside the plan's grid") });
+    }
+    let listed: std::collections::HashSet<u32> = ids.into_iter().collect();
+    let unordered: Vec<u32> = lines
+        .iter()
+        .filter_map(|l| l.row.as_ref().ok())
+        .filter(|r| r.source.is_captured() && !listed.contains(&r.pose_id))
+        .map(|r| r.pose_id)
+        .collect();
+    if let Some(&first_pose_id) = unordered.first() {
+        report.issues.push(VerifyIssue::UnorderedRows { rows: unordered.len(), first_pose_id });
+    }
 }
 
 fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
@@ -304,26 +443,54 @@ fn not_regular(report: &mut VerifyReport, path: &Path, e: &DatasetError) {
     report.issues.push(VerifyIssue::NotRegular { path: path.to_path_buf(), reason });
 }
 
-/// Decodes the image `rel` of the dataset at `dir` (read through the opener: no symlink below
-/// `dir`); records an issue when it does not decode or is not `expected` in size. Returns its
-/// size when it decoded.
-fn check_image(dir: &Path, rel: &Path, expected: Option<(u32, u32)>, report: &mut VerifyReport) -> Option<(u32, u32)> {
-    let path = &dir.join(rel);
-    let decoded = read_below(dir, rel, MAX_IMAGE_BYTES).map_err(|e| e.to_string()).and_then(|bytes| decode_image(&bytes));
-    match decoded {
-        Ok(image) => {
-            let found = (image.width(), image.height());
-            if let Some(expected) = expected.filter(|e| *e != found) {
-                report.bad_images += 1;
-                report.issues.push(VerifyIssue::WrongSize { path: path.to_path_buf(), found, expected });
-            }
+/// Reads the image `rel` through `images` (the readers' rules); records an issue when it does
+/// not decode or is not the dataset's size. Returns its size when it decodes.
+fn check_image(images: &mut DatasetImages, rel: &Path, report: &mut VerifyReport) -> Option<(u32, u32)> {
+    let path = images.dir.join(rel);
+    match images.read_checked(rel) {
+        Ok((image, Ok(()))) => Some((image.width(), image.height())),
+        Ok((_, Err(DatasetError::WrongImageSize { path, found, expected }))) => {
+            report.bad_images += 1;
+            report.issues.push(VerifyIssue::WrongSize { path, found, expected });
             Some(found)
         }
-        Err(reason) => {
+        Ok((_, Err(other))) | Err(other) => {
             report.bad_images += 1;
-            report.issues.push(VerifyIssue::BadImage { path: path.to_path_buf(), reason });
+            let reason = match other {
+                DatasetError::BadImage { reason, .. } => reason,
+                other => other.to_string(),
+            };
+            report.issues.push(VerifyIssue::BadImage { path, reason });
             None
         }
+    }
+}
+
+/// The frame size the manifest's capture chain gives the dataset's camera (the `resolution_px`
+/// of the sensor part named like the dataset's sensor), if it gives one.
+fn camera_format(manifest: &Manifest) -> Option<(u32, u32)> {
+    let sensor = manifest.sensor.to_string();
+    let part = manifest.capture.as_ref()?.sensors.iter().find(|p| p.name == sensor)?;
+    part.resolution_px.map(|[width, height]| (width, height))
+}
+
+/// Records an issue when an image that decoded to `found` is not the camera's size. Apart from
+/// the check against the dataset's size (the reference's), which images of one wrong size all
+/// pass: a dataset of 1 x 1 images whose manifest says 64 x 64 is not clean. An image already
+/// counted as of the wrong size for the dataset (`dataset`) is not counted twice.
+fn check_camera_format(
+    path: &Path,
+    found: Option<(u32, u32)>,
+    dataset: Option<(u32, u32)>,
+    camera: Option<(u32, u32)>,
+    report: &mut VerifyReport,
+) {
+    let (Some(found), Some(camera)) = (found, camera) else { return };
+    if found != camera {
+        if dataset.is_none_or(|size| size == found) {
+            report.bad_images += 1;
+        }
+        report.issues.push(VerifyIssue::NotCameraFormat { path: path.to_path_buf(), found, camera });
     }
 }
 

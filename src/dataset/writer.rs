@@ -12,13 +12,22 @@
 //! (truncated away, and its image becomes an orphan). The set of done pose ids is the set of
 //! complete CSV rows, each of which names an image that was durable before the row was.
 //!
-//! A writer holds an exclusive lock (`File::try_lock`, `flock` on Unix) on the dataset folder itself, taken before it looks at
+//! A writer holds an exclusive lock (`flock`) on the dataset folder itself, taken before it looks at
 //! or creates anything there, so two processes never write one dataset at once (two runs
 //! racing into an empty folder: the second is told the dataset is held by another process);
 //! the kernel drops the lock when the process dies, so a killed run never blocks its resume.
 //!
 //! Nothing inside the dataset is followed through a symlink ([`super::durable`]): a symlinked
 //! `images/`, `poses.csv`, `manifest.toml` or image is an error, never a place to write.
+//!
+//! Every write goes through folder descriptors the writer opens once and holds
+//! ([`crate::confine::RootDir`]): the dataset folder, and `images/` below it (opened with
+//! `O_NOFOLLOW | O_DIRECTORY`, so a symlink there is refused). An image's temp file is created
+//! and renamed relative to the held `images/` descriptor, so swapping `images/` for a symlink
+//! while a run writes cannot send an image anywhere else: it lands in the folder that was
+//! checked, and its row is appended only after it is durable there. `poses.csv` is opened once
+//! through the held dataset descriptor, and refused when it has another name (a hard link:
+//! appending would grow a file outside the dataset).
 
 use std::collections::BTreeSet;
 use std::fs::File;
@@ -27,20 +36,24 @@ use std::path::{Path, PathBuf};
 
 use image::RgbImage;
 
-use super::durable::{Kind, ensure_folder, entry_exists, fsync_dir, open_regular, write_atomic};
+use super::durable::dataset_error;
 use super::manifest::{Manifest, utc_now};
 use super::{
     COLUMNS, CsvLayout, DatasetError, IMAGES_DIR, MANIFEST_FILE, POSES_FILE, PoseRow, REFERENCE_FILE, RowProblem, header_line,
     image_rel_path, parse_csv, row_line, strict_rows,
 };
+use crate::confine::{EntryKind, RootDir};
 
 /// Appends rows and images to one dataset directory. See the module docs for the guarantees.
 #[derive(Debug)]
 pub struct DatasetWriter {
     dir: PathBuf,
     manifest: Manifest,
-    /// The folder, open and `flock`ed for the writer's life.
-    _lock: File,
+    /// The dataset folder, open and `flock`ed for the writer's life; every write in it goes
+    /// through this descriptor.
+    root: RootDir,
+    /// `images/`, opened once below `root` without following a symlink.
+    images: RootDir,
     csv: File,
     /// Length of `poses.csv` after the last complete line, to undo a failed partial append.
     csv_len: u64,
@@ -54,21 +67,21 @@ impl DatasetWriter {
     /// Starts a new dataset in `dir` (created if absent). Refuses a directory that holds
     /// anything, so an existing dataset is never overwritten.
     pub fn create(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
-        let lock = lock_dir(dir, true)?;
-        Self::create_locked(dir, manifest, lock)
+        let root = lock_dir(dir, true)?;
+        Self::create_locked(dir, manifest, root)
     }
 
-    fn create_locked(dir: &Path, manifest: Manifest, lock: File) -> Result<Self, DatasetError> {
-        if !dir_is_empty(dir)? {
+    fn create_locked(dir: &Path, manifest: Manifest, root: RootDir) -> Result<Self, DatasetError> {
+        if !root.entries("").map_err(dataset_error)?.is_empty() {
             return Err(DatasetError::NotEmpty { dir: dir.to_path_buf() });
         }
-        ensure_folder(&dir.join(IMAGES_DIR))?;
-        manifest.store(dir)?;
-        write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
+        root.create_dir_all(IMAGES_DIR).map_err(dataset_error)?;
+        manifest.store_in(&root)?;
+        root.write_atomic(POSES_FILE, header_line().as_bytes()).map_err(dataset_error)?;
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
-            fsync_dir(parent)?;
+            super::durable::fsync_dir(parent)?;
         }
-        Self::open_existing(dir, manifest, false, lock)
+        Self::open_existing(dir, manifest, false, root)
     }
 
     /// Continues the dataset in `dir` exactly where a previous (possibly killed) run stopped,
@@ -77,16 +90,16 @@ impl DatasetWriter {
     /// manifest is kept (its start time included) and this run's start is added to
     /// `resumed_utc`.
     pub fn resume(dir: &Path, manifest: Manifest) -> Result<Self, DatasetError> {
-        let lock = lock_dir(dir, true)?;
-        if dir_is_empty(dir)? {
-            return Self::create_locked(dir, manifest, lock);
+        let root = lock_dir(dir, true)?;
+        if root.entries("").map_err(dataset_error)?.is_empty() {
+            return Self::create_locked(dir, manifest, root);
         }
-        if remove_creation_stub(dir)? {
-            return Self::create_locked(dir, manifest, lock);
+        if remove_creation_stub(&root)? {
+            return Self::create_locked(dir, manifest, root);
         }
         let existing = Manifest::load(dir)?;
         existing.check_same_dataset(&manifest, dir)?;
-        Self::open_existing(dir, existing, true, lock)
+        Self::open_existing(dir, existing, true, root)
     }
 
     /// [`resume`](Self::resume) when `resume` is set (the `--resume` flag), else
@@ -98,21 +111,21 @@ impl DatasetWriter {
     /// Opens an existing dataset to append to it under its own manifest (what
     /// `rig synth --fill-missing` does), repairing it as [`resume`](Self::resume) does.
     pub fn open(dir: &Path) -> Result<Self, DatasetError> {
-        if !entry_exists(&dir.join(MANIFEST_FILE), Kind::File)? {
+        let root = lock_dir(dir, false)?;
+        if !exists(&root, MANIFEST_FILE, EntryKind::File)? {
             return Err(DatasetError::NotADataset { dir: dir.to_path_buf(), missing: MANIFEST_FILE });
         }
-        let lock = lock_dir(dir, false)?;
         let existing = Manifest::load(dir)?;
-        Self::open_existing(dir, existing, true, lock)
+        Self::open_existing(dir, existing, true, root)
     }
 
-    fn open_existing(dir: &Path, mut manifest: Manifest, resumed: bool, lock: File) -> Result<Self, DatasetError> {
+    fn open_existing(dir: &Path, mut manifest: Manifest, resumed: bool, root: RootDir) -> Result<Self, DatasetError> {
         let csv_path = dir.join(POSES_FILE);
-        if !entry_exists(&csv_path, Kind::File)? {
+        if !exists(&root, POSES_FILE, EntryKind::File)? {
             // Killed between the manifest and the header of a new dataset.
-            write_atomic(dir, POSES_FILE, header_line().as_bytes())?;
+            root.write_atomic(POSES_FILE, header_line().as_bytes()).map_err(dataset_error)?;
         }
-        let mut csv = open_regular(&csv_path, true)?;
+        let mut csv = root.open_append(POSES_FILE).map_err(dataset_error)?;
         if csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len() > super::durable::MAX_POSES_CSV_BYTES {
             return Err(DatasetError::TooLarge { path: csv_path, max_bytes: super::durable::MAX_POSES_CSV_BYTES });
         }
@@ -147,39 +160,42 @@ impl DatasetWriter {
         let done: BTreeSet<u32> = strict_rows(parsed.lines, &csv_path)?.iter().map(|r| r.pose_id).collect();
         if layout == Some(CsvLayout::Legacy) {
             // Only after every row parsed: a damaged file is reported, never rewritten.
-            csv = upgrade_legacy_csv(dir, &bytes[..complete_len], csv)?;
+            csv = upgrade_legacy_csv(&root, &bytes[..complete_len], csv)?;
         }
 
-        remove_temp_files(dir)?;
-        entry_exists(&dir.join(REFERENCE_FILE), Kind::File)?;
-        let images = dir.join(IMAGES_DIR);
-        ensure_folder(&images)?;
+        remove_temp_files(&root)?;
+        exists(&root, REFERENCE_FILE, EntryKind::File)?;
+        let images = root.create_dir_all(IMAGES_DIR).map_err(dataset_error)?;
         remove_temp_files(&images)?;
         let mut present = BTreeSet::new();
-        for entry in std::fs::read_dir(&images).map_err(DatasetError::io("listing", &images))? {
-            let entry = entry.map_err(DatasetError::io("listing", &images))?;
-            let Some(id) = image_file_pose_id(&entry.file_name().to_string_lossy()) else { continue };
+        for entry in images.entries("").map_err(dataset_error)? {
+            let Some(id) = entry.name.to_str().and_then(image_file_pose_id) else { continue };
             // An image must be a regular file: a symlink here could name any file on the machine.
-            entry_exists(&entry.path(), Kind::File)?;
+            let path = images.path().join(&entry.name);
+            match entry.kind {
+                EntryKind::File => {}
+                EntryKind::Symlink => return Err(DatasetError::Symlink { path }),
+                _ => return Err(DatasetError::NotRegular { path, expected: "a regular file" }),
+            }
             if done.contains(&id) {
                 present.insert(id);
             } else {
                 // Its row never became durable: capture this pose again.
                 tracing::info!(pose_id = id, "removing orphan image");
-                std::fs::remove_file(entry.path()).map_err(DatasetError::io("removing", entry.path()))?;
+                images.remove_file(&entry.name).map_err(dataset_error)?;
             }
         }
-        fsync_dir(&images)?;
+        images.sync().map_err(dataset_error)?;
         if let Some(&pose_id) = done.difference(&present).next() {
             return Err(DatasetError::MissingImage { pose_id, path: dir.join(image_rel_path(pose_id)) });
         }
 
         if resumed {
             manifest.resumed_utc.push(utc_now());
-            manifest.store(dir)?;
+            manifest.store_in(&root)?;
         }
         let csv_len = csv.metadata().map_err(DatasetError::io("reading", &csv_path))?.len();
-        Ok(Self { dir: dir.to_path_buf(), manifest, _lock: lock, csv, csv_len, done, budget_left_bytes: None })
+        Ok(Self { dir: dir.to_path_buf(), manifest, root, images, csv, csv_len, done, budget_left_bytes: None })
     }
 
     /// Limits the bytes of images and rows this writer may write; past it every write fails
@@ -217,11 +233,16 @@ impl DatasetWriter {
         &self.done
     }
 
+    /// Whether the dataset has its no-contact reference frame (a regular `reference.png`).
+    pub fn has_reference(&self) -> bool {
+        matches!(self.root.stat(REFERENCE_FILE), Ok(Some(info)) if info.kind == EntryKind::File)
+    }
+
     /// Writes (or replaces) `reference.png` atomically.
     pub fn write_reference(&mut self, image: &RgbImage) -> Result<(), DatasetError> {
         let png = encode_png(image, u32::MAX)?;
         self.spend(png.len() as u64, &self.dir.join(REFERENCE_FILE))?;
-        write_atomic(&self.dir, REFERENCE_FILE, &png)
+        self.root.write_atomic(REFERENCE_FILE, &png).map_err(dataset_error)
     }
 
     /// Durably appends one pose: image first, then its row. Sets `row.image` to
@@ -249,9 +270,11 @@ impl DatasetWriter {
             return Err(DatasetError::InvalidRow { pose_id, problem: RowProblem::Multiline });
         }
 
-        let images = self.dir.join(IMAGES_DIR);
-        self.spend((png.len() + line.len()) as u64, &images.join(format!("{pose_id}.png")))?;
-        write_atomic(&images, &format!("{pose_id}.png"), png)?;
+        let name = format!("{pose_id}.png");
+        self.spend((png.len() + line.len()) as u64, &self.images.path().join(&name))?;
+        // Into the `images/` folder held since the writer opened (whatever its name now leads
+        // to), durable before the row is.
+        self.images.write_atomic(&name, png).map_err(dataset_error)?;
 
         let csv_path = self.dir.join(POSES_FILE);
         // One write call of the whole line: a kill leaves either nothing or a prefix of it.
@@ -275,13 +298,13 @@ impl DatasetWriter {
     /// end with the stream counts of its cameras).
     pub fn update_manifest(&mut self, change: impl FnOnce(&mut Manifest)) -> Result<(), DatasetError> {
         change(&mut self.manifest);
-        self.manifest.store(&self.dir)
+        self.manifest.store_in(&self.root)
     }
 
     /// Records the end time in the manifest and releases the dataset.
     pub fn finish(mut self) -> Result<Manifest, DatasetError> {
         self.manifest.ended_utc = Some(utc_now());
-        self.manifest.store(&self.dir)?;
+        self.manifest.store_in(&self.root)?;
         Ok(self.manifest)
     }
 }
@@ -292,8 +315,8 @@ impl DatasetWriter {
 /// file, fsync, rename, fsync the directory): a kill leaves the old file or the new one, and
 /// either resumes. Each row keeps its bytes; only `,` is added before its line end. Returns the
 /// new file, opened for appending and locked (the old handle, and its lock, are dropped).
-fn upgrade_legacy_csv(dir: &Path, legacy: &[u8], old: File) -> Result<File, DatasetError> {
-    let csv_path = dir.join(POSES_FILE);
+fn upgrade_legacy_csv(root: &RootDir, legacy: &[u8], old: File) -> Result<File, DatasetError> {
+    let csv_path = root.path().join(POSES_FILE);
     let mut upgraded = header_line().into_bytes();
     for line in legacy.split_inclusive(|&b| b == b'\n').skip(1) {
         let body = line.strip_suffix(b"\n").unwrap_or(line);
@@ -310,8 +333,8 @@ fn upgrade_legacy_csv(dir: &Path, legacy: &[u8], old: File) -> Result<File, Data
         upgraded.push(b'\n');
     }
     tracing::info!("adding the modbus column to {}", csv_path.display());
-    write_atomic(dir, POSES_FILE, &upgraded)?;
-    let csv = open_regular(&csv_path, true)?;
+    root.write_atomic(POSES_FILE, &upgraded).map_err(dataset_error)?;
+    let csv = root.open_append(POSES_FILE).map_err(dataset_error)?;
     drop(old);
     Ok(csv)
 }
@@ -338,75 +361,81 @@ pub(crate) fn is_temp_name(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
 }
 
-fn dir_is_empty(dir: &Path) -> Result<bool, DatasetError> {
-    match std::fs::read_dir(dir) {
-        Ok(mut entries) => Ok(entries.next().is_none()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(true),
-        Err(e) => Err(DatasetError::Io { op: "listing", path: dir.to_path_buf(), source: e }),
+/// Whether `name` in `folder` exists as `kind`: `Ok(false)` when absent, an error when it is a
+/// symlink or something else (never followed).
+fn exists(folder: &RootDir, name: &str, kind: EntryKind) -> Result<bool, DatasetError> {
+    let path = || folder.path().join(name);
+    match folder.stat(name).map_err(dataset_error)? {
+        None => Ok(false),
+        Some(info) if info.kind == kind => Ok(true),
+        Some(info) if info.kind == EntryKind::Symlink => Err(DatasetError::Symlink { path: path() }),
+        Some(_) => Err(DatasetError::NotRegular { path: path(), expected: kind.describe() }),
     }
 }
 
 /// A creation killed before the manifest landed leaves only temp files and an empty
 /// `images/`; removes them and reports true. Anything else is left alone (false).
-fn remove_creation_stub(dir: &Path) -> Result<bool, DatasetError> {
-    let listing = |d: &Path| -> Result<Vec<String>, DatasetError> {
-        let mut names = Vec::new();
-        for e in std::fs::read_dir(d).map_err(DatasetError::io("listing", d))? {
-            names.push(e.map_err(DatasetError::io("listing", d))?.file_name().to_string_lossy().into_owned());
-        }
-        Ok(names)
+fn remove_creation_stub(root: &RootDir) -> Result<bool, DatasetError> {
+    let names = |entries: Vec<crate::confine::Entry>| -> Vec<String> {
+        entries.into_iter().map(|e| e.name.to_string_lossy().into_owned()).collect()
     };
-    let top = listing(dir)?;
-    let images = dir.join(IMAGES_DIR);
-    let images_is_dir = entry_exists(&images, Kind::Folder)?;
+    let top = names(root.entries("").map_err(dataset_error)?);
+    let images_is_dir = exists(root, IMAGES_DIR, EntryKind::Folder)?;
     let stub_top = top.iter().all(|n| (n == IMAGES_DIR && images_is_dir) || is_temp_name(n));
-    if !stub_top || (images_is_dir && !listing(&images)?.iter().all(|n| is_temp_name(n))) {
+    if !stub_top {
         return Ok(false);
     }
     if images_is_dir {
-        std::fs::remove_dir_all(&images).map_err(DatasetError::io("removing", &images))?;
+        let images = root.open_dir(IMAGES_DIR).map_err(dataset_error)?;
+        if !names(images.entries("").map_err(dataset_error)?).iter().all(|n| is_temp_name(n)) {
+            return Ok(false);
+        }
+        remove_temp_files(&images)?;
+        root.remove_dir(IMAGES_DIR).map_err(dataset_error)?;
     }
-    remove_temp_files(dir)?;
+    remove_temp_files(root)?;
     Ok(true)
 }
 
-fn remove_temp_files(dir: &Path) -> Result<(), DatasetError> {
+/// Removes the writer's temp files (`.<name>.tmp`) in `folder`: a symlinked one is removed as
+/// the link, never its target.
+fn remove_temp_files(folder: &RootDir) -> Result<(), DatasetError> {
     let mut removed = false;
-    for entry in std::fs::read_dir(dir).map_err(DatasetError::io("listing", dir))? {
-        let entry = entry.map_err(DatasetError::io("listing", dir))?;
-        // `file_type` does not follow a symlink; removing a symlinked temp name removes the link.
-        let removable = entry.file_type().is_ok_and(|t| t.is_file() || t.is_symlink());
-        if is_temp_name(&entry.file_name().to_string_lossy()) && removable {
-            std::fs::remove_file(entry.path()).map_err(DatasetError::io("removing", entry.path()))?;
+    for entry in folder.entries("").map_err(dataset_error)? {
+        let removable = matches!(entry.kind, EntryKind::File | EntryKind::Symlink);
+        if removable && is_temp_name(&entry.name.to_string_lossy()) {
+            folder.remove_file(&entry.name).map_err(dataset_error)?;
             removed = true;
         }
     }
     if removed {
-        fsync_dir(dir)?;
+        folder.sync().map_err(dataset_error)?;
     }
     Ok(())
 }
 
 /// Opens the dataset folder (created first when `create` and absent) and takes its lock.
-fn lock_dir(dir: &Path, create: bool) -> Result<File, DatasetError> {
+fn lock_dir(dir: &Path, create: bool) -> Result<RootDir, DatasetError> {
     if create {
         std::fs::create_dir_all(dir).map_err(DatasetError::io("creating", dir))?;
     }
-    let folder = File::open(dir).map_err(DatasetError::io("opening", dir))?;
-    if !folder.metadata().map_err(DatasetError::io("opening", dir))?.is_dir() {
-        return Err(DatasetError::NotRegular { path: dir.to_path_buf(), expected: "a folder" });
-    }
+    let folder = match RootDir::open(dir) {
+        Err(crate::confine::ConfineError::NotFolder { .. }) => {
+            return Err(DatasetError::NotRegular { path: dir.to_path_buf(), expected: "a folder" });
+        }
+        other => other.map_err(dataset_error)?,
+    };
     lock_exclusive(&folder, dir)?;
     Ok(folder)
 }
 
-fn lock_exclusive(file: &File, path: &Path) -> Result<(), DatasetError> {
-    // std's lock is `flock(LOCK_EX | LOCK_NB)` on Unix: advisory, whole-file, dropped with the
-    // descriptor (and so when the process dies).
-    match file.try_lock() {
+fn lock_exclusive(folder: &RootDir, path: &Path) -> Result<(), DatasetError> {
+    // `flock(LOCK_EX | LOCK_NB)`: advisory, whole-file, dropped with the descriptor (and so
+    // when the process dies).
+    match rustix::fs::flock(folder, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
         Ok(()) => Ok(()),
-        Err(std::fs::TryLockError::WouldBlock) => Err(DatasetError::Locked { path: path.to_path_buf() }),
-        Err(std::fs::TryLockError::Error(source)) => Err(DatasetError::Io { op: "locking", path: path.to_path_buf(), source }),
+        Err(rustix::io::Errno::WOULDBLOCK) => Err(DatasetError::Locked { path: path.to_path_buf() }),
+        Err(e) => Err(DatasetError::Io { op: "locking", path: path.to_path_buf(), source: e.into() }),
     }
 }
 
@@ -513,6 +542,41 @@ mod tests {
         assert!(matches!(DatasetWriter::open(&dir), Err(DatasetError::Symlink { .. })));
         assert_eq!(std::fs::read_to_string(outside.join("secret")).unwrap(), "sentinel");
         assert_eq!(std::fs::read_dir(&outside).unwrap().count(), 1, "nothing was written outside");
+    }
+
+    #[test]
+    fn a_hard_linked_poses_csv_is_refused_and_left_alone() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+        w.append(row(1), &img(1)).unwrap();
+        drop(w);
+        let outside = tmp.path().join("outside.csv");
+        std::fs::rename(dir.join(POSES_FILE), &outside).unwrap();
+        std::fs::hard_link(&outside, dir.join(POSES_FILE)).unwrap();
+        let before = std::fs::read(&outside).unwrap();
+        let e = DatasetWriter::resume(&dir, manifest()).unwrap_err();
+        assert!(matches!(e, DatasetError::Confined(crate::confine::ConfineError::HardLinked { .. })), "{e}");
+        assert!(e.to_string().contains("poses.csv") && e.to_string().contains("hard link"), "{e}");
+        assert!(matches!(DatasetWriter::open(&dir), Err(DatasetError::Confined(_))));
+        assert_eq!(std::fs::read(&outside).unwrap(), before);
+    }
+
+    /// The writer keeps the `images/` it opened: renamed away (a swap for a symlink), an image
+    /// still lands in it, never in what the name leads to now.
+    #[test]
+    fn images_land_in_the_folder_opened_whatever_its_name_leads_to() {
+        use std::os::unix::fs::symlink;
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("ds");
+        let target = tmp.path().join("target");
+        std::fs::create_dir(&target).unwrap();
+        let mut w = DatasetWriter::create(&dir, manifest()).unwrap();
+        std::fs::rename(dir.join(IMAGES_DIR), dir.join("images.real")).unwrap();
+        symlink(&target, dir.join(IMAGES_DIR)).unwrap();
+        w.append(row(1), &img(1)).unwrap();
+        assert_eq!(std::fs::read_dir(&target).unwrap().count(), 0, "nothing through the link");
+        assert!(dir.join("images.real/1.png").is_file());
     }
 
     #[test]

@@ -22,8 +22,8 @@ use super::pairing::load_at;
 use super::records::{Method, PairRecord};
 use super::report::EvalReport;
 use super::run::{EvalOptions, evaluate};
-use super::statistics::bootstrap_mean_interval;
-use crate::dataset::{AuditFigure, read_rows};
+use super::statistics::{Figure, PairedComparison, Verdict, bootstrap_mean_interval};
+use crate::dataset::{AuditFigure, SynthesisInfo, read_rows};
 use crate::imaging::luma_f64;
 use crate::metrics::{MetricsError, psnr, ssim_gray};
 
@@ -212,6 +212,115 @@ impl AuditScores {
     }
 }
 
+/// Where the fill stands against one baseline over the audited poses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Standing {
+    /// Better on every figure both have.
+    Beats,
+    /// Worse on every figure both have.
+    LosesTo,
+    /// Better on some, worse or no different on others.
+    Mixed,
+    /// No figure to compare.
+    Unknown,
+}
+
+impl Standing {
+    fn verb(self) -> &'static str {
+        match self {
+            Standing::Beats => "beats",
+            Standing::LosesTo => "loses to",
+            Standing::Mixed => "does not clearly beat",
+            Standing::Unknown => "cannot be compared with",
+        }
+    }
+}
+
+/// The fill against `baseline` on contact SSIM and position error: each paired comparison's
+/// verdict where it has one (at least [`super::MIN_PAIRS_FOR_VERDICT`] pairs), else the sign of
+/// the difference of the means.
+pub fn standing(comparisons: &[PairedComparison], baseline: Method) -> Standing {
+    let signs: Vec<i8> = comparisons
+        .iter()
+        .filter(|c| c.baseline == baseline && c.figure != Figure::YawErr)
+        .map(|c| match c.verdict {
+            Verdict::ModelBetter => 1,
+            Verdict::ModelWorse => -1,
+            Verdict::NoDifferenceShown => 0,
+            Verdict::TooFewPairs => {
+                let better = if c.figure.higher_is_better() { c.difference > 0.0 } else { c.difference < 0.0 };
+                let worse = if c.figure.higher_is_better() { c.difference < 0.0 } else { c.difference > 0.0 };
+                i8::from(better) - i8::from(worse)
+            }
+        })
+        .collect();
+    if signs.is_empty() {
+        Standing::Unknown
+    } else if signs.iter().all(|&s| s > 0) {
+        Standing::Beats
+    } else if signs.iter().all(|&s| s < 0) {
+        Standing::LosesTo
+    } else {
+        Standing::Mixed
+    }
+}
+
+/// The audit's verdict, one line: where the fill stands against the pose-blind and the
+/// nearest-neighbour baselines (contact SSIM, position error, over the poses both have), how
+/// sure that is, and, unless it beats both, the likely cause: the upscale the manifest's
+/// `[synthesis]` records, else the model itself.
+pub fn verdict_line(comparisons: &[PairedComparison], synthesis: Option<&SynthesisInfo>) -> String {
+    let (pb, nn) = (standing(comparisons, Method::PoseBlind), standing(comparisons, Method::NearestNeighbour));
+    if pb == Standing::Unknown && nn == Standing::Unknown {
+        return "verdict: none: no audited pose has a contact SSIM or a position error to set against the baselines".to_string();
+    }
+    let mut s = if pb == nn {
+        format!("verdict: the fill {} both baselines", pb.verb())
+    } else {
+        format!("verdict: the fill {} the pose-blind baseline and {} the nearest neighbour", pb.verb(), nn.verb())
+    };
+    let find = |b: Method, f: Figure| comparisons.iter().find(|c| c.baseline == b && c.figure == f);
+    let mut figures = Vec::new();
+    for (figure, name, unit, k) in [(Figure::ContactSsim, "contact SSIM", "", 3), (Figure::PositionErr, "position error", " mm", 2)] {
+        let (p, n) = (find(Method::PoseBlind, figure), find(Method::NearestNeighbour, figure));
+        let Some(model) = p.or(n).map(|c| c.model_mean) else { continue };
+        let other = |c: Option<&PairedComparison>, label: &str| c.map(|c| format!("{:.k$}{unit} {label}", c.baseline_mean));
+        let others: Vec<String> = [other(p, "pose-blind"), other(n, "nearest neighbour")].into_iter().flatten().collect();
+        figures.push(format!("{name} {model:.k$}{unit} against {}", others.join(" and ")));
+    }
+    let n = comparisons.iter().filter(|c| c.figure != Figure::YawErr).map(|c| c.n).max().unwrap_or(0);
+    let sure = if comparisons.iter().any(|c| c.figure != Figure::YawErr && c.verdict == Verdict::TooFewPairs) {
+        format!("{n} poses: means only, a 95% verdict needs {}", super::MIN_PAIRS_FOR_VERDICT)
+    } else {
+        format!("{n} poses, 95% intervals")
+    };
+    if !figures.is_empty() {
+        s += &format!(" ({}; {sure})", figures.join("; "));
+    }
+    if pb == Standing::Beats && nn == Standing::Beats {
+        s += ": worth training on by this measure.";
+        return s;
+    }
+    s += &match synthesis {
+        Some(info) if info.upscales() => format!(
+            ". Likely cause: the fill upscales {} from the model's {} px to the frames' {} px, which blurs what the model drew \
+             (`rig synth --poses-of` and `rig eval` judge the model at its own size; a model trained at {} px needs no upscale).",
+            info.upscale_text(),
+            info.model_resolution_px[0],
+            info.image_resolution_px[0],
+            info.image_resolution_px[0]
+        ),
+        Some(info) => format!(
+            ". Likely cause: the model ({}) itself: its images are written at its own {} px, not resampled.",
+            info.model, info.model_resolution_px[0]
+        ),
+        None => ". Cause unknown: the manifest does not record the model's resolution (filled before rig recorded it; \
+                 a fill now records it under [synthesis])."
+            .to_string(),
+    };
+    s
+}
+
 /// One row per pose of `worst`: the synthesised image (from `dataset`) beside the captured one
 /// (from `audit_dataset`), each at `size_px` square. `None` when `worst` is empty.
 pub fn worst_poses_panel(dataset: &Path, audit_dataset: &Path, worst: &[&AuditPose], size_px: u32) -> Result<Option<RgbImage>, EvalError> {
@@ -306,5 +415,75 @@ mod tests {
         assert_eq!(total.n, 3);
         assert!((total.mean - (0.9 + 0.2 + 0.5) / 3.0).abs() < 1e-12);
         assert!(total.interval95[0] <= total.mean && total.mean <= total.interval95[1]);
+    }
+
+    fn comparison(baseline: Method, figure: Figure, model: f64, other: f64, n: usize, verdict: Verdict) -> PairedComparison {
+        PairedComparison {
+            sensor: "tactip".into(),
+            baseline,
+            figure,
+            n,
+            model_mean: model,
+            baseline_mean: other,
+            difference: model - other,
+            interval95: [model - other - 0.01, model - other + 0.01],
+            verdict,
+            true_image: None,
+        }
+    }
+
+    #[test]
+    fn the_verdict_names_both_baselines_and_the_upscale_as_the_likely_cause() {
+        use Method::{NearestNeighbour as Nn, PoseBlind as Pb};
+        // The demo's TacTip audit: both baselines beat the fill, 9 poses (too few for intervals).
+        let few = Verdict::TooFewPairs;
+        let losing = [
+            comparison(Pb, Figure::ContactSsim, 0.939, 0.959, 7, few),
+            comparison(Nn, Figure::ContactSsim, 0.939, 0.973, 7, few),
+            comparison(Pb, Figure::PositionErr, 3.09, 2.5, 9, few),
+            comparison(Nn, Figure::PositionErr, 3.09, 0.32, 9, few),
+            // Yaw is left out: a sphere's yaw is not observable.
+            comparison(Nn, Figure::YawErr, 0.1, 9.0, 9, few),
+        ];
+        let upscaled = SynthesisInfo {
+            model: "default".into(),
+            model_dir: "models/default".into(),
+            model_resolution_px: [128, 128],
+            image_resolution_px: [512, 512],
+        };
+        let line = verdict_line(&losing, Some(&upscaled));
+        assert!(line.starts_with("verdict: the fill loses to both baselines"), "{line}");
+        assert!(line.contains("contact SSIM 0.939 against 0.959 pose-blind and 0.973 nearest neighbour"), "{line}");
+        assert!(line.contains("position error 3.09 mm against 2.50 mm pose-blind and 0.32 mm nearest neighbour"), "{line}");
+        assert!(line.contains("9 poses: means only, a 95% verdict needs 10"), "{line}");
+        assert!(line.contains("Likely cause: the fill upscales 4x from the model's 128 px to the frames' 512 px"), "{line}");
+        assert_eq!(line.lines().count(), 1);
+        // Without the record, the cause is unknown; at the model's own size, the model is.
+        assert!(verdict_line(&losing, None).contains("Cause unknown"), "{}", verdict_line(&losing, None));
+        let native = SynthesisInfo { image_resolution_px: [128, 128], ..upscaled.clone() };
+        assert!(verdict_line(&losing, Some(&native)).contains("Likely cause: the model (default) itself"));
+
+        // A fill better on both figures against both, with enough pairs: no cause to name.
+        let better = Verdict::ModelBetter;
+        let winning = [
+            comparison(Pb, Figure::ContactSsim, 0.99, 0.95, 40, better),
+            comparison(Nn, Figure::ContactSsim, 0.99, 0.97, 40, better),
+            comparison(Pb, Figure::PositionErr, 0.3, 2.0, 40, better),
+            comparison(Nn, Figure::PositionErr, 0.3, 0.5, 40, better),
+        ];
+        let line = verdict_line(&winning, Some(&upscaled));
+        assert!(line.starts_with("verdict: the fill beats both baselines"), "{line}");
+        assert!(line.contains("40 poses, 95% intervals") && line.ends_with("worth training on by this measure."), "{line}");
+        assert!(!line.contains("cause"), "{line}");
+        // Mixed: better than pose-blind, no difference shown against the nearest neighbour.
+        let mut mixed = winning.clone();
+        mixed[1].verdict = Verdict::NoDifferenceShown;
+        let line = verdict_line(&mixed, Some(&upscaled));
+        assert!(
+            line.starts_with("verdict: the fill beats the pose-blind baseline and does not clearly beat the nearest neighbour"),
+            "{line}"
+        );
+        assert!(line.contains("Likely cause: the fill upscales 4x"), "{line}");
+        assert!(verdict_line(&[], None).starts_with("verdict: none: "), "{}", verdict_line(&[], None));
     }
 }

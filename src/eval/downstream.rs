@@ -15,8 +15,12 @@
 //! The split into training pool and test rows is drawn once (from `seed`); each of the
 //! `seeds` runs draws its own training subsets, initial weights, batch order and
 //! augmentation (from `seed + k`), and the three sets of one run share the initial weights.
-//! A synthetic row at the pose of a test row (same object, same commanded pose) never trains:
-//! with twins (`--synthetic` from `rig synth --poses-of`) the test poses stay unseen.
+//! A row at the pose of a test row (same object, same commanded pose) never trains, synthetic
+//! or captured: with twins (`--synthetic` from `rig synth --poses-of`), or a pose collected
+//! twice, the test poses stay unseen. Two datasets that are one (the same folder, or the same
+//! object with the same rows: a copy) are refused, and the images are read by the dataset
+//! rules `rig dataset verify` checks ([`crate::dataset::DatasetImages`]: each of its dataset's
+//! size), so what verify calls unclean is not trained on.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,8 +30,9 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use super::error::EvalError;
-use super::pairing::{DatasetInfo, load_at, same_pose};
+use super::pairing::{DatasetInfo, resized, same_pose};
 use super::regressor::{CHANNELS, OUTPUTS, RegressorConfig, RegressorError, TrainDevice, cuda_built, train_and_predict};
+use crate::dataset::DatasetImages;
 use crate::dataset::{PoseRow, Source};
 use crate::pose::Pose;
 use crate::sensor::SensorKind;
@@ -190,6 +195,9 @@ pub enum DownstreamError {
     TooLarge { sensor: SensorKind, images: usize, size_px: usize, bytes: u64 },
     #[error("--device cuda: {0}")]
     Device(String),
+    /// Two datasets that are one: pooling both would put a test row's twin in training.
+    #[error("{first} and {second} are the same dataset ({why}); pooling both would train on the test rows' twins (keep one of them)")]
+    DuplicateDataset { first: PathBuf, second: PathBuf, why: &'static str },
     #[error("{sensor}, {set}, seed {seed}: {source}")]
     Training {
         sensor: SensorKind,
@@ -298,6 +306,8 @@ pub struct SensorResult {
     /// Rows per training set.
     pub train_size: usize,
     pub sets: Vec<SetResult>,
+    /// Components the captured images cannot show ([`super::downstream_notes`]).
+    pub ambiguous: Vec<super::downstream_notes::Ambiguity>,
 }
 
 /// The whole evaluation.
@@ -352,14 +362,45 @@ fn of_sensor<'a>(all: &'a [DatasetInfo], sensor: SensorKind, objects: &[String])
     all.iter().filter(|d| d.manifest.sensor == sensor && (objects.is_empty() || objects.contains(&d.manifest.object.name))).collect()
 }
 
-/// The images (at `size` px) and labels of `rows` (dataset index, row), in their order.
-fn load_samples(datasets: &[&DatasetInfo], rows: &[(usize, &PoseRow)], size: u32) -> Result<Vec<Sample>, DownstreamError> {
+/// The images (at `size` px) and labels of `rows` (dataset index, row), in their order, read
+/// by the dataset rules (`images[i]` reads dataset `i`'s).
+fn load_samples(images: &mut [DatasetImages], rows: &[(usize, &PoseRow)], size: u32) -> Result<Vec<Sample>, DownstreamError> {
     let mut out = Vec::with_capacity(rows.len());
     for (i, row) in rows {
-        let img = load_at(&datasets[*i].dir, &row.image, size)?;
-        out.push(Sample { label: label_of(row), pixels: to_chw(&img) });
+        let reader = &mut images[*i];
+        let img =
+            reader.read(Path::new(&row.image)).map_err(|source| EvalError::Dataset { dir: reader.dir().to_path_buf(), source })?.to_rgb8();
+        out.push(Sample { label: label_of(row), pixels: to_chw(&resized(img, size)) });
     }
     Ok(out)
+}
+
+/// The image readers of `datasets`, each sized by its reference frame.
+fn readers_of(datasets: &[&DatasetInfo]) -> Result<Vec<DatasetImages>, DownstreamError> {
+    datasets
+        .iter()
+        .map(|d| DatasetImages::open(&d.dir).map_err(|source| DownstreamError::from(EvalError::Dataset { dir: d.dir.clone(), source })))
+        .collect()
+}
+
+/// Refuses two of `datasets` that are one dataset: the same folder (its device and inode), or
+/// the same object and sensor with the same rows (a copy).
+fn refuse_duplicates(datasets: &[&DatasetInfo]) -> Result<(), DownstreamError> {
+    use std::os::unix::fs::MetadataExt;
+    let identity = |d: &DatasetInfo| std::fs::metadata(&d.dir).ok().map(|m| (m.dev(), m.ino()));
+    for (k, b) in datasets.iter().enumerate() {
+        for a in &datasets[..k] {
+            let why = if identity(a).is_some() && identity(a) == identity(b) {
+                "one folder"
+            } else if a.key() == b.key() && !a.rows.is_empty() && a.rows == b.rows {
+                "the same object, sensor and rows: a copy"
+            } else {
+                continue;
+            };
+            return Err(DownstreamError::DuplicateDataset { first: a.dir.clone(), second: b.dir.clone(), why });
+        }
+    }
+    Ok(())
 }
 
 fn check_bounds(options: &DownstreamOptions) -> Result<(), DownstreamError> {
@@ -455,6 +496,10 @@ fn one_sensor(
         return Err(DownstreamError::NoSensor { sensor, dir: sources.root.to_path_buf(), objects: objects_note });
     }
     let synthetic_sets = of_sensor(sources.synthetic, sensor, &options.objects);
+    refuse_duplicates(&captured_sets)?;
+    if !std::ptr::eq(sources.captured, sources.synthetic) {
+        refuse_duplicates(&synthetic_sets)?;
+    }
 
     // The split: captured rows in a seeded order, the first TEST_FRACTION held out.
     let mut captured: Vec<(usize, &PoseRow)> =
@@ -470,6 +515,14 @@ fn one_sensor(
     let at_test_pose = |object: &str, pose: &Pose| {
         test_rows.iter().any(|(i, r)| captured_sets[*i].manifest.object.name == object && same_pose(&r.commanded(), pose))
     };
+    // A pose collected twice trains on neither side of the split: its other capture is a
+    // twin of the test row.
+    let pool_rows: Vec<(usize, &PoseRow)> =
+        pool_rows.iter().copied().filter(|(i, r)| !at_test_pose(&captured_sets[*i].manifest.object.name, &r.commanded())).collect();
+    let n_pool = pool_rows.len();
+    if n_pool < MIN_TRAIN_ROWS {
+        return Err(DownstreamError::TooFewCaptured { sensor, captured: captured.len(), test: n_test, train: n_pool });
+    }
     let mut synthetic: Vec<(usize, &PoseRow)> =
         synthetic_sets.iter().enumerate().flat_map(|(i, d)| d.rows_of(Source::Synthetic).map(move |r| (i, r))).collect();
     let before = synthetic.len();
@@ -505,11 +558,20 @@ fn one_sensor(
     if bytes > MAX_IMAGE_BYTES {
         return Err(DownstreamError::TooLarge { sensor, images, size_px: size, bytes });
     }
-    let test = load_samples(&captured_sets, test_rows, size as u32)?;
-    let pool = load_samples(&captured_sets, pool_rows, size as u32)?;
-    let synthetic_samples = if needs_synthetic { load_samples(&synthetic_sets, &synthetic, size as u32)? } else { Vec::new() };
+    let mut captured_images = readers_of(&captured_sets)?;
+    let test = load_samples(&mut captured_images, test_rows, size as u32)?;
+    let pool = load_samples(&mut captured_images, &pool_rows, size as u32)?;
+    let synthetic_samples =
+        if needs_synthetic { load_samples(&mut readers_of(&synthetic_sets)?, &synthetic, size as u32)? } else { Vec::new() };
     let test_pixels: Vec<f32> = test.iter().flat_map(|s| s.pixels.iter().copied()).collect();
     let truth: Vec<[f32; OUTPUTS]> = test.iter().map(|s| s.label).collect();
+    let looked: Vec<(u32, [f32; OUTPUTS], &[f32])> = test_rows
+        .iter()
+        .chain(pool_rows.iter())
+        .zip(test.iter().chain(&pool))
+        .map(|((_, r), s)| (r.pose_id, s.label, &s.pixels[..]))
+        .collect();
+    let ambiguous = super::downstream_notes::ambiguous_components(&looked, COMPONENTS.map(|c| c.0));
 
     let mut set_results: Vec<SetResult> = sets
         .iter()
@@ -567,14 +629,8 @@ fn one_sensor(
         synthetic_at_test_poses: at_test_poses,
         train_size: n,
         sets: set_results,
+        ambiguous,
     })
-}
-
-fn cell(s: Option<Spread>, digits: usize) -> String {
-    match s {
-        Some(s) => format!("{:.*} ± {:.*}", digits, s.mean, digits, s.sd),
-        None => "n/a".into(),
-    }
 }
 
 impl DownstreamReport {
@@ -589,7 +645,7 @@ impl DownstreamReport {
         );
         out += &format!(
             "Regressor: ResNet18 layout at width {}, {} px RGB, {} epochs, batch {}, AdamW lr {:e} (weight decay {}), L1 loss, \
-             photometric jitter ±{} (scale `{}`, device {}). Mean ± sd over {} seeds (from {}).{}\n\n",
+             photometric jitter ±{} (scale `{}`, device {}). {}{}\n\n",
             r.width,
             r.size_px,
             r.epochs,
@@ -599,8 +655,7 @@ impl DownstreamReport {
             r.photometric_jitter,
             serde_json::to_value(self.scale).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
             serde_json::to_value(self.device).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
-            self.seeds,
-            self.seed,
+            super::downstream_notes::seeds_sentence(self.seeds, self.seed),
             if self.shuffle_labels { " **Control: training labels shuffled.**" } else { "" }
         );
         out += "| sensor | trained on | n train | n test | X MAE (mm) | X RMSE (mm) | X R² | Z MAE (mm) | Z RMSE (mm) | Z R² | yaw MAE (deg) | yaw RMSE (deg) | yaw R² |\n";
@@ -610,6 +665,9 @@ impl DownstreamReport {
                 out += &format!("| {} | {} | {} | {} |", s.sensor.label(), set.label, s.train_size, s.test_rows);
                 for c in 0..OUTPUTS {
                     let digits = if c == 2 { 2 } else { 3 };
+                    let cell = |s: Option<Spread>, digits| {
+                        super::downstream_notes::spread_cell(s.map(|s| (s.mean, s.sd)), digits, set.seeds.len())
+                    };
                     out += &format!(
                         " {} | {} | {} |",
                         cell(set.spread(c, |x| Some(x.mae)), digits),
@@ -637,6 +695,14 @@ impl DownstreamReport {
             self.sensors.iter().map(|s| s.sets.len()).sum::<usize>() * self.seeds as usize,
             self.seconds
         );
+        let warnings =
+            super::downstream_notes::warnings(self.sensors.iter().map(|s| (s.sensor.label().to_string(), s.test_rows, &s.ambiguous[..])));
+        if !warnings.is_empty() {
+            out += "\n";
+            for w in warnings {
+                out += &format!("{w}\n");
+            }
+        }
         out
     }
 

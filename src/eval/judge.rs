@@ -84,7 +84,7 @@ impl<'a> DatasetJudge<'a> {
             settings,
             reference,
             calib,
-            mesh: mesh_of(&real.dir, &real.manifest),
+            mesh: mesh_of(&real.dir, &real.manifest)?,
             contact_depth_mm: real.manifest.work_frame.map(|w| w.contact_depth_mm).unwrap_or(1.5),
             collected: collected.by_sensor.get(sensor),
             collected_references: &collected.references,

@@ -59,7 +59,9 @@
 //!   (`rig audit`), with MultiDiffSense's grey min-max SSIM and PSNR beside rig's.
 //! - [`regressor`] is the pose regressor (ResNet18's layout, candle) and its training;
 //!   [`downstream`] is MultiDiffSense's downstream protocol on it (`rig eval --downstream`):
-//!   trained on captured, mixed and synthetic rows, scored on held-out captured rows.
+//!   trained on captured, mixed and synthetic rows, scored on held-out captured rows;
+//!   [`downstream_notes`] the warnings its table ends with (small test sets, components the
+//!   images cannot show).
 //! - [`compare_real`] scores rendered frames against real frames of logged poses, beside the
 //!   pose-blind baseline (`rig compare-real`).
 
@@ -68,6 +70,7 @@ pub mod baselines;
 pub mod compare_real;
 pub mod contact;
 pub mod downstream;
+pub mod downstream_notes;
 pub mod error;
 pub mod judge;
 pub mod pairing;

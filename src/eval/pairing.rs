@@ -186,14 +186,20 @@ pub(super) fn calibration_at(info: &DatasetInfo, native: (u32, u32), size: u32) 
 
 /// The object's mesh: the STL its manifest names when rig may read it, it is there and it
 /// matches its sha256 ([`crate::dataset::ObjectInfo::stl_bytes`]), else the library object of
-/// that name.
-pub(super) fn mesh_of(dir: &Path, manifest: &Manifest) -> Option<Mesh> {
-    if let Ok(Some(bytes)) = manifest.object.stl_bytes(dir, &dir.join(crate::dataset::MANIFEST_FILE), crate::geometry::stl::MAX_STL_BYTES)
-        && let Ok(mesh) = Mesh::from_bytes(&bytes)
-    {
-        return Some(mesh);
+/// that name. A path the manifest names that rig refuses to open (a device, a FIFO, a symlink
+/// below the dataset) is an error, never quietly replaced by the library object.
+pub(super) fn mesh_of(dir: &Path, manifest: &Manifest) -> Result<Option<Mesh>, EvalError> {
+    use crate::dataset::DatasetError as D;
+    match manifest.object.stl_bytes(dir, &dir.join(crate::dataset::MANIFEST_FILE), crate::geometry::stl::MAX_STL_BYTES) {
+        Ok(Some(bytes)) => {
+            if let Ok(mesh) = Mesh::from_bytes(&bytes) {
+                return Ok(Some(mesh));
+            }
+        }
+        Ok(None) | Err(D::StlMissing { .. } | D::StlUnusable { .. } | D::StlChanged { .. }) => {}
+        Err(refused) => return Err(EvalError::Dataset { dir: dir.to_path_buf(), source: refused }),
     }
-    crate::geometry::objects::load_object(&manifest.object.name).ok()
+    Ok(crate::geometry::objects::load_object(&manifest.object.name).ok())
 }
 
 pub(super) fn describe(object: &str, sensor: &str, side: &str, row: &PoseRow) -> String {

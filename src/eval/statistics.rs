@@ -109,7 +109,7 @@ impl Figure {
     }
 
     /// Whether a larger value is better (SSIM) or worse (errors).
-    fn higher_is_better(&self) -> bool {
+    pub fn higher_is_better(&self) -> bool {
         matches!(self, Figure::ContactSsim)
     }
 

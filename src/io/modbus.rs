@@ -82,7 +82,7 @@ impl ModbusError {
     pub fn is_recoverable(&self) -> bool {
         match self {
             ModbusError::Invalid { .. } => false,
-            ModbusError::Serial { source: SerialError::PathNotUtf8 { .. }, .. } => false,
+            ModbusError::Serial { source: SerialError::PathNotUtf8 { .. } | SerialError::NotSerial { .. }, .. } => false,
             ModbusError::Replayed { recoverable, .. } => *recoverable,
             _ => true,
         }
@@ -264,8 +264,15 @@ impl ModbusPeripheralConfig {
         {
             return Err(invalid("sim", "options are only for transport = \"sim\"".into()));
         }
-        if raw.timeout_ms == Some(0) {
-            return Err(invalid("timeout_ms", "must be > 0".into()));
+        // Bounded: the collection waits this long for each request (a cancel does not).
+        let timeout_ms = crate::bounds::MODBUS_TIMEOUT.check(raw.timeout_ms.unwrap_or(500)).map_err(|p| invalid("timeout_ms", p))?;
+        if let Some(stiffness) = raw.sim_stiffness_n_per_mm {
+            crate::bounds::MODBUS_STIFFNESS.check(stiffness).map_err(|p| invalid("sim_stiffness_n_per_mm", p))?;
+        }
+        for (field, count) in
+            [("read", raw.read.len()), ("before_capture", raw.before_capture.len()), ("after_capture", raw.after_capture.len())]
+        {
+            crate::bounds::MODBUS_OPERATIONS.check(count).map_err(|p| invalid(field, format!("{p} entries")))?;
         }
         for r in &raw.read {
             if !(r.words == 1 || r.words == 2) {
@@ -283,7 +290,7 @@ impl ModbusPeripheralConfig {
             transport,
             required: raw.required.unwrap_or(true),
             unit: raw.unit.unwrap_or(1),
-            timeout: Duration::from_millis(raw.timeout_ms.unwrap_or(500)),
+            timeout: Duration::from_millis(timeout_ms),
             before_capture: raw.before_capture,
             after_capture: raw.after_capture,
             read: raw.read,
@@ -295,10 +302,7 @@ impl ModbusPeripheralConfig {
 /// left out; `Err((field, problem))` for a value no UART offers.
 fn rtu_framing(raw: &RawModbusPeripheral) -> Result<SerialFraming, (&'static str, String)> {
     let default = SerialFraming::MODBUS_RTU;
-    let baud = raw.baud.unwrap_or(default.baud);
-    if !(50..=4_000_000).contains(&baud) {
-        return Err(("baud", format!("must be 50..=4000000 Bd, got {baud}")));
-    }
+    let baud = crate::bounds::MODBUS_BAUD.check(raw.baud.unwrap_or(default.baud)).map_err(|p| ("baud", p))?;
     let data_bits = match raw.data_bits {
         None => default.data_bits,
         Some(8) => DataBits::Eight,

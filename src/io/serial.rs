@@ -171,6 +171,48 @@ pub enum SerialError {
     },
     #[error("serial port path {path:?} is not valid UTF-8")]
     PathNotUtf8 { path: PathBuf },
+    /// The configured path is not a serial device (a regular file, a FIFO, `/dev/null`, a
+    /// device that is not a terminal): the configuration's mistake, never opened as a port.
+    #[error("{path} is not a serial port (it is {found}); name the port's device, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")]
+    NotSerial { path: PathBuf, found: &'static str },
+}
+
+/// Checks that `path` (its symlinks followed, as `/dev/serial/by-id/...` are) names a
+/// character device that can be a serial port, without opening it: a regular file, a folder,
+/// a FIFO, a socket or a block device is refused, and so is a memory device (`/dev/null`,
+/// `/dev/zero`: Linux's character major 1). A path that does not exist passes (the port may be
+/// unplugged: opening it then fails as a missing device, a hardware fault).
+pub fn check_serial_device(path: &Path) -> Result<(), SerialError> {
+    use rustix::fs::FileType;
+    let not_serial = |found| Err(SerialError::NotSerial { path: path.to_path_buf(), found });
+    let stat = match rustix::fs::stat(path) {
+        Ok(stat) => stat,
+        Err(_) => return Ok(()),
+    };
+    match FileType::from_raw_mode(stat.st_mode) {
+        FileType::CharacterDevice if cfg!(target_os = "linux") && rustix::fs::major(stat.st_rdev) == LINUX_MEMORY_DEVICES_MAJOR => {
+            not_serial("a memory device such as /dev/null or /dev/zero")
+        }
+        FileType::CharacterDevice => Ok(()),
+        FileType::RegularFile => not_serial("a regular file"),
+        FileType::Directory => not_serial("a folder"),
+        FileType::Fifo => not_serial("a FIFO"),
+        FileType::Socket => not_serial("a socket"),
+        FileType::BlockDevice => not_serial("a block device"),
+        _ => not_serial("not a device"),
+    }
+}
+
+/// Linux's character major of `/dev/null`, `/dev/zero`, `/dev/random` and the other memory
+/// devices (Documentation/admin-guide/devices.txt).
+const LINUX_MEMORY_DEVICES_MAJOR: u32 = 1;
+
+/// Whether `serialport` failed because the device is not a terminal (`ENOTTY` from its
+/// terminal set-up; `serialport` keeps only the message, "Not a typewriter" or "Inappropriate
+/// ioctl for device" as the C library words it).
+pub fn is_not_a_tty(e: &serialport::Error) -> bool {
+    let text = e.description.to_ascii_lowercase();
+    text.contains("not a typewriter") || text.contains("inappropriate ioctl")
 }
 
 /// Opens `path` (e.g. `/dev/ttyUSB0`) raw at `framing`, exclusively, with no flow control, as
@@ -179,6 +221,7 @@ pub enum SerialError {
 /// [`SerialError::Busy`].
 pub fn open_async(path: &Path, framing: &SerialFraming) -> Result<tokio_serial::SerialStream, SerialError> {
     let name = path.to_str().ok_or_else(|| SerialError::PathNotUtf8 { path: path.to_path_buf() })?;
+    check_serial_device(path)?;
     let builder = serialport::new(name, framing.baud)
         .data_bits(framing.data_bits)
         .parity(framing.parity)
@@ -186,6 +229,7 @@ pub fn open_async(path: &Path, framing: &SerialFraming) -> Result<tokio_serial::
         .flow_control(serialport::FlowControl::None)
         .exclusive(true);
     tokio_serial::SerialStream::open(&builder).map_err(|source| match source.kind {
+        _ if is_not_a_tty(&source) => SerialError::NotSerial { path: path.to_path_buf(), found: "a device that is not a terminal" },
         // serialport reports EBUSY from open(2) under TIOCEXCL, and a held flock, as NoDevice.
         serialport::ErrorKind::NoDevice => SerialError::Busy { path: path.to_path_buf(), source },
         _ => SerialError::Open { path: path.to_path_buf(), framing: *framing, source },
@@ -276,6 +320,35 @@ mod tests {
         assert!(e.to_string().contains("in use by another program"), "{e}");
         drop(first);
         open_async(&pty.slave_path, &SerialFraming::MODBUS_RTU).unwrap();
+    }
+
+    #[tokio::test]
+    async fn paths_that_are_not_serial_devices_are_refused_unopened() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("not-a-port");
+        std::fs::write(&file, b"").unwrap();
+        let fifo = dir.path().join("fifo");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: mkfifo on a NUL-terminated path we own.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        // /dev/null is only named: refused from its kind, before any open.
+        for (path, found) in [
+            (file.as_path(), "a regular file"),
+            (fifo.as_path(), "a FIFO"),
+            (dir.path(), "a folder"),
+            (Path::new("/dev/null"), "memory device"),
+        ] {
+            let e = check_serial_device(path).unwrap_err();
+            assert!(matches!(&e, SerialError::NotSerial { .. }) && e.to_string().contains(found), "{e}");
+            // Opening a FIFO for reading would block: the check comes first.
+            let e = open_async(path, &SerialFraming::MODBUS_RTU).unwrap_err();
+            assert!(matches!(e, SerialError::NotSerial { .. }), "{e}");
+        }
+        let pty = PtyPair::open().unwrap();
+        check_serial_device(&pty.slave_path).expect("a pseudo-terminal is a serial device");
+        check_serial_device(&dir.path().join("unplugged")).expect("a missing port is for the open to report");
+        let enotty = serialport::Error::new(serialport::ErrorKind::Unknown, "Not a typewriter");
+        assert!(is_not_a_tty(&enotty) && !is_not_a_tty(&serialport::Error::new(serialport::ErrorKind::NoDevice, "busy")));
     }
 
     #[test]

@@ -23,19 +23,20 @@ use std::sync::Arc;
 
 use rand::SeedableRng;
 
-use super::collect::{CollectOutcome, CollectSetup, SensorFeed, arm_part, modbus_parts};
+use super::collect::{CollectOutcome, CollectSetup, SensorFeed, arm_part, kept_order, modbus_parts};
 use super::{AuditRequest, JobError, Observer};
 use crate::arm::Arm;
 use crate::arm::profile::FirmwareProfile;
 use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::config::RigConfig;
-use crate::dataset::{AuditSummary, Manifest, ObjectInfo, PoseRow, Source, read_rows};
-use crate::eval::audit::{AuditScores, score_audit, worst_poses_panel};
+use crate::dataset::{AuditSummary, DatasetError, Manifest, ObjectInfo, PoseRow, Source, read_rows};
+use crate::eval::audit::{AuditScores, score_audit, verdict_line, worst_poses_panel};
 use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::Peripherals;
-use crate::plan::PlannedPose;
+use crate::plan::{Order, PlannedPose};
+use crate::pose::Pose;
 use crate::sensor::SensorKind;
 
 /// The folder, inside the audited dataset, that holds the audit (its dataset, report, panel).
@@ -121,9 +122,11 @@ impl AuditRequest {
                 format!("{} has no synthetic rows to audit (fill it first: rig synth --fill-missing --dataset DIR)", dir.display()),
             ));
         }
-        let poses: Vec<PlannedPose> = picked
+        let synthetic_rows: std::collections::HashMap<u32, &PoseRow> =
+            rows.iter().filter(|r| r.source == Source::Synthetic).map(|r| (r.pose_id, r)).collect();
+        let drawn: Vec<PlannedPose> = picked
             .iter()
-            .filter_map(|id| rows.iter().find(|r| r.pose_id == *id && r.source == Source::Synthetic))
+            .filter_map(|id| synthetic_rows.get(id))
             .map(|r| PlannedPose { pose_id: r.pose_id, pose: r.commanded() })
             .collect();
         let object = ObjectChoice::resolve(&manifest.object.name, self.stl.as_deref())?;
@@ -147,8 +150,25 @@ impl AuditRequest {
         }
         let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
         let sensor = manifest.sensor;
+        // Every drawn pose meets the fence before anything else is decided.
         let fence = Fence::for_run(profile.clone(), config, &[sensor], PoseSource::DatasetRows);
-        let envelope = fence.check(&config.work_frame, &poses)?;
+        let envelope = fence.check(&config.work_frame, &drawn)?;
+        // The presses follow a travel order, computed once and kept in the audit dataset: a
+        // rerun after a kill reads it back (checked to be this draw's poses).
+        let audit_dataset = dir.join(AUDIT_DIR).join(&object.name).join(sensor.name());
+        check_existing(&audit_dataset, &picked)?;
+        let cost = |a: &Pose, b: &Pose| profile.pose_cost_s(&config.work_frame, a, b);
+        let poses = match kept_order(std::slice::from_ref(&audit_dataset), |_| true)? {
+            Some((path, ids)) => {
+                crate::plan::in_kept_order(drawn, &ids, &cost)
+                    .map_err(|mismatch| JobError::Dataset {
+                        dir: audit_dataset.clone(),
+                        source: DatasetError::OrderMismatch { path, mismatch },
+                    })?
+                    .poses
+            }
+            None => crate::plan::order_poses(drawn, Order::Optimised, 0, &cost).poses,
+        };
         let setup = CollectSetup {
             object: ObjectInfo {
                 name: object.name.clone(),
@@ -168,32 +188,27 @@ impl AuditRequest {
             modbus: modbus_parts(config),
             fence,
         };
-        let prepared = PreparedAudit { request: self.clone(), setup, object, sensor, synthetic_poses: synthetic.len(), envelope };
-        prepared.check_existing(&picked)?;
-        Ok(prepared)
+        Ok(PreparedAudit { request: self.clone(), setup, object, sensor, synthetic_poses: synthetic.len(), envelope })
     }
 }
 
-impl PreparedAudit {
-    /// Refuses an audit folder that holds poses outside this draw.
-    fn check_existing(&self, picked: &[u32]) -> Result<(), JobError> {
-        let dir = self.audit_dataset();
-        if !dir.join(crate::dataset::POSES_FILE).is_file() {
-            return Ok(());
-        }
-        let rows = read_rows(&dir).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
-        if let Some(r) = rows.iter().find(|r| picked.binary_search(&r.pose_id).is_err()) {
-            return Err(JobError::bad_option(
-                "fraction",
-                format!(
-                    "{} holds pose {} of another draw; rerun with that audit's --fraction and --seed, or move the folder away",
-                    dir.display(),
-                    r.pose_id
-                ),
-            ));
-        }
-        Ok(())
+/// Refuses an audit dataset `dir` that holds poses outside this draw.
+fn check_existing(dir: &Path, picked: &[u32]) -> Result<(), JobError> {
+    if !dir.join(crate::dataset::POSES_FILE).is_file() {
+        return Ok(());
     }
+    let rows = read_rows(dir).map_err(|source| JobError::Dataset { dir: dir.to_path_buf(), source })?;
+    if let Some(r) = rows.iter().find(|r| picked.binary_search(&r.pose_id).is_err()) {
+        return Err(JobError::bad_option(
+            "fraction",
+            format!(
+                "{} holds pose {} of another draw; rerun with that audit's --fraction and --seed, or move the folder away",
+                dir.display(),
+                r.pose_id
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// How an audit ended when it did not fail.
@@ -214,6 +229,9 @@ pub struct ScoredAudit {
     pub panel: Option<PathBuf>,
     /// `Some(false)` when the mean contact-region SSIM is below `--min-ssim` (or there is none).
     pub passed: Option<bool>,
+    /// The one-line verdict against the two baselines, with the likely cause
+    /// ([`crate::eval::audit::verdict_line`]).
+    pub verdict: String,
 }
 
 /// Runs an audit: collects the drawn poses (resuming what an earlier, killed run left) through
@@ -278,13 +296,14 @@ pub fn score(prepared: &PreparedAudit) -> Result<ScoredAudit, JobError> {
         }
         None => None,
     };
-    let report = report_markdown(prepared, &scores, &summary, &worst, panel_path.is_some(), passed);
+    let mut manifest = Manifest::load(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
+    let verdict = verdict_line(&scores.eval.comparisons, manifest.synthesis.as_ref());
+    let report = report_markdown(prepared, &scores, &summary, &worst, panel_path.is_some(), passed, &verdict);
     write(&root, REPORT_FILE, report.as_bytes())?;
 
-    let mut manifest = Manifest::load(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
     manifest.audit = Some(summary.clone());
     manifest.store(dataset).map_err(|source| JobError::Dataset { dir: dataset.clone(), source })?;
-    Ok(ScoredAudit { scores, summary, report: root.join(REPORT_FILE), panel: panel_path, passed })
+    Ok(ScoredAudit { scores, summary, report: root.join(REPORT_FILE), panel: panel_path, passed, verdict })
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), JobError> {
@@ -292,8 +311,8 @@ fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), JobError> {
         .map_err(|e| JobError::AuditWrite { path: dir.join(name), reason: e.to_string() })
 }
 
-/// `report.md`: the draw, the totals with their intervals, the verdict of `--min-ssim`, the
-/// worst poses, every pose, then `rig eval`'s table with the baselines.
+/// `report.md`: the draw, the totals with their intervals, the verdict against the baselines,
+/// the verdict of `--min-ssim`, the worst poses, every pose, then `rig eval`'s table with the baselines.
 fn report_markdown(
     prepared: &PreparedAudit,
     scores: &AuditScores,
@@ -301,6 +320,7 @@ fn report_markdown(
     worst: &[&crate::eval::audit::AuditPose],
     panel: bool,
     passed: Option<bool>,
+    verdict: &str,
 ) -> String {
     let r = &prepared.request;
     let mut s = format!("# rig audit: {}\n\n", r.dataset.display());
@@ -311,6 +331,7 @@ fn report_markdown(
         summary.audited_poses, summary.synthetic_poses, r.fraction, r.seed, AUDIT_DIR, prepared.object.name, prepared.sensor, r.size_px,
     );
     s += &scores.totals_markdown();
+    s += &format!("\n{}\n", verdict.replacen("verdict:", "**Verdict:**", 1));
     if let (Some(bound), Some(ok)) = (r.min_ssim, passed) {
         s += &format!("\n--min-ssim {bound}: {} (mean contact SSIM).\n", if ok { "passed" } else { "FAILED" });
     }

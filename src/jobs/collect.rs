@@ -21,12 +21,12 @@ use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::collect::{CollectJob, CollectSummary, SensorStream};
 use crate::config::{ArmBackend, CollectConfig, RigConfig};
-use crate::dataset::{CaptureChain, CapturePart, DatasetWriter, Manifest, ObjectInfo, Source};
+use crate::dataset::{CaptureChain, CapturePart, DatasetError, DatasetWriter, Manifest, ObjectInfo, Source, order};
 use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::{ModbusTransport, Peripherals};
 use crate::plan::{Plan, PlanSpec, PlannedPose};
-use crate::pose::WorkFrame;
+use crate::pose::{Pose, WorkFrame};
 use crate::sensor::{SensorKind, SensorSet};
 
 /// A collection resolved against a rig configuration: the plan built and checked against the
@@ -40,8 +40,11 @@ pub struct PreparedCollect {
     pub object: ObjectChoice,
     /// The sensors asked for.
     pub sensors: SensorSet,
-    /// The plan with its motion times (as sampled, and in rig's order).
+    /// The plan with its motion times (as sampled, and in the order it is visited).
     pub plan: Plan,
+    /// The `order.csv` the order was read from when a dataset of the run keeps one (a resume);
+    /// `None` when it was ordered now.
+    pub kept_order: Option<PathBuf>,
     /// Grid points of the plan.
     pub grid_len: u64,
     /// The firmware profile the plan was checked against.
@@ -77,7 +80,20 @@ impl CollectRequest {
         let object = ObjectChoice::resolve(&self.object, self.stl.as_deref())?;
         super::check_plain_name("object", &object.name)?;
         let profile = FirmwareProfile::named(config.arm.profile.as_deref())?;
-        let plan = spec.build(&|a, b| profile.pose_cost_s(&config.work_frame, a, b))?;
+        let cost = |a: &Pose, b: &Pose| profile.pose_cost_s(&config.work_frame, a, b);
+        let sampled = spec.sample()?;
+        // A resume visits the poses in the order its datasets keep (checked to be this plan's
+        // poses), without ordering again; a dataset that keeps none is ordered as a new run is.
+        let datasets: Vec<PathBuf> = self.sensor.iter().map(|s| self.out.join(&object.name).join(s.name())).collect();
+        let kept = if self.resume { kept_order(&datasets, |m| m.plan.as_ref() == Some(&spec))? } else { None };
+        let (plan, kept_order) = match kept {
+            Some((path, ids)) => {
+                let plan = crate::plan::in_kept_order(sampled, &ids, &cost)
+                    .map_err(|mismatch| dataset_error(&path, DatasetError::OrderMismatch { path: path.clone(), mismatch }))?;
+                (plan, Some(path))
+            }
+            None => (spec.order_sampled(sampled, &cost), None),
+        };
         let fence = Fence::for_run(profile.clone(), config, &self.sensor.0, PoseSource::Plan);
         let envelope = fence.check(&config.work_frame, &plan.poses)?;
         let mut setup = CollectSetup {
@@ -110,21 +126,50 @@ impl CollectRequest {
                 setup.object.stl_sha256 = Some(legacy);
             }
         }
-        Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, grid_len: spec.grid_len(), profile, envelope })
+        Ok(PreparedCollect { setup, object, sensors: self.sensor.clone(), plan, kept_order, grid_len: spec.grid_len(), profile, envelope })
     }
 }
 
 impl PreparedCollect {
     /// `plan: N poses of a M-point grid; motion time ...`, as `rig collect` prints it.
     pub fn plan_line(&self) -> String {
+        let order = match &self.kept_order {
+            Some(path) => format!("in the order kept in {}", relative_to_working_folder(path).display()),
+            None => "in rig's order".to_string(),
+        };
         format!(
-            "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s in rig's order",
+            "plan: {} poses of a {}-point grid; motion time {:.1} s as sampled, {:.1} s {order}",
             self.plan.poses.len(),
             self.grid_len,
             self.plan.motion_time_before_s,
             self.plan.motion_time_after_s
         )
     }
+}
+
+/// The first order kept by one of `datasets` (in the order given) whose manifest `belongs`
+/// (a dataset of another plan is left to the writer, which refuses it by name), as the path
+/// of its `order.csv` and the ids it lists. Every such order is read, so a malformed one is
+/// refused before anything moves.
+pub(crate) fn kept_order(datasets: &[PathBuf], belongs: impl Fn(&Manifest) -> bool) -> Result<Option<(PathBuf, Vec<u32>)>, JobError> {
+    let mut first = None;
+    for dir in datasets {
+        let has_manifest =
+            crate::dataset::durable::entry_exists(&dir.join(crate::dataset::MANIFEST_FILE), crate::dataset::durable::Kind::File)
+                .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
+        if !has_manifest || !Manifest::load(dir).is_ok_and(|m| belongs(&m)) {
+            continue;
+        }
+        if let Some(ids) = order::read_order(dir).map_err(|source| JobError::Dataset { dir: dir.clone(), source })? {
+            first.get_or_insert((dir.join(order::ORDER_FILE), ids));
+        }
+    }
+    Ok(first)
+}
+
+/// `source` as the job error of the dataset holding `file`.
+fn dataset_error(file: &Path, source: DatasetError) -> JobError {
+    JobError::Dataset { dir: file.parent().map(Path::to_path_buf).unwrap_or_default(), source }
 }
 
 /// Everything a collection run needs besides the hardware: what its manifests say, the poses,
@@ -294,6 +339,7 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
     setup.fence.check(&setup.work_frame, &setup.poses)?;
     let mut sensors = Vec::new();
     let mut datasets = Vec::new();
+    let order_ids: Vec<u32> = setup.poses.iter().map(|p| p.pose_id).collect();
     let parts: Vec<CapturePart> = cameras.iter().map(|f| f.capture.clone()).collect();
     let mut arm_part = setup.arm.clone();
     if let Some(version) = arm.firmware_version().await {
@@ -306,6 +352,9 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
         let writer = DatasetWriter::start(&dir, manifest, setup.resume)
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
             .with_byte_budget(setup.disk_budget_bytes);
+        // The order, kept before the first pose (under the writer's lock); a dataset that
+        // keeps one already keeps it.
+        order::keep_order(&dir, &order_ids).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
         let source = Source::captured(feed.capture.simulated);
         sensors.push(SensorStream { camera: feed.camera, writer, source });
         datasets.push(dir);

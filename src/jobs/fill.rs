@@ -108,6 +108,31 @@ impl FillRequest {
         Ok(lines)
     }
 
+    /// The warning of each target whose images `pipeline` would upscale (see
+    /// [`crate::dataset::SynthesisInfo::upscale_warning`]), before anything is synthesised;
+    /// a dataset with nothing to fill gets none.
+    pub fn upscale_warnings(&self, targets: &[FillTarget], pipeline: &Pipeline) -> Vec<String> {
+        let model_px = pipeline.resolution();
+        let shard = self.shard.unwrap_or(Shard::ALL);
+        targets
+            .iter()
+            .filter_map(|t| {
+                let written = match self.twin_size {
+                    crate::synth::fill::TwinSize::Model if self.twins() => model_px,
+                    _ if self.twins() => crate::synth::fill::fill_image_size(&t.dataset, model_px).ok()?,
+                    _ => {
+                        let work = missing_poses(&t.dataset, t.out.as_deref(), shard).ok()?;
+                        if work.todo.is_empty() {
+                            return None;
+                        }
+                        crate::synth::fill::fill_image_size(&t.dataset, model_px).ok()?
+                    }
+                };
+                crate::synth::fill::synthesis_info(pipeline, written).upscale_warning(t.written())
+            })
+            .collect()
+    }
+
     /// The fill options for `pipeline`: each sampling setting asked for, else the package's
     /// own, else rig's default.
     pub fn options(&self, pipeline: &Pipeline) -> FillOptions {
@@ -146,6 +171,15 @@ pub enum FillDone {
 }
 
 impl FillReport {
+    /// The upscale warning of this dataset's synthesis, if its images were upscaled.
+    pub fn warning(&self) -> Option<String> {
+        let (synthesis, synthesised) = match &self.done {
+            FillDone::Missing(s) => (&s.synthesis, s.synthesised),
+            FillDone::Twins(s) => (&s.synthesis, s.synthesised),
+        };
+        synthesis.upscale_warning(self.target.written()).filter(|_| synthesised > 0)
+    }
+
     /// The line `rig synth` prints for this dataset (and a daemon job's message holds).
     pub fn line(&self) -> String {
         let left = |n: usize| if n > 0 { format!(", {n} left to other shards or --limit") } else { String::new() };
@@ -223,6 +257,8 @@ fn run_targets(
             return Ok(FillOutcome { reports, cancelled: true });
         }
         observer.progress.reset();
+        observer.progress.set_length(0);
+        observer.progress.set_prefix(crate::progress::dataset_name(target.written()));
         let t0 = Instant::now();
         let done = match &target.out {
             Some(out) if request.twins() => {

@@ -12,7 +12,7 @@ use super::{JobError, Observer};
 use crate::collect::CollectSummary;
 use crate::dataset::CapturePart;
 use crate::record::replay::{ReplayError, ReplayRig};
-use crate::record::{Recording, RecordingHeader};
+use crate::record::{RecordingFile, RecordingHeader, Summary};
 
 /// What a replay did.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,11 +45,12 @@ pub fn setup_of(header: &RecordingHeader, out: &Path) -> CollectSetup {
 }
 
 /// Re-runs the recorded collection into `out` (`<out>/<object>/<sensor>/`) with the real client
-/// and job over the recording. `stall_after` is the watchdog's patience. Run it on a
-/// current-thread runtime (see [`crate::record::replay`]).
-pub async fn run(recording: &Recording, out: &Path, stall_after: Duration) -> Result<ReplayOutcome, JobError> {
+/// and job over the recording, read from its file as the events are served (`summary`: the
+/// scan that checked the whole file first, [`RecordingFile::scan`]). `stall_after` is the
+/// watchdog's patience. Run it on a current-thread runtime (see [`crate::record::replay`]).
+pub async fn run(recording: &RecordingFile, summary: &Summary, out: &Path, stall_after: Duration) -> Result<ReplayOutcome, JobError> {
     let h = &recording.header;
-    let mut rig = ReplayRig::open(recording, stall_after).await?;
+    let mut rig = ReplayRig::open(recording, summary, stall_after).await?;
     let setup = setup_of(h, out);
     let feeds: Vec<_> = std::mem::take(&mut rig.cameras)
         .into_iter()

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::roots::{DataRoots, PathError};
+use crate::roots::{DataRoots, PathError, check_length};
 use crate::sensor::{SensorKind, SensorSet};
 use crate::synth::limits::BadSetting;
 use crate::synth::settings::{ImageRange, SchedulerKind, Shard, TwinSize, defaults};
@@ -123,6 +123,14 @@ fn confine_opt(
     Ok(())
 }
 
+/// Each path a request names, as `(field, path)`, checked with [`check_length`].
+fn check_paths<'a>(paths: impl IntoIterator<Item = (&'static str, Option<&'a std::path::Path>)>) -> Result<(), RequestError> {
+    for (field, path) in paths.into_iter().filter_map(|(field, path)| path.map(|p| (field, p))) {
+        check_length(field, path)?;
+    }
+    Ok(())
+}
+
 /// A name that becomes a folder or file name (an object name): not empty, at most 100 bytes,
 /// no path separator, no control character, not starting with a dot.
 pub fn check_plain_name(field: &'static str, name: &str) -> Result<(), RequestError> {
@@ -188,7 +196,7 @@ impl CollectRequest {
         if self.stl.is_none() {
             check_plain_name("object", &self.object)?;
         }
-        Ok(())
+        check_paths([("stl", self.stl.as_deref()), ("plan", self.plan.as_deref()), ("out", Some(self.out.as_path()))])
     }
 
     /// Resolves `stl` and `plan` (read) and `out` (written) inside `roots`.
@@ -275,7 +283,12 @@ impl FillRequest {
             self.batch,
             self.supersample,
         )?;
-        Ok(())
+        check_paths([
+            ("dataset", Some(self.dataset.as_path())),
+            ("poses_of", self.poses_of.as_deref()),
+            ("model", self.model.as_deref()),
+            ("out", self.out.as_deref()),
+        ])
     }
 
     /// Resolves `dataset`, `poses_of` and `model` (read) and `out` (written) inside `roots`.
@@ -341,7 +354,7 @@ impl CalibrateRequest {
         if let Some(d) = self.depths_mm.iter().find(|d| !(d.is_finite() && d.abs() <= MAX_EXTRA_DEPTH_MM)) {
             return bad("depths_mm", format!("{d}: each must be within ±{MAX_EXTRA_DEPTH_MM} mm"));
         }
-        Ok(())
+        check_paths([("out", self.out.as_deref())])
     }
 
     /// Resolves `out` (written) inside `roots`; the default, `calibration/<sensor>.toml`, is
@@ -401,7 +414,7 @@ impl AuditRequest {
         if !(11..=MAX_AUDIT_SIZE_PX).contains(&self.size_px) {
             return bad("size_px", format!("{}: must be 11 (the SSIM window) to {MAX_AUDIT_SIZE_PX}", self.size_px));
         }
-        Ok(())
+        check_paths([("dataset", Some(self.dataset.as_path())), ("stl", self.stl.as_deref())])
     }
 
     /// Resolves `dataset` and `stl` (read) inside `roots`; the audit folder is written inside

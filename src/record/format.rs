@@ -1,17 +1,23 @@
 //! The recording file format, sans-io: [`encode_preamble`], [`encode_event`], [`encode_end`]
-//! turn values into bytes, [`decode`] turns bytes back into a [`RawRecording`] and never
-//! panics, whatever it is given (fuzzed by `fuzz/fuzz_targets/recording_decoder.rs`).
+//! turn values into bytes; [`decode_preamble`] and a [`RecordDecoder`] turn bytes back into the
+//! header and then one event at a time. The caller hands them the bytes it has read; a
+//! [`Step::Need`] asks for more, so a file of any length is read holding one record at a time
+//! (`record::RecordReader` is that caller, over a file). [`decode`] does a whole byte slice at
+//! once. None of them panics, whatever it is given (fuzzed by
+//! `fuzz/fuzz_targets/recording_decoder.rs`).
 //!
 //! This file depends on nothing but `std` and `thiserror`, so the fuzz target compiles it
-//! alone. The header is carried as text here; `record::header` gives it its meaning.
+//! alone. The header is carried as text here; `record::header` gives it its meaning. A PNG
+//! frame's structure is checked here (its chunks, and that its IHDR names the record's size);
+//! its pixels are inflated by `record::frame_image`, into a buffer of the size checked here.
 //!
-//! # Layout (format version 5; versions 1 to 4 are read too), all integers little-endian
+//! # Layout (format version 6; versions 1 to 5 are read too), all integers little-endian
 //!
 //! | offset | size | field | meaning |
 //! |---|---|---|---|
 //! | 0 | 8 | magic | `b"RIGREC\n\0"` |
 //! | 8 | 2 | `u16` version | [`FORMAT_VERSION`] |
-//! | 10 | 4 | `u32` H | header length, bytes |
+//! | 10 | 4 | `u32` H | header length, bytes, at most [`MAX_HEADER_BYTES`] |
 //! | 14 | H | header | UTF-8 JSON (`record::header::RecordingHeader`) |
 //! | 14+H | 4 | `u32` | CRC-32 (IEEE) of bytes 0..14+H |
 //!
@@ -20,7 +26,7 @@
 //! | size | field | meaning |
 //! |---|---|---|
 //! | 1 | `u8` kind | 1 socket bytes, 2 camera frame, 3 interrupt, 4 peripherals (3 and 4: version 2), 5 reconnection (version 4), 6 feedback used and 7 reply timed out (version 5), 0xFF end |
-//! | 4 | `u32` L | body length, bytes |
+//! | 4 | `u32` L | body length, bytes, at most [`MAX_RECORD_BYTES`] |
 //! | L | body | per kind, below |
 //! | 4 | `u32` | CRC-32 (IEEE) of kind, L and body |
 //!
@@ -32,8 +38,14 @@
 //! stream (or failed write) at the same point.
 //!
 //! Frame body: `u8` camera (index into the header's sensor list), `f64` `t_s` (rig clock when
-//! the frame was handed to the job), `f64` `t_capture_s`, `u64` seq, `u32` width, `u32` height,
-//! then width x height x 3 bytes of RGB8, row-major.
+//! the frame was handed to the job), `f64` `t_capture_s`, `u64` seq, `u32` width, `u32` height
+//! (width x height at most [`MAX_FRAME_PIXELS`]), then from version 6 a `u8` encoding and the
+//! pixels in it:
+//!
+//! | encoding | pixels |
+//! |---|---|
+//! | 0 raw | width x height x 3 bytes of RGB8, row-major (versions 1 to 5: always, with no encoding byte) |
+//! | 1 PNG | a PNG of width x height 8-bit RGB pixels, not interlaced, holding the chunks IHDR, IDAT (one or more) and IEND and nothing else (what `rig collect --record` writes) |
 //!
 //! Interrupt body (16 bytes): `f64` `t_s` (rig clock when the run ended), `u64` poses captured
 //! before the job saw the operator's interrupt (Ctrl-C). The job looks at its cancel flag only
@@ -62,11 +74,19 @@
 //!
 //! End body: `u64` number of records before it. A file without it was cut short (the
 //! recording process was killed); bytes after it are an error.
+//!
+//! # Bounds
+//!
+//! A file has no length bound: it is read one record at a time. What a reader holds is bounded
+//! by the length fields, checked before a byte of the body is read: a record body is at most
+//! [`MAX_RECORD_BYTES`] (64 MiB: a raw frame of [`MAX_FRAME_PIXELS`], 16 Mpx, is 48 MiB), the
+//! header at most [`MAX_HEADER_BYTES`] (256 MiB: a million planned poses), and a frame's
+//! pixels, raw or inflated, at most 48 MiB.
 
 /// First bytes of every recording.
 pub const MAGIC: &[u8; 8] = b"RIGREC\n\0";
 /// The format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 5;
+pub const FORMAT_VERSION: u16 = 6;
 /// The oldest version this build reads (version 1 has no interrupt records).
 pub const OLDEST_READ_VERSION: u16 = 1;
 
@@ -85,6 +105,23 @@ const REPLY_TIMED_OUT_LEN: usize = 1 + 8;
 const KIND_END: u8 = 0xFF;
 const SOCKET_FIXED: usize = 1 + 1 + 8;
 const FRAME_FIXED: usize = 1 + 8 + 8 + 8 + 4 + 4;
+/// A frame body's fixed fields from version 6 (the encoding byte after them).
+const FRAME_FIXED_V6: usize = FRAME_FIXED + 1;
+/// Kind and length before a record's body, checksum after it.
+const RECORD_HEAD: usize = 1 + 4;
+const RECORD_TAIL: usize = 4;
+/// Magic, version and header length before the header, checksum after it.
+const PREAMBLE_HEAD: usize = 8 + 2 + 4;
+
+/// Longest record body read, bytes: a raw frame of [`MAX_FRAME_PIXELS`] with room to spare (a
+/// PNG of incompressible pixels is a little longer than they are).
+pub const MAX_RECORD_BYTES: usize = 64 << 20;
+/// Longest header read, bytes (a million planned poses fit).
+pub const MAX_HEADER_BYTES: usize = 256 << 20;
+/// Most pixels in one recorded frame (4096 x 4096, as the dataset's image decoder allows).
+pub const MAX_FRAME_PIXELS: u64 = 1 << 24;
+/// The first bytes of a PNG file.
+const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1A, b'\n'];
 
 /// Which MG400 connection bytes went over.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -279,7 +316,7 @@ impl Event {
     }
 }
 
-/// A camera frame as recorded: raw RGB8 pixels and the frame's own timestamps.
+/// A camera frame as recorded: its pixels (raw or PNG) and the frame's own timestamps.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RecordedFrame {
     /// Index into the header's sensor list.
@@ -291,8 +328,34 @@ pub struct RecordedFrame {
     pub seq: u64,
     pub width: u32,
     pub height: u32,
-    /// `width * height * 3` bytes, row-major RGB.
-    pub rgb: Vec<u8>,
+    /// The `width` x `height` RGB8 pixels, as stored.
+    pub pixels: FramePixels,
+}
+
+/// How a frame's pixels are stored (the frame body's encoding byte, version 6).
+#[derive(Debug, Clone, PartialEq)]
+pub enum FramePixels {
+    /// `width * height * 3` bytes, row-major RGB8 (every frame before version 6).
+    Raw(Vec<u8>),
+    /// A PNG of the 8-bit RGB pixels: IHDR, IDAT and IEND chunks only (what rig writes from
+    /// version 6). Decoded lazily (`record::frame_image`): a reader that only counts frames
+    /// never inflates one.
+    Png(Vec<u8>),
+}
+
+impl FramePixels {
+    /// The stored bytes.
+    pub fn bytes(&self) -> &[u8] {
+        match self {
+            FramePixels::Raw(b) | FramePixels::Png(b) => b,
+        }
+    }
+    fn code(&self) -> u8 {
+        match self {
+            FramePixels::Raw(_) => 0,
+            FramePixels::Png(_) => 1,
+        }
+    }
 }
 
 /// A decoded file: the header text and every event.
@@ -332,6 +395,9 @@ pub enum FormatError {
     CountMismatch { said: u64, found: usize },
     #[error("{extra} unexpected bytes after the end record at byte {offset}")]
     TrailingBytes { offset: usize, extra: usize },
+    /// A length field past its bound: checked before the bytes it announces are read.
+    #[error("the recording is corrupted: {what} at byte {offset} says it is {len} bytes long, more than the {max} rig reads")]
+    TooLong { what: String, offset: usize, len: usize, max: usize },
 }
 
 /// CRC-32 (IEEE 802.3, reflected, as zlib) lookup table, built at compile time.
@@ -399,14 +465,16 @@ pub fn encode_event(event: &Event) -> Vec<u8> {
             encode_record(KIND_SOCKET, &body)
         }
         Event::Frame(f) => {
-            let mut body = Vec::with_capacity(FRAME_FIXED + f.rgb.len());
+            let pixels = f.pixels.bytes();
+            let mut body = Vec::with_capacity(FRAME_FIXED_V6 + pixels.len());
             body.push(f.camera);
             body.extend_from_slice(&f.t_s.to_le_bytes());
             body.extend_from_slice(&f.t_capture_s.to_le_bytes());
             body.extend_from_slice(&f.seq.to_le_bytes());
             body.extend_from_slice(&f.width.to_le_bytes());
             body.extend_from_slice(&f.height.to_le_bytes());
-            body.extend_from_slice(&f.rgb);
+            body.push(f.pixels.code());
+            body.extend_from_slice(pixels);
             encode_record(KIND_FRAME, &body)
         }
         Event::Interrupt { t_s, captured } => {
@@ -489,48 +557,132 @@ impl<'a> Fields<'a> {
     }
 }
 
-/// Decodes a whole recording. Never panics; every failure says where and why.
-pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
+/// What a streaming decode step made of the bytes it was given.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Step<T> {
+    /// The item needs at least this many bytes, counted from the start of those given (never
+    /// more than its length fields allow: the caller may read that many before calling again).
+    Need(usize),
+    /// The item, and how many of the bytes it took.
+    Done(T, usize),
+}
+
+/// The magic, version and header of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Preamble {
+    pub version: u16,
+    pub header_json: String,
+}
+
+/// Decodes the preamble from the first bytes of a file. `eof`: no bytes follow `bytes` (a
+/// shortfall is then a truncation, else a [`Step::Need`]).
+pub fn decode_preamble(bytes: &[u8], eof: bool) -> Result<Step<Preamble>, FormatError> {
+    let have = bytes.len();
+    let short = |need: usize, what: &'static str| {
+        if eof { Err(FormatError::Truncated { offset: have, what, records: 0 }) } else { Ok(Step::Need(need)) }
+    };
     let mut f = Fields { bytes, pos: 0 };
-    let truncated = |offset: usize, what: &'static str| FormatError::Truncated { offset, what, records: 0 };
     match f.take(MAGIC.len()) {
         Some(m) if m == MAGIC => {}
         Some(_) => return Err(FormatError::BadMagic),
-        None if MAGIC.starts_with(bytes) && !bytes.is_empty() => return Err(truncated(bytes.len(), "the magic")),
-        None => return Err(FormatError::BadMagic),
+        None if !MAGIC.starts_with(bytes) || (eof && bytes.is_empty()) => return Err(FormatError::BadMagic),
+        // The whole fixed part at once: the caller reads it in one go.
+        None => return short(PREAMBLE_HEAD, "the magic"),
     }
-    let version = f.u16().ok_or(truncated(bytes.len(), "the format version"))?;
+    let Some(version) = f.u16() else { return short(MAGIC.len() + 2, "the format version") };
     if !(OLDEST_READ_VERSION..=FORMAT_VERSION).contains(&version) {
         return Err(FormatError::UnsupportedVersion { found: version, oldest: OLDEST_READ_VERSION, supported: FORMAT_VERSION });
     }
-    let header_len = f.u32().ok_or(truncated(bytes.len(), "the header length"))? as usize;
-    let header_at = f.pos;
-    let header = f.take(header_len).ok_or(truncated(bytes.len(), "the header"))?;
-    let stored = f.u32().ok_or(truncated(bytes.len(), "the header checksum"))?;
-    let computed = crc32(&[&bytes[..header_at + header_len]]);
+    let Some(header_len) = f.u32() else { return short(PREAMBLE_HEAD, "the header length") };
+    let header_len = header_len as usize;
+    if header_len > MAX_HEADER_BYTES {
+        return Err(FormatError::TooLong { what: "the header".into(), offset: PREAMBLE_HEAD, len: header_len, max: MAX_HEADER_BYTES });
+    }
+    let total = PREAMBLE_HEAD + header_len + 4;
+    let Some(header) = f.take(header_len) else { return short(total, "the header") };
+    let Some(stored) = f.u32() else { return short(total, "the header checksum") };
+    let computed = crc32(&[&bytes[..PREAMBLE_HEAD + header_len]]);
     if stored != computed {
         return Err(FormatError::Checksum { what: "the header".into(), offset: 0, stored, computed });
     }
     let header_json =
-        std::str::from_utf8(header).map_err(|e| FormatError::HeaderNotText { offset: header_at + e.valid_up_to() })?.to_string();
+        std::str::from_utf8(header).map_err(|e| FormatError::HeaderNotText { offset: PREAMBLE_HEAD + e.valid_up_to() })?.to_string();
+    Ok(Step::Done(Preamble { version, header_json }, total))
+}
 
-    let mut events = Vec::new();
-    loop {
-        let offset = f.pos;
-        let record = events.len();
-        let truncated = |what| FormatError::Truncated { offset: bytes.len(), what, records: record };
-        let Some(kind) = f.u8() else {
-            return Err(FormatError::MissingEnd { offset, records: record });
+/// Decodes the records after the preamble, one at a time, keeping what spans records (their
+/// count, whether an interrupt was seen).
+#[derive(Debug, Clone)]
+pub struct RecordDecoder {
+    version: u16,
+    records: usize,
+    interrupted: bool,
+}
+
+impl RecordDecoder {
+    /// A decoder for the records of a file of format `version` (from its [`Preamble`]).
+    pub fn new(version: u16) -> Self {
+        Self { version, records: 0, interrupted: false }
+    }
+
+    /// Complete records decoded so far (the end record not counted): the number of the next.
+    pub fn records(&self) -> usize {
+        self.records
+    }
+
+    /// Decodes the record at the start of `bytes`, which start at byte `offset` of the file;
+    /// `eof`: nothing follows `bytes`. `Done(None, n)` is the end record: the caller checks
+    /// that nothing follows it ([`FormatError::TrailingBytes`]).
+    pub fn next(&mut self, bytes: &[u8], offset: usize, eof: bool) -> Result<Step<Option<Event>>, FormatError> {
+        let record = self.records;
+        let end = offset.saturating_add(bytes.len());
+        let short = |need: usize, what: &'static str| {
+            if eof { Err(FormatError::Truncated { offset: end, what, records: record }) } else { Ok(Step::Need(need)) }
         };
-        let len_bytes: [u8; 4] = f.array().ok_or(truncated("a record length"))?;
+        let mut f = Fields { bytes, pos: 0 };
+        let Some(kind) = f.u8() else {
+            // Kind and length at once: the caller reads them in one go.
+            return if eof { Err(FormatError::MissingEnd { offset, records: record }) } else { Ok(Step::Need(RECORD_HEAD)) };
+        };
+        let Some(len_bytes) = f.array::<4>() else { return short(RECORD_HEAD, "a record length") };
         let len = u32::from_le_bytes(len_bytes) as usize;
-        let body = f.take(len).ok_or(truncated("a record body"))?;
-        let stored = f.u32().ok_or(truncated("a record checksum"))?;
+        if len > MAX_RECORD_BYTES {
+            return Err(FormatError::TooLong { what: format!("record {record}"), offset, len, max: MAX_RECORD_BYTES });
+        }
+        let total = RECORD_HEAD + len + RECORD_TAIL;
+        let Some(body) = f.take(len) else { return short(total, "a record body") };
+        let Some(stored) = f.u32() else { return short(total, "a record checksum") };
         let computed = crc32(&[&[kind], &len_bytes, body]);
         if stored != computed {
             return Err(FormatError::Checksum { what: format!("record {record}"), offset, stored, computed });
         }
         let malformed = |problem: String| FormatError::Malformed { record, offset, problem };
+        if kind == KIND_END {
+            let said = Fields { bytes: body, pos: 0 }
+                .u64()
+                .filter(|_| len == 8)
+                .ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
+            if said != record as u64 {
+                return Err(FormatError::CountMismatch { said, found: record });
+            }
+            return Ok(Step::Done(None, total));
+        }
+        let event = self.decode_body(kind, body).map_err(|e| match e {
+            BodyError::Malformed(problem) => malformed(problem),
+            BodyError::UnknownKind => FormatError::UnknownKind { record, offset, kind },
+        })?;
+        if matches!(event, Event::Interrupt { .. }) {
+            self.interrupted = true;
+        }
+        self.records += 1;
+        Ok(Step::Done(Some(event), total))
+    }
+
+    /// The event a record body of `kind` holds.
+    fn decode_body(&self, kind: u8, body: &[u8]) -> Result<Event, BodyError> {
+        let version = self.version;
+        let len = body.len();
+        let malformed = |problem: String| BodyError::Malformed(problem);
         let mut b = Fields { bytes: body, pos: 0 };
         match kind {
             KIND_SOCKET => {
@@ -550,26 +702,47 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 if data.is_empty() && version < 3 {
                     return Err(malformed("socket record without bytes".into()));
                 }
-                events.push(Event::Socket { socket, direction, t_s, bytes: data.to_vec() });
+                Ok(Event::Socket { socket, direction, t_s, bytes: data.to_vec() })
             }
             KIND_FRAME => {
+                let fixed = if version >= 6 { FRAME_FIXED_V6 } else { FRAME_FIXED };
                 let (Some(camera), Some(t_s), Some(t_capture_s), Some(seq), Some(width), Some(height)) =
                     (b.u8(), b.f64(), b.f64(), b.u64(), b.u32(), b.u32())
                 else {
-                    return Err(malformed(format!("frame record body of {len} bytes is shorter than {FRAME_FIXED}")));
+                    return Err(malformed(format!("frame record body of {len} bytes is shorter than {fixed}")));
+                };
+                // Before version 6 every frame is raw, with no encoding byte.
+                let encoding = if version >= 6 {
+                    b.u8().ok_or_else(|| malformed(format!("frame record body of {len} bytes is shorter than {fixed}")))?
+                } else {
+                    0
                 };
                 if !(t_s.is_finite() && t_capture_s.is_finite()) {
                     return Err(malformed(format!("frame times {t_s}, {t_capture_s} are not finite")));
                 }
-                let rgb = b.rest();
-                let expected = (width as u64) * (height as u64) * 3;
-                if rgb.len() as u64 != expected {
-                    return Err(malformed(format!(
-                        "frame of {width}x{height} pixels needs {expected} RGB bytes, the record holds {}",
-                        rgb.len()
-                    )));
+                let pixels = u64::from(width) * u64::from(height);
+                if pixels > MAX_FRAME_PIXELS {
+                    return Err(malformed(format!("a frame of {width}x{height} pixels is more than the {MAX_FRAME_PIXELS} rig reads")));
                 }
-                events.push(Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, rgb: rgb.to_vec() }));
+                let data = b.rest();
+                let pixels = match encoding {
+                    0 => {
+                        let expected = pixels * 3;
+                        if data.len() as u64 != expected {
+                            return Err(malformed(format!(
+                                "frame of {width}x{height} pixels needs {expected} RGB bytes, the record holds {}",
+                                data.len()
+                            )));
+                        }
+                        FramePixels::Raw(data.to_vec())
+                    }
+                    1 => {
+                        check_png(data, width, height).map_err(|problem| malformed(format!("frame PNG: {problem}")))?;
+                        FramePixels::Png(data.to_vec())
+                    }
+                    e => return Err(malformed(format!("unknown frame encoding {e}"))),
+                };
+                Ok(Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, pixels }))
             }
             KIND_INTERRUPT if version >= 2 => {
                 let (Some(t_s), Some(captured)) = (b.f64(), b.u64()) else {
@@ -581,10 +754,10 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 if !t_s.is_finite() {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
-                if events.iter().any(|e| matches!(e, Event::Interrupt { .. })) {
+                if self.interrupted {
                     return Err(malformed("a second interrupt record".into()));
                 }
-                events.push(Event::Interrupt { t_s, captured });
+                Ok(Event::Interrupt { t_s, captured })
             }
             KIND_PERIPHERALS if version >= 2 => {
                 let (Some(t_s), Some(phase), Some(outcome)) = (b.f64(), b.u8(), b.u8()) else {
@@ -597,7 +770,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 let outcome =
                     PeripheralOutcome::from_code(outcome).ok_or_else(|| malformed(format!("unknown peripherals outcome {outcome}")))?;
                 let text = std::str::from_utf8(b.rest()).map_err(|e| malformed(format!("peripherals text is not UTF-8: {e}")))?;
-                events.push(Event::Peripherals { t_s, phase, outcome, text: text.to_string() });
+                Ok(Event::Peripherals { t_s, phase, outcome, text: text.to_string() })
             }
             KIND_CONNECT if version >= 4 => {
                 let (Some(socket), Some(t_s), Some(outcome)) = (b.u8(), b.f64(), b.u8()) else {
@@ -611,7 +784,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
                 let outcome = ConnectOutcome::from_code(outcome).ok_or_else(|| malformed(format!("unknown connect outcome {outcome}")))?;
-                events.push(Event::Connect { socket, t_s, outcome });
+                Ok(Event::Connect { socket, t_s, outcome })
             }
             KIND_FEEDBACK_USED if version >= 5 => {
                 let (Some(t_s), Some(what), Some(seq)) = (b.f64(), b.u8(), b.u64()) else {
@@ -629,7 +802,7 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                     (1, seq) => return Err(malformed(format!("a timed-out wait names frame {seq}"))),
                     (w, _) => return Err(malformed(format!("unknown feedback use {w}"))),
                 };
-                events.push(Event::FeedbackUsed { t_s, seq });
+                Ok(Event::FeedbackUsed { t_s, seq })
             }
             KIND_REPLY_TIMED_OUT if version >= 5 => {
                 let (Some(socket), Some(t_s)) = (b.u8(), b.f64()) else {
@@ -645,19 +818,96 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
                 if !t_s.is_finite() {
                     return Err(malformed(format!("time {t_s} is not finite")));
                 }
-                events.push(Event::ReplyTimedOut { socket, t_s });
+                Ok(Event::ReplyTimedOut { socket, t_s })
             }
-            KIND_END => {
-                let said = b.u64().filter(|_| len == 8).ok_or_else(|| malformed(format!("end record body of {len} bytes, not 8")))?;
-                if said != record as u64 {
-                    return Err(FormatError::CountMismatch { said, found: record });
+            _ => Err(BodyError::UnknownKind),
+        }
+    }
+}
+
+/// Why a record body does not decode (placed in the file by [`RecordDecoder::next`]).
+enum BodyError {
+    Malformed(String),
+    UnknownKind,
+}
+
+/// Checks that `png` is a PNG of `width` x `height` 8-bit RGB pixels, not interlaced, with the
+/// chunks IHDR, IDAT (one or more) and IEND and nothing else, without inflating anything: no
+/// ancillary chunk (a compressed ICC profile or text) is ever decoded, and the pixels inflate
+/// into a buffer of the size checked here.
+fn check_png(png: &[u8], width: u32, height: u32) -> Result<(), String> {
+    if png.get(..PNG_SIGNATURE.len()) != Some(&PNG_SIGNATURE[..]) {
+        return Err("not a PNG (no PNG signature)".into());
+    }
+    let mut at = PNG_SIGNATURE.len();
+    let mut idat = 0usize;
+    loop {
+        let head = png.get(at..at + 8).ok_or("a chunk is cut short")?;
+        let len = u32::from_be_bytes([head[0], head[1], head[2], head[3]]) as usize;
+        let kind = [head[4], head[5], head[6], head[7]];
+        // Length, type, data, CRC.
+        let next = (at + 8).checked_add(len).and_then(|n| n.checked_add(4)).filter(|n| *n <= png.len()).ok_or("a chunk is cut short")?;
+        let data = &png[at + 8..at + 8 + len];
+        match (at == PNG_SIGNATURE.len(), &kind) {
+            (true, b"IHDR") => {
+                let [w0, w1, w2, w3, h0, h1, h2, h3, depth, colour, compression, filter, interlace] =
+                    <[u8; 13]>::try_from(data).map_err(|_| format!("an IHDR chunk of {len} bytes, not 13"))?;
+                let (w, h) = (u32::from_be_bytes([w0, w1, w2, w3]), u32::from_be_bytes([h0, h1, h2, h3]));
+                if (w, h) != (width, height) {
+                    return Err(format!("the PNG is {w}x{h} pixels, the record says {width}x{height}"));
                 }
-                if f.pos < bytes.len() {
-                    return Err(FormatError::TrailingBytes { offset: f.pos, extra: bytes.len() - f.pos });
+                if (depth, colour, compression, filter, interlace) != (8, 2, 0, 0, 0) {
+                    return Err(format!(
+                        "not 8-bit RGB without interlacing (bit depth {depth}, colour type {colour}, compression {compression}, filter {filter}, interlace {interlace})"
+                    ));
+                }
+            }
+            (true, _) => return Err("the PNG does not start with its IHDR chunk".into()),
+            (false, b"IDAT") => idat += 1,
+            (false, b"IEND") => {
+                if idat == 0 {
+                    return Err("no IDAT chunk".into());
+                }
+                if len != 0 || next != png.len() {
+                    return Err("bytes after the IEND chunk".into());
+                }
+                return Ok(());
+            }
+            (false, other) => {
+                return Err(format!(
+                    "a {} chunk (rig records IHDR, IDAT and IEND only)",
+                    other.iter().map(|&c| char::from(c)).collect::<String>().escape_debug()
+                ));
+            }
+        }
+        at = next;
+    }
+}
+
+/// Decodes a whole recording held in memory ([`decode_preamble`], then a [`RecordDecoder`]
+/// over the rest). Never panics; every failure says where and why.
+pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
+    let (Preamble { version, header_json }, mut at) = match decode_preamble(bytes, true)? {
+        Step::Done(preamble, n) => (preamble, n),
+        // `eof` makes every shortfall an error; this cannot happen.
+        Step::Need(_) => return Err(FormatError::Truncated { offset: bytes.len(), what: "the header", records: 0 }),
+    };
+    let mut decoder = RecordDecoder::new(version);
+    let mut events = Vec::new();
+    loop {
+        match decoder.next(bytes.get(at..).unwrap_or_default(), at, true)? {
+            Step::Done(Some(event), n) => {
+                events.push(event);
+                at += n;
+            }
+            Step::Done(None, n) => {
+                at += n;
+                if at < bytes.len() {
+                    return Err(FormatError::TrailingBytes { offset: at, extra: bytes.len() - at });
                 }
                 return Ok(RawRecording { version, header_json, events });
             }
-            other => return Err(FormatError::UnknownKind { record, offset, kind: other }),
+            Step::Need(_) => return Err(FormatError::MissingEnd { offset: at, records: decoder.records() }),
         }
     }
 }
@@ -666,11 +916,18 @@ pub fn decode(bytes: &[u8]) -> Result<RawRecording, FormatError> {
 mod tests {
     use super::*;
 
-    fn sample() -> Vec<u8> {
-        let mut out = encode_preamble("{\"a\":1}");
-        let events = [
+    fn sample_events() -> [Event; 4] {
+        [
             Event::Socket { socket: SocketId::Motion, direction: Direction::ToController, t_s: 0.5, bytes: b"Sync()".to_vec() },
-            Event::Frame(RecordedFrame { camera: 1, t_s: 1.0, t_capture_s: 0.9, seq: 7, width: 2, height: 1, rgb: vec![1, 2, 3, 4, 5, 6] }),
+            Event::Frame(RecordedFrame {
+                camera: 1,
+                t_s: 1.0,
+                t_capture_s: 0.9,
+                seq: 7,
+                width: 2,
+                height: 1,
+                pixels: FramePixels::Raw(vec![1, 2, 3, 4, 5, 6]),
+            }),
             Event::Interrupt { t_s: 1.5, captured: 3 },
             Event::Peripherals {
                 t_s: 1.6,
@@ -678,17 +935,41 @@ mod tests {
                 outcome: PeripheralOutcome::Ok,
                 text: "lamp.current=0.25;scale.force=".into(),
             },
-        ];
-        for e in &events {
+        ]
+    }
+
+    fn sample() -> Vec<u8> {
+        let mut out = encode_preamble("{\"a\":1}");
+        for e in &sample_events() {
             out.extend(encode_event(e));
         }
         out.extend(encode_end(4));
         out
     }
 
-    /// `sample()`'s bytes with another version number (and the header checksum redone).
+    /// A record as a writer before version 6 wrote it: a frame's raw pixels with no encoding
+    /// byte before them.
+    fn encode_event_before_v6(event: &Event) -> Vec<u8> {
+        match event {
+            Event::Frame(RecordedFrame { pixels: FramePixels::Raw(rgb), .. }) => {
+                let record = encode_event(event);
+                let mut body = record[RECORD_HEAD..record.len() - RECORD_TAIL].to_vec();
+                body.remove(FRAME_FIXED);
+                assert_eq!(body.len(), FRAME_FIXED + rgb.len());
+                encode_record(KIND_FRAME, &body)
+            }
+            other => encode_event(other),
+        }
+    }
+
+    /// `sample()` as a writer of `version` wrote it (frames without the encoding byte before
+    /// version 6).
     fn with_version(version: u16) -> Vec<u8> {
-        let mut bytes = sample();
+        let mut bytes = encode_preamble("{\"a\":1}");
+        for e in &sample_events() {
+            bytes.extend(if version < 6 { encode_event_before_v6(e) } else { encode_event(e) });
+        }
+        bytes.extend(encode_end(4));
         set_version(&mut bytes, version);
         bytes
     }
@@ -707,7 +988,7 @@ mod tests {
         assert_eq!(r.events[2], Event::Interrupt { t_s: 1.5, captured: 3 });
         // Version 1 has no interrupt kind: such a file is corrupt, not silently misread.
         assert!(matches!(decode(&with_version(1)), Err(FormatError::UnknownKind { record: 2, kind: 3, .. })));
-        assert!(matches!(decode(&with_version(6)), Err(FormatError::UnsupportedVersion { found: 6, oldest: 1, supported: 5 })));
+        assert!(matches!(decode(&with_version(7)), Err(FormatError::UnsupportedVersion { found: 7, oldest: 1, supported: 6 })));
         // Two interrupts.
         let mut two = encode_preamble("{}");
         for _ in 0..2 {
@@ -804,9 +1085,14 @@ mod tests {
                     bytes,
                 }
             });
-        let frame = (any::<u8>(), -1e6f64..1e6, -1e6f64..1e6, any::<u64>(), 0u32..5, 0u32..5, any::<u8>()).prop_map(
-            |(camera, t_s, t_capture_s, seq, width, height, v)| {
-                Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, rgb: vec![v; (width * height * 3) as usize] })
+        let frame = (any::<u8>(), -1e6f64..1e6, -1e6f64..1e6, any::<u64>(), 0u32..5, 0u32..5, any::<u8>(), any::<bool>()).prop_map(
+            |(camera, t_s, t_capture_s, seq, width, height, v, png)| {
+                let pixels = if png && width * height > 0 {
+                    FramePixels::Png(png_container(width, height, &[v; 7]))
+                } else {
+                    FramePixels::Raw(vec![v; (width * height * 3) as usize])
+                };
+                Event::Frame(RecordedFrame { camera, t_s, t_capture_s, seq, width, height, pixels })
             },
         );
         let peripherals = (-1e6f64..1e6, any::<bool>(), 0u8..3, ".{0,40}").prop_map(|(t_s, before, outcome, text)| Event::Peripherals {
@@ -929,5 +1215,150 @@ mod tests {
         wrong.truncate(wrong.len() - end.len());
         wrong.extend(encode_end(5));
         assert!(matches!(decode(&wrong), Err(FormatError::CountMismatch { said: 5, found: 4 })));
+    }
+
+    /// A PNG container of `width` x `height` 8-bit RGB with `idat` as its one IDAT chunk's
+    /// data (not inflated by the format's check, so any bytes do) and checksummed chunks.
+    fn png_container(width: u32, height: u32, idat: &[u8]) -> Vec<u8> {
+        let mut ihdr = Vec::new();
+        ihdr.extend_from_slice(&width.to_be_bytes());
+        ihdr.extend_from_slice(&height.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+        png_with_chunks(&[(*b"IHDR", ihdr), (*b"IDAT", idat.to_vec()), (*b"IEND", Vec::new())])
+    }
+
+    fn png_with_chunks(chunks: &[([u8; 4], Vec<u8>)]) -> Vec<u8> {
+        let mut png = PNG_SIGNATURE.to_vec();
+        for (kind, data) in chunks {
+            png.extend_from_slice(&(data.len() as u32).to_be_bytes());
+            png.extend_from_slice(kind);
+            png.extend_from_slice(data);
+            png.extend_from_slice(&crc32(&[kind, data]).to_be_bytes());
+        }
+        png
+    }
+
+    /// A recording of one frame record with `body` (after the fixed fields of a 2 x 1 frame).
+    fn one_frame(encoding: u8, pixels: &[u8]) -> Vec<u8> {
+        let frame =
+            RecordedFrame { camera: 0, t_s: 1.0, t_capture_s: 1.0, seq: 1, width: 2, height: 1, pixels: FramePixels::Raw(vec![0; 6]) };
+        let record = encode_event(&Event::Frame(frame));
+        let mut body = record[RECORD_HEAD..RECORD_HEAD + FRAME_FIXED].to_vec();
+        body.push(encoding);
+        body.extend_from_slice(pixels);
+        let mut bytes = encode_preamble("{}");
+        bytes.extend(encode_record(KIND_FRAME, &body));
+        bytes.extend(encode_end(1));
+        bytes
+    }
+
+    #[test]
+    fn frames_are_raw_or_png_from_version_6_and_raw_without_an_encoding_byte_before() {
+        let png = png_container(2, 1, b"not inflated here");
+        let r = decode(&one_frame(1, &png)).expect("a PNG frame");
+        assert!(matches!(&r.events[0], Event::Frame(f) if f.pixels == FramePixels::Png(png.clone())));
+        assert_eq!(&encode_event(&r.events[0])[RECORD_HEAD + FRAME_FIXED..][..1], &[1], "the encoding byte");
+        let r = decode(&one_frame(0, &[9; 6])).expect("a raw frame");
+        assert!(matches!(&r.events[0], Event::Frame(f) if f.pixels == FramePixels::Raw(vec![9; 6])));
+        // A version-5 writer wrote the raw pixels right after the height; they still read, and
+        // the same bytes read as version 6 are damage, not other pixels.
+        let v5 = with_version(5);
+        let r = decode(&v5).expect("a version-5 recording");
+        assert_eq!((r.version, &r.events[..]), (5, &sample_events()[..]));
+        let mut as_v6 = v5.clone();
+        set_version(&mut as_v6, 6);
+        assert!(matches!(decode(&as_v6), Err(FormatError::Malformed { record: 1, .. })), "{:?}", decode(&as_v6));
+        assert_eq!(decode(&with_version(6)).map(|r| r.events), Ok(sample_events().to_vec()));
+        // An unknown encoding.
+        assert!(matches!(decode(&one_frame(2, &[9; 6])), Err(FormatError::Malformed { record: 0, .. })));
+    }
+
+    #[test]
+    fn a_png_frame_must_be_the_records_size_in_rgb8_with_pixel_chunks_only() {
+        let ihdr = |w: u32, h: u32, tail: [u8; 5]| [&w.to_be_bytes()[..], &h.to_be_bytes(), &tail].concat();
+        let rgb8 = [8, 2, 0, 0, 0];
+        let cases: Vec<(Vec<u8>, &str)> = vec![
+            (b"GIF89a".to_vec(), "no PNG signature"),
+            (png_container(200, 100, b"x"), "the PNG is 200x100 pixels, the record says 2x1"),
+            (png_with_chunks(&[(*b"IHDR", ihdr(2, 1, [16, 2, 0, 0, 0])), (*b"IDAT", vec![1]), (*b"IEND", vec![])]), "bit depth 16"),
+            (png_with_chunks(&[(*b"IHDR", ihdr(2, 1, [8, 2, 0, 0, 1])), (*b"IDAT", vec![1]), (*b"IEND", vec![])]), "interlace 1"),
+            (png_with_chunks(&[(*b"IDAT", vec![1]), (*b"IHDR", ihdr(2, 1, rgb8)), (*b"IEND", vec![])]), "does not start with its IHDR"),
+            // An ICC profile (compressed, so a bomb) and text are never decoded: refused here.
+            (png_with_chunks(&[(*b"IHDR", ihdr(2, 1, rgb8)), (*b"iCCP", vec![0; 40]), (*b"IDAT", vec![1]), (*b"IEND", vec![])]), "iCCP"),
+            (png_with_chunks(&[(*b"IHDR", ihdr(2, 1, rgb8)), (*b"IDAT", vec![1]), (*b"zTXt", vec![0; 4]), (*b"IEND", vec![])]), "zTXt"),
+            (png_with_chunks(&[(*b"IHDR", ihdr(2, 1, rgb8)), (*b"IEND", vec![])]), "no IDAT"),
+            ([png_container(2, 1, b"x"), vec![0]].concat(), "after the IEND"),
+            (png_container(2, 1, b"x")[..30].to_vec(), "cut short"),
+        ];
+        for (png, why) in cases {
+            match decode(&one_frame(1, &png)) {
+                Err(FormatError::Malformed { record: 0, problem, .. }) => assert!(problem.contains(why), "{why:?} not in {problem:?}"),
+                other => panic!("{why}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn lengths_past_their_bounds_are_refused_before_reading_what_they_announce() {
+        // A header length of 4 GiB, in a file of 14 bytes: refused without asking for more.
+        let mut head = encode_preamble("{}")[..PREAMBLE_HEAD].to_vec();
+        head[10..14].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(decode_preamble(&head, false), Err(FormatError::TooLong { len, .. }) if len == u32::MAX as usize));
+        // A record body of MAX_RECORD_BYTES + 1: refused from its 5 first bytes.
+        let mut decoder = RecordDecoder::new(FORMAT_VERSION);
+        let mut record = vec![KIND_SOCKET];
+        record.extend_from_slice(&(MAX_RECORD_BYTES as u32 + 1).to_le_bytes());
+        assert!(matches!(decoder.next(&record, 18, false), Err(FormatError::TooLong { offset: 18, .. })));
+        // At the bound it asks for the whole record, no more.
+        record[1..5].copy_from_slice(&(MAX_RECORD_BYTES as u32).to_le_bytes());
+        assert_eq!(decoder.next(&record, 18, false), Ok(Step::Need(RECORD_HEAD + MAX_RECORD_BYTES + RECORD_TAIL)));
+        // A frame of more pixels than rig reads, whatever it holds.
+        let frame = RecordedFrame {
+            camera: 0,
+            t_s: 0.0,
+            t_capture_s: 0.0,
+            seq: 0,
+            width: 4097,
+            height: 4096,
+            pixels: FramePixels::Png(png_container(4097, 4096, b"x")),
+        };
+        let mut bytes = encode_preamble("{}");
+        bytes.extend(encode_event(&Event::Frame(frame)));
+        bytes.extend(encode_end(1));
+        assert!(matches!(decode(&bytes), Err(FormatError::Malformed { problem, .. }) if problem.contains("4097x4096")));
+    }
+
+    #[test]
+    fn fed_a_byte_at_a_time_the_decoder_asks_for_what_it_needs_and_reads_the_same() {
+        let bytes = sample();
+        let mut at = 0;
+        let preamble = loop {
+            match decode_preamble(&bytes[..at], false).expect("a preamble") {
+                Step::Need(n) => {
+                    assert!(n > at && n <= bytes.len(), "asked for {n} with {at}");
+                    at += 1;
+                }
+                Step::Done(p, n) => break (p, n),
+            }
+        };
+        let (mut start, mut end, mut events) = (preamble.1, preamble.1, Vec::new());
+        let mut decoder = RecordDecoder::new(preamble.0.version);
+        loop {
+            match decoder.next(&bytes[start..end], start, false).expect("a record") {
+                Step::Need(n) => {
+                    assert!(start + n > end, "asked for {n} it has");
+                    end += 1;
+                }
+                Step::Done(Some(e), n) => {
+                    events.push(e);
+                    start += n;
+                }
+                Step::Done(None, n) => {
+                    assert_eq!(start + n, bytes.len());
+                    break;
+                }
+            }
+        }
+        assert_eq!(events, sample_events().to_vec());
     }
 }

@@ -3,26 +3,39 @@
 //! Recording (`rig collect --record FILE`): a [`Recorder`] owns the file. Each MG400 socket is
 //! wrapped in a [`RecordingStream`] that logs every byte the client writes or reads, with the
 //! rig-clock time, and each camera in a [`RecordingCamera`] that logs every frame handed to the
-//! job (raw RGB8 plus its capture timestamp and sequence number). Events land in the file in
-//! the order they happened; the [`RecordingHeader`] (command line, plan, work frame, collect
-//! options, firmware profile, sensors, seed) comes first. The byte layout is in [`mod@format`].
+//! job (its pixels as a PNG, lossless, plus its capture timestamp and sequence number). Events
+//! land in the file in the order they happened; the [`RecordingHeader`] (command line, plan,
+//! work frame, collect options, firmware profile, sensors, seed) comes first. The byte layout
+//! is in [`mod@format`].
 //!
 //! A lost socket is reopened as by an unrecorded client, and the reconnection is recorded too.
 //! So is each decision the client makes on the feedback, with the frame it went by (the
 //! client's [`Witness`]).
 //!
+//! Reading: a [`RecordingFile`] opens the file through [`crate::confine`] and reads the header;
+//! [`RecordReader`]s read the records on from there, one at a time, each with its own position
+//! on the one handle. A recording has no length bound: what a reader holds is the record it
+//! reads (at most [`format::MAX_RECORD_BYTES`], checked from the length field before the body
+//! is read) and a 64 KiB buffer, so `rig replay --info` ([`RecordingFile::scan`], a
+//! [`Summary`]) and a replay take the same memory for a recording of any length. Each frame
+//! is checked against its camera (one the header lists, at the header's resolution) from the
+//! record's fields, before its pixels are decoded ([`frame_image`]). [`Recording`] reads a
+//! whole file into memory, for tests and tools on short recordings.
+//!
 //! Replay (`rig replay FILE`): `jobs::replay::run` runs the real [`Mg400Client`] on
 //! [`replay::ReplayStream`]s (reopened where the recording reconnected) and gives the job
 //! [`replay::ReplayCamera`]s,
 //! all fed from one [`replay::ReplaySession`] that serves the recorded events in recorded
-//! order, checks that what the client writes is what was recorded, and stops at the first
-//! divergence with both sides named. See `replay` for how it stays deterministic.
+//! order, read from the file as they are served, checks that what the client writes is what
+//! was recorded, and stops at the first divergence with both sides named. See `replay` for how
+//! it stays deterministic.
 
 pub mod format;
 pub mod replay;
 
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
@@ -44,7 +57,8 @@ use crate::io::modbus::{ModbusError, ModbusReading, Peripherals, format_readings
 use crate::plan::{PlanSpec, PlannedPose};
 use crate::pose::WorkFrame;
 
-pub use format::{ConnectOutcome, Direction, Event, FormatError, PeripheralOutcome, PeripheralPhase, RecordedFrame, SocketId};
+use format::Step;
+pub use format::{ConnectOutcome, Direction, Event, FormatError, FramePixels, PeripheralOutcome, PeripheralPhase, RecordedFrame, SocketId};
 
 /// Errors reading or writing a recording.
 #[derive(Debug, thiserror::Error)]
@@ -69,16 +83,52 @@ pub enum RecordError {
     },
     #[error("recording {path}: record {record} is a frame of camera {camera}, but the header lists {cameras} cameras")]
     UnknownCamera { path: PathBuf, record: usize, camera: u8, cameras: usize },
+    /// A frame of another size than its camera's: the header's resolution, or (in recordings
+    /// whose header has none) the camera's first frame. Found from the record's fields, before
+    /// anything is allocated for its pixels.
+    #[error(
+        "recording {path}: record {record} at byte {offset} is a {}x{} frame of camera {camera}, but {expected_from} {}x{}",
+        found.0, found.1, expected.0, expected.1
+    )]
+    FrameSize {
+        path: PathBuf,
+        record: usize,
+        offset: u64,
+        camera: String,
+        found: (u32, u32),
+        expected: (u32, u32),
+        /// `the header's camera is`, `its first frame was`.
+        expected_from: &'static str,
+    },
+    /// A frame whose stored pixels do not decode (a PNG whose data is damaged although its
+    /// record's checksum holds).
+    #[error("recording {path}: record {record} at byte {offset}: frame {seq} of camera {camera} does not decode: {reason}")]
+    FrameDecode { path: PathBuf, record: usize, offset: u64, camera: String, seq: u64, reason: String },
     #[error("recording {path}: closed before its header was written")]
     NoHeader { path: PathBuf },
     /// The file is not one rig reads as a recording: a FIFO or device (which would block or
-    /// never end), a symlink, larger than [`MAX_RECORDING_BYTES`].
+    /// never end), a symlink.
     #[error("recording: {0}")]
     Confined(#[from] crate::confine::ConfineError),
     /// The header names an object that is not a plain name: it becomes a folder name, and a
     /// path there (`/abs`, `../..`) would put the replayed dataset anywhere.
     #[error("recording {path}: the header's object.name is not a plain name (no `/`, `\\`, `..`, leading dot or control character)")]
     ObjectName { path: PathBuf },
+    /// A header too long for the format's bound (a plan of millions of poses).
+    #[error("recording {path}: the header is {len} bytes, more than the {max} a recording holds")]
+    HeaderTooLong { path: PathBuf, len: usize, max: usize },
+}
+
+impl RecordError {
+    /// Whether the recording (not the machine) is at fault: a damaged, foreign or hostile file
+    /// (exit 2); else an I/O failure (exit 1).
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            RecordError::Io { .. } => false,
+            RecordError::Confined(e) => e.is_bad_input(),
+            _ => true,
+        }
+    }
 }
 
 /// Whether `name` can be a folder name: not empty, at most 100 bytes, no leading dot, no path
@@ -86,9 +136,6 @@ pub enum RecordError {
 fn is_plain_name(name: &str) -> bool {
     !name.is_empty() && name.len() <= 100 && !name.starts_with('.') && !name.chars().any(|c| c == '/' || c == '\\' || c.is_control())
 }
-
-/// Largest recording file read (it is read whole; a long run with full-size frames fits).
-pub const MAX_RECORDING_BYTES: u64 = 4 << 30;
 
 /// One camera of the recorded run, in the order of the job's sensor list.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -131,7 +178,64 @@ pub struct RecordingHeader {
     pub capture_modbus: Vec<crate::dataset::CapturePart>,
 }
 
-/// A decoded recording: header and events.
+impl RecordingHeader {
+    /// Parses and checks the header text of the recording at `path` (for messages).
+    fn parse(json: &str, path: &Path) -> Result<Self, RecordError> {
+        let header: RecordingHeader =
+            serde_json::from_str(json).map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
+        if !is_plain_name(&header.object.name) {
+            return Err(RecordError::ObjectName { path: path.to_path_buf() });
+        }
+        Ok(header)
+    }
+}
+
+/// The checks every frame record passes before it is replayed: a camera the header lists, at
+/// that camera's size (the header's resolution; recordings whose header has none: the size of
+/// the camera's first frame), so a replay never writes an image of another size than the
+/// dataset's manifest says, nor allocates for one.
+#[derive(Debug, Clone)]
+struct FrameCheck {
+    cameras: Vec<String>,
+    /// Per camera: the size its frames must have, and whether the header said so.
+    sizes: Vec<Option<((u32, u32), bool)>>,
+}
+
+impl FrameCheck {
+    fn new(header: &RecordingHeader) -> Self {
+        Self {
+            cameras: header.sensors.iter().map(|s| s.camera.clone()).collect(),
+            sizes: header.sensors.iter().map(|s| s.capture.as_ref().and_then(|c| c.resolution_px).map(|[w, h]| ((w, h), true))).collect(),
+        }
+    }
+
+    fn check(&mut self, path: &Path, record: usize, offset: u64, frame: &RecordedFrame) -> Result<(), RecordError> {
+        let camera = usize::from(frame.camera);
+        let Some(size) = self.sizes.get_mut(camera) else {
+            return Err(RecordError::UnknownCamera { path: path.to_path_buf(), record, camera: frame.camera, cameras: self.cameras.len() });
+        };
+        let found = (frame.width, frame.height);
+        match *size {
+            None => *size = Some((found, false)),
+            Some((expected, from_header)) if expected != found => {
+                return Err(RecordError::FrameSize {
+                    path: path.to_path_buf(),
+                    record,
+                    offset,
+                    camera: self.cameras[camera].clone(),
+                    found,
+                    expected,
+                    expected_from: if from_header { "the header's camera is" } else { "its first frame was" },
+                });
+            }
+            Some(_) => {}
+        }
+        Ok(())
+    }
+}
+
+/// A decoded recording: header and every event, in memory. For tests and tools on short
+/// recordings; `rig replay` streams the file instead ([`RecordingFile`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording {
     /// The format version it was written in.
@@ -141,34 +245,293 @@ pub struct Recording {
 }
 
 impl Recording {
-    /// Reads and checks a recording file.
+    /// Reads and checks a whole recording file into memory (as [`RecordingFile`] reads it).
     pub fn read(path: &Path) -> Result<Self, RecordError> {
-        // A regular file (not a FIFO, device or symlink), its size bounded before reading.
-        let bytes = crate::confine::read_named_file(path, MAX_RECORDING_BYTES)?;
-        Self::decode(&bytes, path)
+        let file = RecordingFile::open(path)?;
+        let mut records = file.records();
+        let mut events = Vec::new();
+        while let Some(r) = records.next_record()? {
+            events.push(r.event);
+        }
+        Ok(Self { version: file.version, header: file.header, events })
     }
 
     /// Decodes recording bytes; `path` is only used in messages. Never panics.
     pub fn decode(bytes: &[u8], path: &Path) -> Result<Self, RecordError> {
         let raw = format::decode(bytes).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })?;
-        let header: RecordingHeader =
-            serde_json::from_str(&raw.header_json).map_err(|source| RecordError::Header { path: path.to_path_buf(), source })?;
-        if !is_plain_name(&header.object.name) {
-            return Err(RecordError::ObjectName { path: path.to_path_buf() });
-        }
+        let header = RecordingHeader::parse(&raw.header_json, path)?;
+        let mut check = FrameCheck::new(&header);
         for (record, e) in raw.events.iter().enumerate() {
-            if let Event::Frame(f) = e
-                && usize::from(f.camera) >= header.sensors.len()
-            {
-                return Err(RecordError::UnknownCamera {
-                    path: path.to_path_buf(),
-                    record,
-                    camera: f.camera,
-                    cameras: header.sensors.len(),
-                });
+            if let Event::Frame(f) = e {
+                // Offsets are not kept by a whole-slice decode.
+                check.check(path, record, 0, f)?;
             }
         }
         Ok(Self { version: raw.version, header, events: raw.events })
+    }
+
+    /// Counts what the recording holds.
+    pub fn summary(&self) -> Summary {
+        let mut sum = Summary::new(self.version, &self.header);
+        for e in &self.events {
+            sum.count(e);
+        }
+        sum
+    }
+}
+
+/// A recording file opened for reading: its preamble and header read and checked, its records
+/// read from the file one at a time by [`RecordReader`]s, each with its own position on the one
+/// handle opened through [`crate::confine`] (`pread`), so several can read it at once (the
+/// replay's events, its peripheral calls, a look ahead) without reopening the path.
+#[derive(Debug, Clone)]
+pub struct RecordingFile {
+    path: PathBuf,
+    file: Arc<File>,
+    /// The format version it was written in.
+    pub version: u16,
+    pub header: RecordingHeader,
+    /// Byte offset of the first record.
+    first_record: u64,
+}
+
+/// Bytes read from a recording at a time (records are parsed from this buffer; a longer record
+/// is read whole into its own).
+const READ_CHUNK_BYTES: usize = 64 << 10;
+
+impl RecordingFile {
+    /// Opens the recording at `path` (a regular file, not a symlink, FIFO or device) and reads
+    /// its header.
+    pub fn open(path: &Path) -> Result<Self, RecordError> {
+        let (dir, name) = crate::confine::open_parent(path)?;
+        let file = Arc::new(dir.open_file(&name)?);
+        let mut input = BufReader::with_capacity(READ_CHUNK_BYTES, At { file: Arc::clone(&file), pos: 0 });
+        let mut bytes = Vec::new();
+        let mut eof = false;
+        let (preamble, len) = loop {
+            match format::decode_preamble(&bytes, eof).map_err(|source| RecordError::Format { path: path.to_path_buf(), source })? {
+                Step::Done(preamble, len) => break (preamble, len),
+                Step::Need(n) => {
+                    eof = read_more(&mut input, &mut bytes, n).map_err(|source| RecordError::Io { path: path.to_path_buf(), source })?
+                }
+            }
+        };
+        let header = RecordingHeader::parse(&preamble.header_json, path)?;
+        Ok(Self { path: path.to_path_buf(), file, version: preamble.version, header, first_record: len as u64 })
+    }
+
+    /// The path it was opened at.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// A reader of its records, from the first.
+    pub fn records(&self) -> RecordReader {
+        RecordReader::at(self, self.first_record, format::RecordDecoder::new(self.version), FrameCheck::new(&self.header))
+    }
+
+    /// Reads every record once, in order, and counts them: the whole file is checked (checksums,
+    /// frame sizes, the end record) holding one record at a time. `rig replay` does this before
+    /// it writes anything, so a damaged recording is refused whole.
+    pub fn scan(&self) -> Result<Summary, RecordError> {
+        let mut sum = Summary::new(self.version, &self.header);
+        let mut records = self.records();
+        while let Some(r) = records.next_record()? {
+            sum.count(&r.event);
+        }
+        Ok(sum)
+    }
+}
+
+/// A positional reader over a shared file handle (`pread`): readers of one file keep their own
+/// positions.
+#[derive(Debug)]
+struct At {
+    file: Arc<File>,
+    pos: u64,
+}
+
+impl Read for At {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.file.read_at(buf, self.pos)?;
+        self.pos += n as u64;
+        Ok(n)
+    }
+}
+
+/// Reads from `input` until `bytes` holds `need` bytes or the input ends; returns whether it
+/// ended. `need` comes from the decoder, which bounds it by the format's length bounds.
+fn read_more(input: &mut impl Read, bytes: &mut Vec<u8>, need: usize) -> std::io::Result<bool> {
+    let mut have = bytes.len();
+    bytes.resize(need.max(have), 0);
+    while have < bytes.len() {
+        match input.read(&mut bytes[have..]) {
+            Ok(0) => break,
+            Ok(n) => have += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                bytes.truncate(have);
+                return Err(e);
+            }
+        }
+    }
+    let ended = have < bytes.len();
+    bytes.truncate(have);
+    Ok(ended)
+}
+
+/// A record read from a file, with where it is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordAt {
+    /// Its number (0 = first after the header).
+    pub record: usize,
+    /// Its byte offset in the file.
+    pub offset: u64,
+    pub event: Event,
+}
+
+/// Reads the records of a [`RecordingFile`] in order, one at a time: it holds the record being
+/// read and a 64 KiB buffer, whatever the file's length. Each record is checked as it is read
+/// (checksum, layout, frame camera and size); the end record ends it, and bytes after it are an
+/// error. A clone reads on from the same place on its own.
+pub struct RecordReader {
+    path: PathBuf,
+    file: Arc<File>,
+    input: BufReader<At>,
+    /// Byte offset of the next record.
+    offset: u64,
+    decoder: format::RecordDecoder,
+    check: FrameCheck,
+    /// The record being read (its bytes so far).
+    bytes: Vec<u8>,
+    ended: bool,
+}
+
+impl RecordReader {
+    fn at(file: &RecordingFile, offset: u64, decoder: format::RecordDecoder, check: FrameCheck) -> Self {
+        Self {
+            path: file.path.clone(),
+            file: Arc::clone(&file.file),
+            input: BufReader::with_capacity(READ_CHUNK_BYTES, At { file: Arc::clone(&file.file), pos: offset }),
+            offset,
+            decoder,
+            check,
+            bytes: Vec::new(),
+            ended: false,
+        }
+    }
+
+    fn io(&self) -> impl FnOnce(std::io::Error) -> RecordError + use<> {
+        let path = self.path.clone();
+        move |source| RecordError::Io { path, source }
+    }
+
+    /// The next record; `None` after the end record. After an error it reads nothing more.
+    pub fn next_record(&mut self) -> Result<Option<RecordAt>, RecordError> {
+        let next = self.read_record();
+        if next.is_err() {
+            self.ended = true;
+        }
+        next
+    }
+
+    fn read_record(&mut self) -> Result<Option<RecordAt>, RecordError> {
+        if self.ended {
+            return Ok(None);
+        }
+        self.bytes.clear();
+        // A record that was longer than the buffer: not kept once read.
+        if self.bytes.capacity() > READ_CHUNK_BYTES {
+            self.bytes = Vec::new();
+        }
+        let mut eof = false;
+        let offset = self.offset;
+        let at = usize::try_from(offset).unwrap_or(usize::MAX);
+        loop {
+            let step = self.decoder.next(&self.bytes, at, eof).map_err(|source| RecordError::Format { path: self.path.clone(), source })?;
+            match step {
+                Step::Need(n) => eof = read_more(&mut self.input, &mut self.bytes, n).map_err(self.io())?,
+                Step::Done(event, len) => {
+                    self.offset += len as u64;
+                    let Some(event) = event else {
+                        self.ended = true;
+                        self.check_nothing_follows()?;
+                        return Ok(None);
+                    };
+                    let record = self.decoder.records() - 1;
+                    if let Event::Frame(f) = &event {
+                        self.check.check(&self.path, record, offset, f)?;
+                    }
+                    return Ok(Some(RecordAt { record, offset, event }));
+                }
+            }
+        }
+    }
+
+    fn check_nothing_follows(&mut self) -> Result<(), RecordError> {
+        let mut one = [0u8; 1];
+        if self.input.read(&mut one).map_err(self.io())? == 0 {
+            return Ok(());
+        }
+        let len = self.file.metadata().map_err(self.io())?.len();
+        let (offset, extra) = (self.offset as usize, len.saturating_sub(self.offset).max(1) as usize);
+        Err(RecordError::Format { path: self.path.clone(), source: FormatError::TrailingBytes { offset, extra } })
+    }
+
+    /// The file it reads.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// A reader that goes on from here on its own (the replay's look ahead).
+    pub fn fork(&self) -> RecordReader {
+        Self {
+            path: self.path.clone(),
+            file: Arc::clone(&self.file),
+            input: BufReader::with_capacity(READ_CHUNK_BYTES, At { file: Arc::clone(&self.file), pos: self.offset }),
+            offset: self.offset,
+            decoder: self.decoder.clone(),
+            check: self.check.clone(),
+            bytes: Vec::new(),
+            ended: self.ended,
+        }
+    }
+}
+
+/// Encodes a camera frame's pixels as a recording stores them: a PNG (lossless; the format's
+/// check accepts what this writes: IHDR, IDAT and IEND), else raw.
+pub fn frame_pixels(image: &image::RgbImage) -> FramePixels {
+    let mut png = Vec::new();
+    match image.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png) {
+        Ok(()) => FramePixels::Png(png),
+        // An in-memory RGB8 image always encodes; raw pixels are a valid record all the same.
+        Err(_) => FramePixels::Raw(image.as_raw().clone()),
+    }
+}
+
+/// The pixels of a recorded frame. A PNG is inflated into a buffer of the frame's size, which
+/// the format's check bounded ([`format::MAX_FRAME_PIXELS`]) and matched with the PNG's own
+/// header before a byte was inflated.
+pub fn frame_image(width: u32, height: u32, pixels: FramePixels) -> Result<image::RgbImage, String> {
+    use image::ImageDecoder;
+    match pixels {
+        FramePixels::Raw(rgb) => {
+            image::RgbImage::from_raw(width, height, rgb).ok_or_else(|| format!("it does not hold {width}x{height} RGB pixels"))
+        }
+        FramePixels::Png(png) => {
+            let mut limits = image::Limits::default();
+            limits.max_image_width = Some(width);
+            limits.max_image_height = Some(height);
+            limits.max_alloc = Some(format::MAX_RECORD_BYTES as u64);
+            let decoder = image::codecs::png::PngDecoder::with_limits(std::io::Cursor::new(&png), limits).map_err(|e| e.to_string())?;
+            if decoder.dimensions() != (width, height) || decoder.color_type() != image::ColorType::Rgb8 {
+                let (w, h) = decoder.dimensions();
+                return Err(format!("its PNG is {w}x{h} {:?}, not {width}x{height} RGB8", decoder.color_type()));
+            }
+            let mut rgb = vec![0u8; decoder.total_bytes() as usize];
+            decoder.read_image(&mut rgb).map_err(|e| e.to_string())?;
+            image::RgbImage::from_raw(width, height, rgb).ok_or_else(|| format!("it does not hold {width}x{height} RGB pixels"))
+        }
     }
 }
 
@@ -194,6 +557,8 @@ pub struct Summary {
     pub replies_timed_out: [usize; 3],
     /// Camera frames per sensor of the header's list (its dataset name, frames).
     pub frames: Vec<(String, usize)>,
+    /// Bytes the frames' pixels take in the file (PNG or raw, as stored).
+    pub frame_bytes: u64,
     /// Peripherals calls, and of those, faults.
     pub peripheral_calls: usize,
     pub peripheral_faults: usize,
@@ -201,46 +566,49 @@ pub struct Summary {
     pub interrupted_after: Option<u64>,
 }
 
-impl Recording {
-    /// Counts what the recording holds.
-    pub fn summary(&self) -> Summary {
-        let mut sum = Summary {
-            version: self.version,
-            events: self.events.len(),
-            frames: self.header.sensors.iter().map(|s| (s.sensor_dir.to_string(), 0)).collect(),
-            ..Summary::default()
-        };
-        if let (Some(first), Some(last)) = (self.events.first(), self.events.last()) {
-            sum.span_s = Some((first.t_s(), last.t_s()));
-        }
-        for e in &self.events {
-            match e {
-                Event::Socket { socket, bytes, .. } if bytes.is_empty() => sum.lost[socket.index()] += 1,
-                Event::Socket { socket, direction, bytes, .. } => {
-                    let k = socket.index();
-                    match direction {
-                        Direction::ToController => sum.writes[k] += 1,
-                        Direction::FromController => sum.reads[k] += 1,
-                    }
-                    sum.bytes[k] += bytes.len();
+impl Summary {
+    /// Nothing counted yet, for a recording of `version` with `header`.
+    pub fn new(version: u16, header: &RecordingHeader) -> Self {
+        Self { version, frames: header.sensors.iter().map(|s| (s.sensor_dir.to_string(), 0)).collect(), ..Summary::default() }
+    }
+
+    /// Counts one more event.
+    pub fn count(&mut self, e: &Event) {
+        self.events += 1;
+        let t_s = e.t_s();
+        self.span_s = Some(self.span_s.map_or((t_s, t_s), |(first, _)| (first, t_s)));
+        match e {
+            Event::Socket { socket, bytes, .. } if bytes.is_empty() => self.lost[socket.index()] += 1,
+            Event::Socket { socket, direction, bytes, .. } => {
+                let k = socket.index();
+                match direction {
+                    Direction::ToController => self.writes[k] += 1,
+                    Direction::FromController => self.reads[k] += 1,
                 }
-                Event::Connect { socket, outcome, .. } => sum.reconnections[socket.index()][outcome.index()] += 1,
-                Event::FeedbackUsed { seq: Some(_), .. } => sum.decisions += 1,
-                Event::FeedbackUsed { seq: None, .. } => sum.waits_timed_out += 1,
-                Event::ReplyTimedOut { socket, .. } => sum.replies_timed_out[socket.index()] += 1,
-                Event::Frame(f) => {
-                    if let Some((_, n)) = sum.frames.get_mut(usize::from(f.camera)) {
-                        *n += 1;
-                    }
-                }
-                Event::Peripherals { outcome, .. } => {
-                    sum.peripheral_calls += 1;
-                    sum.peripheral_faults += usize::from(*outcome != PeripheralOutcome::Ok);
-                }
-                Event::Interrupt { captured, .. } => sum.interrupted_after = Some(*captured),
+                self.bytes[k] += bytes.len();
             }
+            Event::Connect { socket, outcome, .. } => self.reconnections[socket.index()][outcome.index()] += 1,
+            Event::FeedbackUsed { seq: Some(_), .. } => self.decisions += 1,
+            Event::FeedbackUsed { seq: None, .. } => self.waits_timed_out += 1,
+            Event::ReplyTimedOut { socket, .. } => self.replies_timed_out[socket.index()] += 1,
+            Event::Frame(f) => {
+                if let Some((_, n)) = self.frames.get_mut(usize::from(f.camera)) {
+                    *n += 1;
+                }
+                self.frame_bytes += f.pixels.bytes().len() as u64;
+            }
+            Event::Peripherals { outcome, .. } => {
+                self.peripheral_calls += 1;
+                self.peripheral_faults += usize::from(*outcome != PeripheralOutcome::Ok);
+            }
+            Event::Interrupt { captured, .. } => self.interrupted_after = Some(*captured),
         }
-        sum
+    }
+
+    /// The events a replay serves in order: all but the interrupt and the peripheral calls
+    /// (served apart, see `replay`).
+    pub fn served_events(&self) -> usize {
+        self.events - self.peripheral_calls - usize::from(self.interrupted_after.is_some())
     }
 }
 
@@ -284,7 +652,13 @@ impl std::fmt::Display for Summary {
             writeln!(f, "decisions on the feedback: not recorded before format version 5")?;
         }
         let frames: Vec<(&str, usize)> = self.frames.iter().map(|(name, n)| (name.as_str(), *n)).collect();
-        writeln!(f, "camera frames: {}", counted(&frames))?;
+        let total: usize = self.frames.iter().map(|(_, n)| n).sum();
+        match self.frame_bytes.checked_div(total as u64) {
+            Some(per_frame) => {
+                writeln!(f, "camera frames: {} ({} bytes of pixels, {per_frame} a frame)", counted(&frames), self.frame_bytes)?
+            }
+            None => writeln!(f, "camera frames: {}", counted(&frames))?,
+        }
         writeln!(f, "peripherals calls: {} ({} faults)", self.peripheral_calls, self.peripheral_faults)?;
         match self.interrupted_after {
             Some(n) => write!(f, "interrupted by the operator after {n} poses"),
@@ -356,6 +730,9 @@ impl Recorder {
         let mut st = self.lock();
         let path = st.path.clone();
         let json = serde_json::to_string_pretty(header).map_err(|source| RecordError::Header { path: path.clone(), source })?;
+        if json.len() > format::MAX_HEADER_BYTES {
+            return Err(RecordError::HeaderTooLong { path, len: json.len(), max: format::MAX_HEADER_BYTES });
+        }
         st.out.write_all(&format::encode_preamble(&json)).map_err(|source| RecordError::Io { path, source })?;
         for event in st.pending.take().unwrap_or_default() {
             st.write_event(&event);
@@ -398,8 +775,10 @@ impl Recorder {
         self.log(|t_s| decision_event(decision, t_s));
     }
 
-    /// Logs a frame handed to the job by camera number `camera`.
+    /// Logs a frame handed to the job by camera number `camera`, its pixels as a PNG.
     pub fn log_frame(&self, camera: u8, frame: &Frame) {
+        // Compressed before the lock is taken: the sockets' records are not held up meanwhile.
+        let pixels = frame_pixels(&frame.image);
         self.log(|t_s| {
             Event::Frame(RecordedFrame {
                 camera,
@@ -408,7 +787,7 @@ impl Recorder {
                 seq: frame.seq,
                 width: frame.image.width(),
                 height: frame.image.height(),
-                rgb: frame.image.as_raw().clone(),
+                pixels,
             })
         });
     }
@@ -701,7 +1080,8 @@ mod tests {
         assert!(matches!(&r.events[1], Event::Socket { direction: Direction::FromController, t_s, .. } if *t_s == 2.5));
         let Event::Frame(f) = &r.events[2] else { panic!("a frame: {:?}", r.events[2]) };
         assert_eq!((f.width, f.height, f.seq, f.t_capture_s), (2, 3, 42, frame.t_capture_s));
-        assert_eq!(f.rgb, frame.image.as_raw().clone());
+        assert!(matches!(f.pixels, FramePixels::Png(_)), "frames are recorded as PNG");
+        assert_eq!(frame_image(f.width, f.height, f.pixels.clone()), Ok(frame.image.clone()), "losslessly");
     }
 
     #[test]
@@ -714,7 +1094,8 @@ mod tests {
             capture: None,
         }];
         let socket = |socket, direction, bytes: &[u8]| Event::Socket { socket, direction, t_s: 1.0, bytes: bytes.to_vec() };
-        let frame = RecordedFrame { camera: 0, t_s: 2.0, t_capture_s: 1.9, seq: 1, width: 1, height: 1, rgb: vec![0; 3] };
+        let frame =
+            RecordedFrame { camera: 0, t_s: 2.0, t_capture_s: 1.9, seq: 1, width: 1, height: 1, pixels: FramePixels::Raw(vec![0; 3]) };
         let events = vec![
             socket(SocketId::Motion, Direction::ToController, b"Sync()"),
             socket(SocketId::Motion, Direction::FromController, b""),
@@ -742,7 +1123,7 @@ mod tests {
             "connections lost: motion 1",
             "reconnections: connected motion 1; failed motion 1",
             "decisions on the feedback: 1 by a frame, 1 waits timed out; replies given up on: dashboard 1",
-            "camera frames: tactip 1",
+            "camera frames: tactip 1 (3 bytes of pixels, 3 a frame)",
             "peripherals calls: 1 (1 faults)",
             "interrupted by the operator after 2 poses",
         ] {
@@ -762,10 +1143,50 @@ mod tests {
         assert!(matches!(recorder.finish(), Err(RecordError::NoHeader { .. })));
     }
 
+    /// A recorded 24 x 16 PNG frame of smooth pixels and noise.
+    fn png_frame() -> Vec<u8> {
+        let image = image::RgbImage::from_fn(24, 16, |x, y| image::Rgb([x as u8 * 10, y as u8 * 15, ((x * 7 + y * 13) % 5) as u8]));
+        let FramePixels::Png(png) = frame_pixels(&image) else { panic!("an RGB8 image encodes as PNG") };
+        assert_eq!(frame_image(24, 16, FramePixels::Png(png.clone())), Ok(image));
+        png
+    }
+
+    proptest::proptest! {
+        /// What the format's check lets through (a PNG container of the record's size whose
+        /// chunks are IHDR, IDAT and IEND) decodes or fails, never panics, and never yields
+        /// another size than the record's.
+        #[test]
+        fn a_damaged_png_frame_fails_to_decode_without_panicking(
+            edits in proptest::collection::vec((proptest::prelude::any::<usize>(), proptest::prelude::any::<u8>()), 1..6),
+        ) {
+            let mut png = png_frame();
+            // The IDAT chunk's data (after the signature, IHDR, and the IDAT's length and type).
+            let idat = 8 + 25 + 8;
+            let idat_len = png.len() - idat - 4 - 12;
+            for (at, v) in edits {
+                png[idat + at % idat_len] = v;
+            }
+            if let Ok(image) = frame_image(24, 16, FramePixels::Png(png)) {
+                proptest::prop_assert_eq!(image.dimensions(), (24, 16));
+            }
+        }
+    }
+
+    #[test]
+    fn a_png_frame_of_another_size_or_colour_than_its_record_does_not_decode() {
+        let png = png_frame();
+        assert!(frame_image(24, 17, FramePixels::Png(png.clone())).is_err());
+        let grey = image::GrayImage::from_pixel(24, 16, image::Luma([9]));
+        let mut grey_png = Vec::new();
+        grey.write_to(&mut std::io::Cursor::new(&mut grey_png), image::ImageFormat::Png).unwrap();
+        assert!(frame_image(24, 16, FramePixels::Png(grey_png)).is_err());
+        assert!(frame_image(2, 2, FramePixels::Raw(vec![0; 11])).is_err());
+    }
+
     #[test]
     fn a_frame_of_an_unlisted_camera_is_refused() {
         let mut bytes = format::encode_preamble(&serde_json::to_string(&header()).unwrap());
-        let frame = RecordedFrame { camera: 1, t_s: 0.0, t_capture_s: 0.0, seq: 0, width: 0, height: 0, rgb: vec![] };
+        let frame = RecordedFrame { camera: 1, t_s: 0.0, t_capture_s: 0.0, seq: 0, width: 0, height: 0, pixels: FramePixels::Raw(vec![]) };
         bytes.extend(format::encode_event(&Event::Frame(frame)));
         bytes.extend(format::encode_end(1));
         let e = Recording::decode(&bytes, Path::new("x.rec")).unwrap_err();

@@ -1,8 +1,12 @@
 //! Replay: re-running a recorded collection with no hardware.
 //!
-//! A [`ReplaySession`] holds the recorded events and a cursor. The client's three sockets are
+//! A [`ReplaySession`] holds a cursor on the recorded events: the event under it, and an
+//! [`EventSource`] that reads the next from the recording file when the cursor moves on (a
+//! look ahead, for the watchdog's message and the final check, reads on its own reader), so a
+//! replay holds one event, whatever the recording's length. The client's three sockets are
 //! [`ReplayStream`]s and the job's cameras are [`ReplayCamera`]s over that one session, so the
-//! real [`Mg400Client`] and the real collection job run unchanged ([`ReplayRig`]).
+//! real [`Mg400Client`] and the real collection job run unchanged ([`ReplayRig`]). The
+//! peripheral calls are read from the file by a reader of their own ([`ReplayPeripherals`]).
 //!
 //! Ordering, and why the replay does not depend on wall-clock timing: two tasks touch the
 //! hardware. The job's task (commands, replies, frames) is sequential, so its events must come
@@ -49,7 +53,7 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use super::format::{ConnectOutcome, Direction, Event, PeripheralOutcome, PeripheralPhase, SocketId};
-use super::{REPLAY_CLIENT_TIMEOUT, Recording, decision_of};
+use super::{REPLAY_CLIENT_TIMEOUT, RecordAt, RecordError, RecordReader, RecordingFile, Summary, decision_of, frame_image};
 use crate::arm::ArmError;
 use crate::arm::dobot::client::{Ask, ByteStream, Decision, Mg400Client, Mg400Config, Reopen, Witness};
 use crate::camera::{Camera, CameraError, Frame};
@@ -96,15 +100,83 @@ pub enum ReplayError {
     /// The replayed job called its peripherals where the recorded one did not.
     #[error("{0}")]
     PeripheralsDiverged(String),
+    /// The recording could not be read on: damaged after it was checked, or a frame whose
+    /// pixels do not decode.
+    #[error(transparent)]
+    Recording(#[from] RecordError),
+}
+
+/// Where a session's events come from, one at a time, each with its record number and offset.
+pub enum EventSource {
+    /// Events in memory (tests); their record numbers are their places in the list.
+    Memory(std::iter::Enumerate<std::vec::IntoIter<Event>>),
+    /// Read from the recording file as they are served.
+    File(RecordReader),
+}
+
+impl EventSource {
+    /// Events held in memory.
+    pub fn memory(events: Vec<Event>) -> Self {
+        EventSource::Memory(events.into_iter().enumerate())
+    }
+
+    /// The next record, whatever it is.
+    fn next_record(&mut self) -> Result<Option<RecordAt>, RecordError> {
+        match self {
+            EventSource::Memory(events) => Ok(events.next().map(|(record, event)| RecordAt { record, offset: 0, event })),
+            EventSource::File(reader) => reader.next_record(),
+        }
+    }
+
+    /// The next event the session serves: not an interrupt (it says where the job stopped) nor
+    /// a peripherals call (served apart, by [`ReplayPeripherals`]).
+    fn next_served(&mut self) -> Result<Option<RecordAt>, RecordError> {
+        loop {
+            match self.next_record()? {
+                Some(RecordAt { event: Event::Interrupt { .. } | Event::Peripherals { .. }, .. }) => continue,
+                other => return Ok(other),
+            }
+        }
+    }
+
+    /// The file it reads, for messages (events in memory: none).
+    fn path(&self) -> &std::path::Path {
+        match self {
+            EventSource::Memory(_) => std::path::Path::new("(in memory)"),
+            EventSource::File(reader) => reader.path(),
+        }
+    }
+
+    /// A source that reads on from here on its own (a look ahead).
+    fn fork(&self) -> Self {
+        match self {
+            EventSource::Memory(events) => EventSource::Memory(events.clone()),
+            EventSource::File(reader) => EventSource::File(reader.fork()),
+        }
+    }
+}
+
+/// Whether a session serves `e` (see [`EventSource::next_served`]).
+fn is_served(e: &Event) -> bool {
+    !matches!(e, Event::Interrupt { .. } | Event::Peripherals { .. })
 }
 
 struct SessionState {
-    events: Vec<Event>,
+    /// The events after `current`, read as they are needed.
+    source: EventSource,
+    /// The event under the cursor; `None` past the end of the recording.
+    current: Option<RecordAt>,
+    /// The record number past the last (for a divergence past the end).
+    end_record: usize,
+    /// Events served so far, and in all.
+    served_events: usize,
+    total_events: usize,
     cameras: Vec<String>,
-    cursor: usize,
-    /// Bytes of `events[cursor]` already served (socket events are served in pieces).
+    /// Bytes of `current` already served (socket events are served in pieces).
     offset: usize,
     divergence: Option<Divergence>,
+    /// The recording could not be read on (then nothing more is served).
+    damaged: Option<RecordError>,
     waiters: Vec<Waker>,
     /// Counts served pieces, for the watchdog.
     progress: u64,
@@ -169,10 +241,49 @@ impl SessionState {
     }
 
     fn describe_next(&self) -> String {
-        match self.events.get(self.cursor) {
+        match self.current_event() {
             Some(e) => self.describe(e, self.offset),
             None => "the end of the recording".to_string(),
         }
+    }
+
+    /// The event under the cursor.
+    fn current_event(&self) -> Option<&Event> {
+        self.current.as_ref().map(|r| &r.event)
+    }
+
+    /// The record number of the event under the cursor (past the end: the count of records).
+    fn record(&self) -> usize {
+        self.current.as_ref().map_or(self.end_record, |r| r.record)
+    }
+
+    /// The record number of the next feedback read after the cursor, looked for on a look ahead
+    /// (for the watchdog's message; it reads on to the end of the recording at worst).
+    fn next_feedback_read(&self) -> Option<usize> {
+        let mut ahead = self.source.fork();
+        while let Ok(Some(r)) = ahead.next_served() {
+            if is_feedback_read(&r.event) {
+                return Some(r.record);
+            }
+        }
+        None
+    }
+
+    /// Whether the replay stopped: it diverged, or the recording could not be read on.
+    fn halted(&self) -> bool {
+        self.divergence.is_some() || self.damaged.is_some()
+    }
+
+    /// Moves the cursor to the next event, read from the source.
+    fn advance(&mut self) {
+        self.served_events += 1;
+        self.current = match self.source.next_served() {
+            Ok(next) => next,
+            Err(e) => {
+                self.damaged.get_or_insert(e);
+                None
+            }
+        };
     }
 
     fn wake_all(&mut self) {
@@ -190,19 +301,19 @@ impl SessionState {
     /// Records the first divergence and wakes everyone so that they see it.
     fn diverge(&mut self, got: String) -> std::io::Error {
         if self.divergence.is_none() {
-            self.divergence = Some(Divergence {
-                record: self.cursor,
-                t_s: self.events.get(self.cursor).map(Event::t_s),
-                expected: self.describe_next(),
-                got,
-            });
+            self.divergence =
+                Some(Divergence { record: self.record(), t_s: self.current_event().map(Event::t_s), expected: self.describe_next(), got });
         }
         self.wake_all();
         self.failure()
     }
 
     fn failure(&self) -> std::io::Error {
-        let text = self.divergence.as_ref().map_or_else(|| "replay failed".to_string(), |d| d.to_string());
+        let text = match (&self.divergence, &self.damaged) {
+            (Some(d), _) => d.to_string(),
+            (None, Some(e)) => e.to_string(),
+            (None, None) => "replay failed".to_string(),
+        };
         std::io::Error::other(text)
     }
 
@@ -211,7 +322,7 @@ impl SessionState {
     /// against an alarm in the feedback, and either may win). They stay in the socket, as on
     /// the wire, and the client reads (and skips) them later.
     fn shelve_unread_replies(&mut self, clock: &MockClock) {
-        while let Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) = self.events.get(self.cursor)
+        while let Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) = self.current_event()
             && *socket != SocketId::Feedback
             // A lost connection is not shelved: the read it ended stays due.
             && !bytes.is_empty()
@@ -231,7 +342,7 @@ impl SessionState {
     /// the cursor: it waits while feedback recorded before the step is still unread; facing
     /// anything else, the replay diverged (`got`: what the job did).
     fn job_step_elsewhere(&mut self, cx: &Context<'_>, got: impl FnOnce() -> String) -> Poll<std::io::Error> {
-        if self.events.get(self.cursor).is_some_and(is_feedback_read) {
+        if self.current_event().is_some_and(is_feedback_read) {
             self.wait(cx);
             Poll::Pending
         } else {
@@ -243,7 +354,7 @@ impl SessionState {
     fn served(&mut self, n: usize, len: usize, t_s: f64, clock: &MockClock) {
         self.offset += n;
         if self.offset >= len {
-            self.cursor += 1;
+            self.advance();
             self.offset = 0;
         }
         self.progress += 1;
@@ -263,14 +374,35 @@ pub struct ReplaySession {
 }
 
 impl ReplaySession {
-    /// A session over `events`; `cameras` names the cameras by index (for messages).
+    /// A session over `events` held in memory; `cameras` names the cameras by index (for
+    /// messages).
     pub fn new(events: Vec<Event>, cameras: Vec<String>) -> Self {
+        let (end_record, total) = (events.len(), events.iter().filter(|e| is_served(e)).count());
+        let mut source = EventSource::memory(events);
+        // Events in memory are read without fail.
+        let current = source.next_served().unwrap_or_default();
+        Self::with_source(source, current, end_record, total, cameras)
+    }
+
+    /// A session over the records `reader` reads, `summary` counted by a scan of the same file
+    /// first: it holds the event being served, whatever the recording's length.
+    pub fn from_file(reader: RecordReader, summary: &Summary, cameras: Vec<String>) -> Result<Self, RecordError> {
+        let mut source = EventSource::File(reader);
+        let current = source.next_served()?;
+        Ok(Self::with_source(source, current, summary.events, summary.served_events(), cameras))
+    }
+
+    fn with_source(source: EventSource, current: Option<RecordAt>, end_record: usize, total_events: usize, cameras: Vec<String>) -> Self {
         let state = SessionState {
-            events,
+            source,
+            current,
+            end_record,
+            served_events: 0,
+            total_events,
             cameras,
-            cursor: 0,
             offset: 0,
             divergence: None,
+            damaged: None,
             waiters: Vec::new(),
             progress: 0,
             blocked_read: None,
@@ -318,14 +450,13 @@ impl ReplaySession {
     fn poll_connect(&self, socket: SocketId, cx: &mut Context<'_>) -> Poll<Result<ConnectOutcome, ArmError>> {
         let mut st = self.lock();
         let failed = |source| ArmError::Io { context: format!("reconnecting the {} socket", socket.name()), source };
-        if st.divergence.is_some() {
+        if st.halted() {
             return Poll::Ready(Err(failed(st.failure())));
         }
         if socket != SocketId::Feedback {
             st.shelve_unread_replies(&self.clock);
         }
-        let cursor = st.cursor;
-        if let Some(Event::Connect { socket: s, t_s, outcome }) = st.events.get(cursor)
+        if let Some(Event::Connect { socket: s, t_s, outcome }) = st.current_event()
             && *s == socket
         {
             let (t_s, outcome) = (*t_s, *outcome);
@@ -353,7 +484,7 @@ impl ReplaySession {
     fn poll_decision(&self, ask: Ask, cx: &mut Context<'_>) -> Poll<Result<Decision, ArmError>> {
         let mut st = self.lock();
         let failed = |source| ArmError::Io { context: "deciding what the MG400 client does next".into(), source };
-        if st.divergence.is_some() {
+        if st.halted() {
             return Poll::Ready(Err(failed(st.failure())));
         }
         // A decision on the feedback that is the client's next step: replies it gave up on stay
@@ -362,7 +493,7 @@ impl ReplaySession {
         if ask == Ask::Feedback {
             st.shelve_unread_replies(&self.clock);
         }
-        let next = st.events.get(st.cursor).and_then(|e| Some((e.t_s(), decision_of(e)?)));
+        let next = st.current_event().and_then(|e| Some((e.t_s(), decision_of(e)?)));
         if let Some((t_s, decision)) = next
             && match (decision, ask) {
                 (Decision::Feedback(_) | Decision::FeedbackTimedOut, Ask::Feedback | Ask::AlarmDuringSync) => true,
@@ -391,21 +522,33 @@ impl ReplaySession {
         self.lock().divergence.clone()
     }
 
+    /// The recording's damage that stopped the replay, if any (taken: reported once).
+    pub fn take_damage(&self) -> Option<RecordError> {
+        self.lock().damaged.take()
+    }
+
     /// Events served so far and in all.
     pub fn position(&self) -> (usize, usize) {
         let st = self.lock();
-        (st.cursor, st.events.len())
+        (st.served_events, st.total_events)
     }
 
     /// Succeeds when every recorded event of the job was replayed (feedback frames the client
-    /// did not read before it was closed may remain).
+    /// did not read before it was closed may remain). Reads the rest of the recording on a
+    /// look ahead: the position stays.
     pub fn check_finished(&self) -> Result<(), ReplayError> {
         let st = self.lock();
-        let rest = st.events.get(st.cursor..).unwrap_or_default();
-        if rest.iter().all(is_feedback_read) {
+        let Some(next) = st.current_event() else { return Ok(()) };
+        let (mut remaining, mut only_feedback) = (1, is_feedback_read(next));
+        let mut rest = st.source.fork();
+        while let Some(r) = rest.next_served()? {
+            remaining += 1;
+            only_feedback &= is_feedback_read(&r.event);
+        }
+        if only_feedback {
             return Ok(());
         }
-        Err(ReplayError::Leftover { remaining: rest.len(), next: st.describe_next() })
+        Err(ReplayError::Leftover { remaining, next: st.describe_next() })
     }
 
     /// Turns a replay that serves nothing for `stall_after` into a divergence. Runs until the
@@ -416,7 +559,7 @@ impl ReplaySession {
         loop {
             tokio::time::sleep(tick).await;
             let mut st = self.lock();
-            if st.divergence.is_some() {
+            if st.halted() {
                 return;
             }
             if st.progress != last.0 {
@@ -425,12 +568,7 @@ impl ReplaySession {
                 let doing = match st.blocked_read {
                     Some(socket) => format!("the client waits for a reply on the {} socket", socket.name()),
                     // The job may wait for feedback the recording has only after its next step.
-                    None => match st
-                        .events
-                        .get(st.cursor)
-                        .filter(|e| !is_feedback_read(e))
-                        .and_then(|_| st.events.iter().skip(st.cursor + 1).position(is_feedback_read).map(|i| st.cursor + 1 + i))
-                    {
+                    None => match st.current_event().filter(|e| !is_feedback_read(e)).and_then(|_| st.next_feedback_read()) {
                         Some(k) => format!(
                             "the replayed run waits for something else (if for a feedback frame, the recording has the next \
                              one only after this step, at record {k})"
@@ -458,7 +596,7 @@ impl AsyncRead for ReplayStream {
         let this = &mut *self;
         let session = this.session.clone();
         let mut st = session.lock();
-        if st.divergence.is_some() {
+        if st.halted() {
             return Poll::Ready(Err(st.failure()));
         }
         if this.yield_next {
@@ -478,8 +616,8 @@ impl AsyncRead for ReplayStream {
             this.yield_next = true;
             return Poll::Ready(Ok(()));
         }
-        let (cursor, offset) = (st.cursor, st.offset);
-        let outcome = match st.events.get(cursor) {
+        let offset = st.offset;
+        let outcome = match st.current_event() {
             Some(Event::Socket { socket, direction: Direction::FromController, bytes, t_s }) if *socket == this.socket => {
                 let rest = bytes.get(offset..).unwrap_or_default();
                 let n = rest.len().min(buf.remaining());
@@ -493,7 +631,7 @@ impl AsyncRead for ReplayStream {
             this.yield_next = true;
             return Poll::Ready(Ok(()));
         }
-        if this.socket == SocketId::Feedback || cursor < st.events.len() {
+        if this.socket == SocketId::Feedback || st.current.is_some() {
             // The feedback reader waits for its turn. A reply read waits too, also when the
             // job's next recorded step is something else: the client may be racing the read
             // against an alarm in the feedback (`Sync` does), and the other branch moves on.
@@ -513,15 +651,15 @@ impl AsyncWrite for ReplayStream {
     fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
         let session = self.session.clone();
         let mut st = session.lock();
-        if st.divergence.is_some() {
+        if st.halted() {
             return Poll::Ready(Err(st.failure()));
         }
         if buf.is_empty() {
             return Poll::Ready(Ok(0));
         }
         st.shelve_unread_replies(&session.clock);
-        let (cursor, offset) = (st.cursor, st.offset);
-        let matched = match st.events.get(cursor) {
+        let offset = st.offset;
+        let matched = match st.current_event() {
             Some(Event::Socket { socket, direction: Direction::ToController, bytes, t_s }) if *socket == self.socket => {
                 let rest = bytes.get(offset..).unwrap_or_default();
                 let n = rest.len().min(buf.len());
@@ -571,24 +709,34 @@ impl ReplayCamera {
     fn poll_frame(&self, cx: &mut Context<'_>) -> Poll<Result<Frame, CameraError>> {
         let mut st = self.session.lock();
         let device_error = |reason: String| CameraError::Device { camera: self.name.clone(), reason };
-        if let Some(d) = &st.divergence {
-            return Poll::Ready(Err(device_error(d.to_string())));
+        if st.halted() {
+            return Poll::Ready(Err(device_error(st.failure().to_string())));
         }
         st.shelve_unread_replies(&self.session.clock);
-        let cursor = st.cursor;
-        let frame = match st.events.get(cursor) {
-            Some(Event::Frame(f)) if f.camera == self.index => Some(f.clone()),
-            _ => None,
-        };
-        if let Some(f) = frame {
+        if matches!(st.current_event(), Some(Event::Frame(f)) if f.camera == self.index)
+            && let Some(RecordAt { record, offset, event: Event::Frame(f) }) = st.current.take()
+        {
+            // Served (and the cursor moved on) before the pixels are decoded: only this frame is
+            // held while they are.
             st.served(1, 1, f.t_s, &self.session.clock);
-            let Some(image) = image::RgbImage::from_raw(f.width, f.height, f.rgb) else {
-                return Poll::Ready(Err(CameraError::Decode {
-                    camera: self.name.clone(),
-                    reason: format!("recorded frame {} does not hold {}x{} RGB pixels", f.seq, f.width, f.height),
-                }));
+            let (t_capture_s, seq) = (f.t_capture_s, f.seq);
+            return match frame_image(f.width, f.height, f.pixels) {
+                Ok(image) => Poll::Ready(Ok(Frame { image, t_capture_s, seq })),
+                Err(reason) => {
+                    let damage = RecordError::FrameDecode {
+                        path: st.source.path().to_path_buf(),
+                        record,
+                        offset,
+                        camera: self.name.clone(),
+                        seq,
+                        reason,
+                    };
+                    let text = damage.to_string();
+                    st.damaged.get_or_insert(damage);
+                    st.wake_all();
+                    Poll::Ready(Err(CameraError::Decode { camera: self.name.clone(), reason: text }))
+                }
             };
-            return Poll::Ready(Ok(Frame { image, t_capture_s: f.t_capture_s, seq: f.seq }));
         }
         st.job_step_elsewhere(cx, || format!("the job asked camera {} for a frame", self.name)).map(|e| Err(device_error(e.to_string())))
     }
@@ -605,7 +753,8 @@ impl Camera for ReplayCamera {
 
 /// The recorded peripheral calls, handed back in recorded order. They are not served through
 /// the session: the job calls them at fixed points between its own socket traffic, so their
-/// order among themselves is all that matters. Cloning shares the calls.
+/// order among themselves is all that matters. They are read from their own [`EventSource`]
+/// (on the recording file: a reader of its own), one call at a time. Cloning shares the calls.
 #[derive(Clone)]
 pub struct ReplayPeripherals {
     state: Arc<Mutex<PeripheralCalls>>,
@@ -613,25 +762,28 @@ pub struct ReplayPeripherals {
     present: bool,
 }
 
-#[derive(Default)]
 struct PeripheralCalls {
-    calls: std::collections::VecDeque<(PeripheralPhase, PeripheralOutcome, String)>,
+    /// The recording, read on to each next peripherals record.
+    source: EventSource,
+    /// Calls recorded and not made yet.
+    left: usize,
     /// The first call that did not match the recording.
     mismatch: Option<String>,
+    /// The recording could not be read on.
+    damaged: Option<RecordError>,
 }
 
 impl ReplayPeripherals {
+    /// The `calls` peripheral calls that `source` reads, in order.
+    pub fn new(source: EventSource, calls: usize) -> Self {
+        let state = PeripheralCalls { source, left: calls, mismatch: None, damaged: None };
+        Self { state: Arc::new(Mutex::new(state)), present: calls > 0 }
+    }
+
     /// The peripheral calls of `events`, in order.
     pub fn from_events(events: &[Event]) -> Self {
-        let calls: std::collections::VecDeque<_> = events
-            .iter()
-            .filter_map(|e| match e {
-                Event::Peripherals { phase, outcome, text, .. } => Some((*phase, *outcome, text.clone())),
-                _ => None,
-            })
-            .collect();
-        let present = !calls.is_empty();
-        Self { state: Arc::new(Mutex::new(PeripheralCalls { calls, mismatch: None })), present }
+        let calls = events.iter().filter(|e| matches!(e, Event::Peripherals { .. })).count();
+        Self::new(EventSource::memory(events.to_vec()), calls)
     }
 
     fn lock(&self) -> MutexGuard<'_, PeripheralCalls> {
@@ -640,7 +792,7 @@ impl ReplayPeripherals {
 
     /// Calls recorded but not made by the replay.
     pub fn left(&self) -> usize {
-        self.lock().calls.len()
+        self.lock().left
     }
 
     /// The first call of the replay that the recording does not have.
@@ -648,9 +800,27 @@ impl ReplayPeripherals {
         self.lock().mismatch.clone()
     }
 
+    /// The recording's damage found while reading the calls, if any (taken: reported once).
+    pub fn take_damage(&self) -> Option<RecordError> {
+        self.lock().damaged.take()
+    }
+
     fn next(&self, phase: PeripheralPhase) -> Result<(PeripheralOutcome, String), ModbusError> {
         let mut st = self.lock();
-        match st.calls.pop_front() {
+        let call = loop {
+            match st.source.next_record() {
+                Ok(Some(RecordAt { event: Event::Peripherals { phase, outcome, text, .. }, .. })) => break Some((phase, outcome, text)),
+                Ok(Some(_)) => continue,
+                Ok(None) => break None,
+                Err(e) => {
+                    let message = e.to_string();
+                    st.damaged.get_or_insert(e);
+                    return Err(ModbusError::Replayed { message, recoverable: false });
+                }
+            }
+        };
+        st.left = st.left.saturating_sub(usize::from(call.is_some()));
+        match call {
             Some((p, outcome, text)) if p == phase => Ok((outcome, text)),
             other => {
                 let recorded = other.map_or_else(|| "no further call".to_string(), |(p, ..)| format!("a {p:?}-capture call"));
@@ -715,20 +885,17 @@ pub struct ReplayRig {
 }
 
 impl ReplayRig {
-    /// Opens the replayed hardware of `recording`: connects the client and waits for its first
+    /// Opens the replayed hardware of `recording`, whose records `summary` counted (a scan of
+    /// the whole file, [`RecordingFile::scan`]): connects the client and waits for its first
     /// feedback, as the recorded run's connect did. `stall_after` is the watchdog's patience.
-    pub async fn open(recording: &Recording, stall_after: Duration) -> Result<ReplayRig, ReplayError> {
+    /// The events and the peripheral calls are read from the file as they are served.
+    pub async fn open(recording: &RecordingFile, summary: &Summary, stall_after: Duration) -> Result<ReplayRig, ReplayError> {
         let h = &recording.header;
         // An interrupt is not I/O to serve: it says where the job stopped.
-        let stop_after = recording.events.iter().find_map(|e| match e {
-            Event::Interrupt { captured, .. } => Some(usize::try_from(*captured).unwrap_or(usize::MAX)),
-            _ => None,
-        });
+        let stop_after = summary.interrupted_after.map(|captured| usize::try_from(captured).unwrap_or(usize::MAX));
         // Peripheral calls are served apart from the socket and camera events (see ReplayPeripherals).
-        let peripherals = ReplayPeripherals::from_events(&recording.events);
-        let events: Vec<Event> =
-            recording.events.iter().filter(|e| !matches!(e, Event::Interrupt { .. } | Event::Peripherals { .. })).cloned().collect();
-        let session = ReplaySession::new(events, h.sensors.iter().map(|s| s.camera.clone()).collect());
+        let peripherals = ReplayPeripherals::new(EventSource::File(recording.records()), summary.peripheral_calls);
+        let session = ReplaySession::from_file(recording.records(), summary, h.sensors.iter().map(|s| s.camera.clone()).collect())?;
         let watchdog = tokio::spawn(session.clone().watchdog(stall_after));
         let mut cfg = Mg400Config::new("replay", h.profile.clone());
         cfg.speed_factor_pct = h.speed_factor_pct;
@@ -763,6 +930,10 @@ impl ReplayRig {
     /// made of it afterwards), else a peripherals call the recording does not have.
     pub fn verdict(&self) -> Result<(), ReplayError> {
         self.watchdog.abort();
+        // A damaged recording explains whatever the replay did after it.
+        if let Some(e) = self.session.take_damage().or_else(|| self.peripherals.take_damage()) {
+            return Err(ReplayError::Recording(e));
+        }
         if let Some(d) = self.session.divergence() {
             return Err(ReplayError::Diverged(d));
         }

@@ -8,6 +8,10 @@
 //! batching, order or sharding. A shard `i/n` takes the missing poses with
 //! `pose_id % n == i - 1` and writes them to its own dataset directory, which
 //! `rig dataset merge` joins later.
+//!
+//! The fill never orders the plan and reads no kept order (`order.csv`, see
+//! [`crate::dataset::order`]): it moves no arm, so a visiting order saves nothing. It walks the
+//! grid in pose-id order, which is what the shards split on, in O(grid) time and memory.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -16,7 +20,7 @@ use image::RgbImage;
 
 use super::{GenerateRequest, ImageRange, Pipeline, SchedulerKind, SynthError, pose_seed, prompt::mds_prompt};
 use crate::calibration::model::Calibration;
-use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, read_rows};
+use crate::dataset::{DatasetError, DatasetWriter, Manifest, PoseRow, SynthesisInfo, read_rows};
 use crate::geometry::objects::load_object;
 use crate::geometry::raster::PreparedMesh;
 use crate::geometry::stl::Mesh;
@@ -105,6 +109,8 @@ pub struct FillSummary {
     pub synthesised: usize,
     /// Missing poses left to other shards (or beyond the limit).
     pub left: usize,
+    /// The model and sizes recorded in the manifest (`[synthesis]`).
+    pub synthesis: SynthesisInfo,
 }
 
 /// What a dataset needs filled: its manifest and the missing grid poses of one shard.
@@ -230,6 +236,11 @@ pub fn fill_missing_observed(
     {
         writer.write_reference(&reference)?;
     }
+    let synthesis = synthesis_info(pipeline, output_size.unwrap_or((width, height)));
+    // Recorded only by a run that synthesises: a dataset with nothing missing keeps what it had.
+    if !todo.is_empty() {
+        writer.update_manifest(|m| m.synthesis = Some(synthesis.clone()))?;
+    }
     let model = pipeline.package_hash().to_string();
     progress.set_length(todo.len() as u64);
     let mut synthesised = 0usize;
@@ -262,11 +273,11 @@ pub fn fill_missing_observed(
         progress.inc(chunk.len() as u64);
         if stop {
             // Stopped early: the rows written are durable; an unfinished dataset resumes.
-            return Ok(FillSummary { grid: work.grid, present: work.present, synthesised, left: total_missing - synthesised });
+            return Ok(FillSummary { grid: work.grid, present: work.present, synthesised, left: total_missing - synthesised, synthesis });
         }
     }
     writer.finish()?;
-    Ok(FillSummary { grid: work.grid, present: work.present, synthesised: todo.len(), left: total_missing - todo.len() })
+    Ok(FillSummary { grid: work.grid, present: work.present, synthesised: todo.len(), left: total_missing - todo.len(), synthesis })
 }
 
 /// What `rig synth --poses-of` did for one dataset.
@@ -280,6 +291,27 @@ pub struct PosesOfSummary {
     pub synthesised: usize,
     /// Poses left to other shards or beyond the limit.
     pub left: usize,
+    /// The model and sizes recorded in the twins' manifest (`[synthesis]`).
+    pub synthesis: SynthesisInfo,
+}
+
+/// What a synthesis by `pipeline` records when it writes images of `written` px (width,
+/// height): the model, its resolution and the images' size.
+pub fn synthesis_info(pipeline: &Pipeline, written: (u32, u32)) -> SynthesisInfo {
+    let package = pipeline.package();
+    let (width, height) = pipeline.resolution();
+    SynthesisInfo {
+        model: package.config.name.clone(),
+        model_dir: package.dir.display().to_string(),
+        model_resolution_px: [width, height],
+        image_resolution_px: [written.0, written.1],
+    }
+}
+
+/// The size a fill of `dataset` writes its images at: its frames' (`reference.png`'s), else the
+/// model's `model_px`.
+pub fn fill_image_size(dataset: &Path, model_px: (u32, u32)) -> Result<(u32, u32), FillError> {
+    Ok(reference_size(dataset)?.unwrap_or(model_px))
 }
 
 /// Synthesises exactly the poses of `source`'s captured rows (real or simulated) into the dataset `out` (created with
@@ -320,12 +352,16 @@ pub fn synthesise_poses_of(
         ..source_manifest.clone()
     };
     let mut writer = DatasetWriter::resume(out, manifest)?;
+    let synthesis = synthesis_info(pipeline, output_size.unwrap_or((width, height)));
     let present: std::collections::BTreeSet<u32> = writer.done_ids().clone();
     let mut todo: Vec<PlannedPose> =
         real.iter().filter(|p| !present.contains(&p.pose_id) && options.shard.owns(p.pose_id)).copied().collect();
     let waiting = real.iter().filter(|p| !present.contains(&p.pose_id)).count();
     if let Some(limit) = options.limit {
         todo.truncate(limit);
+    }
+    if !todo.is_empty() {
+        writer.update_manifest(|m| m.synthesis = Some(synthesis.clone()))?;
     }
     if !out.join(crate::dataset::REFERENCE_FILE).is_file()
         && let Some(reference) = read_reference(source)?
@@ -362,7 +398,7 @@ pub fn synthesise_poses_of(
         progress.inc(chunk.len() as u64);
     }
     writer.finish()?;
-    Ok(PosesOfSummary { real: real.len(), present: real.len() - waiting, synthesised: todo.len(), left: waiting - todo.len() })
+    Ok(PosesOfSummary { real: real.len(), present: real.len() - waiting, synthesised: todo.len(), left: waiting - todo.len(), synthesis })
 }
 
 /// Renders the control images (ControlNet hints) of one dataset's poses, exactly as

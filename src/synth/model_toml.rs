@@ -11,6 +11,8 @@
 //! prompt_template = "multidiffsense" # the only template so far: prompt::mds_prompt
 //! latent_scale = 0.18215
 //! hint_encoding = "rgb01"            # control RGB scaled to [0,1] ("rgb11": to [-1,1])
+//! control_colour_map = "viridis"     # the control is a depth map colour-mapped with viridis
+//!                                    # (MultiDiffSense); left out: any 8-bit RGB control image
 //! vae_scale_factor = 8               # image pixels per latent pixel
 //! end_token = "<|endoftext|>"        # padding token of the tokenizer
 //! sampling_steps = 20                # 1 to 10000 (limits::MAX_STEPS)
@@ -41,6 +43,14 @@ pub enum HintEncoding {
     Rgb11,
 }
 
+/// The colour map a package's control images are drawn with, when it declares one
+/// (`control_colour_map`): a control image that cannot be one (every pixel grey) is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ControlColourMap {
+    /// MultiDiffSense's: the inverted depth map through matplotlib's viridis (no grey in it).
+    Viridis,
+}
+
 /// `model.toml` as written (first stage).
 #[derive(Debug, Deserialize)]
 struct RawModelToml {
@@ -55,6 +65,8 @@ struct RawModelToml {
     latent_scale: f64,
     #[serde(default = "default_hint")]
     hint_encoding: String,
+    #[serde(default)]
+    control_colour_map: Option<String>,
     #[serde(default = "default_vae_scale")]
     vae_scale_factor: u32,
     #[serde(default = "default_end_token")]
@@ -98,6 +110,9 @@ pub struct ModelConfig {
     pub prompt_template: String,
     pub latent_scale: f32,
     pub hint_encoding: HintEncoding,
+    /// The colour map the control images are drawn with, if the package declares one; `None`:
+    /// any 8-bit RGB control image (as diffusers' ControlNet pipelines read, grey included).
+    pub control_colour_map: Option<ControlColourMap>,
     pub vae_scale_factor: u32,
     pub end_token: String,
     /// Sampling steps the model is meant to be sampled with, if the package says.
@@ -148,6 +163,13 @@ impl ModelConfig {
             "rgb11" => HintEncoding::Rgb11,
             other => return Err(bad("hint_encoding", other.to_string(), "expected \"rgb01\" or \"rgb11\"")),
         };
+        let control_colour_map = match raw.control_colour_map.as_deref() {
+            None => None,
+            Some("viridis") => Some(ControlColourMap::Viridis),
+            Some(other) => {
+                return Err(bad("control_colour_map", other.to_string(), "expected \"viridis\" (or leave it out: any 8-bit RGB control)"));
+            }
+        };
         if raw.prompt_template != "multidiffsense" {
             return Err(bad("prompt_template", raw.prompt_template, "the only template rig knows is \"multidiffsense\""));
         }
@@ -193,6 +215,7 @@ impl ModelConfig {
             prompt_template: raw.prompt_template,
             latent_scale: raw.latent_scale as f32,
             hint_encoding,
+            control_colour_map,
             vae_scale_factor: f,
             end_token: raw.end_token,
             sampling_steps: raw.sampling_steps,

@@ -57,7 +57,7 @@ pub const PACKAGE_FILES: [&str; 7] = [
     "scheduler/scheduler_config.json",
 ];
 
-pub use super::model_toml::{HintEncoding, ModelConfig, Sampling};
+pub use super::model_toml::{ControlColourMap, HintEncoding, ModelConfig, Sampling};
 
 impl ModelConfig {
     /// Reads and validates `model.toml`.

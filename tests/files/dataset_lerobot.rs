@@ -32,8 +32,9 @@ fn measured(p: Pose, id: u32) -> Pose {
     Pose::new(p.x_mm + 0.01 * f64::from(id), p.y_mm - 0.003, p.z_mm + 0.02, p.yaw_deg + 0.1)
 }
 
+/// A commanded pose of pose `id` (yaw within the ±720° a row may hold).
 fn commanded(id: u32) -> Pose {
-    Pose::new(f64::from(id) * 0.5 - 2.0, 1.0 - f64::from(id % 3), 0.25 * f64::from(id % 2), f64::from(id) * 15.0 - 45.0)
+    Pose::new(f64::from(id) * 0.5 - 2.0, 1.0 - f64::from(id % 3), 0.25 * f64::from(id % 2), f64::from(id % 48) * 15.0 - 45.0)
 }
 
 /// A dataset of `sensor` for `object` with poses `captured` (captured rows, measured) and

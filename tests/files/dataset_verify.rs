@@ -75,6 +75,44 @@ fn verify_reports_every_kind_of_damage() {
     assert!(matches!(DatasetWriter::resume(&dir, manifest()), Err(DatasetError::DuplicateRow { pose_id: 3, .. })));
 }
 
+/// The kept order (`order.csv`) is optional; when present it must parse, list only poses of
+/// the plan's grid and list every captured row's pose.
+#[test]
+fn verify_checks_the_kept_order() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("ds");
+    let mut w = DatasetWriter::create(&dir, manifest()).expect("create");
+    let pose = |id: u32| PlanSpec::default().pose_of(id).expect("on grid");
+    for id in [3, 1] {
+        w.append(PoseRow::captured(id, pose(id), pose(id), 0.0, rig::dataset::Source::Simulated), &img(id as u8)).expect("append");
+    }
+    w.append(synth_row(2, 2), &img(2)).expect("append");
+    w.finish().expect("finish");
+    let r = verify(&dir).expect("verify");
+    assert!(r.is_clean() && r.order.is_none(), "no kept order is clean: {r}");
+    assert!(r.to_string().contains("kept order: none"), "{r}");
+
+    let order = dir.join("order.csv");
+    // Synthetic rows need not be in it; captured ones must.
+    std::fs::write(&order, "pose_id\n3\n1\n9\n").expect("order");
+    let r = verify(&dir).expect("verify");
+    assert!(r.is_clean(), "{r}");
+    assert_eq!(r.order, Some(3));
+    std::fs::write(&order, "pose_id\n3\n9\n").expect("order");
+    let r = verify(&dir).expect("verify");
+    assert_eq!(r.issues, vec![VerifyIssue::UnorderedRows { rows: 1, first_pose_id: 1 }], "{r}");
+    std::fs::write(&order, "pose_id\n3\n1\n7865\n").expect("order");
+    let r = verify(&dir).expect("verify");
+    assert!(matches!(&r.issues[..], [VerifyIssue::BadOrder { reason }] if reason.contains("7865 is outside")), "{r}");
+    std::fs::write(&order, "pose_id\n3\n1\n3\n").expect("order");
+    let r = verify(&dir).expect("verify");
+    assert!(matches!(&r.issues[..], [VerifyIssue::BadOrder { reason }] if reason.contains("line 4")), "{r}");
+    std::fs::remove_file(&order).expect("rm");
+    std::os::unix::fs::symlink(dir.join("poses.csv"), &order).expect("symlink");
+    let r = verify(&dir).expect("verify");
+    assert_eq!(r.not_regular, 1, "{r}");
+}
+
 #[test]
 fn merge_joins_shards_and_refuses_conflicts() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -204,4 +242,34 @@ proptest! {
         let _ = DatasetWriter::open(&dir);
         let _ = rig::dataset::export::parse_mds(&bytes, Path::new("x.csv"));
     }
+}
+
+/// (Issue 44, break 3.) Images of one size that is not the camera's: a dataset of 1 x 1 images
+/// whose manifest's capture chain says the camera gives 64 x 64 frames is not clean (the images
+/// agree with each other and with `reference.png`, so only the manifest can tell).
+#[test]
+fn images_of_another_size_than_the_manifests_camera_are_reported() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("ds");
+    let mut m = manifest();
+    let camera = rig::dataset::CapturePart::new("vitac", "sim", true, None).with_stream(None, None, [64, 64], 30);
+    m.capture = Some(rig::dataset::CaptureChain {
+        arm: rig::dataset::CapturePart::new("arm", "sim-mg400", true, None),
+        sensors: vec![rig::dataset::CapturePart::new("tactip", "sim", true, None).with_stream(None, None, [4, 4], 30), camera],
+        modbus: Vec::new(),
+    });
+    let one_pixel = RgbImage::from_pixel(1, 1, image::Rgb([1, 2, 3]));
+    let mut w = DatasetWriter::create(&dir, m).expect("create");
+    w.write_reference(&one_pixel).expect("reference");
+    for id in [1, 2] {
+        w.append(synth_row(id, 0), &one_pixel).expect("append");
+    }
+    w.finish().expect("finish");
+    let r = verify(&dir).expect("verify");
+    assert_eq!(r.bad_images, 3, "{r}");
+    assert!(r.issues.contains(&VerifyIssue::NotCameraFormat { path: dir.join("images/2.png"), found: (1, 1), camera: (64, 64) }), "{r}");
+    let out = Command::new(env!("CARGO_BIN_EXE_rig")).args(["dataset", "verify"]).arg(&dir).output().expect("run rig");
+    assert_eq!(out.status.code(), Some(1), "{}", String::from_utf8_lossy(&out.stdout));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("reference.png is 1x1 px, the manifest's camera format is 64x64"), "{stdout}");
 }

@@ -1,6 +1,6 @@
 //! Every decoder of outside data, fed arbitrary bytes and mutated valid inputs, returns a value
 //! or an error and never panics: STL, MDS CSV import, calibration TOML, rig config TOML, plan
-//! TOML and firmware profile TOML.
+//! TOML, firmware profile TOML and a dataset's kept order (`order.csv`).
 //!
 //! This is the proptest side of the fuzzing (`scripts/fuzz-smoke.sh` runs the cargo-fuzz
 //! targets). The firmware profile and the MDS CSV import have no cargo-fuzz target (they pull
@@ -51,9 +51,12 @@ const PLAN_SEED: &str = "sampling = \"lhs\"\nn_poses = 4\nseed = 1\norder = \"op
 x_mm = { min = -5.0, max = 5.0, step = 1.0 }\ny_mm = { min = -5.0, max = 5.0, step = 1.0 }\n\
 z_mm = { min = 0.0, max = 1.0, step = 0.5 }\nyaw_deg = { min = -180.0, max = 180.0, step = 90.0 }\n";
 
+const ORDER_SEED: &[u8] = b"pose_id\n4711\n12\n0\n999999\n";
+
 /// Runs every decoder on `bytes`; each either decodes or errs.
 fn decode_all(bytes: &[u8]) {
     let _ = Mesh::from_bytes(bytes);
+    let _ = rig::dataset::order::parse_order(bytes, Path::new("order.csv"));
     let _ = parse_mds(bytes, Path::new("fuzz.csv"));
     if let Ok(text) = std::str::from_utf8(bytes) {
         let _ = Calibration::from_toml(text, "fuzz.toml");
@@ -81,7 +84,7 @@ proptest! {
 
     #[test]
     fn mutated_valid_inputs_never_panic(
-        which in 0usize..6,
+        which in 0usize..7,
         edits in prop::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..8),
     ) {
         let seed = match which {
@@ -90,6 +93,7 @@ proptest! {
             2 => calibration_seed(),
             3 => CONFIG_SEED.as_bytes().to_vec(),
             4 => PLAN_SEED.as_bytes().to_vec(),
+            5 => ORDER_SEED.to_vec(),
             _ => profile_seed(),
         };
         decode_all(&mutate(&seed, &edits));
@@ -105,5 +109,6 @@ fn seeds_are_valid() {
     assert!(RigConfig::parse(CONFIG_SEED, Path::new("seed.toml")).is_ok());
     let plan = PlanSpec::from_toml_str(PLAN_SEED).expect("plan seed parses");
     assert!(plan.validate().is_ok());
+    assert_eq!(rig::dataset::order::parse_order(ORDER_SEED, Path::new("seed")).ok(), Some(vec![4711, 12, 0, 999999]));
     assert!(FirmwareProfile::parse(std::str::from_utf8(&profile_seed()).unwrap_or_default(), Path::new("p")).is_ok());
 }

@@ -50,6 +50,10 @@ const LAYERS: &[Layer] = &[
     Layer { name: "confine", prefixes: &["confine"], may_use: &[] },
     Layer { name: "untrusted", prefixes: &["untrusted"], may_use: &["confine"] },
     Layer { name: "roots", prefixes: &["roots"], may_use: &[] },
+    // `bounds` (the range of every number a configuration holds, and the most pixels rig
+    // decodes) is in [`FOUNDATION`]: the configuration, the firmware profiles, the Modbus
+    // settings and the dataset readers check against it.
+    Layer { name: "bounds", prefixes: &["bounds"], may_use: &[] },
     // `features` (the Cargo features of the build and the error of a command that needs one
     // left out) is in [`FOUNDATION`]: `synth` refuses to load a model without `synth`, the
     // CLI and the daemon refuse commands and jobs.
@@ -106,6 +110,9 @@ const LAYERS: &[Layer] = &[
     // calibration.
     Layer { name: "eval", prefixes: &["eval"], may_use: &["metrics", "imaging", "dataset", "geometry"] },
     Layer { name: "record", prefixes: &["record"], may_use: &["arm", "camera", "collect"] },
+    // Not in the table: a job's progress as a person reads it (a bar in a terminal, plain lines
+    // in a log), named by object and sensor; the jobs and the CLI report through it.
+    Layer { name: "progress", prefixes: &["progress"], may_use: &["sensor"] },
     Layer { name: "jobs", prefixes: &["jobs"], may_use: &[EVERYTHING_BELOW] },
     Layer { name: "rigs", prefixes: &["rigs"], may_use: &[EVERYTHING_BELOW] },
     // Not in the table: the exit code and message of a failed command, shared by the CLI and
@@ -628,7 +635,7 @@ fn row_of(path: &[String]) -> Option<&'static Layer> {
 }
 
 /// Rows every row may use (below them all in [`LAYERS`]).
-const FOUNDATION: &[&str] = &["untrusted", "confine", "features"];
+const FOUNDATION: &[&str] = &["untrusted", "confine", "features", "bounds"];
 
 /// Row name -> every row it may use (transitively), itself included.
 fn allowed_rows() -> BTreeMap<&'static str, BTreeSet<&'static str>> {

@@ -124,6 +124,9 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
     assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
 
     write("nokhwa.toml", b"[sensors.tactip]\nbackend = \"nokhwa\"\ndevice = \"index:0\"\n");
+    write("modbus-forever.toml", b"[modbus.force]\ntransport = \"tcp\"\naddress = \"127.0.0.1:502\"\ntimeout_ms = 18446744073709551615\n");
+    write("not-a-port", b"");
+    write("magician-file.toml", b"[arm]\nbackend = \"magician\"\nserial_port = \"not-a-port\"\n");
 
     let mut cases = vec![
         case("unknown subcommand", &["frobnicate"], 2, "unrecognized subcommand"),
@@ -154,6 +157,13 @@ fn every_bad_input_gets_a_clear_message_and_its_exit_code() {
         case("zero poses asked for", &["collect", "--poses", "0", "--dry-run"], 2, "0 poses"),
         case("more poses than the grid has", &["collect", "--poses", "100000000", "--dry-run"], 2, "only"),
         case("plan outside the arm's workspace", &["collect", "--config", "far.toml", "--dry-run"], 2, "outside the arm's workspace"),
+        case("a Modbus timeout no device takes", &["collect", "--config", "modbus-forever.toml", "--dry-run"], 2, "1 to 60000 ms"),
+        case(
+            "an arm serial port that is a regular file",
+            &["collect", "--config", "magician-file.toml", "--sensor", "tactip", "--poses", "1", "--out", "mag"],
+            2,
+            "is not a serial port",
+        ),
         case(
             "plan pressing past the sensor's press limit",
             &["collect", "--plan", "deep-plan.toml", "--sensor", "tactip", "--dry-run"],

@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use rig::bench::scale::Stage;
 use rig::bench::{BenchConfig, Knob, run, sensor::render_stages, write_report};
 use rig::sensor::SensorKind;
 use rig::synth::SchedulerKind;
@@ -37,6 +38,10 @@ fn tiny_config() -> BenchConfig {
         loop_repeats: 1,
         // The peer's row is left out: a developer's $RIG_PYTHON must not change the table.
         peer_python: None,
+        scale_plan_poses: vec![100, 200, 400],
+        scale_frames: vec![3, 6, 12],
+        scale_image_px: 32,
+        rig_exe: Some(env!("CARGO_BIN_EXE_rig").into()),
     }
 }
 
@@ -62,6 +67,7 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
         (Knob::Sensor, sensor_rows),
         // SSIM and control maps: rig and the previous code; synthesis: rig (no peer here).
         (Knob::Loops, 2 + 2 + 1),
+        (Knob::Scale, Stage::ALL.iter().filter(|s| s.built()).count()),
     ];
     assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
     for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {
@@ -97,4 +103,45 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
     assert_eq!(loops.rows[3].values[2], 0.0, "control maps equal the previous renderer's: {:?}", loops.rows[3]);
     let synth = &report.knobs[0];
     assert!(synth.rows.iter().filter(|r| r.values[0] == 4.0).all(|r| r.values[1] == 1.0));
+}
+
+/// `rig bench --only scale`'s report: one row per stage this build has, each measured at the
+/// three sizes asked for (increasing), wall time and peak memory positive, the exponents
+/// finite; the table and the log-log plot in `report.md` and `scale.svg`. No timing is
+/// asserted. The stages run the real `rig` binary as child processes.
+#[test]
+fn scale_report_has_a_row_per_stage_at_three_sizes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = BenchConfig { knobs: vec![Knob::Scale], ..tiny_config() };
+    let runtime = tokio::runtime::Runtime::new().expect("runtime");
+    let report = runtime.block_on(run(&config, &dir.path().join("work"), |_| {}));
+    let failed: Vec<String> = report.failed.iter().map(|(k, e)| format!("{k}: {e}")).collect();
+    assert!(failed.is_empty(), "{failed:?}");
+    let [scale] = &report.knobs[..] else { panic!("one knob: {:?}", report.knobs.len()) };
+    let stages: Vec<Stage> = Stage::ALL.into_iter().filter(|s| s.built()).collect();
+    assert_eq!(scale.rows.iter().map(|r| r.label.as_str()).collect::<Vec<_>>(), stages.iter().map(|s| s.label()).collect::<Vec<_>>());
+    assert_eq!(scale.columns.len(), 12);
+    for row in &scale.rows {
+        let v = &row.values;
+        assert_eq!(v.len(), 12, "{}", row.label);
+        assert!(v.iter().all(|x| x.is_finite()), "{}: {v:?}", row.label);
+        let sizes = if row.label == Stage::Ordering.label() { &config.scale_plan_poses } else { &config.scale_frames };
+        assert_eq!(v[..3].to_vec(), sizes.iter().map(|&n| n as f64).collect::<Vec<_>>(), "{}", row.label);
+        assert!(v[3..6].iter().all(|&t| t > 0.0), "{}: wall times {v:?}", row.label);
+        assert!((v[7] - v[5] * 1e3 / v[2]).abs() < 1e-9, "{}: ms per item {v:?}", row.label);
+        // A rig process holds a few MB at least; its peak is its own, not the bench's.
+        assert!(v[8..11].iter().all(|&mb| (1.0..4096.0).contains(&mb)), "{}: peaks {v:?}", row.label);
+    }
+    assert_eq!(scale.plot.series.len(), scale.rows.len());
+    assert!(scale.plot.series.iter().all(|s| s.points.len() == 3));
+    let out = dir.path().join("report");
+    write_report(&report, &out).expect("report");
+    let md = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(
+        md.contains("| stage | N1 | N2 | N3 | wall N1 [s] |") && md.contains("time exponent") && md.contains("memory exponent"),
+        "{md}"
+    );
+    assert!(md.contains("![Scale: what the work costs as it grows](scale.svg)"), "{md}");
+    assert!(std::fs::read_to_string(out.join("scale.svg")).expect("svg").starts_with("<svg"));
+    assert!(!dir.path().join("work").exists(), "the scratch folder is removed");
 }

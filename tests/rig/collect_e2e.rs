@@ -132,6 +132,9 @@ fn sigkill_at_random_moments_then_resume_loses_and_duplicates_nothing() {
             assert_eq!(unique.len(), poses, "run {run} {sensor}: duplicated rows\n{report}");
             let images = std::fs::read_dir(dir.join("images")).expect("images").count();
             assert_eq!(images, poses, "run {run} {sensor}: images\n{report}");
+            // The order was kept once, before the first pose, whatever the kills interrupted.
+            assert_eq!(kept_order(&dir).len(), poses, "run {run} {sensor}: kept order\n{report}");
+            assert!(report.contains(&format!("kept order: {poses} poses")), "run {run} {sensor}\n{report}");
         }
     }
 }
@@ -187,4 +190,99 @@ fn plan_outside_the_workspace_is_refused_before_anything_moves() {
     assert!(err.contains("outside the arm's workspace") && err.contains("plan pose"), "{err}");
     assert!(err.contains("radius"), "the message names the limit: {err}");
     assert!(!tmp.path().join("out/sphere/tactip/poses.csv").exists(), "no dataset may be started");
+}
+
+/// `order.csv` of a dataset: its pose ids, in order.
+fn kept_order(dir: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(dir.join("order.csv")).unwrap_or_else(|e| panic!("order.csv of {}: {e}", dir.display()));
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("pose_id"), "{text}");
+    lines.map(str::to_string).collect()
+}
+
+/// Takes the last `k` rows (and their images) off a finished dataset: what a run killed `k`
+/// poses before its end leaves once resumed. Returns their ids.
+fn drop_last_rows(dir: &Path, k: usize) -> Vec<String> {
+    let text = std::fs::read_to_string(dir.join("poses.csv")).expect("poses.csv");
+    let lines: Vec<&str> = text.lines().collect();
+    let keep = lines.len() - k;
+    let dropped: Vec<String> = lines[keep..].iter().map(|l| l.split(',').next().unwrap_or_default().to_string()).collect();
+    std::fs::write(dir.join("poses.csv"), lines[..keep].iter().map(|l| format!("{l}\n")).collect::<String>()).expect("poses.csv");
+    for id in &dropped {
+        std::fs::remove_file(dir.join("images").join(format!("{id}.png"))).expect("image");
+    }
+    dropped
+}
+
+/// A collection keeps its order in each dataset before the first pose, and a resume visits the
+/// poses in the kept order, not in one computed again: here the kept order is rewritten
+/// (reversed, still an order of the same plan), and the resumed poses follow it.
+#[test]
+fn resume_visits_the_kept_order_without_ordering_again() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("out");
+    let args = collect_args(&out, 12, 5, "tactip,vitac");
+    let o = rig().args(&args).output().expect("rig collect");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (tactip, vitac) = (out.join("sphere").join("tactip"), out.join("sphere").join("vitac"));
+    let order = kept_order(&tactip);
+    assert_eq!(order.len(), 12);
+    assert_eq!(kept_order(&vitac), order, "every dataset of the run keeps the same order");
+    assert_eq!(rows(&tactip), order, "the rows were captured in the kept order");
+
+    // Five poses left in each dataset, and the kept order reversed.
+    let dropped = drop_last_rows(&tactip, 5);
+    assert_eq!(drop_last_rows(&vitac, 5), dropped);
+    let reversed: Vec<String> = order.iter().rev().cloned().collect();
+    for dir in [&tactip, &vitac] {
+        std::fs::write(dir.join("order.csv"), format!("pose_id\n{}\n", reversed.join("\n"))).expect("order.csv");
+    }
+    let dry = rig().args(&args).args(["--resume", "--dry-run"]).output().expect("rig collect --dry-run");
+    let stdout = String::from_utf8_lossy(&dry.stdout);
+    assert!(stdout.contains("in the order kept in ") && stdout.contains("order.csv"), "{stdout}");
+    let o = rig().args(&args).arg("--resume").output().expect("rig collect --resume");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let resumed: Vec<String> = dropped.iter().rev().cloned().collect();
+    for dir in [&tactip, &vitac] {
+        let now = rows(dir);
+        assert_eq!(now[7..].to_vec(), resumed, "{}: the resumed poses follow the kept order", dir.display());
+        assert_eq!(kept_order(dir), reversed, "the kept order is not rewritten");
+        assert!(verify(dir).contains("kept order: 12 poses"));
+    }
+}
+
+/// A dataset written before rig kept orders resumes: the plan is ordered as rig did then and
+/// the order is kept. A kept order that is not the plan's is refused (exit 2), nothing moves.
+#[test]
+fn a_dataset_without_a_kept_order_resumes_and_a_foreign_one_is_refused() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("out");
+    let args = collect_args(&out, 10, 6, "tactip");
+    let o = rig().args(&args).output().expect("rig collect");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let dir = out.join("sphere").join("tactip");
+    let order = kept_order(&dir);
+    drop_last_rows(&dir, 4);
+    std::fs::remove_file(dir.join("order.csv")).expect("remove order.csv");
+    let o = rig().args(&args).arg("--resume").output().expect("rig collect --resume");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("in rig's order"), "{}", String::from_utf8_lossy(&o.stdout));
+    assert_eq!(kept_order(&dir), order, "the same plan is ordered the same way, and kept");
+    assert_eq!(rows(&dir).len(), 10);
+
+    drop_last_rows(&dir, 2);
+    let before = std::fs::read_to_string(dir.join("poses.csv")).expect("poses.csv");
+    for (foreign, says) in [
+        (format!("pose_id\n{}\n", order[..9].join("\n")), "lists 9 poses, the plan has 10"),
+        (format!("pose_id\n{}\n7864\n", order[..9].join("\n")), "which is not one of the plan's"),
+        (format!("pose_id\n{}\n{}\n", order[..9].join("\n"), order[0]), "line 11"),
+        ("pose_id\nseven\n".to_string(), "line 2"),
+    ] {
+        std::fs::write(dir.join("order.csv"), &foreign).expect("order.csv");
+        let o = rig().args(&args).arg("--resume").output().expect("rig collect --resume");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{foreign:?}: {stderr}");
+        assert!(stderr.contains("order.csv") && stderr.contains(says), "{foreign:?}: {stderr}");
+        assert_eq!(std::fs::read_to_string(dir.join("poses.csv")).expect("poses.csv"), before, "nothing was collected");
+    }
 }

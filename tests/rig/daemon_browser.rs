@@ -1,7 +1,10 @@
 //! End to end: the daemon's page in headless Chromium while a collection runs. The page is
 //! loaded twice (`--dump-dom` after a virtual-time budget, so its polling has run); both
 //! loads must show every sensor's frame (an image fetched through the token-checked API) and
-//! the job's progress, and the second must show newer frames and more progress.
+//! the job's progress, and the second must show newer frames and more progress. A second
+//! test drives the page's job controls (forms, Cancel, Resume) through Chromium's DevTools
+//! protocol on `--remote-debugging-pipe` ([`DevTools`]), since `--dump-dom` cannot click; a
+//! third checks that a page on another origin cannot queue a job.
 //!
 //! Needs Debian's `chromium` (`scripts/setup.sh` installs it). Without it the test fails,
 //! unless `RIG_SKIP_BROWSER=1` says to skip it.
@@ -241,5 +244,314 @@ document.body.setAttribute("data-sent", "yes");
     let client = DaemonClient::new(&target, None).expect("client");
     let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
     assert!(jobs.is_empty(), "a page on another origin queued a job: {jobs:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// Chromium driven over the DevTools protocol on `--remote-debugging-pipe`: the browser reads
+/// JSON messages, each ended by a NUL byte, on its fd 3 and writes its replies and events on
+/// its fd 4. Unlike `--dump-dom`, this can click.
+struct DevTools {
+    child: std::process::Child,
+    to_browser: std::io::PipeWriter,
+    /// Every message the browser sent, parsed, in order (a reader thread fills it).
+    from_browser: tokio::sync::mpsc::UnboundedReceiver<serde_json::Value>,
+    next_id: u64,
+    profile: tempfile::TempDir,
+}
+
+/// A page target of [`DevTools`], attached in flat mode (its commands carry its session id).
+struct Tab {
+    session: String,
+}
+
+/// How long one wait for the page (an element, a message) may take: a hang guard.
+const PAGE_WAIT: Duration = Duration::from_secs(60);
+
+impl DevTools {
+    fn launch(chromium: &std::path::Path) -> DevTools {
+        use std::io::Read;
+        use std::os::fd::AsRawFd;
+        use std::os::unix::process::CommandExt;
+
+        let (browser_reads, to_browser) = std::io::pipe().expect("pipe to the browser");
+        let (from_browser_raw, browser_writes) = std::io::pipe().expect("pipe from the browser");
+        // The browser's ends, moved above fd 10 so that placing them on 3 and 4 in the child
+        // cannot overwrite one with the other; close-on-exec, so only the 3 and 4 copies stay.
+        let high = |fd: &dyn AsRawFd| {
+            // SAFETY: F_DUPFD_CLOEXEC on an open descriptor returns a new one or -1.
+            let new = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_DUPFD_CLOEXEC, 10) };
+            assert!(new >= 10, "fcntl(F_DUPFD_CLOEXEC): {}", std::io::Error::last_os_error());
+            new
+        };
+        let (read_fd, write_fd) = (high(&browser_reads), high(&browser_writes));
+        let profile = tempfile::tempdir().expect("profile dir");
+        let log = std::fs::File::create(profile.path().join("chromium.log")).expect("chromium log");
+        let mut cmd = std::process::Command::new(chromium);
+        cmd.args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--remote-debugging-pipe",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().join("data").display()))
+        .arg("about:blank")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(log);
+        // SAFETY: only dup2, which is async-signal-safe, runs between fork and exec; dup2 clears
+        // close-on-exec on the copies at 3 and 4.
+        unsafe {
+            cmd.pre_exec(move || {
+                if libc::dup2(read_fd, 3) < 0 || libc::dup2(write_fd, 4) < 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let child = cmd.spawn().expect("starting chromium");
+        // SAFETY: the two descriptors from fcntl above, owned here and closed once.
+        unsafe {
+            libc::close(read_fd);
+            libc::close(write_fd);
+        }
+        drop((browser_reads, browser_writes));
+
+        let (tx, from_browser) = tokio::sync::mpsc::unbounded_channel();
+        std::thread::spawn(move || {
+            let mut pipe = from_browser_raw;
+            let mut pending = Vec::new();
+            let mut buf = [0u8; 65536];
+            loop {
+                let n = match pipe.read(&mut buf) {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => n,
+                };
+                pending.extend_from_slice(&buf[..n]);
+                while let Some(end) = pending.iter().position(|&b| b == 0) {
+                    let message: Vec<u8> = pending.drain(..=end).collect();
+                    let Ok(value) = serde_json::from_slice(&message[..end]) else { continue };
+                    if tx.send(value).is_err() {
+                        return;
+                    }
+                }
+            }
+        });
+        DevTools { child, to_browser, from_browser, next_id: 0, profile }
+    }
+
+    /// The tail of chromium's own log, for a failure message.
+    fn log_tail(&self) -> String {
+        let log = std::fs::read_to_string(self.profile.path().join("chromium.log")).unwrap_or_default();
+        let start = log.len().saturating_sub(2000);
+        log.get(start..).unwrap_or_default().to_string()
+    }
+
+    /// Sends one command (to the browser, or to a page's session) and waits for its reply:
+    /// its `result`, or its protocol error's message. Events are skipped.
+    async fn call(&mut self, session: Option<&str>, method: &str, params: serde_json::Value) -> Result<serde_json::Value, String> {
+        use std::io::Write;
+        self.next_id += 1;
+        let id = self.next_id;
+        let mut message = json!({"id": id, "method": method, "params": params});
+        if let Some(session) = session {
+            message["sessionId"] = json!(session);
+        }
+        let mut bytes = serde_json::to_vec(&message).expect("JSON");
+        bytes.push(0);
+        self.to_browser.write_all(&bytes).unwrap_or_else(|e| panic!("writing to chromium: {e}\n{}", self.log_tail()));
+        loop {
+            let reply = match tokio::time::timeout(PAGE_WAIT, self.from_browser.recv()).await {
+                Ok(Some(reply)) => reply,
+                Ok(None) => panic!("chromium closed its DevTools pipe during {method}\n{}", self.log_tail()),
+                Err(_) => panic!("chromium did not answer {method} within {} s\n{}", PAGE_WAIT.as_secs(), self.log_tail()),
+            };
+            if reply["id"] != json!(id) {
+                continue;
+            }
+            return match reply.get("error") {
+                Some(error) => Err(error["message"].as_str().unwrap_or("unknown error").to_string()),
+                None => Ok(reply["result"].clone()),
+            };
+        }
+    }
+
+    /// Opens `url` in a new page and attaches to it.
+    async fn open(&mut self, url: &str) -> Tab {
+        let target = self.call(None, "Target.createTarget", json!({"url": url})).await.expect("Target.createTarget");
+        let target_id = target["targetId"].as_str().expect("targetId").to_string();
+        let attached =
+            self.call(None, "Target.attachToTarget", json!({"targetId": target_id, "flatten": true})).await.expect("Target.attachToTarget");
+        Tab { session: attached["sessionId"].as_str().expect("sessionId").to_string() }
+    }
+
+    /// The value of a JavaScript expression in `tab` (a promise is awaited); an exception or a
+    /// protocol error (the page still loading, say) is an `Err`.
+    async fn eval(&mut self, tab: &Tab, expression: &str) -> Result<serde_json::Value, String> {
+        let params = json!({"expression": expression, "awaitPromise": true, "returnByValue": true});
+        let result = self.call(Some(&tab.session), "Runtime.evaluate", params).await?;
+        if let Some(exception) = result.get("exceptionDetails") {
+            return Err(format!("{}: {}", exception["text"], exception["exception"]["description"]));
+        }
+        Ok(result["result"]["value"].clone())
+    }
+
+    /// Waits until `expression` is true in `tab`; panics saying `what` after [`PAGE_WAIT`].
+    async fn wait_for(&mut self, tab: &Tab, what: &str, expression: &str) {
+        let deadline = tokio::time::Instant::now() + PAGE_WAIT;
+        let mut last = Ok(serde_json::Value::Null);
+        while tokio::time::Instant::now() < deadline {
+            last = self.eval(tab, expression).await;
+            if last.as_ref().is_ok_and(|v| v == &json!(true)) {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let body = self.eval(tab, "document.body ? document.body.innerText : ''").await;
+        panic!("the page did not show {what} within {} s (last: {last:?}); the page read:\n{body:?}", PAGE_WAIT.as_secs());
+    }
+
+    /// Fills the fields of form `form` (by name: the API's field names) and clicks its submit
+    /// button, as an operator would.
+    async fn submit_form(&mut self, tab: &Tab, form: &str, fields: serde_json::Value) {
+        let script = format!(
+            r#"(() => {{
+  const form = document.getElementById({form:?});
+  if (!form) return "no form {form}";
+  for (const [name, value] of Object.entries({fields})) {{
+    const field = form.elements[name];
+    if (!field) return "no field " + name;
+    if (field.type === "checkbox") field.checked = value; else field.value = String(value);
+  }}
+  const button = form.querySelector("button[type=submit]");
+  if (!button) return "no submit button";
+  button.click();
+  return "clicked";
+}})()"#
+        );
+        let clicked = self.eval(tab, &script).await;
+        assert_eq!(clicked, Ok(json!("clicked")), "filling and submitting {form}");
+    }
+
+    /// Clicks the button of `action` (`cancel`, `resume`) in job `id`'s row, once it is there.
+    async fn click_job_button(&mut self, tab: &Tab, id: u64, action: &str) {
+        let selector = format!("#job-{id} button[data-action={action}]");
+        self.wait_for(tab, &format!("a {action} button on job {id}"), &format!("document.querySelector({selector:?}) !== null")).await;
+        let clicked = self.eval(tab, &format!("(() => {{ document.querySelector({selector:?}).click(); return true; }})()")).await;
+        assert_eq!(clicked, Ok(json!(true)), "clicking {selector}");
+    }
+}
+
+impl Drop for DevTools {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Polls the API until job `id` exists and `done` holds for it.
+async fn job_when(client: &DaemonClient, id: u64, what: &str, done: impl Fn(&JobView) -> bool) -> JobView {
+    let deadline = tokio::time::Instant::now() + PAGE_WAIT;
+    let mut last = None;
+    while tokio::time::Instant::now() < deadline {
+        if let Ok(j) = client.get_json::<JobView>(&format!("/api/jobs/{id}")).await {
+            if done(&j) {
+                return j;
+            }
+            last = Some(j);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("job {id} was not {what} within {} s: {last:?}", PAGE_WAIT.as_secs());
+}
+
+/// The page's job controls, clicked in a real browser against a token-less daemon (so the
+/// page's requests pass the CSRF rule only with the `X-Rig-Client` header): a refused audit
+/// shows the API's reason; the collect form queues the job it describes; Cancel cancels it;
+/// Resume queues the same request with `resume: true`, which runs once Cancel has stopped the
+/// job ahead of it; and a script on the page that leaves the header out is still refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_submits_cancels_and_resumes_jobs() {
+    use rig::jobs::JobRequest;
+
+    let Some(chromium) = chromium_or_skip() else { return };
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.roots = Some(rig::roots::DataRoots::new(&[tmp.path().to_path_buf()], tmp.path()).expect("data roots"));
+    options.idle_refresh = None;
+    let daemon = Daemon::start(options).await.expect("daemon starts");
+    let client = DaemonClient::new(&format!("http://{}", daemon.addr()), None).expect("client");
+
+    // A long collection keeps the worker busy, so the page's job waits in the queue.
+    let blocker = json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 4000, "out": tmp.path().join("blocker")});
+    let r = client.request("POST", "/api/jobs", Some(blocker.to_string().as_bytes())).await.expect("submit");
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    job_when(&client, 1, "running", |j| j.state == JobState::Running).await;
+
+    let mut browser = DevTools::launch(&chromium);
+    let tab = browser.open(&format!("http://{}/", daemon.addr())).await;
+    browser.wait_for(&tab, "job 1 in its jobs table", "document.getElementById('job-1') !== null").await;
+
+    // A job the API refuses: the page shows its reason, and nothing is queued.
+    let dataset = tmp.path().join("blocker/edge/tactip");
+    browser.submit_form(&tab, "form-audit", json!({"dataset": dataset, "fraction": 5})).await;
+    browser
+        .wait_for(
+            &tab,
+            "the API's refusal of the audit",
+            "document.getElementById('msg-audit').textContent.includes('refused (400): bad job: fraction: 5: must be above 0 and at most 1')",
+        )
+        .await;
+
+    // The collect form queues the job its fields describe.
+    let out = tmp.path().join("page");
+    browser.submit_form(&tab, "form-collect", json!({"object": "cross", "sensor": "tactip", "poses": 3, "seed": 7, "out": out})).await;
+    let submitted = job_when(&client, 2, "queued", |_| true).await;
+    let JobRequest::Collect(spec) = &submitted.spec else { panic!("job 2 is not a collection: {submitted:?}") };
+    assert_eq!(
+        (spec.object.as_str(), spec.sensor.to_string().as_str(), spec.poses, spec.seed, spec.resume),
+        ("cross", "tactip", Some(3), Some(7), false),
+        "job 2 is not what the form said: {spec:?}"
+    );
+    assert_eq!((spec.stl.as_ref(), spec.plan.as_ref()), (None, None), "fields left empty must be left out: {spec:?}");
+    let tmp_real = tmp.path().canonicalize().expect("tmp");
+    assert!(spec.out.file_name().is_some_and(|n| n == "page") && spec.out.parent() == Some(tmp_real.as_path()), "out: {spec:?}");
+    assert_eq!(submitted.state, JobState::Queued, "{submitted:?}");
+    browser.wait_for(&tab, "the queued job's id", "document.getElementById('msg-collect').textContent === 'queued collect job 2'").await;
+
+    // Cancel, on the queued job.
+    browser.click_job_button(&tab, 2, "cancel").await;
+    let cancelled = job_when(&client, 2, "cancelled", |j| j.state.is_final()).await;
+    assert_eq!(cancelled.state, JobState::Cancelled, "{cancelled:?}");
+
+    // Resume: the same request again, with resume: true.
+    browser.click_job_button(&tab, 2, "resume").await;
+    let resumed = job_when(&client, 3, "queued", |_| true).await;
+    let JobRequest::Collect(mut expected) = submitted.spec.clone() else { unreachable!("checked above") };
+    expected.resume = true;
+    assert_eq!(resumed.spec, JobRequest::Collect(expected), "the resumed job is not job 2's request with resume: true");
+
+    // Cancel, on the running job: it stops, and the resumed collection runs to its end.
+    browser.click_job_button(&tab, 1, "cancel").await;
+    let stopped = job_when(&client, 1, "stopped", |j| j.state.is_final()).await;
+    assert_eq!(stopped.state, JobState::Cancelled, "{stopped:?}");
+    let finished = job_when(&client, 3, "finished", |j| j.state.is_final()).await;
+    assert_eq!((finished.state, finished.exit_code), (JobState::Done, Some(0)), "{finished:?}");
+    assert_eq!(rig::dataset::read_rows(&out.join("cross/tactip")).expect("rows").len(), 3, "{finished:?}");
+
+    // The CSRF rule still holds on the page's own origin: without X-Rig-Client, refused.
+    let script = format!(
+        r#"fetch("/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json" }}, body: JSON.stringify({}) }}).then(r => r.status)"#,
+        json!({"kind": "collect", "poses": 1, "out": tmp.path().join("csrf")})
+    );
+    assert_eq!(browser.eval(&tab, &script).await, Ok(json!(403)), "a POST without X-Rig-Client");
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert_eq!(jobs.len(), 3, "{jobs:?}");
+
+    drop(browser);
     daemon.shutdown().await.expect("clean shutdown");
 }

@@ -108,7 +108,7 @@ fn verify_all(root: &Path) -> Result<String, String> {
         let dir = root.join("sphere").join(sensor);
         let o = rig().args(["dataset", "verify"]).arg(&dir).output().map_err(|e| e.to_string())?;
         let text = String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr);
-        if !o.status.success() || !text.lines().any(|l| l.trim() == "clean") {
+        if !o.status.success() || !text.lines().any(|l| l.trim() == format!("{}: clean", dir.display())) {
             return Err(format!("{sensor}: {}", text.trim().replace('\n', "; ")));
         }
         rows.push(pose_ids(&dir).len());

@@ -24,11 +24,17 @@ use rig::dataset::{DatasetWriter, Manifest, ObjectInfo, PoseRow};
 use rig::plan::PlanSpec;
 use rig::sensor::SensorKind;
 
+/// The breaks of the third hostile pass (issue 44).
+mod breaks;
+
 /// The sentinel's contents: must never appear in any output.
 const SECRET: &str = "SENTINEL-hunter2-do-not-echo";
 
+/// The `rig` binary these tests run: this build's, or the one `RIG_BIN_UNDER_TEST` names (to
+/// check that a test fails on an older build, as each test of a fixed break must).
 fn rig(cwd: &Path) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    let bin = std::env::var_os("RIG_BIN_UNDER_TEST").unwrap_or_else(|| env!("CARGO_BIN_EXE_rig").into());
+    let mut c = Command::new(bin);
     c.current_dir(cwd);
     for var in ["RIG_CONFIG", "RIG_ORT_LIB", "ORT_DYLIB_PATH", "RIG_DAEMON_TOKEN", "RIG_DEBUG_PANIC_JOB_KIND"] {
         c.env_remove(var);
@@ -1039,6 +1045,18 @@ fn package_with_steps(dir: &Path, train_steps: u64, sampling_steps: Option<u64>)
 
 /// `rig` with its address space limited to `bytes` (RLIMIT_AS): an allocation past it fails.
 fn run_limited(cwd: &Path, args: &[&str], bytes: u64) -> Output {
+    run_with_limit(cwd, args, libc::RLIMIT_AS, bytes)
+}
+
+/// The type `setrlimit` takes its resource as (glibc's own; an int elsewhere).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+type Resource = libc::__rlimit_resource_t;
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+type Resource = libc::c_int;
+
+/// `rig` with the resource limit `resource` (RLIMIT_AS, RLIMIT_DATA) set to `bytes`: an
+/// allocation past it fails (Rust aborts the process).
+fn run_with_limit(cwd: &Path, args: &[&str], resource: Resource, bytes: u64) -> Output {
     use std::os::unix::process::CommandExt;
     let mut cmd = rig(cwd);
     cmd.args(args);
@@ -1046,7 +1064,7 @@ fn run_limited(cwd: &Path, args: &[&str], bytes: u64) -> Output {
     unsafe {
         cmd.pre_exec(move || {
             let limit = libc::rlimit { rlim_cur: bytes, rlim_max: bytes };
-            if libc::setrlimit(libc::RLIMIT_AS, &limit) == 0 { Ok(()) } else { Err(std::io::Error::last_os_error()) }
+            if libc::setrlimit(resource, &limit) == 0 { Ok(()) } else { Err(std::io::Error::last_os_error()) }
         });
     }
     cmd.output().expect("running rig")

@@ -342,3 +342,35 @@ async fn simulated_motion_follows_a_mock_clock() {
     assert!(arrival.error_mm <= 0.1);
     assert!(arrival.t_s > 0.0 && arrival.t_s <= mock.now_s());
 }
+
+/// `rig arm send`: one dashboard command through the real client, the reply as the controller
+/// sent it; motion and unknown commands refused (exit 2) before anything connects.
+#[tokio::test(flavor = "multi_thread")]
+async fn rig_arm_send_prints_the_reply_and_refuses_motion() {
+    let (sim, _clock) = start_sim(SimFaults::default()).await;
+    let port = sim.dashboard_addr().port().to_string();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().to_path_buf();
+    let send = move |command: &'static str, port: String| {
+        let path = path.clone();
+        tokio::task::spawn_blocking(move || crate::run::rig(&path, &["arm", "send", "--addr", "127.0.0.1", "--port", &port, command]))
+    };
+    let o = send("RobotMode()", port.clone()).await.expect("rig");
+    assert_eq!(crate::run::expect_code(&o, 0).trim(), "0,{4},RobotMode();");
+    let o = send("getpose()", port.clone()).await.expect("rig");
+    assert!(crate::run::expect_code(&o, 0).starts_with("0,{"), "{}", crate::run::text(&o));
+    // A motion command is refused before anything is sent: the arm stays where it was.
+    let before = sim.pose();
+    let o = send("MovJ(300,10,0,0)", port.clone()).await.expect("rig");
+    let t = crate::run::expect_code(&o, 2);
+    assert!(t.contains("MovJ is a motion command"), "{t}");
+    assert_eq!(sim.pose(), before);
+    let t = crate::run::expect_code(&send("Jump()", port.clone()).await.expect("rig"), 2);
+    assert!(t.contains("Jump()") && t.contains("RobotMode"), "{t}");
+    // Refused before connecting: a port nothing listens on still gives the bad-input exit.
+    let closed = std::net::TcpListener::bind("127.0.0.1:0").expect("bind").local_addr().expect("addr").port().to_string();
+    crate::run::expect_code(&send("MovL(300,10,0,0)", closed.clone()).await.expect("rig"), 2);
+    // A link that is down is a hardware fault (exit 3), naming where it tried.
+    let t = crate::run::expect_code(&send("RobotMode()", closed.clone()).await.expect("rig"), 3);
+    assert!(t.contains(&format!("127.0.0.1:{closed}")), "{t}");
+}

@@ -98,8 +98,9 @@ fn first_frame_pixel_offset(bytes: &[u8]) -> usize {
     loop {
         let (kind, len) = (bytes[at], u32_at(at + 1));
         if kind == 2 {
-            // kind, length, then camera, t_s, t_capture_s, seq, width, height.
-            return at + 5 + 1 + 8 + 8 + 8 + 4 + 4;
+            // kind, length, then camera, t_s, t_capture_s, seq, width, height, encoding (PNG), and
+            // the PNG's signature and IHDR chunk (8 + 25 bytes): the first IDAT's data is 8 further.
+            return at + 5 + 1 + 8 + 8 + 8 + 4 + 4 + 1 + 8 + 25 + 8;
         }
         at += 5 + len + 4;
     }
@@ -634,4 +635,276 @@ fn a_run_whose_sockets_keep_dropping_replays_the_same() {
     let o = replay(&rec, &out);
     assert!(o.status.success(), "rig replay failed:\n{}", text(&o));
     assert_same_dataset(&tmp.path().join("recorded"), &out, 5);
+}
+
+/// A 2-pose collection of 32 x 24 frames recorded by rig's format-5 writer (raw frames), and
+/// the dataset that run wrote (`tests/data/recording-v5/README.md` says how they were made).
+fn fixture_v5() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/recording-v5")
+}
+
+/// Offset, kind and body length of every record of a recording (layout in `record::format`).
+fn record_spans(bytes: &[u8]) -> Vec<(usize, u8, usize)> {
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")) as usize;
+    let mut at = 14 + u32_at(10) + 4;
+    let mut spans = Vec::new();
+    while at < bytes.len() {
+        spans.push((at, bytes[at], u32_at(at + 1)));
+        at += 5 + u32_at(at + 1) + 4;
+    }
+    spans
+}
+
+/// A record of `kind` with `body`, checksummed.
+fn record_bytes(kind: u8, body: &[u8]) -> Vec<u8> {
+    let len = (body.len() as u32).to_le_bytes();
+    [&[kind][..], &len, body, &format::crc32(&[&[kind], &len, body]).to_le_bytes()].concat()
+}
+
+/// A PNG of `width` x `height` 8-bit RGB pixels as the format checks it (signature, IHDR, IDAT,
+/// IEND, checksummed chunks) whose IDAT data are not a zlib stream: it passes every check made
+/// without inflating it, and does not inflate.
+fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+    let ihdr = [&width.to_be_bytes()[..], &height.to_be_bytes(), &[8, 2, 0, 0, 0]].concat();
+    let chunk = |kind: &[u8; 4], data: &[u8]| {
+        [&(data.len() as u32).to_be_bytes()[..], kind, data, &format::crc32(&[kind, data]).to_be_bytes()].concat()
+    };
+    [&b"\x89PNG\r\n\x1a\n"[..], &chunk(b"IHDR", &ihdr), &chunk(b"IDAT", b"never inflated"), &chunk(b"IEND", b"")].concat()
+}
+
+/// `events` encoded in the current format under `header`.
+fn encode_recording(header: &str, events: &[Event]) -> Vec<u8> {
+    let mut bytes = format::encode_preamble(header);
+    for e in events {
+        bytes.extend(format::encode_event(e));
+    }
+    bytes.extend(format::encode_end(events.len() as u64));
+    bytes
+}
+
+/// Starts the command in argv[2:] from a fresh fork of this small process, waits for it, writes
+/// its peak resident memory (KiB) to argv[1] and exits with its code. A child's `ru_maxrss`
+/// starts from the resident size of the process it was forked from (Linux carries the old
+/// memory's high-water mark across `execve`), so `rig` spawned straight from the test binary,
+/// which holds the memory of every test running beside it, would report that instead of its own.
+const MEASURE_PY: &str = "import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execv(sys.argv[2], sys.argv[2:])
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], 'w') as f:
+    f.write(str(usage.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status) if os.WIFEXITED(status) else 128)
+";
+
+/// Runs `rig` with `args` and its output into files in `dir`: its exit code, its output, and
+/// its peak resident memory in bytes (the kernel's count for that process alone, taken by
+/// [`MEASURE_PY`]).
+fn run_measured(dir: &Path, args: &[&std::ffi::OsStr]) -> (Option<i32>, String, u64) {
+    let (out, err, peak) = (dir.join("measured.out"), dir.join("measured.err"), dir.join("measured.peak"));
+    let rig = rig();
+    let mut measured = Command::new("python3");
+    measured.arg("-c").arg(MEASURE_PY).arg(&peak).arg(rig.get_program()).args(args);
+    if let Some(cwd) = rig.get_current_dir() {
+        measured.current_dir(cwd);
+    }
+    for (key, value) in rig.get_envs() {
+        match value {
+            Some(value) => measured.env(key, value),
+            None => measured.env_remove(key),
+        };
+    }
+    let status = measured
+        .stdout(std::fs::File::create(&out).expect("stdout file"))
+        .stderr(std::fs::File::create(&err).expect("stderr file"))
+        .status()
+        .expect("starting python3 and rig");
+    let text = format!("{}{}", std::fs::read_to_string(out).expect("stdout"), std::fs::read_to_string(err).expect("stderr"));
+    let peak_kib: u64 = std::fs::read_to_string(&peak).expect("the peak").trim().parse().expect("a number of KiB");
+    (status.code(), text, peak_kib * 1024)
+}
+
+/// A recording written by the previous format version (5: raw frames, no encoding byte) still
+/// replays, to the dataset its run wrote: `poses.csv` byte for byte, images pixel for pixel.
+#[test]
+fn a_recording_of_format_version_5_replays_to_the_dataset_it_recorded() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let fixture = fixture_v5();
+    let o = rig().arg("replay").arg(fixture.join("v5.rec")).arg("--info").output().expect("running rig replay --info");
+    assert!(o.status.success() && text(&o).contains("format version 5, 187 events"), "{}", text(&o));
+    let out = tmp.path().join("replayed");
+    let o = replay(&fixture.join("v5.rec"), &out);
+    assert!(o.status.success(), "rig replay failed:\n{}", text(&o));
+    let (recorded, replayed) = (fixture.join("recorded-tactip"), out.join("sphere/tactip"));
+    let csv = |d: &Path| std::fs::read_to_string(d.join("poses.csv")).expect("poses.csv");
+    assert_eq!(csv(&recorded), csv(&replayed));
+    for rel in ["reference.png", "images/3141.png", "images/7779.png"] {
+        assert_same_pixels(&recorded.join(rel), &replayed.join(rel));
+    }
+}
+
+/// (Issue 44, break 3.) A frame of another size than the camera the header names is refused
+/// with exit 2, naming the record's offset and both sizes, before anything is allocated for it
+/// or written: a 1 x 1 frame in the 32 x 24 recording of format 5 (whose frames are raw, so
+/// rig before this check read the file too, and replayed it with exit 0); in the current
+/// format, a PNG frame that says 4000 x 4000 and one that says 20000 x 20000 (400 Mpx, past the
+/// bound on any frame); and, in a header without the camera's size (recordings made before rig
+/// recorded it), a frame of another size than the camera's first.
+#[test]
+fn a_frame_of_another_size_than_the_cameras_is_refused_before_anything_is_written() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let original = std::fs::read(fixture_v5().join("v5.rec")).expect("the fixture");
+    let frames: Vec<(usize, u8, usize)> = record_spans(&original).into_iter().filter(|(_, kind, _)| *kind == 2).collect();
+    assert_eq!(frames.len(), 3, "the reference and two poses");
+    let refused = |name: &str, bytes: &[u8], message: &str| {
+        let file = tmp.path().join(name);
+        std::fs::write(&file, bytes).expect("writing");
+        let out = tmp.path().join(format!("{name}-out"));
+        for info in [false, true] {
+            let mut c = rig();
+            c.arg("replay").arg(&file).arg("--out").arg(&out).args(["--stall-s", "20"]);
+            if info {
+                c.arg("--info");
+            }
+            let o = c.output().expect("running rig replay");
+            assert_eq!(o.status.code(), Some(2), "{name} (--info {info}): {}", text(&o));
+            assert!(text(&o).contains(message), "{name} (--info {info}): {message:?} not in\n{}", text(&o));
+            assert!(!out.exists(), "{name}: nothing is written");
+        }
+    };
+
+    // Format 5: the second pose's frame (record 2 of 3) cut down to one pixel.
+    let (at, _, len) = frames[2];
+    let body = &original[at + 5..at + 5 + len];
+    // camera, t_s, t_capture_s, seq (25 bytes), then width, height and the pixels.
+    let one_pixel = [&body[..25], &1u32.to_le_bytes(), &1u32.to_le_bytes(), &[7, 8, 9]].concat();
+    let v5 = [&original[..at], &record_bytes(2, &one_pixel)[..], &original[at + 5 + len + 4..]].concat();
+    let record = record_spans(&original).iter().position(|s| s.0 == at).expect("the record");
+    refused(
+        "one-pixel.rec",
+        &v5,
+        &format!("record {record} at byte {at} is a 1x1 frame of camera tactip, but the header's camera is 32x24"),
+    );
+
+    // The current format, PNG frames whose IHDR says what the record says (never inflated).
+    let raw = format::decode(&original).expect("the fixture decodes");
+    let last_frame = raw.events.iter().rposition(|e| matches!(e, Event::Frame(_))).expect("a frame");
+    let with_frame = |header: &str, width: u32, height: u32| {
+        let mut events = raw.events.clone();
+        let Event::Frame(f) = &mut events[last_frame] else { unreachable!("a frame") };
+        (f.width, f.height, f.pixels) = (width, height, format::FramePixels::Png(png_claiming(width, height)));
+        let bytes = encode_recording(header, &events);
+        let at = record_spans(&bytes)[last_frame].0;
+        (bytes, at)
+    };
+    let (bytes, at) = with_frame(&raw.header_json, 4000, 4000);
+    refused(
+        "4000.rec",
+        &bytes,
+        &format!("record {last_frame} at byte {at} is a 4000x4000 frame of camera tactip, but the header's camera is 32x24"),
+    );
+    let (bytes, at) = with_frame(&raw.header_json, 20000, 20000);
+    refused(
+        "20000.rec",
+        &bytes,
+        &format!("record {last_frame} at byte {at}: a frame of 20000x20000 pixels is more than the 16777216 rig reads"),
+    );
+
+    // A header without the camera's size: the camera's first frame sets it.
+    let mut header: serde_json::Value = serde_json::from_str(&raw.header_json).expect("json header");
+    header["sensors"][0].as_object_mut().expect("a sensor").remove("capture");
+    let (bytes, at) = with_frame(&header.to_string(), 1, 1);
+    refused(
+        "no-capture.rec",
+        &bytes,
+        &format!("record {last_frame} at byte {at} is a 1x1 frame of camera tactip, but its first frame was 32x24"),
+    );
+}
+
+/// Issue 43: a recording is read one record at a time. The format-5 fixture with 3,000,960
+/// one-byte feedback reads appended after its last event (2,084 copies of its last feedback
+/// frame; a 60 MB file), written record by record: `--info` counts them and `rig replay`
+/// replays the run to the same dataset (the reads after the job are the feedback a client
+/// leaves unread) each in under 100 MB of resident memory. Holding the events, as rig did
+/// before, takes about 6 bytes of memory per byte of such a file: 345 MB here.
+#[test]
+fn three_million_records_are_counted_and_replayed_in_bounded_memory() {
+    use std::io::Write;
+    const PADDING: usize = 1440 * 2084;
+    const MAX_RSS_BYTES: u64 = 100 << 20;
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let original = std::fs::read(fixture_v5().join("v5.rec")).expect("the fixture");
+    let raw = format::decode(&original).expect("the fixture decodes");
+    let feedback = |e: &Event| match e {
+        Event::Socket { socket: format::SocketId::Feedback, direction: format::Direction::FromController, bytes, t_s } => {
+            Some((bytes.clone(), *t_s))
+        }
+        _ => None,
+    };
+    let (frame, t_s) = raw.events.iter().rev().filter_map(feedback).find(|(bytes, _)| bytes.len() == 1440).expect("a whole frame");
+    let reads = raw.events.iter().filter_map(feedback).count();
+    let t_last = raw.events.last().expect("events").t_s().max(t_s);
+
+    // The fixture up to its end record, the padding, a new end record: streamed to the file.
+    let end = *record_spans(&original).last().expect("records");
+    assert_eq!(end.1, 0xFF, "the end record is last");
+    let rec = tmp.path().join("long.rec");
+    let mut file = std::io::BufWriter::new(std::fs::File::create(&rec).expect("creating"));
+    file.write_all(&original[..end.0]).expect("writing");
+    for i in 0..PADDING {
+        let read = Event::Socket {
+            socket: format::SocketId::Feedback,
+            direction: format::Direction::FromController,
+            t_s: t_last,
+            bytes: vec![frame[i % 1440]],
+        };
+        file.write_all(&format::encode_event(&read)).expect("writing");
+    }
+    file.write_all(&format::encode_end((raw.events.len() + PADDING) as u64)).expect("writing");
+    file.into_inner().expect("flushing").sync_all().expect("syncing");
+    assert!(std::fs::metadata(&rec).expect("size").len() > 60_000_000);
+
+    let (code, out, rss) = run_measured(tmp.path(), &["replay".as_ref(), rec.as_os_str(), "--info".as_ref()]);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(out.contains(&format!("feedback socket: 0 writes, {} reads", reads + PADDING)), "{out}");
+    assert!(rss < MAX_RSS_BYTES, "--info took {} MB", rss >> 20);
+
+    let replayed = tmp.path().join("replayed");
+    let (code, out, rss) = run_measured(
+        tmp.path(),
+        &["replay".as_ref(), rec.as_os_str(), "--out".as_ref(), replayed.as_os_str(), "--stall-s".as_ref(), "20".as_ref()],
+    );
+    assert_eq!(code, Some(0), "{out}");
+    assert!(rss < MAX_RSS_BYTES, "the replay took {} MB", rss >> 20);
+    let csv = |d: &Path| std::fs::read_to_string(d.join("poses.csv")).expect("poses.csv");
+    assert_eq!(csv(&fixture_v5().join("recorded-tactip")), csv(&replayed.join("sphere/tactip")));
+}
+
+/// A frame whose PNG passes every check made without inflating it (its size, its chunks, the
+/// record's checksum) but does not inflate: the replay stops at it with exit 2, naming it, and
+/// the dataset holds the pose before it.
+#[test]
+fn a_frame_whose_png_does_not_inflate_stops_the_replay_with_exit_2() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let raw = format::decode(&std::fs::read(fixture_v5().join("v5.rec")).expect("the fixture")).expect("the fixture decodes");
+    let mut events = raw.events.clone();
+    let last_frame = events.iter().rposition(|e| matches!(e, Event::Frame(_))).expect("a frame");
+    let Event::Frame(f) = &mut events[last_frame] else { unreachable!("a frame") };
+    f.pixels = format::FramePixels::Png(png_claiming(32, 24));
+    let bytes = encode_recording(&raw.header_json, &events);
+    let at = record_spans(&bytes)[last_frame].0;
+    let rec = tmp.path().join("bad-png.rec");
+    std::fs::write(&rec, bytes).expect("writing");
+    let o = rig().arg("replay").arg(&rec).arg("--info").output().expect("running rig replay --info");
+    assert!(o.status.success(), "--info inflates nothing: {}", text(&o));
+    let out = tmp.path().join("out");
+    let o = replay(&rec, &out);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains(&format!("record {last_frame} at byte {at}: frame ")) && text(&o).contains("does not decode"),
+        "{}",
+        text(&o)
+    );
+    let rows = std::fs::read_to_string(out.join("sphere/tactip/poses.csv")).expect("poses.csv");
+    assert_eq!(rows.lines().count(), 2, "the header and the first pose: {rows}");
 }

@@ -29,9 +29,22 @@ fn filled_dataset(dir: &Path, collected: u32) -> PathBuf {
     ok(c);
     let ds = out.join("edge").join("vitac");
     let mut f = rig();
-    f.args(["synth", "--fill-missing", "--steps", "1", "--dataset"]).arg(&ds);
+    // Standard error is a pipe here, as in a log file: progress comes as plain lines, at an
+    // interval short enough for this small fill to print some.
+    f.args(["synth", "--fill-missing", "--steps", "1", "--dataset"]).arg(&ds).env("RIG_PROGRESS_INTERVAL_S", "0.01");
     let filled = ok(f);
     assert!(filled.contains(&format!("synthesised {} poses", 18 - collected)), "{filled}");
+    let total = 18 - collected;
+    assert!(
+        filled.lines().any(|l| l.starts_with("edge/vitac: ") && l.contains(&format!("/{total} poses"))),
+        "no plain progress line naming the dataset: {filled}"
+    );
+    assert!(!filled.contains('\r') && !filled.contains("\x1b["), "no terminal bar in a log: {filled:?}");
+    // The manifest records the model's size and the frames'; the fill warned if it upscaled.
+    let synthesis = rig::dataset::Manifest::load(&ds).expect("manifest").synthesis.expect("[synthesis] recorded by the fill");
+    let frames = image::image_dimensions(ds.join("reference.png")).expect("reference.png");
+    assert_eq!(synthesis.image_resolution_px, [frames.0, frames.1]);
+    assert_eq!(synthesis.upscales(), filled.contains(&format!("upscaled {}", synthesis.upscale_text())), "{filled}");
     ds
 }
 
@@ -60,6 +73,17 @@ fn audit_collects_a_seeded_share_scores_it_and_writes_the_summary() {
     assert!(out.contains("| figure | n | mean | 95% interval |"), "{out}");
     assert!(out.contains("| contact SSIM (RGB) | 6 |"), "{out}");
     assert!(out.contains("SSIM (grey, min-max; MultiDiffSense)"), "{out}");
+    // One verdict line against the two baselines; unless the fill beats both, it names a cause.
+    let verdict = out.lines().find(|l| l.starts_with("verdict: the fill ")).unwrap_or_else(|| panic!("no verdict line: {out}"));
+    let synthesis = rig::dataset::Manifest::load(&ds).expect("manifest").synthesis.expect("[synthesis]");
+    if !verdict.contains("beats both baselines") {
+        let cause = if synthesis.upscales() {
+            format!("Likely cause: the fill upscales {}", synthesis.upscale_text())
+        } else {
+            "Likely cause: the model".into()
+        };
+        assert!(verdict.contains(&cause), "{verdict}");
+    }
     // Six of the twelve synthesised poses, each collected once, apart from the dataset.
     let audit_ds = ds.join("audit").join("edge").join("vitac");
     let got = ids(&audit_ds);
@@ -73,6 +97,7 @@ fn audit_collects_a_seeded_share_scores_it_and_writes_the_summary() {
     // The report, the panel of the worst poses, and the summary `rig dataset verify` prints.
     let report = std::fs::read_to_string(ds.join("audit").join("report.md")).expect("report.md");
     assert!(report.contains("95% interval") && report.contains("![worst poses](worst-poses.png)"), "{report}");
+    assert!(report.contains(&verdict.replacen("verdict:", "**Verdict:**", 1)), "{report}");
     let panel = image::open(ds.join("audit").join("worst-poses.png")).expect("panel").to_rgb8();
     assert_eq!(panel.dimensions(), (128, 4 * 64));
     let verify = ok({

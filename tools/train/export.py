@@ -84,7 +84,8 @@ def main():
     # The exporter writes one file per model; external-data files would appear beside them.
     write_model_toml(out, name, size, size, round(vae.config.scaling_factor, 6),
                      vae_scale_factor=4, sampling_steps=20, guidance=1.0,  # see train.py: INFERENCE_TIMESTEPS
-                     sampler="dpm++2m")  # docs/src/evaluation.md: beats DDIM on ViTac contact SSIM
+                     sampler="dpm++2m",  # docs/src/evaluation.md: beats DDIM on ViTac contact SSIM
+                     control_colour_map="viridis")  # trained on MultiDiffSense's viridis control images
     write_scheduler_config(out, SCHEDULER_CONFIG)
     with open(os.path.join(out, "TRAINING.txt"), "w") as f:
         targs = json.load(open(os.path.join(args.train_dir, "args.json")))

@@ -209,6 +209,30 @@ fn tcp_reopen(host: &str, port: u16, timeout: Duration, role: &'static str) -> R
     })
 }
 
+/// Sends one dashboard command on a connection of its own and returns the controller's reply,
+/// whatever its ErrorID (`rig arm send`): the motion and feedback ports stay closed, and the
+/// arm is not enabled or moved by rig around it.
+pub async fn dashboard_once(cfg: &Mg400Config, req: &Request) -> Result<Reply, ArmError> {
+    let port = cfg.dashboard_port;
+    let mut link = CommandLink {
+        role: "dashboard",
+        where_: format!("dashboard port {}:{port}", cfg.host),
+        reopen: Some(tcp_reopen(&cfg.host, port, cfg.connect_timeout, "dashboard")),
+        reset_on_abandon: true,
+        stream: None,
+        framer: ReplyFramer::new(),
+        abandoned: VecDeque::new(),
+        port: Port::Dashboard,
+        witness: Witness::Unwatched,
+    };
+    let timeout = match req {
+        Request::EnableRobot { .. } | Request::DisableRobot | Request::ClearError | Request::ResetRobot => cfg.enable_timeout,
+        _ => cfg.reply_timeout,
+    };
+    // Sent once: a command typed by hand is not resent behind the user's back.
+    link.request(req, timeout, 0).await
+}
+
 /// One request/reply connection (dashboard or motion).
 struct CommandLink {
     /// "dashboard" or "motion", for messages.

@@ -153,6 +153,21 @@ impl MagicianProfile {
         if !(p.arrival.tolerance_mm > 0.0 && p.arrival.tolerance_mm.is_finite()) {
             return Err(invalid("arrival.tolerance_mm", format!("must be above 0, got {}", p.arrival.tolerance_mm)));
         }
+        // Every number within its documented range ([`crate::bounds`]).
+        use crate::bounds;
+        let within = |bound: &bounds::Bound, field: &'static str, value: f64| bound.check(value).map(|_| ()).map_err(|e| invalid(field, e));
+        within(&bounds::MAGICIAN_BAUD, "serial.baud", f64::from(p.serial.baud))?;
+        within(&bounds::MAGICIAN_REPLY_TIMEOUT, "serial.reply_timeout_ms", p.serial.reply_timeout_ms as f64)?;
+        within(&bounds::MAGICIAN_POLL, "arrival.poll_ms", p.arrival.poll_ms as f64)?;
+        within(&bounds::MAGICIAN_TOLERANCE, "arrival.tolerance_mm", p.arrival.tolerance_mm)?;
+        for (field, r) in [("workspace.radius_mm", p.workspace.radius_mm), ("workspace.z_mm", p.workspace.z_mm)] {
+            for v in r {
+                within(&bounds::PROFILE_REACH, field, v)?;
+            }
+        }
+        for v in p.workspace.r_deg {
+            within(&bounds::MAGICIAN_ROTATION, "workspace.r_deg", v)?;
+        }
         Ok(p)
     }
 

@@ -23,10 +23,17 @@
 //!
 //! # Ordering
 //!
-//! [`Order::Optimised`] builds a nearest-neighbour path and improves it with 2-opt moves over
-//! the k nearest neighbours of each pose (the path is open: it is closed through a zero-cost
-//! virtual node so the cyclic 2-opt applies). 2-opt assumes the cost is symmetric, which holds
-//! for trapezoidal per-axis motion models; the reported totals always use the directed cost.
+//! [`Order::Optimised`] is one method from 10 to 10^6 poses, O(n log n) in time and O(n) in
+//! memory (`order`): candidate neighbours from a k-d tree over the poses under a metric that
+//! approximates the motion-time model, a nearest-neighbour path through it, then 2-opt and
+//! Or-opt moves over the candidates with the model itself deciding every move (the path is
+//! open: it is closed through a zero-cost virtual node so the cyclic moves apply). 2-opt
+//! assumes the cost is symmetric, which holds for trapezoidal per-axis motion models; the
+//! reported totals always use the directed cost. [`reference_order`] is the quadratic
+//! algorithm it replaced, kept as the yardstick of tests and benchmarks.
+//!
+//! A collection orders its plan once and keeps the order with each dataset
+//! ([`crate::dataset::order`]); resuming reads it back instead of ordering again.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -37,6 +44,10 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::pose::Pose;
+
+mod kdtree;
+mod order;
+pub use order::{MAX_EXAMINATIONS_PER_SITE, MAX_REVERSAL};
 
 /// Largest grid rig enumerates. Filling a dataset and sampling a plan hold a list of grid
 /// poses (40 bytes each), so this bounds what a plan, or a dataset's manifest, can make rig
@@ -401,56 +412,20 @@ impl PlanSpec {
     /// Validates, samples and orders. `cost(a, b)` is the motion time in seconds from pose `a`
     /// to pose `b` (work frame), e.g. the firmware profile's motion-time model.
     pub fn build(&self, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Result<Plan, PlanError> {
-        self.validate()?;
-        let ids = self.sample_ids();
-        let sampled: Vec<PlannedPose> =
-            ids.into_iter().filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose })).collect();
-        let motion_time_before_s = path_cost(&sampled, cost);
-        let poses = match self.order {
-            Order::AsSampled => sampled,
-            Order::Random => {
-                let mut rng = ChaCha8Rng::seed_from_u64(derived_seed(self.seed, 1));
-                let mut v = sampled;
-                v.shuffle(&mut rng);
-                v
-            }
-            Order::Optimised => {
-                let ordered = if sampled.len() <= MAX_OPTIMISED_POSES {
-                    optimise_order(&sampled, cost)
-                } else {
-                    // NN and the neighbour lists are quadratic: beyond this size, sweep.
-                    self.serpentine(&sampled)
-                };
-                // Never hand back a worse order than the sampler's (possible only with
-                // strongly asymmetric costs, which 2-opt does not model).
-                if path_cost(&ordered, cost) <= motion_time_before_s { ordered } else { sampled }
-            }
-        };
-        let motion_time_after_s = path_cost(&poses, cost);
-        Ok(Plan { poses, motion_time_before_s, motion_time_after_s })
+        let sampled = self.sample()?;
+        Ok(self.order_sampled(sampled, cost))
     }
 
-    /// Boustrophedon sweep: yaw slowest (the most expensive axis), then z, x, y, each digit
-    /// running backwards when the grid indices before it sum to an odd number, so consecutive poses
-    /// are grid neighbours wherever the sample is dense.
-    fn serpentine(&self, poses: &[PlannedPose]) -> Vec<PlannedPose> {
-        let counts = self.axis_counts();
-        let key = |p: &PlannedPose| -> [u64; 4] {
-            let [ix, iy, iz, iyaw] = self.indices_of(p.pose_id);
-            let digits = [(iyaw, counts[3]), (iz, counts[2]), (ix, counts[0]), (iy, counts[1])];
-            let mut out = [0u64; 4];
-            let mut sum = 0u64;
-            for (k, (d, n)) in digits.into_iter().enumerate() {
-                out[k] = if sum.is_multiple_of(2) { d } else { n - 1 - d };
-                // Parity of the untransformed digits: it flips exactly once at every step of
-                // an outer digit, which is what keeps the inner sweep continuous.
-                sum += d;
-            }
-            out
-        };
-        let mut v = poses.to_vec();
-        v.sort_by_key(key);
-        v
+    /// Validates and samples: the plan's poses in the sampler's order, not ordered yet. O(n)
+    /// (and one flag per grid point for Latin hypercube sampling).
+    pub fn sample(&self) -> Result<Vec<PlannedPose>, PlanError> {
+        self.validate()?;
+        Ok(self.sample_ids().into_iter().filter_map(|pose_id| self.pose_of(pose_id).map(|pose| PlannedPose { pose_id, pose })).collect())
+    }
+
+    /// Orders [`sample`](Self::sample)'s poses as the spec's `order` says.
+    pub fn order_sampled(&self, sampled: Vec<PlannedPose>, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Plan {
+        order_poses(sampled, self.order, self.seed, cost)
     }
 
     fn sample_ids(&self) -> Vec<u32> {
@@ -544,101 +519,77 @@ pub fn path_cost(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> f
     poses.windows(2).map(|w| cost(&w[0].pose, &w[1].pose)).sum()
 }
 
-/// Largest plan ordered by nearest neighbour + 2-opt; larger ones get a serpentine sweep.
-pub const MAX_OPTIMISED_POSES: usize = 10_000;
-
-/// Neighbours examined per pose by 2-opt.
-const NEIGHBOURS: usize = 16;
-
-/// Nearest neighbour then 2-opt over k-nearest-neighbour candidate lists. Open path: node `n`
-/// is a virtual node at zero cost from and to every pose, which turns the path into a cycle.
-fn optimise_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> Vec<PlannedPose> {
-    let n = poses.len();
-    if n < 3 {
-        return poses.to_vec();
-    }
-    let virt = n;
-    let d = |a: usize, b: usize| -> f64 { if a == virt || b == virt { 0.0 } else { cost(&poses[a].pose, &poses[b].pose) } };
-
-    // Nearest neighbour from the pose closest to the work-frame origin.
-    let origin = Pose::default();
-    let start = (0..n).min_by(|&a, &b| cost(&origin, &poses[a].pose).total_cmp(&cost(&origin, &poses[b].pose))).unwrap_or(0);
-    let mut visited = vec![false; n];
-    let mut tour = Vec::with_capacity(n + 1);
-    tour.push(virt);
-    let mut cur = start;
-    visited[cur] = true;
-    tour.push(cur);
-    for _ in 1..n {
-        let next = (0..n).filter(|&j| !visited[j]).min_by(|&a, &b| d(cur, a).total_cmp(&d(cur, b))).unwrap_or(cur);
-        visited[next] = true;
-        tour.push(next);
-        cur = next;
-    }
-
-    let k = NEIGHBOURS.min(n - 1);
-    let knn: Vec<Vec<(f64, usize)>> = (0..n)
-        .map(|a| {
-            let mut v: Vec<(f64, usize)> = (0..n).filter(|&b| b != a).map(|b| (d(a, b), b)).collect();
-            // Partial selection first: sorting all n candidates per pose is what would make
-            // full-grid plans slow.
-            if k < v.len() {
-                v.select_nth_unstable_by(k, |x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                v.truncate(k);
-            }
-            v.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+/// `sampled` (a sampler's poses) in `order`; `seed` is the plan's (it seeds the random order).
+pub fn order_poses(sampled: Vec<PlannedPose>, order: Order, seed: u64, cost: &dyn Fn(&Pose, &Pose) -> f64) -> Plan {
+    let motion_time_before_s = path_cost(&sampled, cost);
+    let poses = match order {
+        Order::AsSampled => sampled,
+        Order::Random => {
+            let mut rng = ChaCha8Rng::seed_from_u64(derived_seed(seed, 1));
+            let mut v = sampled;
+            v.shuffle(&mut rng);
             v
-        })
-        .collect();
-
-    let m = n + 1;
-    let mut pos = vec![0usize; m];
-    for (i, &node) in tour.iter().enumerate() {
-        pos[node] = i;
-    }
-    let succ = |tour: &[usize], pos: &[usize], x: usize| tour[(pos[x] + 1) % m];
-    let pred = |tour: &[usize], pos: &[usize], x: usize| tour[(pos[x] + m - 1) % m];
-    const EPS: f64 = 1e-12;
-    let mut improved = true;
-    let mut passes = 0;
-    while improved && passes < 1000 {
-        improved = false;
-        passes += 1;
-        for a in 0..n {
-            for forward in [true, false] {
-                let b = if forward { succ(&tour, &pos, a) } else { pred(&tour, &pos, a) };
-                let d_ab = d(a, b);
-                for &(d_ac, c) in &knn[a] {
-                    if d_ab - d_ac <= EPS {
-                        break; // candidates are sorted: no later c can gain
-                    }
-                    let dd = if forward { succ(&tour, &pos, c) } else { pred(&tour, &pos, c) };
-                    if dd == a || c == b {
-                        continue;
-                    }
-                    let delta = d_ac + d(b, dd) - d_ab - d(c, dd);
-                    if delta < -EPS {
-                        // Remove the edges leaving positions i and j, reconnect by reversal.
-                        let (i, j) = if forward { (pos[a], pos[c]) } else { (pos[b], pos[dd]) };
-                        let (lo, hi) = if i < j { (i + 1, j) } else { (j + 1, i) };
-                        tour[lo..=hi].reverse();
-                        for (p, &node) in tour.iter().enumerate().take(hi + 1).skip(lo) {
-                            pos[node] = p;
-                        }
-                        improved = true;
-                        break;
-                    }
-                }
-            }
         }
-    }
+        Order::Optimised => {
+            let ordered = permuted(&sampled, order::optimise(&plain_poses(&sampled), cost));
+            // Never hand back a worse order than the sampler's (possible only with
+            // strongly asymmetric costs, which 2-opt does not model).
+            if path_cost(&ordered, cost) <= motion_time_before_s { ordered } else { sampled }
+        }
+    };
+    let motion_time_after_s = path_cost(&poses, cost);
+    Plan { poses, motion_time_before_s, motion_time_after_s }
+}
 
-    // Open the cycle at the virtual node; keep the cheaper direction for asymmetric costs.
-    let at = pos[virt];
-    let path: Vec<PlannedPose> = (1..m).map(|s| poses[tour[(at + s) % m]]).collect();
-    let mut reversed = path.clone();
-    reversed.reverse();
-    if path_cost(&reversed, cost) < path_cost(&path, cost) { reversed } else { path }
+/// The order `order` replaced: nearest neighbour by a full scan and 2-opt over exact 16-nearest
+/// lists, quadratic in time and memory. The yardstick of tests and benchmarks
+/// (`cargo bench --bench plan_order`); no command of rig uses it.
+pub fn reference_order(poses: &[PlannedPose], cost: &dyn Fn(&Pose, &Pose) -> f64) -> Vec<PlannedPose> {
+    permuted(poses, order::reference(&plain_poses(poses), cost))
+}
+
+fn plain_poses(poses: &[PlannedPose]) -> Vec<Pose> {
+    poses.iter().map(|p| p.pose).collect()
+}
+
+/// `poses` in the order of `permutation` (indices into `poses`).
+fn permuted(poses: &[PlannedPose], permutation: Vec<u32>) -> Vec<PlannedPose> {
+    permutation.into_iter().map(|i| poses[i as usize]).collect()
+}
+
+/// Why a kept order (a list of pose ids) is not an order of a plan's poses.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum OrderMismatch {
+    #[error("it lists {kept} poses, the plan has {planned}")]
+    Count { kept: usize, planned: usize },
+    #[error("it lists pose {pose_id}, which is not one of the plan's")]
+    NotPlanned { pose_id: u32 },
+    #[error("it lists pose {pose_id} twice")]
+    Repeated { pose_id: u32 },
+}
+
+/// `sampled` (a sampler's poses) in the order of `ids`, which must list every one of them
+/// exactly once: a kept order read back instead of ordering again. O(n log n), no cost
+/// evaluated but the two totals' (O(n)).
+pub fn in_kept_order(sampled: Vec<PlannedPose>, ids: &[u32], cost: &dyn Fn(&Pose, &Pose) -> f64) -> Result<Plan, OrderMismatch> {
+    if ids.len() != sampled.len() {
+        return Err(OrderMismatch::Count { kept: ids.len(), planned: sampled.len() });
+    }
+    let mut by_id: Vec<(u32, u32)> = sampled.iter().enumerate().map(|(i, p)| (p.pose_id, i as u32)).collect();
+    by_id.sort_unstable();
+    let mut taken = vec![false; sampled.len()];
+    let mut poses = Vec::with_capacity(sampled.len());
+    for &pose_id in ids {
+        let at = by_id.binary_search_by_key(&pose_id, |&(id, _)| id).map_err(|_| OrderMismatch::NotPlanned { pose_id })?;
+        let i = by_id[at].1 as usize;
+        if std::mem::replace(&mut taken[i], true) {
+            return Err(OrderMismatch::Repeated { pose_id });
+        }
+        poses.push(sampled[i]);
+    }
+    let motion_time_before_s = path_cost(&sampled, cost);
+    let motion_time_after_s = path_cost(&poses, cost);
+    Ok(Plan { poses, motion_time_before_s, motion_time_after_s })
 }
 
 /// A simple motion-time model: every axis moves at once with a trapezoidal velocity profile,
@@ -790,6 +741,28 @@ mod tests {
         }
     }
 
+    /// A kept order is read back as it is, and refused when it is not an order of the plan's
+    /// poses: a missing or extra pose, one twice.
+    #[test]
+    fn kept_orders_are_checked_against_the_plan() {
+        let cost = model();
+        let spec = PlanSpec { n_poses: Some(30), seed: 2, ..PlanSpec::default() };
+        let sampled = spec.sample().unwrap();
+        let mut ids: Vec<u32> = sampled.iter().map(|p| p.pose_id).collect();
+        ids.reverse();
+        let plan = in_kept_order(sampled.clone(), &ids, &cost).unwrap();
+        assert_eq!(plan.poses.iter().map(|p| p.pose_id).collect::<Vec<_>>(), ids);
+        assert!((plan.motion_time_before_s - path_cost(&sampled, &cost)).abs() < 1e-12);
+        assert!((plan.motion_time_after_s - path_cost(&plan.poses, &cost)).abs() < 1e-12);
+        assert_eq!(in_kept_order(sampled.clone(), &ids[1..], &cost), Err(OrderMismatch::Count { kept: 29, planned: 30 }));
+        let outside = (0..7865).find(|id| !ids.contains(id)).unwrap();
+        let mut other = ids.clone();
+        other[4] = outside;
+        assert_eq!(in_kept_order(sampled.clone(), &other, &cost), Err(OrderMismatch::NotPlanned { pose_id: outside }));
+        other[4] = ids[9];
+        assert_eq!(in_kept_order(sampled, &other, &cost), Err(OrderMismatch::Repeated { pose_id: ids[9] }));
+    }
+
     #[test]
     fn lhs_balances_every_axis() {
         // With n equal to the axis count, each axis value is drawn once per stratum, so before
@@ -835,27 +808,6 @@ mod tests {
         ids.sort();
         assert_eq!(ids, missing.iter().map(|p| p.pose_id).collect::<Vec<_>>());
         assert!(shard(&missing, 3, 3).is_empty());
-    }
-
-    #[test]
-    fn serpentine_visits_grid_neighbours() {
-        let s = PlanSpec {
-            x_mm: AxisRange::new(0.0, 3.0, 1.0),
-            y_mm: AxisRange::new(0.0, 2.0, 1.0),
-            z_mm: AxisRange::new(0.0, 1.0, 1.0),
-            yaw_deg: AxisRange::new(0.0, 30.0, 15.0),
-            sampling: Sampling::Full,
-            n_poses: None,
-            seed: 0,
-            order: Order::AsSampled,
-        };
-        let swept = s.serpentine(&s.grid());
-        assert_eq!(swept.len(), 72);
-        for w in swept.windows(2) {
-            let (a, b) = (s.indices_of(w[0].pose_id), s.indices_of(w[1].pose_id));
-            let steps: u64 = (0..4).map(|k| a[k].abs_diff(b[k])).sum();
-            assert_eq!(steps, 1, "{:?} -> {:?}", w[0], w[1]);
-        }
     }
 
     #[test]
