@@ -334,7 +334,7 @@ fn track_marker(lf: &[f32], lr: &[f32], w: usize, h: usize, p: [f64; 2], d: [f64
                 }
             }
         }
-        let sol = solve_linear(ata, atb)?;
+        let sol = super::fit::solve(ata, atb)?;
         let gain = sol[0];
         if !(gain > 0.2) {
             return None;
@@ -349,33 +349,6 @@ fn track_marker(lf: &[f32], lr: &[f32], w: usize, h: usize, p: [f64; 2], d: [f64
         }
     }
     Some(d)
-}
-
-/// Solves an `N` x `N` system by Gaussian elimination with partial pivoting; `None` when it
-/// is (nearly) singular.
-fn solve_linear<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
-    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    for c in 0..N {
-        let pivot = (c..N).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
-        if !(a[pivot][c].abs() > 1e-12 * scale) {
-            return None;
-        }
-        a.swap(c, pivot);
-        b.swap(c, pivot);
-        for r in c + 1..N {
-            let f = a[r][c] / a[c][c];
-            for k in c..N {
-                a[r][k] -= f * a[c][k];
-            }
-            b[r] -= f * b[c];
-        }
-    }
-    let mut x = [0.0; N];
-    for r in (0..N).rev() {
-        let tail: f64 = (r + 1..N).map(|k| a[r][k] * x[k]).sum();
-        x[r] = (b[r] - tail) / a[r][r];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 /// The point the displacements `moves` (rest position, displacement) point away from: least
