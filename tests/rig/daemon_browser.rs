@@ -473,7 +473,9 @@ async fn job_when(client: &DaemonClient, id: u64, what: &str, done: impl Fn(&Job
 /// page's requests pass the CSRF rule only with the `X-Rig-Client` header): a refused audit
 /// shows the API's reason; the collect form queues the job it describes; Cancel cancels it;
 /// Resume queues the same request with `resume: true`, which runs once Cancel has stopped the
-/// job ahead of it; and a script on the page that leaves the header out is still refused.
+/// job ahead of it; the fill form synthesises two poses into that collection and the audit form
+/// presses them again (both run to their end); and a script on the page that leaves the header
+/// out is still refused.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_submits_cancels_and_resumes_jobs() {
     use rig::jobs::JobRequest;
@@ -543,6 +545,29 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     assert_eq!((finished.state, finished.exit_code), (JobState::Done, Some(0)), "{finished:?}");
     assert_eq!(rig::dataset::read_rows(&out.join("cross/tactip")).expect("rows").len(), 3, "{finished:?}");
 
+    // The fill form: two of the plan's missing poses synthesised into that collection with the
+    // tiny package (copied inside the data roots), one sampling step.
+    let collected = out.join("cross/tactip");
+    let pkg = crate::hostile::copy_package(&tmp.path().join("pkg"));
+    browser.submit_form(&tab, "form-synth", json!({"dataset": collected, "model": pkg, "steps": 1, "limit": 2})).await;
+    let fill = job_when(&client, 4, "filled", |j| j.state.is_final()).await;
+    assert_eq!((fill.state, fill.exit_code), (JobState::Done, Some(0)), "{fill:?}");
+    let JobRequest::Synth(fill_spec) = &fill.spec else { panic!("job 4 is not a fill: {fill:?}") };
+    assert_eq!((fill_spec.steps, fill_spec.limit), (Some(1), Some(2)), "{fill_spec:?}");
+    browser.wait_for(&tab, "the fill's id", "document.getElementById('msg-synth').textContent === 'queued synth job 4'").await;
+    let rows = rig::dataset::read_rows(&collected).expect("rows");
+    assert_eq!((rows.len(), rows.iter().filter(|r| !r.source.is_captured()).count()), (5, 2), "{rows:?}");
+
+    // The audit form: both synthesised poses pressed again on the simulated rig and measured;
+    // the dataset's manifest records the audit.
+    browser.submit_form(&tab, "form-audit", json!({"dataset": collected, "fraction": 1, "seed": 3})).await;
+    let audit = job_when(&client, 5, "audited", |j| j.state.is_final()).await;
+    assert_eq!((audit.state, audit.exit_code), (JobState::Done, Some(0)), "{audit:?}");
+    let JobRequest::Audit(audit_spec) = &audit.spec else { panic!("job 5 is not an audit: {audit:?}") };
+    assert_eq!((audit_spec.fraction, audit_spec.seed), (1.0, 3), "{audit_spec:?}");
+    let manifest = rig::dataset::Manifest::load(&collected).expect("manifest");
+    assert_eq!(manifest.audit.as_ref().map(|a| a.audited_poses), Some(2), "{:?}", manifest.audit);
+
     // The CSRF rule still holds on the page's own origin: without X-Rig-Client, refused.
     let script = format!(
         r#"fetch("/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json" }}, body: JSON.stringify({}) }}).then(r => r.status)"#,
@@ -550,7 +575,7 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     );
     assert_eq!(browser.eval(&tab, &script).await, Ok(json!(403)), "a POST without X-Rig-Client");
     let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
-    assert_eq!(jobs.len(), 3, "{jobs:?}");
+    assert_eq!(jobs.len(), 5, "{jobs:?}");
 
     drop(browser);
     daemon.shutdown().await.expect("clean shutdown");

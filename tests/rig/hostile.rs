@@ -114,8 +114,9 @@ fn tiny_package() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package")
 }
 
-/// A copy of the tiny model package under `dir`, for breaking.
-fn copy_package(dir: &Path) -> PathBuf {
+/// A copy of the tiny model package under `dir`, for breaking (and for the daemon page's fill,
+/// whose model must lie inside the daemon's data roots).
+pub(crate) fn copy_package(dir: &Path) -> PathBuf {
     for f in rig::synth::package::PACKAGE_FILES {
         let to = dir.join(f);
         std::fs::create_dir_all(to.parent().expect("parent")).expect("mkdir");
