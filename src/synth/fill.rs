@@ -527,15 +527,23 @@ fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
 
 /// The dataset's reference frame, if it has one: a regular file (a symlink is an error, as
 /// everywhere in a dataset), decoded with bounds.
-fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
+pub fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
     use crate::dataset::durable;
     let path = dataset.join(crate::dataset::REFERENCE_FILE);
     if !durable::entry_exists(&path, durable::Kind::File)? {
         return Ok(None);
     }
-    let bytes = durable::read_below(dataset, Path::new(crate::dataset::REFERENCE_FILE), durable::MAX_IMAGE_BYTES)?;
-    let image = durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path, reason })?;
-    Ok(Some(image.to_rgb8()))
+    read_dataset_image(dataset, crate::dataset::REFERENCE_FILE).map(Some)
+}
+
+/// The image `rel` (a row's `image`, or `reference.png`) of the dataset at `dataset`, read
+/// through the dataset opener (no symlink, a regular file) and decoded with bounds.
+pub fn read_dataset_image(dataset: &Path, rel: &str) -> Result<RgbImage, FillError> {
+    use crate::dataset::durable;
+    let bytes = durable::read_below(dataset, Path::new(rel), durable::MAX_IMAGE_BYTES)?;
+    let image =
+        durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path: dataset.join(rel), reason })?;
+    Ok(image.to_rgb8())
 }
 
 /// Size of the dataset's reference frame, so synthetic images match the captured ones.
