@@ -164,7 +164,7 @@ async fn open_and_collect(
         Rig::open_with(config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, clock.clone(), recorder.clone()).await?;
     if let Some(recorder) = &recorder {
         recorder.begin(&crate::cli::replay::recording_header(
-            &config,
+            config,
             &prepared.object,
             &rig.cameras,
             &setup.plan_spec,

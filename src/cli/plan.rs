@@ -148,8 +148,11 @@ fn show(flags: &PlanFlags, summary: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A pose's value on one axis.
+type AxisValue = fn(&Pose) -> f64;
+
 /// The value of `pose` on the axis named `name` (`x`, `y`, `z`, `yaw`) and the axis' label.
-fn axis_of(name: &str) -> Option<(fn(&Pose) -> f64, &'static str)> {
+fn axis_of(name: &str) -> Option<(AxisValue, &'static str)> {
     match name.trim() {
         "x" => Some((|p: &Pose| p.x_mm, "x mm")),
         "y" => Some((|p: &Pose| p.y_mm, "y mm")),
