@@ -334,16 +334,7 @@ impl SensorSource {
         let requests: Vec<GenerateRequest> = poses
             .iter()
             .zip(controls.iter().zip(&prompts))
-            .map(|((_, seed), (control, prompt))| {
-                let mut r = GenerateRequest::new(control, prompt);
-                r.steps = options.steps;
-                r.guidance = options.guidance;
-                r.eta = options.eta;
-                r.scheduler = options.scheduler;
-                r.conditioning_scale = options.conditioning_scale;
-                r.seed = *seed;
-                r
-            })
+            .map(|((_, seed), (control, prompt))| options.request(control, prompt, *seed))
             .collect();
         let model = |source| JobError::Model { model: self.dir.clone(), source };
         Ok(pipeline.generate_batch(&requests).map_err(model)?.into_iter().map(|o| o.to_rgb8(options.image_range)).collect())

@@ -82,6 +82,19 @@ impl Default for FillOptions {
 }
 
 impl FillOptions {
+    /// The model request of one image with these sampler settings: `control` and `prompt`,
+    /// from noise seeded by `seed`.
+    pub fn request<'a>(&self, control: &'a RgbImage, prompt: &'a str, seed: u64) -> GenerateRequest<'a> {
+        let mut r = GenerateRequest::new(control, prompt);
+        r.steps = self.steps;
+        r.guidance = self.guidance;
+        r.eta = self.eta;
+        r.scheduler = self.scheduler;
+        r.conditioning_scale = self.conditioning_scale;
+        r.seed = seed;
+        r
+    }
+
     /// Checks every setting against [`super::limits`] (steps against the sampler's limit are
     /// checked once the package's schedule is known, before any image is made). Front ends call
     /// this before loading a model; [`fill_missing_observed`] calls it again.
@@ -250,16 +263,7 @@ pub fn fill_missing_observed(
         let requests: Vec<GenerateRequest> = chunk
             .iter()
             .zip(controls.iter().zip(&prompts))
-            .map(|(p, (control, prompt))| {
-                let mut r = GenerateRequest::new(control, prompt);
-                r.steps = options.steps;
-                r.guidance = options.guidance;
-                r.eta = options.eta;
-                r.scheduler = options.scheduler;
-                r.conditioning_scale = options.conditioning_scale;
-                r.seed = pose_seed(spec_seed, p.pose_id);
-                r
-            })
+            .map(|(p, (control, prompt))| options.request(control, prompt, pose_seed(spec_seed, p.pose_id)))
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
         let mut stop = false;

@@ -135,16 +135,12 @@ fn rounds_are_in_the_manifest_and_the_rest_is_filled() {
     let per_round: Vec<usize> = (1..=3).map(|r| chosen.iter().filter(|c| c.1 == r).count()).collect();
     assert_eq!(per_round, vec![3, 2, 2], "{chosen:?}");
     assert!(chosen.iter().all(|c| (c.1 == 1) == (c.2 == "space-filling") && (c.1 > 1) == (c.2 == "acquisition")), "{chosen:?}");
-    let mut ids: Vec<u32> = chosen.iter().map(|c| c.0).collect();
-    ids.sort();
-    ids.dedup();
+    let ids = sorted_unique(chosen.iter().map(|c| c.0));
     assert_eq!(ids.len(), 7, "no pose chosen twice: {chosen:?}");
     // The pressed rows are exactly the chosen poses; the other 11 of the grid are synthetic.
     let rows = rows(&tactip);
     assert_eq!(rows.len(), 18, "{rows:?}");
-    let mut pressed: Vec<u32> = rows.iter().filter(|r| r.1 != "synthetic").map(|r| r.0).collect();
-    pressed.sort();
-    assert_eq!(pressed, ids, "{rows:?}");
+    assert_eq!(pressed(&rows), ids, "{rows:?}");
     assert_eq!(rows.iter().filter(|r| r.1 == "synthetic").count(), 11);
     assert!(text(&o).contains("round 2/3: 2 poses (by acquisition,"), "{}", text(&o));
 }
@@ -183,17 +179,24 @@ fn a_killed_adaptive_collection_resumes_with_the_same_choices() {
         let dataset = out.join("sphere/tactip");
         assert_eq!(choices(&dataset), expected, "run {run}: the resumed collection chose otherwise");
         let rows = rows(&dataset);
-        let mut ids: Vec<u32> = rows.iter().map(|r| r.0).collect();
-        ids.sort();
-        ids.dedup();
+        let ids = sorted_unique(rows.iter().map(|r| r.0));
         assert_eq!((rows.len(), ids.len()), (18, 18), "run {run}: a row lost or duplicated: {rows:?}");
-        let mut pressed: Vec<u32> = rows.iter().filter(|r| r.1 != "synthetic").map(|r| r.0).collect();
-        pressed.sort();
-        let mut chosen: Vec<u32> = expected.iter().map(|c| c.0).collect();
-        chosen.sort();
-        assert_eq!(pressed, chosen, "run {run}: pressed poses");
+        assert_eq!(pressed(&rows), sorted_unique(expected.iter().map(|c| c.0)), "run {run}: pressed poses");
     }
     assert!(killed_mid_run > 0, "no kill landed before a run ended");
+}
+
+/// `ids` sorted, each once.
+fn sorted_unique(ids: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut v: Vec<u32> = ids.collect();
+    v.sort();
+    v.dedup();
+    v
+}
+
+/// The pose ids of the rows a press made (not `synthetic`), sorted.
+fn pressed(rows: &[(u32, String)]) -> Vec<u32> {
+    sorted_unique(rows.iter().filter(|r| r.1 != "synthetic").map(|r| r.0))
 }
 
 fn copy_dir(from: &Path, to: &Path) {
