@@ -69,6 +69,9 @@ impl AdaptiveRequest {
         if self.budget == 0 || self.budget > plan_poses {
             return Err(bad("budget", format!("--budget {} must be from 1 to the plan's {plan_poses} poses", self.budget)));
         }
+        if self.budget > MAX_BUDGET {
+            return Err(bad("budget", format!("--budget {} is more than {MAX_BUDGET} presses, the most a manifest records", self.budget)));
+        }
         if self.rounds == 0 || self.rounds > MAX_ROUNDS.min(self.budget) {
             return Err(bad(
                 "rounds",
@@ -392,4 +395,31 @@ impl SensorSource {
 /// `image` at `size` (bilinear), when it is not already.
 fn resized(image: RgbImage, size: (u32, u32)) -> RgbImage {
     if image.dimensions() == size { image } else { image::imageops::resize(&image, size.0, size.1, image::imageops::FilterType::Triangle) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn request(budget: usize, rounds: usize, seeds_per_pose: usize) -> AdaptiveRequest {
+        AdaptiveRequest { collect: CollectRequest::default(), budget, rounds, seeds_per_pose, model: None, steps: None }
+    }
+
+    #[test]
+    fn numbers_are_checked_against_the_plan() {
+        assert!(request(10, 3, 2).check(100).is_ok());
+        assert!(request(100, 3, 2).check(100).is_ok(), "the whole plan may be pressed");
+        let refused = |r: AdaptiveRequest, poses: usize, field: &str| {
+            let e = r.check(poses).expect_err("refused");
+            assert!(matches!(&e, JobError::Request(crate::jobs::RequestError::BadOption { field: f, .. }) if *f == field), "{e}");
+        };
+        refused(request(101, 3, 2), 100, "budget");
+        refused(request(0, 1, 2), 100, "budget");
+        refused(request(MAX_BUDGET + 1, 3, 2), MAX_BUDGET + 10, "budget");
+        refused(request(1, 1, 2), 1, "plan");
+        refused(request(3, 4, 2), 100, "rounds");
+        refused(request(3, 0, 2), 100, "rounds");
+        refused(request(3, 1, 1), 100, "seeds-per-pose");
+        refused(request(3, 1, MAX_SEEDS_PER_POSE + 1), 100, "seeds-per-pose");
+    }
 }
