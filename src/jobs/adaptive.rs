@@ -27,7 +27,9 @@ use super::collect::{CollectSetup, PreparedCollect};
 use super::{CollectRequest, FillRequest, JobError};
 use crate::config::RigConfig;
 use crate::plan::PlannedPose;
-use crate::plan::adaptive::{self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, MAX_ROUNDS, MAX_SEEDS_PER_POSE, Scored};
+use crate::plan::adaptive::{
+    self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, MAX_BUDGET, MAX_ROUNDS, MAX_SEEDS_PER_POSE, Scored,
+};
 use crate::sensor::SensorKind;
 use crate::synth::fill::{ControlRenderer, FillOptions, read_dataset_image, read_reference};
 use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};
