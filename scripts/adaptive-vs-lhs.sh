@@ -5,7 +5,8 @@
 # hypercube of BUDGET poses is collected and filled by `rig synth --fill-missing` with the same
 # model and steps. `rig eval --pairs` compares each filled dataset's synthesised poses with the
 # truth; the table is the mean contact SSIM of the model's images over those poses, pooled over
-# the seeds, with a 95% percentile-bootstrap interval, per sensor and method.
+# the seeds, with a 95% percentile-bootstrap interval, per sensor and method; then each seed's
+# mean and the mean of the worst tenth of the poses.
 #
 #   scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]
 #
@@ -54,16 +55,20 @@ def boot(v, n=10000):
     rng = random.Random(1)
     means = sorted(sum(rng.choice(v) for _ in v) / len(v) for _ in range(n))
     return sum(v) / len(v), means[int(0.025 * n)], means[int(0.975 * n) - 1]
-rows = {}
+rows, by_seed = {}, {}
 for method in ("adaptive", "lhs"):
     for seed in seeds:
         with open(f"{out}/pairs-{method}-{seed}.csv") as f:
             for r in csv.DictReader(f):
                 if r["method"] == "model" and r["contact_ssim"] not in ("", "nan", "NaN"):
                     rows.setdefault((r["sensor"], method), []).append(float(r["contact_ssim"]))
-print(f"| sensor | method | n | contact SSIM of the synthesised poses | 95% interval |")
-print("|---|---|---:|---:|---|")
+                    by_seed.setdefault((r["sensor"], method), {}).setdefault(seed, []).append(float(r["contact_ssim"]))
+by_seed = {k: list(v.values()) for k, v in by_seed.items()}
+print("| sensor | method | n | contact SSIM, mean | 95% interval | per seed | worst tenth, mean |")
+print("|---|---|---:|---:|---|---|---:|")
 for (sensor, method), v in sorted(rows.items()):
     m, lo, hi = boot(v)
-    print(f"| {sensor} | {method} | {len(v)} | {m:.3f} | [{lo:.3f}, {hi:.3f}] |")
+    worst = sorted(v)[: max(1, len(v) // 10)]
+    per_seed = ", ".join(f"{sum(x) / len(x):.4f}" for x in by_seed[(sensor, method)])
+    print(f"| {sensor} | {method} | {len(v)} | {m:.4f} | [{lo:.4f}, {hi:.4f}] | {per_seed} | {sum(worst) / len(worst):.4f} |")
 PY
