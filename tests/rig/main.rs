@@ -3,6 +3,9 @@
 //! One test binary per area; run one module with
 //! `cargo test --test rig <module>::`.
 
+// Its cases load the tiny model package: the `synth` feature.
+#[cfg(feature = "synth")]
+mod adaptive;
 mod bad_input;
 mod bench_report;
 mod calibration_cli;
