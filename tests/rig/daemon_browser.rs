@@ -545,10 +545,39 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     assert_eq!((finished.state, finished.exit_code), (JobState::Done, Some(0)), "{finished:?}");
     assert_eq!(rig::dataset::read_rows(&out.join("cross/tactip")).expect("rows").len(), 3, "{finished:?}");
 
+    // The fill and audit forms, on that collection (their jobs need the `synth` feature).
+    #[cfg(feature = "synth")]
+    fill_and_audit_from_the_page(&mut browser, &tab, &client, &out.join("cross/tactip"), tmp.path()).await;
+    let jobs_submitted = if cfg!(feature = "synth") { 5 } else { 3 };
+
+    // The CSRF rule still holds on the page's own origin: without X-Rig-Client, refused.
+    let script = format!(
+        r#"fetch("/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json" }}, body: JSON.stringify({}) }}).then(r => r.status)"#,
+        json!({"kind": "collect", "poses": 1, "out": tmp.path().join("csrf")})
+    );
+    assert_eq!(browser.eval(&tab, &script).await, Ok(json!(403)), "a POST without X-Rig-Client");
+    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
+    assert_eq!(jobs.len(), jobs_submitted, "{jobs:?}");
+
+    drop(browser);
+    daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// Jobs 4 and 5 of [`the_page_submits_cancels_and_resumes_jobs`], from the page's fill and audit
+/// forms on the 3-pose collection `collected` (inside the data root `tmp`).
+#[cfg(feature = "synth")]
+async fn fill_and_audit_from_the_page(
+    browser: &mut DevTools,
+    tab: &Tab,
+    client: &DaemonClient,
+    collected: &std::path::Path,
+    tmp: &std::path::Path,
+) {
+    use rig::jobs::JobRequest;
+
     // The fill form: two of the plan's missing poses synthesised into that collection with the
     // tiny package (copied inside the data roots), one sampling step.
-    let collected = out.join("cross/tactip");
-    let pkg = crate::hostile::copy_package(&tmp.path().join("pkg"));
+    let pkg = crate::copy_package(&tmp.join("pkg"));
     browser.submit_form(&tab, "form-synth", json!({"dataset": collected, "model": pkg, "steps": 1, "limit": 2})).await;
     let fill = job_when(&client, 4, "filled", |j| j.state.is_final()).await;
     assert_eq!((fill.state, fill.exit_code), (JobState::Done, Some(0)), "{fill:?}");
@@ -567,16 +596,4 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     assert_eq!((audit_spec.fraction, audit_spec.seed), (1.0, 3), "{audit_spec:?}");
     let manifest = rig::dataset::Manifest::load(&collected).expect("manifest");
     assert_eq!(manifest.audit.as_ref().map(|a| a.audited_poses), Some(2), "{:?}", manifest.audit);
-
-    // The CSRF rule still holds on the page's own origin: without X-Rig-Client, refused.
-    let script = format!(
-        r#"fetch("/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json" }}, body: JSON.stringify({}) }}).then(r => r.status)"#,
-        json!({"kind": "collect", "poses": 1, "out": tmp.path().join("csrf")})
-    );
-    assert_eq!(browser.eval(&tab, &script).await, Ok(json!(403)), "a POST without X-Rig-Client");
-    let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
-    assert_eq!(jobs.len(), 5, "{jobs:?}");
-
-    drop(browser);
-    daemon.shutdown().await.expect("clean shutdown");
 }
