@@ -31,7 +31,7 @@ use crate::plan::adaptive::{
     self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, MAX_BUDGET, MAX_ROUNDS, MAX_SEEDS_PER_POSE, Scored,
 };
 use crate::sensor::SensorKind;
-use crate::synth::fill::{ControlRenderer, FillOptions, read_dataset_image, read_reference};
+use crate::synth::fill::{ControlRenderer, FillOptions, read_dataset_image, read_reference, resized_to};
 use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};
 
 /// The contact region of an image: where it differs from the reference by more than this
@@ -328,7 +328,7 @@ impl SensorSource {
         let size = pipeline.resolution();
         let renderer =
             ControlRenderer::for_dataset(dir, &manifest, size.0, size.1, options.supersample).map_err(JobError::fill("reading", dir))?;
-        let reference = read_reference(dir).map_err(fill)?.map(|r| resized(r, size));
+        let reference = read_reference(dir).map_err(fill)?.map(|r| resized_to(r, Some(size)));
         Ok(Self { dir: dir.to_path_buf(), sensor, renderer, reference, size })
     }
 
@@ -360,7 +360,7 @@ impl SensorSource {
     fn error_at(&self, pose: &PlannedPose, image: &RgbImage) -> Result<f64, JobError> {
         let real =
             read_dataset_image(&self.dir, &crate::dataset::image_rel_path(pose.pose_id)).map_err(JobError::fill("reading", &self.dir))?;
-        let real = resized(real, self.size);
+        let real = resized_to(real, Some(self.size));
         let mask = self.mask(&real);
         Ok(crate::metrics::ssim_masked(&real, image, &mask).map(|s| (1.0 - s).clamp(0.0, 2.0)).unwrap_or(1.0))
     }
@@ -392,11 +392,6 @@ impl SensorSource {
         }
         if count == 0 { 0.0 } else { sum / count as f64 / 255.0 }
     }
-}
-
-/// `image` at `size` (bilinear), when it is not already.
-fn resized(image: RgbImage, size: (u32, u32)) -> RgbImage {
-    if image.dimensions() == size { image } else { image::imageops::resize(&image, size.0, size.1, image::imageops::FilterType::Triangle) }
 }
 
 #[cfg(test)]

@@ -522,7 +522,7 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
 }
 
 /// `image` at `size` (bilinear) when one is given and it differs; else as it is.
-fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
+pub(crate) fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
     match size {
         Some((w, h)) if (w, h) != image.dimensions() => image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle),
         _ => image,
