@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command: installs what the tests need, checks the guide's links, runs the platform
 # checks (the build without optional features, the macOS type-check), checks the dependencies'
-# licences and sources (cargo deny, deny.toml), runs the whole suite,
+# licences and sources (deny.toml: scripts/check-licences.py, and cargo deny where installed), runs the whole suite,
 # runs the SLURM example on a private single-node SLURM (tests/slurm/run.sh, as root;
 # RIG_SKIP_SLURM=1 skips it), checks the LeRobot export with pyarrow (tests/lerobot/run.sh;
 # RIG_SKIP_LEROBOT=1 skips it), checks model-package rewrites (tests/export/run.sh;
@@ -28,15 +28,23 @@ if command -v mdbook >/dev/null 2>&1; then
   rm -rf "$book_dir"
 fi
 # The dependency tree's licences and sources (deny.toml): a crate under a licence not allowed
-# there, a git dependency or another registry fails here. Offline: these three checks read
-# Cargo.lock and the crates' metadata (the advisory database, which needs GitHub, is not
-# checked; no advisory database is fetched). cargo-deny is installed on first use: `cargo
-# install cargo-deny --locked` compiled for 16 min 43 s on a busy 2-core machine (other builds
-# running); the check itself takes about 4 s.
-if ! cargo deny --version >/dev/null 2>&1; then
+# there, a git dependency or another registry fails here. scripts/check-licences.py reads
+# deny.toml and `cargo metadata` (standard library only, about a second; its self-test plants a
+# GPL crate, a git source, another registry, a crate without a licence and a wildcard) and runs
+# everywhere. Where cargo-deny is installed, `cargo deny check licenses bans sources` runs too
+# (offline; the advisory database, which needs GitHub, is not checked). It is not installed
+# here when missing: `cargo install cargo-deny --locked` compiled for 16 min 43 s on a busy
+# 2-core machine, over half this suite's time; RIG_INSTALL_CARGO_DENY=1 installs it.
+python3 scripts/check-licences.py --self-test
+python3 scripts/check-licences.py
+if [ "${RIG_INSTALL_CARGO_DENY:-0}" = 1 ] && ! cargo deny --version >/dev/null 2>&1; then
   cargo install cargo-deny --locked
 fi
-cargo deny --locked check licenses bans sources
+if cargo deny --version >/dev/null 2>&1; then
+  cargo deny --locked check licenses bans sources
+else
+  echo "test: cargo-deny not installed; deny.toml checked by scripts/check-licences.py only"
+fi
 # A fresh clone builds once: incremental caches would only double target/ on a small disk.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')

@@ -139,6 +139,7 @@ pub async fn run_once(config: &BenchConfig, settle_s: f64, frames: u32, dir: &Pa
         arm: crate::jobs::collect::arm_part(&rig_config, &profile),
         modbus: Vec::new(),
         fence: crate::fence::Fence::for_run(profile.clone(), &rig_config, &[kind], crate::fence::PoseSource::Plan),
+        adaptive: None,
     };
     let capture = camera.capture_part();
     let feeds = vec![SensorFeed { camera, sensor: kind, calibration: "default".into(), capture }];

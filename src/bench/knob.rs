@@ -17,12 +17,22 @@ pub enum Knob {
     Sensor,
     Loops,
     Scale,
+    Adaptive,
 }
 
 impl Knob {
     /// Every knob, in report order.
-    pub const ALL: [Knob; 8] =
-        [Knob::Synthesis, Knob::Control, Knob::Collection, Knob::Calibration, Knob::PlanOrder, Knob::Sensor, Knob::Loops, Knob::Scale];
+    pub const ALL: [Knob; 9] = [
+        Knob::Synthesis,
+        Knob::Control,
+        Knob::Collection,
+        Knob::Calibration,
+        Knob::PlanOrder,
+        Knob::Sensor,
+        Knob::Loops,
+        Knob::Scale,
+        Knob::Adaptive,
+    ];
 
     /// The name used on the command line and for the plot file (`<name>.svg`).
     pub fn name(self) -> &'static str {
@@ -35,6 +45,7 @@ impl Knob {
             Knob::Sensor => "sensor",
             Knob::Loops => "loops",
             Knob::Scale => "scale",
+            Knob::Adaptive => "adaptive",
         }
     }
 }
@@ -47,7 +58,7 @@ impl fmt::Display for Knob {
 
 /// A knob name that is not one of [`Knob::ALL`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops, scale)")]
+#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops, scale, adaptive)")]
 pub struct KnobParseError {
     pub given: String,
 }
@@ -117,6 +128,9 @@ pub struct BenchConfig {
     /// The `rig` executable the scale stages run as child processes; `None`: this executable
     /// (a test sets the binary cargo built).
     pub rig_exe: Option<PathBuf>,
+    /// Adaptive collection: the seeds per pose measured, and the model's sampling steps.
+    pub adaptive_seeds_per_pose: Vec<usize>,
+    pub adaptive_steps: usize,
 }
 
 impl BenchConfig {
@@ -150,6 +164,8 @@ impl BenchConfig {
             scale_frames: vec![50, 150, 500],
             scale_image_px: 128,
             rig_exe: None,
+            adaptive_seeds_per_pose: vec![2],
+            adaptive_steps: 5,
         }
     }
 
@@ -166,6 +182,8 @@ impl BenchConfig {
             loop_repeats: 20,
             scale_plan_poses: vec![10_000, 30_000, 100_000],
             scale_frames: vec![500, 1_500, 5_000],
+            adaptive_seeds_per_pose: vec![2, 4],
+            adaptive_steps: 20,
             ..Self::quick(synth_model)
         }
     }

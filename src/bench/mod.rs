@@ -13,6 +13,7 @@
 //! | plan order | [`plan_order`] | (none: same poses) | total motion time |
 //! | sensor-simulator stages | [`sensor`] | SSIM to the full scene | ms per frame |
 //! | inner loops against the code they replaced and their peers | [`loops`] | difference from rig's value | ms per call, ratios |
+//! | adaptive collection: seeds per pose | [`adaptive`] | (none: the cost of choosing) | model calls and s per round |
 //! | scale: ordering, collection, verify, merge, LeRobot export, replay at three sizes | [`scale`] | (none: what the work costs as it grows) | wall s and peak memory, growth exponents |
 //!
 //! Data flow: [`BenchConfig`] (sizes, counts, which knobs) -> one `measure` function per knob
@@ -23,6 +24,7 @@
 // the exit-code table finds it by type in the chain.
 #![allow(clippy::result_large_err)]
 
+pub mod adaptive;
 pub mod calibration;
 pub mod collection;
 pub mod control;
@@ -78,6 +80,7 @@ pub async fn run(config: &BenchConfig, work_dir: &Path, mut progress: impl FnMut
             Knob::Sensor => sensor::measure(config),
             Knob::Loops => loops::measure(config, &work_dir.join("loops")),
             Knob::Scale => scale::measure(config, &work_dir.join("scale")),
+            Knob::Adaptive => adaptive::measure(config, &work_dir.join("adaptive")),
         };
         match result {
             Ok(report) => {

@@ -193,7 +193,7 @@ fn os(parts: &[&dyn AsRef<std::ffi::OsStr>]) -> Vec<OsString> {
 }
 
 /// The `rig` the stages run: `config.rig_exe`, else this executable.
-fn rig_exe(config: &BenchConfig) -> Result<PathBuf, BenchError> {
+pub(super) fn rig_exe(config: &BenchConfig) -> Result<PathBuf, BenchError> {
     match &config.rig_exe {
         Some(exe) => Ok(exe.clone()),
         None => std::env::current_exe().map_err(|e| BenchError::io(Path::new("rig"), e)),

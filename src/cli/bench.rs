@@ -25,11 +25,11 @@ pub struct Args {
     /// Folder for report.md and the plots.
     #[arg(long, default_value = "out/bench")]
     pub out: PathBuf,
-    /// Measure only these knobs (comma-separated): synthesis, control, collection,
+    /// Measure only these knobs (comma-separated): synthesis, control, collection, adaptive,
     /// calibration, plan-order, sensor, loops, scale.
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<Knob>,
-    /// Model package for the synthesis knob (default: models/default if present, else the tiny
+    /// Model package for the synthesis and adaptive knobs (default: models/default if present, else the tiny
     /// test package).
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,

@@ -46,6 +46,26 @@ pub struct CollectArgs {
     /// `rig replay FILE`.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
+    /// Adaptive collection: press --budget poses of the plan in --rounds rounds, each round
+    /// where the model's fill is least trustworthy, then fill the rest with the model
+    /// (see the guide, "Adaptive collection").
+    #[arg(long, requires = "budget")]
+    pub adaptive: bool,
+    /// Real presses of an adaptive collection (at most the plan's poses).
+    #[arg(long, requires = "adaptive")]
+    pub budget: Option<usize>,
+    /// Model package of an adaptive collection (default: models/default, else the tiny test package).
+    #[arg(long, requires = "adaptive", value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// Rounds an adaptive collection splits its presses over.
+    #[arg(long, requires = "adaptive", default_value_t = 4)]
+    pub rounds: usize,
+    /// Model images per scored pose (the spread over seeds) in an adaptive collection.
+    #[arg(long, requires = "adaptive", default_value_t = 4)]
+    pub seeds_per_pose: usize,
+    /// Sampling steps of the model's images in an adaptive collection (default: the package's).
+    #[arg(long, requires = "adaptive")]
+    pub steps: Option<usize>,
     #[command(flatten)]
     pub rig: crate::cli::shared::RigTarget,
 }
@@ -68,7 +88,7 @@ impl CollectArgs {
 
 /// Runs `rig collect`.
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
-    if let Some(daemon) = args.rig.daemon("the job", &[("--record", args.record.is_some())])? {
+    if let Some(daemon) = args.rig.daemon("the job", &[("--record", args.record.is_some()), ("--adaptive", args.adaptive)])? {
         let mut request = args.request();
         request.stl = request.stl.as_deref().map(absolute);
         request.plan = request.plan.as_deref().map(absolute);
@@ -84,6 +104,9 @@ pub fn run(args: CollectArgs) -> anyhow::Result<()> {
 async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
     if args.record.is_some() && args.resume {
         bail!(crate::cli::usage("--record starts a new dataset; it cannot be combined with --resume"));
+    }
+    if args.adaptive {
+        return run_adaptive(args, config).await;
     }
     let prepared = args.request().prepare(&config)?;
     println!("{}", prepared.plan_line());
@@ -102,11 +125,46 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         None => None,
     };
     let setup = &prepared.setup;
+    let cancel = super::shared::cancel_on_interrupt(
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm",
+    )?;
+    let (rig, outcome) = open_and_collect(&config, &prepared, setup, clock, recorder.clone(), cancel).await?;
+    // Close the recording even when the run failed: its replay reproduces the failure. An
+    // interrupt is recorded as where the job stopped, for the replay to stop there too.
+    if let (Some(recorder), Ok(o)) = (&recorder, &outcome)
+        && o.summary.interrupted
+    {
+        recorder.log_interrupt(o.summary.captured as u64);
+    }
+    if let (Some(recorder), Some(path)) = (&recorder, &args.record) {
+        let records = recorder.finish()?;
+        println!("recorded {records} events into {}", path.display());
+    }
+    let outcome = outcome?;
+    rig.shutdown().await;
+    println!("{}", outcome.line("--resume"));
+    if outcome.summary.interrupted {
+        bail!(crate::cli::ExitStatus(4));
+    }
+    Ok(())
+}
+
+/// Opens the rig of `config` and runs the collection `setup` on it (the recording header
+/// first, when recording); the rig is returned open, for the caller to close after the
+/// recording.
+async fn open_and_collect(
+    config: &RigConfig,
+    prepared: &crate::jobs::collect::PreparedCollect,
+    setup: &crate::jobs::collect::CollectSetup,
+    clock: Arc<dyn crate::clock::Clock>,
+    recorder: Option<crate::record::Recorder>,
+    cancel: tokio::sync::watch::Receiver<bool>,
+) -> anyhow::Result<(Rig, Result<crate::jobs::collect::CollectOutcome, crate::jobs::JobError>)> {
     let mut rig =
-        Rig::open_with(&config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, clock.clone(), recorder.clone()).await?;
+        Rig::open_with(config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, clock.clone(), recorder.clone()).await?;
     if let Some(recorder) = &recorder {
         recorder.begin(&crate::cli::replay::recording_header(
-            &config,
+            config,
             &prepared.object,
             &rig.cameras,
             &setup.plan_spec,
@@ -126,31 +184,85 @@ async fn run_async(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
         });
     }
 
-    let cancel = super::shared::cancel_on_interrupt(
-        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm",
-    )?;
     let progress = super::shared::progress()?;
     progress.bar().set_prefix(crate::progress::collection_name(&setup.object.name, &prepared.sensors));
     let peripherals = crate::record::RecordingPeripherals::new(std::mem::take(&mut rig.peripherals), recorder.clone());
     let observer = Observer { progress: progress.bar().clone(), cancel };
     let outcome = crate::jobs::collect::run(setup, &mut rig.arm, feeds, peripherals, Arc::clone(&clock), observer, None).await;
     progress.finish();
-    // Close the recording even when the run failed: its replay reproduces the failure. An
-    // interrupt is recorded as where the job stopped, for the replay to stop there too.
-    if let (Some(recorder), Ok(o)) = (&recorder, &outcome)
-        && o.summary.interrupted
-    {
-        recorder.log_interrupt(o.summary.captured as u64);
+    Ok((rig, outcome))
+}
+
+/// `rig collect --adaptive`: every round chosen (or replayed from the manifests), recorded and
+/// collected on a freshly opened rig, then the rest of the plan's grid filled with the model.
+async fn run_adaptive(args: CollectArgs, config: RigConfig) -> anyhow::Result<()> {
+    if args.record.is_some() {
+        bail!(crate::cli::usage("--record keeps one collection's bytes; an adaptive collection runs several: leave out --record"));
     }
-    if let (Some(recorder), Some(path)) = (&recorder, &args.record) {
-        let records = recorder.finish()?;
-        println!("recorded {records} events into {}", path.display());
+    let request = crate::jobs::adaptive::AdaptiveRequest {
+        collect: args.request(),
+        budget: args.budget.unwrap_or(0),
+        rounds: args.rounds,
+        seeds_per_pose: args.seeds_per_pose,
+        model: args.model.clone(),
+        steps: args.steps,
+    };
+    // The numbers against the plan first: a refusal needs no model.
+    let prepared = request.collect.prepare(&config)?;
+    println!("{}", prepared.plan_line());
+    request.check(prepared.plan.poses.len())?;
+    if args.rig.dry_run {
+        let setup = &prepared.setup;
+        let outputs: Vec<String> = prepared.sensors.0.iter().map(|&k| setup.dataset_dir(k).display().to_string()).collect();
+        return super::shared::dry_run(&config, &prepared.object, &prepared.sensors, setup.plan_spec.seed, &prepared.envelope, &outputs)
+            .await;
     }
-    let outcome = outcome?;
-    rig.shutdown().await;
-    println!("{}", outcome.line("--resume"));
-    if outcome.summary.interrupted {
-        bail!(crate::cli::ExitStatus(4));
+    crate::features::Feature::Synth.require("`rig collect --adaptive` runs the model here")?;
+    let model = request.model_dir();
+    crate::synth::fill::check_model_dir(&model)?;
+    println!("model: {}", model.display());
+    let mut pipeline = crate::synth::Pipeline::load(&model, &crate::synth::RuntimeOptions::default())
+        .with_context(|| format!("loading model package {}", model.display()))?;
+    let mut run = request.prepare(&config, &pipeline)?;
+    let clock = crate::rigs::clock_for(&config);
+    // One listener for the whole run: an interrupt while the model chooses stops before the
+    // next round, one while pressing stops as a plain collection does.
+    let cancel = super::shared::cancel_on_interrupt(
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm; an adaptive collection stops before its next round",
+    )?;
+    let interrupted = || {
+        println!("interrupted: continue with --resume (the rounds recorded are pressed as recorded)");
+        crate::cli::ExitStatus(4)
+    };
+    while let Some(round) = run.next_round(&mut pipeline)? {
+        println!("{}", round.line(run.record.settings.rounds));
+        if *cancel.borrow() {
+            bail!(interrupted());
+        }
+        let (rig, outcome) = open_and_collect(&config, &run.prepared, &round.setup, clock.clone(), None, cancel.clone()).await?;
+        let outcome = outcome?;
+        rig.shutdown().await;
+        if outcome.summary.interrupted || *cancel.borrow() {
+            bail!(interrupted());
+        }
     }
+    let progress = super::shared::progress()?;
+    let observer = Observer { progress: progress.bar().clone(), cancel };
+    for fill in run.fill_requests() {
+        let targets = fill.targets()?;
+        let mut print = |report: &crate::jobs::fill::FillReport| progress.suspend(|| println!("{}", report.line()));
+        if crate::jobs::fill::run(&fill, &targets, &mut pipeline, &observer, &mut |_| {}, &mut print)?.cancelled {
+            progress.finish();
+            bail!(interrupted());
+        }
+    }
+    progress.finish();
+    println!(
+        "adaptive collection: {} poses pressed in {} rounds into {}, the rest filled with {}",
+        run.record.choices.len(),
+        run.record.settings.rounds,
+        run.prepared.setup.out.join(&run.prepared.setup.object.name).display(),
+        run.record.settings.model
+    );
     Ok(())
 }

@@ -100,12 +100,24 @@ pub enum PlanCommand {
         /// Print only the summary, not the poses.
         #[arg(long)]
         summary: bool,
+        /// Show the rounds of the adaptive collection in this dataset (its manifest's plan and
+        /// choices) instead of a plan.
+        #[arg(long, value_name = "DATASET", conflicts_with_all = ["plan_file", "x_mm", "y_mm", "z_mm", "yaw_deg", "sampling", "n_poses", "seed", "order"])]
+        rounds: Option<PathBuf>,
+        /// With --rounds: draw the plan's poses, coloured by the round that pressed them, as
+        /// an SVG scatter.
+        #[arg(long, value_name = "FILE", requires = "rounds")]
+        svg: Option<PathBuf>,
+        /// With --svg: the two axes of the picture (of x, y, z, yaw).
+        #[arg(long, value_name = "A,B", default_value = "x,y", requires = "svg")]
+        axes: String,
     },
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        PlanCommand::Show { plan, summary } => show(&plan, summary),
+        PlanCommand::Show { rounds: Some(dataset), svg, axes, .. } => show_rounds(&dataset, svg.as_deref(), &axes),
+        PlanCommand::Show { plan, summary, .. } => show(&plan, summary),
     }
 }
 
@@ -133,5 +145,90 @@ fn show(flags: &PlanFlags, summary: bool) -> anyhow::Result<()> {
             println!("{:>5} {:>8} {:>8.3} {:>8.3} {:>8.3} {:>8.3}", i, p.pose_id, p.pose.x_mm, p.pose.y_mm, p.pose.z_mm, p.pose.yaw_deg);
         }
     }
+    Ok(())
+}
+
+/// A pose's value on one axis.
+type AxisValue = fn(&Pose) -> f64;
+
+/// The value of `pose` on the axis named `name` (`x`, `y`, `z`, `yaw`) and the axis' label.
+fn axis_of(name: &str) -> Option<(AxisValue, &'static str)> {
+    match name.trim() {
+        "x" => Some((|p: &Pose| p.x_mm, "x mm")),
+        "y" => Some((|p: &Pose| p.y_mm, "y mm")),
+        "z" => Some((|p: &Pose| p.z_mm, "z mm")),
+        "yaw" => Some((|p: &Pose| p.yaw_deg, "yaw deg")),
+        _ => None,
+    }
+}
+
+/// `rig plan show --rounds DATASET [--svg FILE]`: the rounds an adaptive collection recorded,
+/// one line per choice with the terms that chose it, and optionally the picture.
+fn show_rounds(dataset: &std::path::Path, svg: Option<&std::path::Path>, axes: &str) -> anyhow::Result<()> {
+    let manifest = crate::dataset::Manifest::load(dataset)?;
+    let Some(record) = manifest.adaptive else {
+        anyhow::bail!(crate::cli::usage(&format!(
+            "{} is not an adaptive collection (its manifest has no [adaptive]); `rig collect --adaptive` makes one",
+            dataset.display()
+        )));
+    };
+    let Some(spec) = manifest.plan else {
+        anyhow::bail!(crate::cli::usage(&format!("{}: its manifest has no plan", dataset.display())));
+    };
+    let s = &record.settings;
+    println!(
+        "adaptive collection: budget {}, {} rounds, {} seeds per pose, model {}, steps {}; {} poses chosen of a {}-pose grid",
+        s.budget,
+        s.rounds,
+        s.seeds_per_pose,
+        s.model,
+        s.steps,
+        record.choices.len(),
+        spec.grid_len()
+    );
+    let term = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into());
+    println!("{:>5} {:>8} {:>14} {:>8} {:>8} {:>8} {:>8}", "round", "pose_id", "reason", "distance", "spread", "error", "score");
+    for c in &record.choices {
+        let reason = match c.reason {
+            crate::plan::adaptive::ChoiceReason::SpaceFilling => "space-filling",
+            crate::plan::adaptive::ChoiceReason::Acquisition => "acquisition",
+        };
+        println!(
+            "{:>5} {:>8} {:>14} {:>8.3} {:>8} {:>8} {:>8}",
+            c.round,
+            c.pose_id,
+            reason,
+            c.distance,
+            term(c.spread),
+            term(c.error),
+            term(c.score)
+        );
+    }
+    let Some(svg) = svg else { return Ok(()) };
+    let names: Vec<&str> = axes.split(',').collect();
+    let (Some((fx, lx)), Some((fy, ly))) = (names.first().and_then(|a| axis_of(a)), names.get(1).and_then(|a| axis_of(a))) else {
+        anyhow::bail!(crate::cli::usage(&format!("--axes {axes}: name two of x, y, z, yaw, as in --axes x,yaw")));
+    };
+    use crate::bench::plot::{Plot, Series};
+    let chosen: std::collections::HashMap<u32, usize> = record.choices.iter().map(|c| (c.pose_id, c.round)).collect();
+    let mut series = vec![Series { name: "not pressed (filled)".into(), ..Series::default() }];
+    for round in 1..=record.rounds_recorded() {
+        series.push(Series { name: format!("round {round}"), ..Series::default() });
+    }
+    // Every grid pose, one point each; poses that project onto one point draw over each other,
+    // the pressed ones last.
+    for p in spec.grid() {
+        let k = chosen.get(&p.pose_id).copied().unwrap_or(0);
+        series[k].points.push([fx(&p.pose), fy(&p.pose)]);
+    }
+    let plot = Plot {
+        title: format!("adaptive collection {}: {} presses by round", dataset.display(), record.choices.len()),
+        x_label: lx.into(),
+        y_label: ly.into(),
+        series,
+        lines: false,
+    };
+    crate::bench::plot::write_svg(&plot, svg)?;
+    println!("wrote {}", svg.display());
     Ok(())
 }

@@ -84,7 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("  motion    {}", sim.motion_addr());
         println!("  feedback  {}", sim.feedback_addr());
         println!(
-            "try: printf 'EnableRobot()' | nc -q1 {} {}    (Ctrl-C stops the simulator)",
+            "try: rig arm send --addr {} --port {} 'RobotMode()'    (Ctrl-C stops the simulator)",
             sim.dashboard_addr().ip(),
             sim.dashboard_addr().port()
         );

@@ -331,6 +331,10 @@ pub struct Manifest {
     /// manifests that predate the field and in datasets never synthesised into.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthesis: Option<SynthesisInfo>,
+    /// An adaptive collection's settings and every pose it chose, round by round
+    /// (`rig collect --adaptive`); `None` for every other dataset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<crate::plan::adaptive::AdaptiveRecord>,
 }
 
 /// What `rig synth` wrote into a dataset's manifest (`[synthesis]`): which model made its
@@ -475,6 +479,7 @@ impl Manifest {
             capture: None,
             audit: None,
             synthesis: None,
+            adaptive: None,
         }
     }
 
@@ -536,6 +541,19 @@ impl Manifest {
                 None => "no plan".to_string(),
             };
             return Err(mismatch("plan", show(&self.plan), show(&requested.plan)));
+        }
+        // An adaptive collection resumes only as the same adaptive collection (its choices are
+        // replayed), and a plain one never turns adaptive.
+        let settings = |m: &Manifest| m.adaptive.as_ref().map(|a| a.settings.clone());
+        if settings(self) != settings(requested) {
+            let show = |s: Option<crate::plan::adaptive::AdaptiveSettings>| match s {
+                Some(s) => format!(
+                    "adaptive: budget {}, {} rounds, {} seeds per pose, model {} ({})",
+                    s.budget, s.rounds, s.seeds_per_pose, s.model, s.model_sha256
+                ),
+                None => "not adaptive".to_string(),
+            };
+            return Err(mismatch("adaptive collection", show(settings(self)), show(settings(requested))));
         }
         // Resuming on other hardware is allowed; resuming a simulated run on a real rig (or
         // the other way) would mix sources in one dataset.

@@ -137,6 +137,15 @@ pub fn merge(inputs: &[PathBuf], out: &Path, options: MergeOptions) -> Result<Me
         let bytes = read_below(src, Path::new(REFERENCE_FILE), MAX_IMAGE_BYTES)?;
         write_atomic(out, REFERENCE_FILE, &bytes)?;
     }
+    // The record of the last synthesis (`[synthesis]`: model, its resolution, the written
+    // size) travels with the synthesised rows: shards of a fill carry it, and the dataset they
+    // are merged into (often the collection itself, which has none) would otherwise lose what
+    // `rig audit`'s verdict reads. The last input holding one is the latest synthesis.
+    if let Some(synthesis) = manifests.iter().rev().find_map(|m| m.synthesis.clone())
+        && writer.manifest().synthesis.as_ref() != Some(&synthesis)
+    {
+        writer.update_manifest(|m| m.synthesis = Some(synthesis))?;
+    }
     writer.finish()?;
     Ok(report)
 }

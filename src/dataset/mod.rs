@@ -45,7 +45,7 @@ pub use error::{DatasetError, RowProblem};
 pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo, SynthesisInfo};
 pub use merge::{MergeOptions, MergeReport, merge};
 pub use verify::{CaptureNote, DatasetImages, VerifyIssue, VerifyReport, verify};
-pub use writer::DatasetWriter;
+pub use writer::{DatasetWriter, update_manifest_of};
 
 /// The default bound on a LeRobot export's parquet files, MB of 10^6 bytes (LeRobot's default
 /// `data_files_size_in_mb`), and the largest accepted; here so that the command line offers them

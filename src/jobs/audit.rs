@@ -187,6 +187,7 @@ impl AuditRequest {
             arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
             fence,
+            adaptive: None,
         };
         Ok(PreparedAudit { request: self.clone(), setup, object, sensor, synthetic_poses: synthetic.len(), envelope })
     }

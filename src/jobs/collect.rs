@@ -113,6 +113,7 @@ impl CollectRequest {
             arm: arm_part(config, &profile),
             modbus: modbus_parts(config),
             fence,
+            adaptive: None,
         };
         if self.resume {
             // A dataset an earlier rig build collected on a built-in object recorded another hash of the same
@@ -197,6 +198,9 @@ pub struct CollectSetup {
     /// The workspace and press limit every pose keeps to, checked again by [`run`] before the
     /// arm moves.
     pub fence: Fence,
+    /// An adaptive collection's record, written into each new dataset's manifest (its rounds
+    /// are the visiting order, so no `order.csv` is kept); `None` for a plain collection.
+    pub adaptive: Option<crate::plan::adaptive::AdaptiveRecord>,
 }
 
 impl CollectSetup {
@@ -218,6 +222,7 @@ impl CollectSetup {
         manifest.firmware_profile = Some(self.profile_name.clone());
         manifest.work_frame = Some(self.work_frame);
         manifest.capture = Some(CaptureChain { arm: arm.clone(), sensors: sensors.to_vec(), modbus: self.modbus.clone() });
+        manifest.adaptive = self.adaptive.clone();
         manifest
     }
 }
@@ -353,8 +358,10 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
             .with_byte_budget(setup.disk_budget_bytes);
         // The order, kept before the first pose (under the writer's lock); a dataset that
-        // keeps one already keeps it.
-        order::keep_order(&dir, &order_ids).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
+        // keeps one already keeps it. An adaptive collection's order is its recorded rounds.
+        if setup.adaptive.is_none() {
+            order::keep_order(&dir, &order_ids).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
+        }
         let source = Source::captured(feed.capture.simulated);
         sensors.push(SensorStream { camera: feed.camera, writer, source });
         datasets.push(dir);

@@ -22,6 +22,7 @@
 // errors whole (unboxed) so that the exit-code table can find them by type in the chain.
 #![allow(clippy::result_large_err)]
 
+pub mod adaptive;
 pub mod audit;
 pub mod calibrate;
 pub mod collect;

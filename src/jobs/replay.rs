@@ -41,6 +41,7 @@ pub fn setup_of(header: &RecordingHeader, out: &Path) -> CollectSetup {
         arm: header.capture_arm.clone().unwrap_or_else(|| CapturePart::new("arm", "unrecorded", false, None)),
         modbus: header.capture_modbus.clone(),
         fence: crate::fence::Fence::replayed(header.profile.clone()),
+        adaptive: None,
     }
 }
 

@@ -45,6 +45,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::pose::Pose;
 
+pub mod adaptive;
 mod kdtree;
 mod order;
 pub use order::{MAX_EXAMINATIONS_PER_SITE, MAX_REVERSAL};

@@ -82,6 +82,19 @@ impl Default for FillOptions {
 }
 
 impl FillOptions {
+    /// The model request of one image with these sampler settings: `control` and `prompt`,
+    /// from noise seeded by `seed`.
+    pub fn request<'a>(&self, control: &'a RgbImage, prompt: &'a str, seed: u64) -> GenerateRequest<'a> {
+        let mut r = GenerateRequest::new(control, prompt);
+        r.steps = self.steps;
+        r.guidance = self.guidance;
+        r.eta = self.eta;
+        r.scheduler = self.scheduler;
+        r.conditioning_scale = self.conditioning_scale;
+        r.seed = seed;
+        r
+    }
+
     /// Checks every setting against [`super::limits`] (steps against the sampler's limit are
     /// checked once the package's schedule is known, before any image is made). Front ends call
     /// this before loading a model; [`fill_missing_observed`] calls it again.
@@ -250,16 +263,7 @@ pub fn fill_missing_observed(
         let requests: Vec<GenerateRequest> = chunk
             .iter()
             .zip(controls.iter().zip(&prompts))
-            .map(|(p, (control, prompt))| {
-                let mut r = GenerateRequest::new(control, prompt);
-                r.steps = options.steps;
-                r.guidance = options.guidance;
-                r.eta = options.eta;
-                r.scheduler = options.scheduler;
-                r.conditioning_scale = options.conditioning_scale;
-                r.seed = pose_seed(spec_seed, p.pose_id);
-                r
-            })
+            .map(|(p, (control, prompt))| options.request(control, prompt, pose_seed(spec_seed, p.pose_id)))
             .collect();
         let outputs = pipeline.generate_batch(&requests)?;
         let mut stop = false;
@@ -518,7 +522,7 @@ fn calibration_of(dir: &Path, manifest: &Manifest, width: u32, height: u32) -> R
 }
 
 /// `image` at `size` (bilinear) when one is given and it differs; else as it is.
-fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
+pub(crate) fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
     match size {
         Some((w, h)) if (w, h) != image.dimensions() => image::imageops::resize(&image, w, h, image::imageops::FilterType::Triangle),
         _ => image,
@@ -527,15 +531,23 @@ fn resized_to(image: RgbImage, size: Option<(u32, u32)>) -> RgbImage {
 
 /// The dataset's reference frame, if it has one: a regular file (a symlink is an error, as
 /// everywhere in a dataset), decoded with bounds.
-fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
+pub fn read_reference(dataset: &Path) -> Result<Option<RgbImage>, FillError> {
     use crate::dataset::durable;
     let path = dataset.join(crate::dataset::REFERENCE_FILE);
     if !durable::entry_exists(&path, durable::Kind::File)? {
         return Ok(None);
     }
-    let bytes = durable::read_below(dataset, Path::new(crate::dataset::REFERENCE_FILE), durable::MAX_IMAGE_BYTES)?;
-    let image = durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path, reason })?;
-    Ok(Some(image.to_rgb8()))
+    read_dataset_image(dataset, crate::dataset::REFERENCE_FILE).map(Some)
+}
+
+/// The image `rel` (a row's `image`, or `reference.png`) of the dataset at `dataset`, read
+/// through the dataset opener (no symlink, a regular file) and decoded with bounds.
+pub fn read_dataset_image(dataset: &Path, rel: &str) -> Result<RgbImage, FillError> {
+    use crate::dataset::durable;
+    let bytes = durable::read_below(dataset, Path::new(rel), durable::MAX_IMAGE_BYTES)?;
+    let image =
+        durable::decode_image(&bytes).map_err(|reason| crate::dataset::DatasetError::BadImage { path: dataset.join(rel), reason })?;
+    Ok(image.to_rgb8())
 }
 
 /// Size of the dataset's reference frame, so synthetic images match the captured ones.

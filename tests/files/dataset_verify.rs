@@ -7,7 +7,9 @@ use std::process::Command;
 
 use image::RgbImage;
 use proptest::prelude::*;
-use rig::dataset::{DatasetError, DatasetWriter, Manifest, MergeOptions, ObjectInfo, PoseRow, VerifyIssue, merge, read_rows, verify};
+use rig::dataset::{
+    DatasetError, DatasetWriter, Manifest, MergeOptions, ObjectInfo, PoseRow, SynthesisInfo, VerifyIssue, merge, read_rows, verify,
+};
 use rig::plan::PlanSpec;
 use rig::pose::Pose;
 
@@ -145,6 +147,42 @@ fn merge_joins_shards_and_refuses_conflicts() {
     DatasetWriter::create(&d, m).expect("create").finish().expect("finish");
     let err = merge(&[a, d], &tmp.path().join("out2"), MergeOptions::default()).unwrap_err();
     assert!(matches!(err, DatasetError::ManifestMismatch { field: "sensor", .. }), "{err}");
+}
+
+/// A fill's shards carry `[synthesis]` (which model, at what sizes); merged into the dataset
+/// they were filled from (which has none) or into a new folder after a shard without one, the
+/// output records the latest synthesis, so `rig audit` can still name an upscale.
+#[test]
+fn a_merge_carries_the_synthesis_record_of_the_shards() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let record = |model: &str| SynthesisInfo {
+        model: model.into(),
+        model_dir: format!("./models/{model}"),
+        model_resolution_px: [128, 128],
+        image_resolution_px: [512, 512],
+    };
+    let filled = |name: &str, ids: &[u32], synthesis: Option<SynthesisInfo>| {
+        let d = tmp.path().join(name);
+        let mut w = DatasetWriter::create(&d, Manifest { synthesis, ..manifest() }).expect("create");
+        for &id in ids {
+            w.append(synth_row(id, id as u64), &img(id as u8)).expect("append");
+        }
+        w.finish().expect("finish");
+        d
+    };
+    let collection = filled("collection", &[0, 1], None);
+    let shard1 = filled("shard1", &[2, 3], Some(record("first")));
+    let shard2 = filled("shard2", &[4], Some(record("second")));
+    merge(&[shard1.clone(), shard2.clone()], &collection, MergeOptions::default()).expect("merge into the collection");
+    let m = Manifest::load(&collection).expect("manifest");
+    assert_eq!(m.synthesis, Some(record("second")), "the latest shard's record");
+    assert_eq!(read_rows(&collection).expect("rows").len(), 5);
+    assert!(verify(&collection).expect("verify").is_clean());
+
+    let bare = filled("bare", &[5], None);
+    let out = tmp.path().join("out");
+    merge(&[bare, shard1], &out, MergeOptions::default()).expect("merge into a new folder");
+    assert_eq!(Manifest::load(&out).expect("manifest").synthesis, Some(record("first")));
 }
 
 /// Every file below `dir`: relative path -> (inode, length, mtime, bytes).

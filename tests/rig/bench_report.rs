@@ -42,6 +42,8 @@ fn tiny_config() -> BenchConfig {
         scale_frames: vec![3, 6, 12],
         scale_image_px: 32,
         rig_exe: Some(env!("CARGO_BIN_EXE_rig").into()),
+        adaptive_seeds_per_pose: vec![2],
+        adaptive_steps: 1,
     }
 }
 
@@ -68,6 +70,8 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
         // SSIM and control maps: rig and the previous code; synthesis: rig (no peer here).
         (Knob::Loops, 2 + 2 + 1),
         (Knob::Scale, Stage::ALL.iter().filter(|s| s.built()).count()),
+        // Rounds 2 and 3 of the one setting.
+        (Knob::Adaptive, 2),
     ];
     assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
     for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {

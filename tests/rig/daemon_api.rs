@@ -410,8 +410,6 @@ async fn jobs_pressing_past_the_press_limit_fail_before_the_arm_moves() {
     let collect =
         submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "vitac", "poses": 4, "out": tmp.path().join("a")})).await;
     let calibrate = submit(&client, json!({"kind": "calibrate", "sensor": "vitac", "grid": 2, "out": tmp.path().join("vitac.toml")})).await;
-    let within =
-        submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 2, "out": tmp.path().join("b")})).await;
     for (id, what) in [(collect.id, "plan pose"), (calibrate.id, "calibration press")] {
         let failed = poll_until(&client, id, final_state).await.pop().expect("view");
         assert_eq!((failed.state, failed.exit_code), (JobState::Failed, Some(2)), "{failed:?}");
@@ -422,6 +420,10 @@ async fn jobs_pressing_past_the_press_limit_fail_before_the_arm_moves() {
     assert!(!tmp.path().join("a").exists() && !tmp.path().join("vitac.toml").exists(), "nothing may be written");
     let after: StatusView = client.get_json("/api/status").await.expect("status");
     assert_eq!(after.arm.pose, before.arm.pose, "the arm did not move");
+    // Submitted only now: a job that starts reports the arm's pose, which read before the check
+    // above made the refused jobs look as if they had moved the arm.
+    let within =
+        submit(&client, json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 2, "out": tmp.path().join("b")})).await;
     let next = poll_until(&client, within.id, final_state).await.pop().expect("view");
     assert_eq!(next.state, JobState::Done, "{next:?}");
     assert_eq!(rows(&tmp.path().join("b/edge/tactip")), 2);

@@ -473,7 +473,9 @@ async fn job_when(client: &DaemonClient, id: u64, what: &str, done: impl Fn(&Job
 /// page's requests pass the CSRF rule only with the `X-Rig-Client` header): a refused audit
 /// shows the API's reason; the collect form queues the job it describes; Cancel cancels it;
 /// Resume queues the same request with `resume: true`, which runs once Cancel has stopped the
-/// job ahead of it; and a script on the page that leaves the header out is still refused.
+/// job ahead of it; the fill form synthesises two poses into that collection and the audit form
+/// presses them again (both run to their end); and a script on the page that leaves the header
+/// out is still refused.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_submits_cancels_and_resumes_jobs() {
     use rig::jobs::JobRequest;
@@ -543,6 +545,11 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     assert_eq!((finished.state, finished.exit_code), (JobState::Done, Some(0)), "{finished:?}");
     assert_eq!(rig::dataset::read_rows(&out.join("cross/tactip")).expect("rows").len(), 3, "{finished:?}");
 
+    // The fill and audit forms, on that collection (their jobs need the `synth` feature).
+    #[cfg(feature = "synth")]
+    fill_and_audit_from_the_page(&mut browser, &tab, &client, &out.join("cross/tactip"), tmp.path()).await;
+    let jobs_submitted = if cfg!(feature = "synth") { 5 } else { 3 };
+
     // The CSRF rule still holds on the page's own origin: without X-Rig-Client, refused.
     let script = format!(
         r#"fetch("/api/jobs", {{ method: "POST", headers: {{ "Content-Type": "application/json" }}, body: JSON.stringify({}) }}).then(r => r.status)"#,
@@ -550,8 +557,43 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
     );
     assert_eq!(browser.eval(&tab, &script).await, Ok(json!(403)), "a POST without X-Rig-Client");
     let jobs: Vec<JobView> = client.get_json("/api/jobs").await.expect("jobs");
-    assert_eq!(jobs.len(), 3, "{jobs:?}");
+    assert_eq!(jobs.len(), jobs_submitted, "{jobs:?}");
 
     drop(browser);
     daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// Jobs 4 and 5 of [`the_page_submits_cancels_and_resumes_jobs`], from the page's fill and audit
+/// forms on the 3-pose collection `collected` (inside the data root `tmp`).
+#[cfg(feature = "synth")]
+async fn fill_and_audit_from_the_page(
+    browser: &mut DevTools,
+    tab: &Tab,
+    client: &DaemonClient,
+    collected: &std::path::Path,
+    tmp: &std::path::Path,
+) {
+    use rig::jobs::JobRequest;
+
+    // The fill form: two of the plan's missing poses synthesised into that collection with the
+    // tiny package (copied inside the data roots), one sampling step.
+    let pkg = crate::copy_package(&tmp.join("pkg"));
+    browser.submit_form(&tab, "form-synth", json!({"dataset": collected, "model": pkg, "steps": 1, "limit": 2})).await;
+    let fill = job_when(&client, 4, "filled", |j| j.state.is_final()).await;
+    assert_eq!((fill.state, fill.exit_code), (JobState::Done, Some(0)), "{fill:?}");
+    let JobRequest::Synth(fill_spec) = &fill.spec else { panic!("job 4 is not a fill: {fill:?}") };
+    assert_eq!((fill_spec.steps, fill_spec.limit), (Some(1), Some(2)), "{fill_spec:?}");
+    browser.wait_for(&tab, "the fill's id", "document.getElementById('msg-synth').textContent === 'queued synth job 4'").await;
+    let rows = rig::dataset::read_rows(&collected).expect("rows");
+    assert_eq!((rows.len(), rows.iter().filter(|r| !r.source.is_captured()).count()), (5, 2), "{rows:?}");
+
+    // The audit form: both synthesised poses pressed again on the simulated rig and measured;
+    // the dataset's manifest records the audit.
+    browser.submit_form(&tab, "form-audit", json!({"dataset": collected, "fraction": 1, "seed": 3})).await;
+    let audit = job_when(&client, 5, "audited", |j| j.state.is_final()).await;
+    assert_eq!((audit.state, audit.exit_code), (JobState::Done, Some(0)), "{audit:?}");
+    let JobRequest::Audit(audit_spec) = &audit.spec else { panic!("job 5 is not an audit: {audit:?}") };
+    assert_eq!((audit_spec.fraction, audit_spec.seed), (1.0, 3), "{audit_spec:?}");
+    let manifest = rig::dataset::Manifest::load(&collected).expect("manifest");
+    assert_eq!(manifest.audit.as_ref().map(|a| a.audited_poses), Some(2), "{:?}", manifest.audit);
 }

@@ -13,6 +13,7 @@
 //! worker survives bad jobs. (Item 3, job paths against `--root`, lands with the job requests;
 //! [`rig::roots`] is unit-tested.)
 
+use crate::{copy_package, tiny_package};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
@@ -108,20 +109,6 @@ impl Sandbox {
         }
         assert_eq!(std::fs::read_to_string(self.secret()).expect("sentinel"), format!("{SECRET}\nsecond line\n"), "sentinel changed");
     }
-}
-
-fn tiny_package() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package")
-}
-
-/// A copy of the tiny model package under `dir`, for breaking.
-fn copy_package(dir: &Path) -> PathBuf {
-    for f in rig::synth::package::PACKAGE_FILES {
-        let to = dir.join(f);
-        std::fs::create_dir_all(to.parent().expect("parent")).expect("mkdir");
-        std::fs::copy(tiny_package().join(f), to).expect("copy");
-    }
-    dir.to_path_buf()
 }
 
 fn image(v: u8) -> image::RgbImage {

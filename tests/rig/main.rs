@@ -3,6 +3,9 @@
 //! One test binary per area; run one module with
 //! `cargo test --test rig <module>::`.
 
+// Its cases load the tiny model package: the `synth` feature.
+#[cfg(feature = "synth")]
+mod adaptive;
 mod bad_input;
 mod bench_report;
 mod calibration_cli;
@@ -27,3 +30,21 @@ mod press_limits;
 mod provenance;
 mod record_replay;
 mod run;
+
+/// The tiny model package of the tests (random weights).
+#[cfg(feature = "synth")]
+fn tiny_package() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package")
+}
+
+/// A copy of the tiny model package under `dir`: for breaking, and for the daemon page's fill,
+/// whose model must lie inside the daemon's data roots.
+#[cfg(feature = "synth")]
+fn copy_package(dir: &std::path::Path) -> std::path::PathBuf {
+    for f in rig::synth::package::PACKAGE_FILES {
+        let to = dir.join(f);
+        std::fs::create_dir_all(to.parent().expect("parent")).expect("mkdir");
+        std::fs::copy(tiny_package().join(f), to).expect("copy");
+    }
+    dir.to_path_buf()
+}

@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# Adaptive collection against a Latin hypercube of as many presses, on the simulated rig,
+# where the truth at every pose is free: per seed, the simulator collects the whole grid (the
+# truth), `rig collect --adaptive` presses BUDGET poses and fills the rest, and a Latin
+# hypercube of BUDGET poses is collected and filled by `rig synth --fill-missing` with the same
+# model and steps. `rig eval --pairs` compares each filled dataset's synthesised poses with the
+# truth; the table is the mean contact SSIM of the model's images over those poses, pooled over
+# the seeds, with a 95% percentile-bootstrap interval, per sensor and method; then each seed's
+# mean and the mean of the worst tenth of the poses.
+#
+#   scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]
+#
+# The simulated sensor renders 128 px frames (OUT/rig.toml), the size of models/default.
+# Environment: RIG (default target/release/rig, else target/debug/rig), SENSOR (tactip),
+# STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2).
+set -euo pipefail
+out=${1:?usage: scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]}
+model=${2:-models/default}
+shift $(( $# >= 2 ? 2 : 1 ))
+seeds=${*:-1 2 3}
+rig=${RIG:-$( [ -x target/release/rig ] && echo target/release/rig || echo target/debug/rig )}
+sensor=${SENSOR:-tactip}
+steps=${STEPS:-5}
+budget=${BUDGET:-30}
+rounds=${ROUNDS:-3}
+k=${SEEDS_PER_POSE:-2}
+mkdir -p "$out"
+# The simulated sensor's frames at the model's 128 px (models/default): no upscaled fill.
+printf '[sensors.%s]\nwidth = 128\nheight = 128\n' "$sensor" > "$out/rig.toml"
+
+plan() { # plan SEED SAMPLING-LINES > file: x, y in [-4, 4] mm by 2, z 0, yaw -90..45 by 45: 100 poses
+    printf '%s\nseed = %s\norder = "optimised"\n' "$2" "$1"
+    printf '[x_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n[y_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n'
+    printf '[z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -90.0\nmax = 45.0\nstep = 45.0\n'
+}
+
+for seed in $seeds; do
+    plan "$seed" 'sampling = "full"' > "$out/full-$seed.toml"
+    plan "$seed" "$(printf 'sampling = "lhs"\nn_poses = %s' "$budget")" > "$out/lhs-$seed.toml"
+    [ -f "$out/truth-$seed/sphere/$sensor/poses.csv" ] && r=--resume || r=
+    "$rig" collect --plan "$out/full-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/truth-$seed" $r
+    "$rig" collect --adaptive --budget "$budget" --rounds "$rounds" --seeds-per-pose "$k" --steps "$steps" \
+        --model "$model" --plan "$out/full-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/adaptive-$seed" --resume
+    "$rig" collect --plan "$out/lhs-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/lhs-$seed" --resume
+    "$rig" synth --fill-missing --dataset "$out/lhs-$seed" --model "$model" --steps "$steps"
+    for method in adaptive lhs; do
+        "$rig" eval --real "$out/truth-$seed" --synthetic "$out/$method-$seed" --pairs "$out/pairs-$method-$seed.csv" > "$out/eval-$method-$seed.md"
+    done
+done
+
+python3 - "$out" $seeds <<'PY'
+import csv, random, sys
+out, seeds = sys.argv[1], sys.argv[2:]
+def boot(v, n=10000):
+    rng = random.Random(1)
+    means = sorted(sum(rng.choice(v) for _ in v) / len(v) for _ in range(n))
+    return sum(v) / len(v), means[int(0.025 * n)], means[int(0.975 * n) - 1]
+rows, by_seed = {}, {}
+for method in ("adaptive", "lhs"):
+    for seed in seeds:
+        with open(f"{out}/pairs-{method}-{seed}.csv") as f:
+            for r in csv.DictReader(f):
+                if r["method"] == "model" and r["contact_ssim"] not in ("", "nan", "NaN"):
+                    rows.setdefault((r["sensor"], method), []).append(float(r["contact_ssim"]))
+                    by_seed.setdefault((r["sensor"], method), {}).setdefault(seed, []).append(float(r["contact_ssim"]))
+by_seed = {k: list(v.values()) for k, v in by_seed.items()}
+print("| sensor | method | n | contact SSIM, mean | 95% interval | per seed | worst tenth, mean |")
+print("|---|---|---:|---:|---|---|---:|")
+for (sensor, method), v in sorted(rows.items()):
+    m, lo, hi = boot(v)
+    worst = sorted(v)[: max(1, len(v) // 10)]
+    per_seed = ", ".join(f"{sum(x) / len(x):.4f}" for x in by_seed[(sensor, method)])
+    print(f"| {sensor} | {method} | {len(v)} | {m:.4f} | [{lo:.4f}, {hi:.4f}] | {per_seed} | {sum(worst) / len(worst):.4f} |")
+PY

@@ -1,0 +1,358 @@
+//! Choosing which poses of a plan an adaptive collection presses, round by round
+//! (`rig collect --adaptive`). Pure arithmetic over the plan's poses: the evidence that costs
+//! model calls (the spread of the model's images over seeds, the error of its images at the
+//! poses already pressed) is measured by the job and handed in as numbers.
+//!
+//! ```text
+//! round 1:  greedy farthest point in the normalised pose space (seeded start)
+//! round r:  the M unpressed poses farthest from every pressed one are scored:
+//!           a(p) = (spread(p)/max + distance(p)/max + error(p)/max) / 3
+//!           error(p): inverse-distance regression of the errors measured at the k nearest
+//!           pressed poses; pick the best, update every distance, pick again ...
+//! ```
+//!
+//! Everything here is deterministic given its inputs (ties go to the lower pose id), and what
+//! was chosen is recorded ([`AdaptiveChoice`]) so that a resumed collection replays it.
+
+use serde::{Deserialize, Serialize};
+
+use super::{PlanSpec, PlannedPose};
+
+/// How many unpressed poses a round scores with the model, at least: with fewer, a round's
+/// batch would have little to choose from.
+pub const MIN_SCORED: usize = 16;
+/// Scored poses per pose of the round's batch.
+pub const SCORED_PER_PICK: usize = 4;
+/// Pressed poses the error regression averages over.
+pub const ERROR_NEIGHBOURS: usize = 4;
+/// Most presses an adaptive collection may ask for: every choice is a few lines of the
+/// manifest, which readers bound to 1 MiB ([`crate::untrusted::MAX_CONFIG_BYTES`]); 4000
+/// choices take about 0.7 MiB.
+pub const MAX_BUDGET: usize = 4000;
+/// Most rounds an adaptive collection may ask for.
+pub const MAX_ROUNDS: usize = 100;
+/// Most seeds per scored pose.
+pub const MAX_SEEDS_PER_POSE: usize = 16;
+
+/// What an adaptive collection was asked for; the same on every resume.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdaptiveSettings {
+    /// Real presses in all.
+    pub budget: usize,
+    /// Rounds the presses are split over.
+    pub rounds: usize,
+    /// Model images per scored pose, each with its own seed.
+    pub seeds_per_pose: usize,
+    /// The model package's name and content hash.
+    pub model: String,
+    pub model_sha256: String,
+    /// Sampling steps of the model's images.
+    pub steps: usize,
+}
+
+/// Why a pose was chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ChoiceReason {
+    /// Round 1: the pose farthest from those already chosen.
+    SpaceFilling,
+    /// A later round: the highest acquisition score.
+    Acquisition,
+}
+
+/// One chosen pose, as the manifest records it (`[[adaptive.choices]]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdaptiveChoice {
+    pub pose_id: u32,
+    /// 1-based.
+    pub round: usize,
+    pub reason: ChoiceReason,
+    /// Normalised distance to the nearest pose pressed or chosen before it.
+    pub distance: f64,
+    /// The acquisition's terms, each divided by its largest value over the round's scored
+    /// poses, and their mean (`score`); absent in round 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spread: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub score: Option<f64>,
+}
+
+/// An adaptive collection's settings and every choice made so far, in order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdaptiveRecord {
+    pub settings: AdaptiveSettings,
+    #[serde(default)]
+    pub choices: Vec<AdaptiveChoice>,
+}
+
+impl AdaptiveRecord {
+    /// The pose ids chosen in `round`, in the order chosen.
+    pub fn round_ids(&self, round: usize) -> Vec<u32> {
+        self.choices.iter().filter(|c| c.round == round).map(|c| c.pose_id).collect()
+    }
+
+    /// Rounds with at least one choice recorded.
+    pub fn rounds_recorded(&self) -> usize {
+        self.choices.iter().map(|c| c.round).max().unwrap_or(0)
+    }
+}
+
+/// How many poses round `round` (1-based) presses: the budget split evenly, the first rounds
+/// taking one more each while a remainder is left.
+pub fn round_size(budget: usize, rounds: usize, round: usize) -> usize {
+    if rounds == 0 || round == 0 || round > rounds {
+        return 0;
+    }
+    budget / rounds + usize::from(round <= budget % rounds)
+}
+
+/// Poses as points of the unit hypercube: each axis divided by the plan's range on it (an axis
+/// of one value is 0 everywhere), so a step in yaw weighs as much as a step in x when both
+/// axes have as many steps.
+pub fn normalised(spec: &PlanSpec, poses: &[PlannedPose]) -> Vec<[f64; 4]> {
+    let scale = |v: f64, a: &super::AxisRange| if a.max > a.min { (v - a.min) / (a.max - a.min) } else { 0.0 };
+    poses
+        .iter()
+        .map(|p| {
+            [
+                scale(p.pose.x_mm, &spec.x_mm),
+                scale(p.pose.y_mm, &spec.y_mm),
+                scale(p.pose.z_mm, &spec.z_mm),
+                scale(p.pose.yaw_deg, &spec.yaw_deg),
+            ]
+        })
+        .collect()
+}
+
+/// Euclidean distance between two normalised poses.
+pub fn distance(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+}
+
+/// For every point, the distance to the nearest of `pressed` (indices into `points`);
+/// infinite when none is pressed. O(points x pressed).
+pub fn nearest_pressed(points: &[[f64; 4]], pressed: &[usize]) -> Vec<f64> {
+    points.iter().map(|p| pressed.iter().map(|&q| distance(p, &points[q])).fold(f64::INFINITY, f64::min)).collect()
+}
+
+/// The index of the largest finite-or-infinite value among `eligible`, ties to the lower pose
+/// id; `None` when none is eligible.
+fn best(eligible: impl Iterator<Item = usize>, value: impl Fn(usize) -> f64, ids: &[u32]) -> Option<usize> {
+    eligible.fold(None, |best: Option<usize>, i| match best {
+        Some(b) if value(b) > value(i) || (value(b) == value(i) && ids[b] < ids[i]) => Some(b),
+        _ => Some(i),
+    })
+}
+
+/// Round 1: `count` poses by greedy farthest-point sampling, starting from the pose `seed`
+/// picks (when nothing is pressed yet). `pressed` are indices already pressed; `ids` the
+/// poses' ids (for ties). Returns (index, distance to the nearest earlier pose) in pick order.
+pub fn farthest_points(points: &[[f64; 4]], ids: &[u32], pressed: &[usize], count: usize, seed: u64) -> Vec<(usize, f64)> {
+    let mut nearest = nearest_pressed(points, pressed);
+    let mut taken = vec![false; points.len()];
+    for &p in pressed {
+        taken[p] = true;
+    }
+    let mut picks = Vec::new();
+    while picks.len() < count {
+        let pick = if picks.is_empty() && pressed.is_empty() {
+            // A seeded start: the same seed picks the same first pose.
+            let free: Vec<usize> = (0..points.len()).filter(|&i| !taken[i]).collect();
+            if free.is_empty() {
+                break;
+            }
+            use rand::{RngExt, SeedableRng};
+            let k = rand_chacha::ChaCha8Rng::seed_from_u64(seed).random_range(0..free.len());
+            Some(free[k])
+        } else {
+            best((0..points.len()).filter(|&i| !taken[i]), |i| nearest[i], ids)
+        };
+        let Some(i) = pick else { break };
+        picks.push((i, nearest[i]));
+        taken[i] = true;
+        for (j, n) in nearest.iter_mut().enumerate() {
+            *n = n.min(distance(&points[j], &points[i]));
+        }
+    }
+    picks
+}
+
+/// The unpressed poses a later round scores with the model: the `m` farthest from every
+/// pressed pose (ties to the lower id), as indices.
+pub fn candidates_to_score(points: &[[f64; 4]], ids: &[u32], pressed: &[usize], m: usize) -> Vec<usize> {
+    let nearest = nearest_pressed(points, pressed);
+    let mut taken = vec![false; points.len()];
+    for &p in pressed {
+        taken[p] = true;
+    }
+    let mut free: Vec<usize> = (0..points.len()).filter(|&i| !taken[i]).collect();
+    free.sort_by(|&a, &b| nearest[b].total_cmp(&nearest[a]).then(ids[a].cmp(&ids[b])));
+    free.truncate(m);
+    free
+}
+
+/// How many poses a round of `batch` presses scores with the model, of `free` unpressed ones.
+pub fn scored_count(batch: usize, free: usize) -> usize {
+    (batch * SCORED_PER_PICK).max(MIN_SCORED).min(free)
+}
+
+/// The audit-error model: the error at `point` regressed from the errors measured at pressed
+/// poses (`measured`: point, error), as the inverse-distance-weighted mean of the
+/// [`ERROR_NEIGHBOURS`] nearest. `None` when nothing was measured.
+pub fn regressed_error(point: &[f64; 4], measured: &[([f64; 4], f64)]) -> Option<f64> {
+    let mut near: Vec<(f64, f64)> = measured.iter().map(|(p, e)| (distance(point, p), *e)).collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    near.truncate(ERROR_NEIGHBOURS);
+    if near.is_empty() {
+        return None;
+    }
+    // A small floor keeps a measured pose's own error from an infinite weight.
+    let (sum_w, sum_we) = near.iter().fold((0.0, 0.0), |(w, we), (d, e)| {
+        let weight = 1.0 / (d + 1e-3);
+        (w + weight, we + weight * e)
+    });
+    Some(sum_we / sum_w)
+}
+
+/// One scored pose of a later round: its index and the evidence measured for it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scored {
+    pub index: usize,
+    /// The model's spread over seeds in the contact region.
+    pub spread: f64,
+    /// The regressed audit error ([`regressed_error`]).
+    pub error: f64,
+}
+
+/// A later round: `count` of the `scored` poses, greedily by the acquisition (each term divided
+/// by its largest value over `scored`, then averaged), the distance term updated after each
+/// pick so that a round spreads. `pressed`: indices pressed before this round.
+pub fn acquisition_batch(
+    points: &[[f64; 4]],
+    ids: &[u32],
+    pressed: &[usize],
+    scored: &[Scored],
+    count: usize,
+    round: usize,
+) -> Vec<AdaptiveChoice> {
+    let mut nearest: Vec<f64> =
+        scored.iter().map(|s| pressed.iter().map(|&q| distance(&points[s.index], &points[q])).fold(f64::INFINITY, f64::min)).collect();
+    let max_of = |v: &mut dyn Iterator<Item = f64>| v.filter(|x| x.is_finite()).fold(0.0, f64::max);
+    let spread_max = max_of(&mut scored.iter().map(|s| s.spread));
+    let error_max = max_of(&mut scored.iter().map(|s| s.error));
+    let distance_max = max_of(&mut nearest.iter().copied());
+    let part = |v: f64, max: f64| {
+        if max > 0.0 && v.is_finite() {
+            (v / max).min(1.0)
+        } else if v.is_infinite() {
+            1.0
+        } else {
+            0.0
+        }
+    };
+    let mut taken = vec![false; scored.len()];
+    let mut choices = Vec::new();
+    while choices.len() < count {
+        let score = |k: usize| {
+            let s = &scored[k];
+            (part(s.spread, spread_max) + part(nearest[k], distance_max) + part(s.error, error_max)) / 3.0
+        };
+        let scored_ids: Vec<u32> = scored.iter().map(|s| ids[s.index]).collect();
+        let Some(k) = best((0..scored.len()).filter(|&k| !taken[k]), score, &scored_ids) else { break };
+        let s = scored[k];
+        choices.push(AdaptiveChoice {
+            pose_id: ids[s.index],
+            round,
+            reason: ChoiceReason::Acquisition,
+            distance: nearest[k],
+            spread: Some(part(s.spread, spread_max)),
+            error: Some(part(s.error, error_max)),
+            score: Some(score(k)),
+        });
+        taken[k] = true;
+        for (j, n) in nearest.iter_mut().enumerate() {
+            *n = n.min(distance(&points[scored[j].index], &points[s.index]));
+        }
+    }
+    choices
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pose::Pose;
+
+    fn line(n: u32) -> (Vec<[f64; 4]>, Vec<u32>) {
+        ((0..n).map(|i| [i as f64 / (n - 1) as f64, 0.0, 0.0, 0.0]).collect(), (0..n).collect())
+    }
+
+    #[test]
+    fn round_sizes_add_up_to_the_budget() {
+        for (budget, rounds) in [(10, 3), (97, 4), (5, 5), (7, 1)] {
+            let sizes: Vec<usize> = (1..=rounds).map(|r| round_size(budget, rounds, r)).collect();
+            assert_eq!(sizes.iter().sum::<usize>(), budget, "{budget} over {rounds}: {sizes:?}");
+            assert!(sizes.windows(2).all(|w| w[0] >= w[1] && w[0] - w[1] <= 1), "{sizes:?}");
+        }
+        assert_eq!(round_size(10, 3, 4), 0);
+    }
+
+    #[test]
+    fn farthest_points_spread_over_a_line_and_repeat_with_the_seed() {
+        let (points, ids) = line(11);
+        let a = farthest_points(&points, &ids, &[], 3, 7);
+        assert_eq!(a, farthest_points(&points, &ids, &[], 3, 7), "same seed, same picks");
+        let picked: Vec<usize> = a.iter().map(|p| p.0).collect();
+        // After any start, the second pick is the far end from it and the third lies between.
+        let far = if picked[0] <= 5 { 10 } else { 0 };
+        assert_eq!(picked[1], far, "{picked:?}");
+        assert!(a[1].1 >= 0.5 && a[2].1 <= a[1].1, "{a:?}");
+        // With presses, the farthest free pose is taken first.
+        let b = farthest_points(&points, &ids, &[0], 1, 7);
+        assert_eq!(b[0].0, 10);
+    }
+
+    #[test]
+    fn acquisition_prefers_spread_error_and_distance_and_spreads_a_batch() {
+        let (points, ids) = line(11);
+        let pressed = [0, 10];
+        // Poses 4, 5 and 6 are equally far from a press; 6 has the largest spread and error.
+        let scored: Vec<Scored> = [4, 5, 6]
+            .iter()
+            .map(|&i| Scored { index: i, spread: if i == 6 { 1.0 } else { 0.1 }, error: if i == 6 { 0.5 } else { 0.1 } })
+            .collect();
+        let batch = acquisition_batch(&points, &ids, &pressed, &scored, 2, 2);
+        assert_eq!(batch[0].pose_id, 6, "{batch:?}");
+        // Its neighbour 5 is now close to a pick: the second pick is 4.
+        assert_eq!(batch[1].pose_id, 4, "{batch:?}");
+        assert!(batch.iter().all(|c| c.round == 2 && c.reason == ChoiceReason::Acquisition));
+        assert!(batch[0].score > batch[1].score);
+    }
+
+    #[test]
+    fn regressed_error_follows_the_nearest_measures() {
+        let measured = [([0.0, 0.0, 0.0, 0.0], 0.1), ([1.0, 0.0, 0.0, 0.0], 0.9)];
+        let near_low = regressed_error(&[0.1, 0.0, 0.0, 0.0], &measured).expect("measured");
+        let near_high = regressed_error(&[0.9, 0.0, 0.0, 0.0], &measured).expect("measured");
+        assert!(near_low < 0.3 && near_high > 0.7, "{near_low} {near_high}");
+        assert_eq!(regressed_error(&[0.5, 0.0, 0.0, 0.0], &[]), None);
+    }
+
+    #[test]
+    fn candidates_are_the_farthest_from_the_presses() {
+        let (points, ids) = line(11);
+        assert_eq!(candidates_to_score(&points, &ids, &[0, 10], 3), vec![5, 4, 6]);
+        assert_eq!(scored_count(2, 9), 9);
+        assert_eq!(scored_count(10, 100), 40);
+    }
+
+    #[test]
+    fn normalised_scales_each_axis_by_the_plan_range() {
+        let spec = PlanSpec::default();
+        let p = [PlannedPose { pose_id: 0, pose: Pose::new(spec.x_mm.max, spec.y_mm.min, 0.0, 0.0) }];
+        let n = normalised(&spec, &p);
+        assert_eq!(n[0][0], 1.0);
+        assert_eq!(n[0][1], 0.0);
+    }
+}

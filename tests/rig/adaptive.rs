@@ -1,0 +1,213 @@
+//! `rig collect --adaptive` on the built-in simulated rig with the tiny test package: the
+//! refusals (exit 2, nothing collected), the rounds in the manifest, and a collection SIGKILLed
+//! at random moments resuming with the same choices and no lost or duplicated row.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use rand::{RngExt, SeedableRng};
+
+fn rig() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rig"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c.env_remove("RIG_CONFIG");
+    c
+}
+
+fn tiny() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tiny-package")
+}
+
+/// A plan of the full 3 x 3 x 1 x 2 = 18-pose grid (seed 3), or of its first `n` poses.
+fn plan(dir: &Path, full: bool) -> PathBuf {
+    let path = dir.join(if full { "plan.toml" } else { "one.toml" });
+    let sampling = if full { "sampling = \"full\"" } else { "sampling = \"random\"\nn_poses = 1" };
+    let text = format!(
+        "{sampling}\nseed = 3\norder = \"optimised\"\n[x_mm]\nmin = -2.0\nmax = 2.0\nstep = 2.0\n[y_mm]\nmin = -2.0\nmax = 2.0\nstep = 2.0\n\
+         [z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = 0.0\nmax = 45.0\nstep = 45.0\n"
+    );
+    std::fs::write(&path, text).expect("writing the plan");
+    path
+}
+
+fn adaptive_args(out: &Path, plan: &Path, model: &Path, budget: usize, sensor: &str) -> Vec<String> {
+    [
+        "collect",
+        "--adaptive",
+        "--budget",
+        &budget.to_string(),
+        "--rounds",
+        "3",
+        "--seeds-per-pose",
+        "2",
+        "--steps",
+        "1",
+        "--model",
+        &model.display().to_string(),
+        "--sensor",
+        sensor,
+        "--plan",
+        &plan.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// The adaptive record of a dataset's manifest: (pose_id, round, reason) per choice.
+fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
+    let manifest: toml::Value = toml::from_str(&std::fs::read_to_string(dataset.join("manifest.toml")).expect("manifest")).expect("toml");
+    let list = manifest["adaptive"]["choices"].as_array().expect("adaptive.choices");
+    list.iter()
+        .map(|c| {
+            (
+                c["pose_id"].as_integer().expect("pose_id") as u32,
+                c["round"].as_integer().expect("round") as usize,
+                c["reason"].as_str().expect("reason").to_string(),
+            )
+        })
+        .collect()
+}
+
+/// `poses.csv` as (pose_id, source) per row.
+fn rows(dataset: &Path) -> Vec<(u32, String)> {
+    let csv = std::fs::read_to_string(dataset.join("poses.csv")).expect("poses.csv");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("column {name}"));
+    let (id, source) = (col("pose_id"), col("source"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[id].parse().expect("pose id"), f[source].to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn refusals_exit_2_and_collect_nothing() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let full = plan(tmp.path(), true);
+    let one = plan(tmp.path(), false);
+    let out = tmp.path().join("out");
+    let cases: Vec<(&str, Vec<String>, &str)> = vec![
+        ("a budget larger than the plan", adaptive_args(&out, &full, &tiny(), 19, "tactip"), "--budget 19"),
+        ("a plan of one pose", adaptive_args(&out, &one, &tiny(), 1, "tactip"), "a plan of 1 pose"),
+    ];
+    // A package that makes only TacTip images, asked for ViTac.
+    let tactip_only = tmp.path().join("tactip-only");
+    copy_dir(&tiny(), &tactip_only);
+    let toml_path = tactip_only.join("model.toml");
+    let model_toml = std::fs::read_to_string(&toml_path).expect("model.toml");
+    std::fs::write(&toml_path, model_toml.replace(r#"modalities = ["TacTip", "ViTac", "ViTacTip"]"#, r#"modalities = ["TacTip"]"#))
+        .expect("writing model.toml");
+    let mut cases = cases;
+    cases.push(("a model that does not make the sensor's images", adaptive_args(&out, &full, &tactip_only, 6, "vitac"), "not of ViTac"));
+    for (what, args, says) in cases {
+        let o = rig().args(&args).output().expect("rig collect --adaptive");
+        assert_eq!(o.status.code(), Some(2), "{what}: {}", text(&o));
+        assert!(text(&o).contains(says), "{what}: the refusal should say {says:?}: {}", text(&o));
+        assert!(!out.join("sphere").exists(), "{what}: nothing may be collected");
+    }
+    // The same model makes TacTip images: accepted (the refusal above was the sensor's).
+    let o = rig().args(adaptive_args(&out, &full, &tactip_only, 3, "tactip")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+#[test]
+fn rounds_are_in_the_manifest_and_the_rest_is_filled() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let full = plan(tmp.path(), true);
+    let out = tmp.path().join("out");
+    let o = rig().args(adaptive_args(&out, &full, &tiny(), 7, "tactip,vitac")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+    let tactip = out.join("sphere/tactip");
+    let chosen = choices(&tactip);
+    assert_eq!(chosen, choices(&out.join("sphere/vitac")), "every dataset records the same rounds");
+    // 7 presses over 3 rounds: 3, 2, 2; round 1 space-filling, the others by acquisition.
+    let per_round: Vec<usize> = (1..=3).map(|r| chosen.iter().filter(|c| c.1 == r).count()).collect();
+    assert_eq!(per_round, vec![3, 2, 2], "{chosen:?}");
+    assert!(chosen.iter().all(|c| (c.1 == 1) == (c.2 == "space-filling") && (c.1 > 1) == (c.2 == "acquisition")), "{chosen:?}");
+    let ids = sorted_unique(chosen.iter().map(|c| c.0));
+    assert_eq!(ids.len(), 7, "no pose chosen twice: {chosen:?}");
+    // The pressed rows are exactly the chosen poses; the other 11 of the grid are synthetic.
+    let rows = rows(&tactip);
+    assert_eq!(rows.len(), 18, "{rows:?}");
+    assert_eq!(pressed(&rows), ids, "{rows:?}");
+    assert_eq!(rows.iter().filter(|r| r.1 == "synthetic").count(), 11);
+    assert!(text(&o).contains("round 2/3: 2 poses (by acquisition,"), "{}", text(&o));
+}
+
+#[test]
+fn a_killed_adaptive_collection_resumes_with_the_same_choices() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let full = plan(tmp.path(), true);
+    let clean = tmp.path().join("clean");
+    let o = rig().args(adaptive_args(&clean, &full, &tiny(), 6, "tactip")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+    let expected = choices(&clean.join("sphere/tactip"));
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0xada9_7173);
+    let mut killed_mid_run = 0;
+    for run in 0..4 {
+        let out = tmp.path().join(format!("run{run}"));
+        let args = adaptive_args(&out, &full, &tiny(), 6, "tactip");
+        for _ in 0..2 {
+            let mut child = rig().args(&args).arg("--resume").stdout(Stdio::null()).stderr(Stdio::null()).spawn().expect("spawning");
+            let delay = Duration::from_millis(rng.random_range(300..6000));
+            let start = Instant::now();
+            let mut finished = false;
+            while start.elapsed() < delay {
+                if child.try_wait().expect("try_wait").is_some() {
+                    finished = true;
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = child.kill(); // SIGKILL on Unix
+            let _ = child.wait();
+            killed_mid_run += usize::from(!finished);
+        }
+        let o = rig().args(&args).arg("--resume").output().expect("resuming");
+        assert!(o.status.success(), "run {run}: {}", text(&o));
+        let dataset = out.join("sphere/tactip");
+        assert_eq!(choices(&dataset), expected, "run {run}: the resumed collection chose otherwise");
+        let rows = rows(&dataset);
+        let ids = sorted_unique(rows.iter().map(|r| r.0));
+        assert_eq!((rows.len(), ids.len()), (18, 18), "run {run}: a row lost or duplicated: {rows:?}");
+        assert_eq!(pressed(&rows), sorted_unique(expected.iter().map(|c| c.0)), "run {run}: pressed poses");
+    }
+    assert!(killed_mid_run > 0, "no kill landed before a run ended");
+}
+
+/// `ids` sorted, each once.
+fn sorted_unique(ids: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut v: Vec<u32> = ids.collect();
+    v.sort();
+    v.dedup();
+    v
+}
+
+/// The pose ids of the rows a press made (not `synthetic`), sorted.
+fn pressed(rows: &[(u32, String)]) -> Vec<u32> {
+    sorted_unique(rows.iter().filter(|r| r.1 != "synthetic").map(|r| r.0))
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for entry in std::fs::read_dir(from).expect("read_dir") {
+        let entry = entry.expect("entry");
+        let target = to.join(entry.file_name());
+        if entry.file_type().expect("file type").is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).expect("copy");
+        }
+    }
+}
