@@ -523,8 +523,7 @@ pub fn detect_imprint(frame: &RgbImage, reference: &RgbImage, options: &ImprintO
 /// a quarter darker than it); they are then filled by normalised convolution, the mean of the
 /// unmasked pixels around each, which follows the slope of the blend across the marker. The
 /// markers' anti-aliased rims are kept: masking them too (a one-pixel dilation) left the
-/// simulated ViTacTip's calibration at 0.91 px against 0.40 px without (both before the
-/// see-through glow was lit by the dent alone; 0.34 px since). Radius 0 leaves `l`
+/// simulated ViTacTip's calibration at 0.91 px against 0.40 px without. Radius 0 leaves `l`
 /// as it is.
 fn fill_markers(l: &mut [f32], w: usize, h: usize, close_px: usize) {
     if close_px == 0 || l.len() != w * h {

@@ -94,16 +94,10 @@ impl Look {
                 shading_gain: 0.3,
             },
             SensorKind::ViTac => Look {
-                // The stops at 0.3 and 0.5 are the field's brightness with the bar of real
-                // frame 0 pressed, read by radius (`tests/imaging/sensor_look.rs`): the glow is
-                // lit by the object's dent alone, and the broad light the real skin shows
-                // around a press is here. ViTacTip's 0.5 stop likewise, from its frame 1; its
-                // 0.3 stop is kept, as brightening the centre, where calibration presses,
-                // moved the see-through locator's scale by 1 % (`tests/rig/calibration_cli.rs`).
                 profile: vec![
                     (0.0, [168.0, 166.0, 158.0]),
-                    (0.3, [159.6, 159.4, 154.8]),
-                    (0.5, [155.6, 141.8, 122.2]),
+                    (0.3, [150.0, 149.0, 142.0]),
+                    (0.5, [146.0, 125.0, 99.0]),
                     (0.65, [120.0, 100.0, 77.0]),
                     (0.78, [104.0, 94.0, 76.0]),
                     (0.88, [90.0, 86.0, 74.0]),
@@ -123,7 +117,7 @@ impl Look {
                 profile: vec![
                     (0.0, [156.0, 155.0, 148.0]),
                     (0.3, [146.0, 142.0, 132.0]),
-                    (0.5, [152.0, 145.0, 133.0]),
+                    (0.5, [132.0, 116.0, 94.0]),
                     (0.65, [104.0, 92.0, 74.0]),
                     (0.78, [94.0, 85.0, 70.0]),
                     (0.88, [78.0, 76.0, 65.0]),

@@ -480,6 +480,8 @@ impl SensorSim {
         // around it.
         let mut indent = raw.clone();
         self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, spread_px, skin.spread_gain));
+        // What the skin does without the indentation stage: it follows the object's dent only.
+        let deformed = if self.runs(Stage::ContactDeformation) { &indent } else { &raw };
 
         let mut markers = self.fixed.markers.clone();
         let mut warp = None;
@@ -511,16 +513,8 @@ impl SensorSim {
         let mut see_through = None;
         if self.look.object_rgb.is_some() {
             self.stage(Stage::SeeThrough, || {
-                // The glow is the object's light scattered into the skin where it touches:
-                // both its blurs follow the object's own dent (a deeper press lights more of
-                // it, over the wider footprint), not the skirt the spread drags in around it,
-                // which touches nothing. Lit from the whole deformed skin (spread_gain 5 on
-                // ViTac) the glow smeared the contact's edge over its surroundings (ViTac's
-                // whole-frame SSIM on the real frames 0.918 against 0.944, `rig compare-real
-                // --sensor vitac`) and the regressor of `rig eval --downstream` lost X; the
-                // field's brightness that broad glow stood in for is in the skin's profile
-                // (`look.rs`).
-                let mut near = raw.clone();
+                // The glow follows the deformed skin: a deeper press lights more of it.
+                let mut near = deformed.clone();
                 for v in &mut near.v {
                     *v = skin.glow_source(*v);
                 }

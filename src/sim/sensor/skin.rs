@@ -14,8 +14,7 @@
 //! - `see_through`: the object shows through a transparent skin more the harder it presses
 //!   (`visibility = touch + (1 - touch) * (1 - exp(-depth / clear_mm))` where it touches), its
 //!   outline is softened further the deeper the press (`edge_mm_per_mm`), and the glow it
-//!   scatters into the skin follows the object's own dent `w`, where it touches
-//!   (`1 - exp(-w / glow_mm)`), not the skirt the spread drags in around it.
+//!   scatters into the skin follows the deformed skin (`1 - exp(-w / glow_mm)`).
 //!
 //! The values of [`SkinModel::of`] were fitted on the real frames 1-5 of the MultiDiffSense
 //! example with `rig compare-real --fit-skin` (the guide, `docs/src/simulator.md`, gives the
