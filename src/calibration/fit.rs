@@ -570,7 +570,7 @@ fn levenberg_marquardt<const N: usize>(
 }
 
 /// Solves `a x = b` by Gaussian elimination with partial pivoting; `None` when singular.
-fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
+pub(crate) fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
     let norm = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
     if !(norm > 0.0) || !norm.is_finite() {
         return None;

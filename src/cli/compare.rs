@@ -18,6 +18,9 @@
 //! - The simulator starts from the median of the sensor's *other* real frames (leave one out)
 //!   and renders the scene of [`comparison_scene`] (no noise); `--procedural` uses its
 //!   modelled look instead, `--scene` another scene.
+//! - `--fit-skin` fits each sensor's skin (`sim::sensor::SkinModel`, the parameters its
+//!   stages read) to the frames of `--frames` (default 1-5), prints the fit with its residuals
+//!   and a leave-one-out cross-validation, and compares nothing else.
 //! - `--fit` first refits the calibrations to the first object's frames
 //!   (`calibration::contact_fit::fit_sensor`, in `FIT_ORDER`, each seeded with the ones
 //!   before) and writes them.
@@ -30,9 +33,12 @@ use clap::Args as ClapArgs;
 use super::sensor_bridge::{render_tactile_with, simulator_available};
 use crate::calibration::Calibration;
 use crate::calibration::contact_fit::{FIT_ORDER, FitFrame, fit_sensor};
-use crate::eval::compare_real::{CompareOptions, CompareRealError, FrameScores, RealSample, compare_sensor};
+use crate::eval::compare_real::{
+    CompareOptions, CompareRealError, FrameScores, ParameterRange, PreparedSensor, RealSample, compare_sensor, cross_validate,
+    fit_parameters,
+};
 use crate::sensor::SensorKind;
-use crate::sim::sensor::{Scene, Stage};
+use crate::sim::sensor::{Scene, SkinModel, Stage};
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -57,6 +63,27 @@ pub struct Args {
     /// Write side-by-side panels (real | baseline | footprint | contact region | simulator) here.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Fit each sensor's skin model to the frames instead (with its residuals and a
+    /// leave-one-out cross-validation).
+    #[arg(long)]
+    pub fit_skin: bool,
+    /// Image indices to use, `A-B` or `A` (default: every frame; `--fit-skin`: 1-5).
+    #[arg(long, value_parser = parse_frames)]
+    pub frames: Option<(usize, usize)>,
+    /// Only these sensors (repeatable; default: all three).
+    #[arg(long = "sensor")]
+    pub sensors: Vec<SensorKind>,
+}
+
+/// `A-B` or `A` as an inclusive range of image indices.
+fn parse_frames(text: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("{text:?} is not A-B or A (image indices, A <= B)");
+    let (a, b) = text.split_once('-').unwrap_or((text, text));
+    let (a, b) = (a.trim().parse::<usize>().map_err(|_| bad())?, b.trim().parse::<usize>().map_err(|_| bad())?);
+    if a > b {
+        return Err(bad());
+    }
+    Ok((a, b))
 }
 
 /// Default sample folder: `$RIG_SHARED/real-sample/multidiffsense-example` (RIG_SHARED
@@ -110,6 +137,81 @@ fn fit_all(sample: &RealSample, calibration_dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--fit-skin`: for each sensor, fits the parameters of its skin its stages read
+/// ([`SkinModel::fitted_parameters`]) to all the sample's frames, starting from the kind's
+/// committed skin; prints the fitted values, each frame's contact-region SSIM and residual
+/// beside the baseline's, then a leave-one-out cross-validation (fit on the other frames,
+/// score the one left out).
+fn fit_skins(sample: &RealSample, calibrations: &[(SensorKind, Calibration)], scene: &Scene, measured: bool) -> anyhow::Result<()> {
+    let frames = |sensor| sample.frames_of(sensor).iter().map(|(i, _)| i.to_string()).collect::<Vec<_>>().join(", ");
+    for (sensor, calib) in calibrations {
+        let sensor = *sensor;
+        if sample.frames_of(sensor).len() < 3 {
+            println!("{}: {} frame(s), a fit with a cross-validation needs three; skipped", sensor.label(), sample.frames_of(sensor).len());
+            continue;
+        }
+        let prepared = PreparedSensor::new(sample, sensor, calib, measured)?;
+        let committed = SkinModel::of(sensor);
+        let params = SkinModel::fitted_parameters(sensor);
+        let skin_of = |values: &[f64]| {
+            let mut skin = committed;
+            for (p, v) in params.iter().zip(values) {
+                p.set(&mut skin, *v as f32);
+            }
+            skin
+        };
+        let render = |values: &[f64], depth: &_, calib: &_, seed, reference: Option<&_>| {
+            render_tactile_with(sensor, depth, calib, seed, scene, reference, Some(&skin_of(values))).ok()
+        };
+        let start: Vec<f64> = params.iter().map(|p| f64::from(p.start)).collect();
+        let ranges: Vec<ParameterRange> = params.iter().map(|p| ParameterRange { min: f64::from(p.min), max: f64::from(p.max) }).collect();
+        let all: Vec<usize> = (0..prepared.frames.len()).collect();
+        let fit = fit_parameters(&prepared, &all, &start, &ranges, &render);
+        println!(
+            "{} skin fitted on frames {} ({} candidates; mean contact SSIM {:.3}):",
+            sensor.label(),
+            frames(sensor),
+            fit.evaluations,
+            fit.score
+        );
+        for (p, (was, now)) in params.iter().zip(start.iter().zip(&fit.parameters)) {
+            println!("  {:<18} {:>7.3} (search started at {:.3}, committed {:.3})", p.name, now, was, p.get(&committed));
+        }
+        println!("  {:>5} {:>10} {:>10} {:>12} {:>12}", "frame", "sim cont.", "base cont.", "committed", "residual");
+        let fitted = |d: &_, c: &_, seed, r: Option<&_>| render(&fit.parameters, d, c, seed, r);
+        let kept = |d: &_, c: &_, seed, r: Option<&_>| render_tactile_with(sensor, d, c, seed, scene, r, Some(&committed)).ok();
+        let fmt = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "n/a".to_string());
+        for (k, f) in prepared.frames.iter().enumerate() {
+            println!(
+                "  {:>5} {:>10} {:>10.3} {:>12} {:>12}",
+                f.index,
+                fmt(prepared.contact_ssim(k, &fitted)),
+                f.baseline_contact,
+                fmt(prepared.contact_ssim(k, &kept)),
+                prepared.contact_residual(k, &fitted).map(|r| format!("{r:.1} levels")).unwrap_or_else(|| "n/a".to_string())
+            );
+        }
+        println!("  leave-one-out: fitted on the other frames, scored on the one left out");
+        println!("  {:>5} {:>10} {:>10} {:>8}  fitted on the others", "frame", "sim cont.", "base cont.", "sim-base");
+        let folds = cross_validate(&prepared, &start, &ranges, &render);
+        for f in &folds {
+            let values: Vec<String> = params.iter().zip(&f.parameters).map(|(p, v)| format!("{} {v:.3}", p.name)).collect();
+            println!(
+                "  {:>5} {:>10.3} {:>10.3} {:>+8.3}  {}",
+                f.index,
+                f.sim_contact,
+                f.baseline_contact,
+                f.sim_contact - f.baseline_contact,
+                values.join(", ")
+            );
+        }
+        let n = folds.len() as f64;
+        let (sim, base) = (folds.iter().map(|f| f.sim_contact).sum::<f64>() / n, folds.iter().map(|f| f.baseline_contact).sum::<f64>() / n);
+        println!("  {:>5} {:>10.3} {:>10.3} {:>+8.3}", "mean", sim, base, sim - base);
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = args.sample.clone().unwrap_or_else(default_sample_dir);
     let context = || format!("loading the real sample from {} (set --sample or RIG_SHARED)", dir.display());
@@ -126,10 +228,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => comparison_scene(),
     };
     let mut calibrations = Vec::new();
-    for sensor in SensorKind::ALL {
+    for sensor in SensorKind::ALL.into_iter().filter(|s| args.sensors.is_empty() || args.sensors.contains(s)) {
         let path = args.calibration_dir.join(format!("mds-example-{sensor}.toml"));
         let calib = Calibration::load(&path).with_context(|| format!("{}: run with --fit to create {}", sensor.label(), path.display()))?;
         calibrations.push((sensor, calib));
+    }
+    let frames = args.frames.or(args.fit_skin.then_some((1, 5)));
+    let load = |id: &str| -> anyhow::Result<RealSample> {
+        let mut sample = RealSample::load_object(&dir, id).with_context(context)?;
+        if let Some((a, b)) = frames {
+            sample.retain_frames(|i| (a..=b).contains(&i));
+        }
+        Ok(sample)
+    };
+    if args.fit_skin {
+        let sample = load(&ids[0])?;
+        return fit_skins(&sample, &calibrations, &scene, !args.procedural);
     }
     println!("SSIM against the real frames (mean over frames; contact = pixels differing from the no-contact look)");
     println!(
@@ -141,7 +255,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut compared = 0usize;
     let mut skipped = Vec::new();
     for id in &ids {
-        let sample = RealSample::load_object(&dir, id).with_context(context)?;
+        let sample = load(id)?;
         for (sensor, calib) in &calibrations {
             let sensor = *sensor;
             let frames = sample.frames_of(sensor).len();
@@ -150,8 +264,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 skipped.push(format!("object {id} {}: {frames} frame(s), need two", sensor.label()));
                 continue;
             }
-            let render =
-                |depth: &_, calib: &_, seed, reference: Option<&_>| render_tactile_with(sensor, depth, calib, seed, &scene, reference).ok();
+            let render = |depth: &_, calib: &_, seed, reference: Option<&_>| {
+                render_tactile_with(sensor, depth, calib, seed, &scene, reference, None).ok()
+            };
             let scores = compare_sensor(&sample, sensor, calib, &render, &options)?;
             compared += scores.len();
             for s in &scores {

@@ -172,7 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         View::Tactile(sensor) => match &reference {
             Some(r) => {
                 let scene = Scene::preset("full")?;
-                render_tactile_with(sensor, &depth, &calib, args.seed, &scene, Some(r))?.save(out)
+                render_tactile_with(sensor, &depth, &calib, args.seed, &scene, Some(r), None)?.save(out)
             }
             None => render_tactile(sensor, &depth, &calib, args.seed)?.save(out),
         },

@@ -19,6 +19,10 @@
 //!   footprint, a check of the calibration independent of the renderer.
 //! - The renderer may start from a measured no-contact look: the per-pixel median of the
 //!   sensor's *other* real frames ([`simulator_reference`], leave one out).
+//! - [`PreparedSensor`] holds what does not depend on the renderer (depth maps, contact
+//!   regions, baselines, references), so a fit can score many candidate renderers:
+//!   [`fit_parameters`] searches a parameter vector for the best mean contact-region SSIM over
+//!   some frames, and [`cross_validate`] fits on all frames but one and scores the one left out.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -187,6 +191,13 @@ impl RealSample {
         Ok(Self { object: id.to_string(), mesh, rows, frames })
     }
 
+    /// Keeps only the frames whose image index `keep` accepts (every sensor).
+    pub fn retain_frames(&mut self, keep: impl Fn(usize) -> bool) {
+        for list in self.frames.values_mut() {
+            list.retain(|(i, _)| keep(*i));
+        }
+    }
+
     /// The frames of `sensor` (image index, image), in index order.
     pub fn frames_of(&self, sensor: SensorKind) -> &[(usize, RgbImage)] {
         self.frames.get(&sensor).map(Vec::as_slice).unwrap_or(&[])
@@ -265,52 +276,257 @@ pub fn compare_sensor(
     render: &Renderer,
     options: &CompareOptions,
 ) -> Result<Vec<FrameScores>, CompareRealError> {
-    let list = sample.frames_of(sensor);
-    if list.len() < 2 {
-        return Err(CompareRealError::TooFewFrames { sensor: sensor.label(), frames: list.len() });
-    }
-    let (w, h) = list[0].1.dimensions();
-    let calib = calib.scaled_to(w, h);
-    let mut depths = Vec::new();
-    let mut footprints = Vec::new();
-    for (i, _) in list {
-        let d = render_depth(&sample.mesh, &sample.render_pose(*i)?, &calib, w, h, 2);
-        footprints.push(d.height_mm.iter().map(|&v| v > 0.0).collect::<Vec<bool>>());
-        depths.push(d);
-    }
-    let covered: Vec<Vec<bool>> = footprints.iter().map(|f| dilate_mask(f, w as usize, h as usize, FOOTPRINT_MARGIN_PX as usize)).collect();
-    let all: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
-    let no_contact = median_image_excluding(&all, &covered);
+    let prepared = PreparedSensor::new(sample, sensor, calib, options.measured_reference)?;
     if let Some(dir) = &options.panels {
         std::fs::create_dir_all(dir).map_err(|source| CompareRealError::CreateDir { path: dir.clone(), source })?;
     }
     let mut scores = Vec::new();
-    for (k, (index, real)) in list.iter().enumerate() {
-        let others: Vec<&RgbImage> = all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, f)| *f).collect();
-        let baseline = mean_image(&others);
-        let mask = difference_mask(real, &no_contact, CONTACT_THRESHOLD);
-        let contact_fraction = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
-        let reference = options.measured_reference.then(|| simulator_reference(&others));
-        let sim = render(&depths[k], &calib, *index as u64, reference.as_ref());
-        let masked = |img: &RgbImage| ssim_masked(real, img, &mask).ok();
+    for frame in &prepared.frames {
+        let sim = render(&frame.depth, &prepared.calib, frame.index as u64, frame.reference.as_ref());
+        let masked = |img: &RgbImage| ssim_masked(&frame.real, img, &frame.mask).ok();
         scores.push(FrameScores {
-            index: *index,
-            contact_fraction,
-            footprint_iou: iou(&footprints[k], &mask),
-            baseline_whole: ssim(real, &baseline)?,
-            baseline_contact: masked(&baseline).unwrap_or(f64::NAN),
-            sim_whole: sim.as_ref().map(|s| ssim(real, s)).transpose()?,
+            index: frame.index,
+            contact_fraction: frame.contact_fraction(),
+            footprint_iou: iou(&frame.footprint, &frame.mask),
+            baseline_whole: ssim(&frame.real, &frame.baseline)?,
+            baseline_contact: frame.baseline_contact,
+            sim_whole: sim.as_ref().map(|s| ssim(&frame.real, s)).transpose()?,
             sim_contact: sim.as_ref().and_then(masked),
         });
         if let Some(dir) = &options.panels {
-            let name = format!("{}_{sensor}_{index}.png", sample.object);
-            save(&panel(real, &baseline, &footprints[k], &mask, sim.as_ref()), &dir.join(name))?;
+            let name = format!("{}_{sensor}_{}.png", sample.object, frame.index);
+            save(&panel(&frame.real, &frame.baseline, &frame.footprint, &frame.mask, sim.as_ref()), &dir.join(name))?;
         }
     }
     if let Some(dir) = &options.panels {
-        save(&no_contact, &dir.join(format!("{}_{sensor}_no_contact.png", sample.object)))?;
+        save(&prepared.no_contact, &dir.join(format!("{}_{sensor}_no_contact.png", sample.object)))?;
     }
     Ok(scores)
+}
+
+/// One real frame made ready for scoring renderers against it.
+pub struct PreparedFrame {
+    /// The image index.
+    pub index: usize,
+    pub real: RgbImage,
+    /// The object's depth map at the frame's pose.
+    pub depth: DepthMap,
+    /// Where the rendered object touches the skin.
+    pub footprint: Vec<bool>,
+    /// The contact region (pixels differing from the no-contact look).
+    pub mask: Vec<bool>,
+    /// The pose-blind baseline: the mean of the other frames.
+    pub baseline: RgbImage,
+    /// The baseline's contact-region SSIM.
+    pub baseline_contact: f64,
+    /// The measured no-contact look a renderer starts from, when asked for.
+    pub reference: Option<RgbImage>,
+}
+
+impl PreparedFrame {
+    /// Share of the frame in the contact region.
+    pub fn contact_fraction(&self) -> f64 {
+        self.mask.iter().filter(|&&m| m).count() as f64 / self.mask.len().max(1) as f64
+    }
+}
+
+/// One sensor's frames with everything that does not depend on the renderer.
+pub struct PreparedSensor {
+    pub sensor: SensorKind,
+    /// The calibration scaled to the frames.
+    pub calib: Calibration,
+    pub no_contact: RgbImage,
+    pub frames: Vec<PreparedFrame>,
+}
+
+impl PreparedSensor {
+    /// Renders the depth maps and works out the no-contact look, the contact regions, the
+    /// baselines and (with `measured_reference`) the renderer's references.
+    pub fn new(sample: &RealSample, sensor: SensorKind, calib: &Calibration, measured_reference: bool) -> Result<Self, CompareRealError> {
+        let list = sample.frames_of(sensor);
+        if list.len() < 2 {
+            return Err(CompareRealError::TooFewFrames { sensor: sensor.label(), frames: list.len() });
+        }
+        let (w, h) = list[0].1.dimensions();
+        let calib = calib.scaled_to(w, h);
+        let mut depths = Vec::new();
+        let mut footprints = Vec::new();
+        for (i, _) in list {
+            let d = render_depth(&sample.mesh, &sample.render_pose(*i)?, &calib, w, h, 2);
+            footprints.push(d.height_mm.iter().map(|&v| v > 0.0).collect::<Vec<bool>>());
+            depths.push(d);
+        }
+        let covered: Vec<Vec<bool>> =
+            footprints.iter().map(|f| dilate_mask(f, w as usize, h as usize, FOOTPRINT_MARGIN_PX as usize)).collect();
+        let all: Vec<&RgbImage> = list.iter().map(|(_, img)| img).collect();
+        let no_contact = median_image_excluding(&all, &covered);
+        let mut frames = Vec::new();
+        for (k, ((index, real), (depth, footprint))) in list.iter().zip(depths.into_iter().zip(footprints)).enumerate() {
+            let others: Vec<&RgbImage> = all.iter().enumerate().filter(|(j, _)| *j != k).map(|(_, f)| *f).collect();
+            let baseline = mean_image(&others);
+            let mask = difference_mask(real, &no_contact, CONTACT_THRESHOLD);
+            let baseline_contact = ssim_masked(real, &baseline, &mask).unwrap_or(f64::NAN);
+            let reference = measured_reference.then(|| simulator_reference(&others));
+            frames.push(PreparedFrame { index: *index, real: real.clone(), depth, footprint, mask, baseline, baseline_contact, reference });
+        }
+        Ok(Self { sensor, calib, no_contact, frames })
+    }
+
+    /// The contact-region SSIM of what `render` makes of frame `k` (`None` when it cannot
+    /// render or the region is empty).
+    pub fn contact_ssim(&self, k: usize, render: &Renderer) -> Option<f64> {
+        let f = self.frames.get(k)?;
+        let sim = render(&f.depth, &self.calib, f.index as u64, f.reference.as_ref())?;
+        ssim_masked(&f.real, &sim, &f.mask).ok().filter(|v| v.is_finite())
+    }
+
+    /// Mean absolute difference of what `render` makes of frame `k` from the real frame over
+    /// its contact region, 8-bit levels per channel (the fit's residual).
+    pub fn contact_residual(&self, k: usize, render: &Renderer) -> Option<f64> {
+        let f = self.frames.get(k)?;
+        let sim = render(&f.depth, &self.calib, f.index as u64, f.reference.as_ref())?;
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for ((a, b), &m) in f.real.pixels().zip(sim.pixels()).zip(&f.mask) {
+            if m {
+                sum += (0..3).map(|c| (a.0[c] as f64 - b.0[c] as f64).abs()).sum::<f64>() / 3.0;
+                n += 1;
+            }
+        }
+        (n > 0).then(|| sum / n as f64)
+    }
+}
+
+/// A renderer with parameters: renders as [`Renderer`] with the parameter vector given first.
+pub type ParametricRenderer<'a> = dyn Fn(&[f64], &DepthMap, &Calibration, u64, Option<&RgbImage>) -> Option<RgbImage> + 'a;
+
+/// The range a fit may search for one parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParameterRange {
+    pub min: f64,
+    pub max: f64,
+}
+
+/// What a fit found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitOutcome {
+    pub parameters: Vec<f64>,
+    /// Mean contact-region SSIM over the frames fitted on.
+    pub score: f64,
+    /// Candidates rendered and scored.
+    pub evaluations: usize,
+}
+
+/// Rounds of the pattern search before it gives up (each halves the steps that found nothing).
+const FIT_ROUNDS: usize = 5;
+
+/// Values per parameter of the coarse scan that comes before the pattern search.
+const SCAN_POINTS: usize = 9;
+
+/// Sweeps of the coarse scan over all the parameters.
+const SCAN_SWEEPS: usize = 2;
+
+/// Fits `start` (one value per range) to the frames `train` (indices into
+/// `prepared.frames`). First a coarse scan: each parameter in turn is set to the best of
+/// [`SCAN_POINTS`] values spread evenly over its range, the others held, in
+/// [`SCAN_SWEEPS`] sweeps (the contact SSIM has several local peaks, and a local search alone
+/// ended in a different one on each fold of a cross-validation). Then a pattern search: each
+/// parameter in turn is moved a step either way and kept where the mean contact-region SSIM
+/// rises; a parameter's step halves after a pass that found nothing, starting at half the
+/// scan's spacing. Deterministic; a candidate that cannot render scores nothing.
+pub fn fit_parameters(
+    prepared: &PreparedSensor,
+    train: &[usize],
+    start: &[f64],
+    ranges: &[ParameterRange],
+    render: &ParametricRenderer,
+) -> FitOutcome {
+    let mut evaluations = 0usize;
+    let mut score_of = |p: &[f64]| {
+        evaluations += 1;
+        let renderer = |d: &DepthMap, c: &Calibration, seed: u64, r: Option<&RgbImage>| render(p, d, c, seed, r);
+        let scores: Vec<f64> = train.iter().filter_map(|&k| prepared.contact_ssim(k, &renderer)).collect();
+        if scores.len() == train.len() && !scores.is_empty() { scores.iter().sum::<f64>() / scores.len() as f64 } else { f64::NEG_INFINITY }
+    };
+    let clamp = |v: f64, r: &ParameterRange| if v.is_finite() { v.clamp(r.min, r.max) } else { r.min };
+    let mut best: Vec<f64> = start.iter().zip(ranges).map(|(v, r)| clamp(*v, r)).collect();
+    let mut best_score = score_of(&best);
+    let spacing = |r: &ParameterRange| (r.max - r.min) / (SCAN_POINTS - 1) as f64;
+    for _ in 0..SCAN_SWEEPS {
+        for i in 0..best.len() {
+            for j in 0..SCAN_POINTS {
+                let mut candidate = best.clone();
+                candidate[i] = clamp(ranges[i].min + j as f64 * spacing(&ranges[i]), &ranges[i]);
+                if candidate[i] == best[i] {
+                    continue;
+                }
+                let score = score_of(&candidate);
+                if score > best_score + 1e-5 {
+                    (best, best_score) = (candidate, score);
+                }
+            }
+        }
+    }
+    let mut steps: Vec<f64> = ranges.iter().map(|r| 0.5 * spacing(r)).collect();
+    for _ in 0..FIT_ROUNDS {
+        for i in 0..best.len() {
+            let mut moved = false;
+            for dir in [1.0, -1.0] {
+                loop {
+                    let mut candidate = best.clone();
+                    candidate[i] = clamp(best[i] + dir * steps[i], &ranges[i]);
+                    if candidate[i] == best[i] {
+                        break;
+                    }
+                    let score = score_of(&candidate);
+                    if score > best_score + 1e-5 {
+                        (best, best_score, moved) = (candidate, score, true);
+                    } else {
+                        break;
+                    }
+                }
+            }
+            if !moved {
+                steps[i] *= 0.5;
+            }
+        }
+    }
+    FitOutcome { parameters: best, score: best_score, evaluations }
+}
+
+/// One fold of a leave-one-out cross-validation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeldOutScore {
+    /// The image index of the frame left out.
+    pub index: usize,
+    /// The parameters fitted on the other frames.
+    pub parameters: Vec<f64>,
+    /// Their contact-region SSIM on the frame left out.
+    pub sim_contact: f64,
+    /// The baseline's on that frame.
+    pub baseline_contact: f64,
+}
+
+/// Leave-one-out cross-validation of [`fit_parameters`]: for each frame, fits on the others
+/// and scores the frame left out.
+pub fn cross_validate(
+    prepared: &PreparedSensor,
+    start: &[f64],
+    ranges: &[ParameterRange],
+    render: &ParametricRenderer,
+) -> Vec<HeldOutScore> {
+    (0..prepared.frames.len())
+        .map(|k| {
+            let train: Vec<usize> = (0..prepared.frames.len()).filter(|&j| j != k).collect();
+            let fit = fit_parameters(prepared, &train, start, ranges, render);
+            let renderer = |d: &DepthMap, c: &Calibration, seed: u64, r: Option<&RgbImage>| render(&fit.parameters, d, c, seed, r);
+            HeldOutScore {
+                index: prepared.frames[k].index,
+                sim_contact: prepared.contact_ssim(k, &renderer).unwrap_or(f64::NAN),
+                baseline_contact: prepared.frames[k].baseline_contact,
+                parameters: fit.parameters,
+            }
+        })
+        .collect()
 }
 
 /// The names of the entries of `dir`, sorted (names that are not UTF-8 are left out).

@@ -4,7 +4,7 @@
 use crate::sensor_support::{central, radii, spots};
 use rig::geometry::DepthMap;
 use rig::sensor::SensorKind;
-use rig::sim::sensor::{MotionState, Scene, SensorSim, Stage, shapes};
+use rig::sim::sensor::{MotionState, SKIN_PARAMETERS, Scene, SensorSim, SkinModel, Stage, shapes};
 
 const PX_PER_MM: f32 = 8.5;
 
@@ -337,4 +337,86 @@ fn on_a_measured_reference_pins_move_and_stay_in_front_of_the_object() {
     let beside = seen.get_pixel(centre[0] as u32 + 8, centre[1] as u32 + 3).0;
     assert!(beside.iter().all(|&v| v > 200), "object seen through: {beside:?}");
     assert!(pin.iter().all(|&v| v < 120), "pin in front of the object: {pin:?}");
+}
+
+#[test]
+fn skin_parameters_read_write_and_clamp() {
+    let mut s = SkinModel::of(SensorKind::ViTac);
+    for p in SKIN_PARAMETERS {
+        let mid = 0.5 * (p.min + p.max);
+        p.set(&mut s, mid);
+        assert_eq!(p.get(&s), mid, "{}", p.name);
+        p.set(&mut s, p.max * 10.0 + 1.0);
+        assert_eq!(p.get(&s), p.max, "{}", p.name);
+        p.set(&mut s, f32::NAN);
+        assert_eq!(p.get(&s), p.min, "{}", p.name);
+    }
+    for kind in SensorKind::ALL {
+        assert!(!SkinModel::fitted_parameters(kind).is_empty());
+        assert_eq!(SkinModel::of(kind).clamped(), SkinModel::of(kind), "{kind}: the fitted skin lies in the ranges");
+    }
+}
+
+/// Mean luminance change from the reference over pixels at `r0..r1` px from the centre.
+fn change_in_ring(img: &image::RgbImage, reference: &image::RgbImage, r0: f32, r1: f32) -> f32 {
+    let (cx, cy) = (img.width() as f32 / 2.0, img.height() as f32 / 2.0);
+    let (mut sum, mut n) = (0.0f32, 0usize);
+    for (x, y, p) in img.enumerate_pixels() {
+        let r = ((x as f32 + 0.5 - cx).powi(2) + (y as f32 + 0.5 - cy).powi(2)).sqrt();
+        if r >= r0 && r < r1 {
+            let q = reference.get_pixel(x, y);
+            sum += (0..3).map(|c| (p.0[c] as f32 - q.0[c] as f32).abs()).sum::<f32>();
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f32
+}
+
+/// A deeper press moves the pins further, and over a wider field: on the default rig's scale,
+/// pins ring by ring move out more at 2 mm than at 1 mm (before the skin model, the travel was
+/// capped at 0.25 mm, reached at any press, and the two frames were the same).
+#[test]
+fn a_deeper_press_moves_the_pins_further_out() {
+    let k = 8.5;
+    let sim = SensorSim::new(
+        SensorKind::TacTip,
+        Scene::with_stages("t", &[Stage::ContactDeformation, Stage::MarkerDisplacement]),
+        512,
+        512,
+        k,
+        3,
+    );
+    let find = |img: &image::RgbImage| central(spots(img, false, 40.0, 20.0, 400.0), 512, 512, 200.0);
+    let rest = radii(&find(&sim.reference()));
+    let ring_sum = |r: &[f32], lo: f32, hi: f32| r.iter().filter(|v| **v > lo && **v < hi).sum::<f32>();
+    let out_by = |indent_mm: f32| {
+        let moved = find(&sim.render(&shapes::sphere(512, 512, k, 0.0, 0.0, 8.0, indent_mm), &MotionState::STILL, 0));
+        assert_eq!(moved.len(), 137, "pins must stay separate spots at {indent_mm} mm");
+        // Rings 2 and 3 (16 pins each, about 50 and 75 px out).
+        let r = radii(&moved);
+        (ring_sum(&r, 40.0, 65.0) - ring_sum(&rest, 40.0, 65.0), ring_sum(&r, 65.0, 90.0) - ring_sum(&rest, 65.0, 90.0))
+    };
+    let ((a2, a3), (b2, b3)) = (out_by(1.0), out_by(2.0));
+    assert!(a2 > 0.0 && a3 >= 0.0, "pins move outward: ring 2 {a2}, ring 3 {a3} px in all");
+    assert!(b2 > 1.3 * a2, "ring 2 moves further at 2 mm: {a2} -> {b2} px in all");
+    assert!(b3 > a3 + 16.0 * 0.2, "ring 3 moves further at 2 mm: {a3} -> {b3} px in all");
+}
+
+/// A deeper press shows more through a transparent skin: the object brighter where it presses
+/// and the glow around it wider (before the skin model, visibility and glow were saturated at
+/// 0.2 mm and a 1 mm and a 2 mm press looked the same).
+#[test]
+fn a_deeper_press_shows_more_through_the_skin() {
+    let k = 4.25;
+    for kind in [SensorKind::ViTac, SensorKind::ViTacTip] {
+        let sim = SensorSim::new(kind, Scene::with_stages("t", &[Stage::ContactDeformation, Stage::SeeThrough]), 256, 256, k, 7);
+        let reference = sim.reference();
+        let at = |indent_mm: f32| sim.render(&shapes::sphere(256, 256, k, 0.0, 0.0, 12.0, indent_mm), &MotionState::STILL, 0);
+        let (shallow, deep) = (at(0.5), at(2.0));
+        // The glow beyond the contact (a 12 mm sphere pressed 2 mm touches out to 6.6 mm, 28 px).
+        let (g0, g1) = (change_in_ring(&shallow, &reference, 40.0, 70.0), change_in_ring(&deep, &reference, 40.0, 70.0));
+        assert!(g1 > g0 + 1.0, "{kind}: the glow grows with depth: {g0} -> {g1} levels");
+        let (c0, c1) = (change_in_ring(&shallow, &reference, 0.0, 8.0), change_in_ring(&deep, &reference, 0.0, 8.0));
+        assert!(c1 > c0, "{kind}: the contact shows more at depth: {c0} -> {c1} levels");
+    }
 }

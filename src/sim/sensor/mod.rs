@@ -28,6 +28,7 @@ mod camera;
 pub mod look;
 mod scene;
 pub mod shapes;
+pub mod skin;
 pub mod stages;
 
 use std::borrow::Cow;
@@ -38,6 +39,7 @@ use image::RgbImage;
 
 pub use camera::{DepthSource, SimCamera};
 pub use scene::{Scene, SceneError, SceneLoadError, Stage};
+pub use skin::{SKIN_PARAMETERS, SkinModel, SkinParameter};
 
 use crate::geometry::DepthMap;
 use crate::imaging::RowBand;
@@ -120,28 +122,18 @@ impl fmt::Display for StageCounts {
     }
 }
 
-/// Physical constants of the simulated skin.
-mod skin {
-    /// Lateral reach of the elastic deformation around the contact, mm.
-    pub const SPREAD_MM: f32 = 2.0;
-    /// Marker travel per unit slope of the skin, mm.
-    pub const LATERAL_MM: f32 = 1.2;
+/// Optical constants of the simulated skins (the fitted mechanics are in [`SkinModel`]).
+mod optics {
     /// Below this gap the object starts to show through a transparent skin, mm.
     pub const SEE_THROUGH_GAP_MM: f32 = 0.6;
-    /// Indentation at which the scattered glow saturates, mm.
-    pub const GLOW_FULL_MM: f32 = 0.2;
     /// Reach of the tight glow hugging the contact at 512x512, px.
     pub const GLOW_NEAR_PX: f32 = 22.0;
     /// Reach of the broad haze around the contact at 512x512, px.
     pub const GLOW_FAR_PX: f32 = 70.0;
-    /// Longest lateral travel of the skin, mm. Measured on the real TacTip frames of the
-    /// MultiDiffSense sample (patch-wise cross-correlation against the median of the other
-    /// frames): pins beside a pressed edge shift 1-5 px at 18 px/mm, 0.05-0.28 mm. 0.15 mm
-    /// scored best in `rig compare-real` (TacTip contact SSIM 0.449 against 0.420 at 0.25 mm),
-    /// but that was tuned on the same six frames, and at 0.15 mm the markers move too little
-    /// for `rig calibrate` to locate a press within its 0.5 px target on TacTip (0.85 px);
-    /// 0.25 mm, inside the measured range, gives 0.43 px.
-    pub const MAX_TRAVEL_MM: f32 = 0.25;
+    /// Deepest press that still softens the see-through outline further, mm. Real skins are
+    /// pressed a few mm at most (the press limits stop the arm before); without the cap a depth
+    /// map of absurd heights would ask the blur for an absurd radius.
+    pub const DEEPEST_EDGE_PRESS_MM: f32 = 5.0;
     /// How far the object's outline is softened by the skin it is seen through, at 512x512, px.
     pub const SEE_THROUGH_BLUR_PX: f32 = 2.0;
     /// Direction the light comes from in the image (unit vector; up-left).
@@ -221,6 +213,7 @@ pub struct SensorSim {
     px_per_mm: f32,
     seed: u64,
     look: Look,
+    skin: SkinModel,
     fixed: StaticLook,
     active: [bool; Stage::COUNT],
     /// Whether each stage's wall time is measured ([`SensorSim::with_stage_timing`]).
@@ -270,6 +263,7 @@ impl SensorSim {
             px_per_mm,
             seed,
             look,
+            skin: SkinModel::of(kind),
             fixed,
             active,
             timing: false,
@@ -302,6 +296,18 @@ impl SensorSim {
     pub fn with_unit_seed(mut self, unit_seed: u64) -> Self {
         self.fixed = StaticLook::build(&self.look, self.width, self.height, unit_seed);
         self
+    }
+
+    /// The same simulator with another skin (a fit tries candidates with it); the values are
+    /// brought into their ranges ([`SkinModel::clamped`]).
+    pub fn with_skin(mut self, skin: SkinModel) -> Self {
+        self.skin = skin.clamped();
+        self
+    }
+
+    /// The skin the stages read.
+    pub fn skin(&self) -> &SkinModel {
+        &self.skin
     }
 
     pub fn kind(&self) -> SensorKind {
@@ -464,12 +470,18 @@ impl SensorSim {
         let cell = (CELL_PX * s).round().max(1.0) as usize;
         // Every positive height is also near the skin for see-through: one scan finds the rows
         // both look at.
-        let near_rows = stages::near_rows(&depth, skin::SEE_THROUGH_GAP_MM);
+        let near_rows = stages::near_rows(&depth, optics::SEE_THROUGH_GAP_MM);
         let raw = CellField::indentation(&depth, cell, near_rows.clone());
         let touching = raw.max() > 0.0;
+        let skin = &self.skin;
+        let spread_px = skin.spread_mm * self.px_per_mm;
 
+        // The indentation: the skin's deformed surface, the dent and the skin dragged in
+        // around it.
         let mut indent = raw.clone();
-        self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, skin::SPREAD_MM * self.px_per_mm));
+        self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, spread_px, skin.spread_gain));
+        // What the skin does without the indentation stage: it follows the object's dent only.
+        let deformed = if self.runs(Stage::ContactDeformation) { &indent } else { &raw };
 
         let mut markers = self.fixed.markers.clone();
         let mut warp = None;
@@ -479,7 +491,7 @@ impl SensorSim {
                     return;
                 }
                 // Without the elastic spread the skin moves only right at the dent.
-                let spread_px = if self.runs(Stage::ContactDeformation) { skin::SPREAD_MM * self.px_per_mm } else { cell as f32 };
+                let spread_px = if self.runs(Stage::ContactDeformation) { spread_px } else { cell as f32 };
                 // The skin moves with the object's own dent, smoothed by the skin; the broad
                 // skirt of the deformation field (which shades) would drag pins far away.
                 let u = stages::displacement_field(
@@ -487,8 +499,8 @@ impl SensorSim {
                     spread_px,
                     0.5 * look::RING_PITCH_PX * s,
                     self.px_per_mm,
-                    skin::LATERAL_MM,
-                    skin::MAX_TRAVEL_MM,
+                    skin.lateral_mm,
+                    skin.max_travel_mm,
                 );
                 if self.fixed.measured {
                     warp = Some(u);
@@ -501,34 +513,35 @@ impl SensorSim {
         let mut see_through = None;
         if self.look.object_rgb.is_some() {
             self.stage(Stage::SeeThrough, || {
-                let mut near = raw.clone();
+                // The glow follows the deformed skin: a deeper press lights more of it, further
+                // out. Lit by the object's dent alone it keeps the contact's edge sharper, but
+                // barely changes with depth (`rig eval --downstream` on the depth plan of the
+                // guide: ViTac Z R² -0.26 against 0.92 this way).
+                let mut near = deformed.clone();
                 for v in &mut near.v {
-                    *v = (*v / skin::GLOW_FULL_MM).min(1.0);
+                    *v = skin.glow_source(*v);
                 }
                 let mut glow = near.clone();
                 if touching {
                     let cells = |px: f32| ((px * s) / cell as f32).round().max(1.0) as usize;
-                    near.blur(cells(skin::GLOW_NEAR_PX), 2);
-                    glow.blur(cells(skin::GLOW_FAR_PX), 3);
+                    near.blur(cells(optics::GLOW_NEAR_PX), 2);
+                    glow.blur(cells(optics::GLOW_FAR_PX), 3);
                     for (g, n) in glow.v.iter_mut().zip(&near.v) {
                         *g = (1.0 - (-(2.5 * n + 3.5 * *g)).exp()).min(1.0);
                     }
                 }
-                let seen = stages::visibility(
-                    &depth,
-                    skin::SEE_THROUGH_GAP_MM,
-                    skin::SEE_THROUGH_BLUR_PX * s,
-                    near_rows.clone(),
-                    visibility,
-                    scratch,
-                );
+                // The outline softens as the skin wraps the object's edges, more the deeper
+                // the press.
+                let press_mm = raw.max().min(optics::DEEPEST_EDGE_PRESS_MM);
+                let edge_px = optics::SEE_THROUGH_BLUR_PX * s + skin.edge_mm_per_mm * press_mm * self.px_per_mm;
+                let seen = stages::visibility(&depth, optics::SEE_THROUGH_GAP_MM, edge_px, skin, near_rows.clone(), visibility, scratch);
                 see_through = Some((glow, seen));
             });
         }
 
         let mut shading = None;
         self.stage(Stage::Shading, || {
-            shading = Some(stages::shading_factor(&indent, self.px_per_mm, skin::LIGHT, self.look.shading_gain));
+            shading = Some(stages::shading_factor(&indent, self.px_per_mm, optics::LIGHT, self.look.shading_gain));
         });
         let mut blur_px = None;
         self.stage(Stage::MotionBlur, || {

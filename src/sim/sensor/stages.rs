@@ -251,9 +251,12 @@ fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
-/// Contact deformation: the skin is dragged in around the footprint of the object. The
-/// indentation field becomes the larger of itself and its blur over `spread_px`.
-pub fn contact_deformation(indent: &mut CellField, spread_px: f32) {
+/// Contact deformation, the indentation of the elastomer skin: it conforms to the object where
+/// it presses and is dragged in around the footprint. The field becomes the larger of the dent
+/// and `gain` times its blur over `spread_px` (the superposition of every pressed cell's
+/// response under one smoothing kernel, [`super::SkinModel`]): linear in the dent, so a deeper
+/// press drags the skin in further and over a wider field.
+pub fn contact_deformation(indent: &mut CellField, spread_px: f32, gain: f32) {
     let raw = indent.v.clone();
     // Three box passes of radius r approximate a Gaussian of sigma ~ r.
     let r = (spread_px / indent.cell_px as f32).round().max(1.0) as usize;
@@ -261,7 +264,7 @@ pub fn contact_deformation(indent: &mut CellField, spread_px: f32) {
     // The blur spreads the dent and lowers its peak; the skin still conforms to the object where
     // it touches, and the spread keeps a share of the total dent volume around it.
     for (v, &o) in indent.v.iter_mut().zip(&raw) {
-        *v = o.max(*v * 1.6);
+        *v = o.max(*v * gain);
     }
 }
 
@@ -528,15 +531,17 @@ pub fn transmit_row(row: &[f32], skin_lum: &[f32], out: &mut Vec<f32>) {
     out.extend(row.chunks_exact(3).zip(skin_lum).map(|(p, &s)| if s > 1.0 { (luma(p) / s).clamp(0.0, 1.0) } else { 1.0 }));
 }
 
-/// The visibility of the object through the skin per pixel, into `band`: 1 where it presses,
-/// falling to 0 at `gap_mm` below the skin, blurred over `edge_blur_px` by the scattering of
-/// the skin (two box passes with the edge repeated). Only the rows near the object are worked
-/// on ([`RowBand`]). False when the object is nowhere near the skin (then `band` holds nothing
-/// of use). `band` and `scratch` are buffers reused from frame to frame.
+/// The visibility of the object through the skin per pixel, into `band`: where it presses,
+/// rising with the local depth of the press ([`super::SkinModel::visibility`]), falling to 0
+/// at `gap_mm` below the skin, blurred over `edge_blur_px` by the scattering of the skin (two
+/// box passes with the edge repeated). Only the rows near the object are worked on
+/// ([`RowBand`]). False when the object is nowhere near the skin (then `band` holds nothing of
+/// use). `band` and `scratch` are buffers reused from frame to frame.
 pub fn visibility(
     depth: &DepthMap,
     gap_mm: f32,
     edge_blur_px: f32,
+    skin: &super::SkinModel,
     near_rows: std::ops::Range<usize>,
     band: &mut RowBand,
     scratch: &mut RowBand,
@@ -555,7 +560,7 @@ pub fn visibility(
             continue;
         };
         for (v, &d) in out[first..=last].iter_mut().zip(&row[first..=last]) {
-            *v = if near(d) { smoothstep(-gap_mm, 0.0, d) } else { 0.0 };
+            *v = if near(d) { skin.visibility(smoothstep(-gap_mm, 0.0, d), d) } else { 0.0 };
             any |= *v != 0.0;
         }
     }
