@@ -220,8 +220,8 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Vec<[f64; 2]> 
 
 /// Locates the contact on a marker skin: markers are matched between the reference and the
 /// frame (nearest within half the typical marker spacing), each displacement is refined on the
-/// images ([`track_marker`]), and the contact is the point the displacements point away from
-/// (least squares on `d x (p - c) = 0`, see [`lines_centre`]). Independent of where the lattice's markers happen to lie, unlike
+/// images (`track_marker`), and the contact is the point the displacements point away from
+/// (least squares on `d x (p - c) = 0`, see `lines_centre`). Independent of where the lattice's markers happen to lie, unlike
 /// a centroid of the changed pixels.
 pub fn detect_marker_contact(frame: &RgbImage, reference: &RgbImage, options: &MarkerOptions) -> Result<Contact, DetectError> {
     if frame.dimensions() != reference.dimensions() {

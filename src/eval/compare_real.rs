@@ -427,8 +427,8 @@ const SCAN_SWEEPS: usize = 2;
 
 /// Fits `start` (one value per range) to the frames `train` (indices into
 /// `prepared.frames`). First a coarse scan: each parameter in turn is set to the best of
-/// [`SCAN_POINTS`] values spread evenly over its range, the others held, in
-/// [`SCAN_SWEEPS`] sweeps (the contact SSIM has several local peaks, and a local search alone
+/// `SCAN_POINTS` values spread evenly over its range, the others held, in
+/// `SCAN_SWEEPS` sweeps (the contact SSIM has several local peaks, and a local search alone
 /// ended in a different one on each fold of a cross-validation). Then a pattern search: each
 /// parameter in turn is moved a step either way and kept where the mean contact-region SSIM
 /// rises; a parameter's step halves after a pass that found nothing, starting at half the
