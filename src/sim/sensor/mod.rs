@@ -479,9 +479,8 @@ impl SensorSim {
         // The indentation: the skin's deformed surface, the dent and the skin dragged in
         // around it.
         let mut indent = raw.clone();
+        // Without the stage, `indent` stays the object's dent: the skin follows it only.
         self.stage(Stage::ContactDeformation, || stages::contact_deformation(&mut indent, spread_px, skin.spread_gain));
-        // What the skin does without the indentation stage: it follows the object's dent only.
-        let deformed = if self.runs(Stage::ContactDeformation) { &indent } else { &raw };
 
         let mut markers = self.fixed.markers.clone();
         let mut warp = None;
@@ -517,7 +516,7 @@ impl SensorSim {
                 // out. Lit by the object's dent alone it keeps the contact's edge sharper, but
                 // barely changes with depth (`rig eval --downstream` on the depth plan of the
                 // guide: ViTac Z R² -0.26 against 0.92 this way).
-                let mut near = deformed.clone();
+                let mut near = indent.clone();
                 for v in &mut near.v {
                     *v = skin.glow_source(*v);
                 }
