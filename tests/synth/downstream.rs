@@ -57,25 +57,27 @@ fn the_regressor_learns_vitac_x_and_the_shuffled_control_does_not() {
     let run = |extra: &[&str], json_name: &str| {
         let out = tmp.path().join(json_name);
         let mut c = rig();
-        c.args(["eval", "--downstream"]).arg(&data).args(["--sets", "real", "--seeds", "3", "--json"]).arg(&out).args(extra);
+        c.args(["eval", "--downstream"]).arg(&data).args(["--sets", "real", "--json"]).arg(&out).args(extra);
         let printed = ok(c);
         assert!(printed.contains("| ViTac | 100% real | 160 | 40 |"), "{printed}");
         json(&out)
     };
-    let learnt = run(&[], "learnt.json");
+    let learnt = run(&["--seeds", "3"], "learnt.json");
     let x = r2s(&learnt, "vitac", "real", 0);
     assert_eq!(x.len(), 3);
     let mean = x.iter().sum::<f64>() / 3.0;
     assert!(mean > 0.8 && x.iter().all(|r2| *r2 > 0.6), "X R² of the real-only regressor: {x:?}");
 
-    let control = run(&["--shuffle-labels"], "control.json");
+    // One seed for the control (it has nothing to learn whatever the seed; each seed costs as
+    // much as a learnt one).
+    let control = run(&["--shuffle-labels", "--seeds", "1"], "control.json");
     assert_eq!(control["shuffle_labels"], true);
     for c in 0..3 {
         let r2 = r2s(&control, "vitac", "real", c);
         // Nothing to learn: about 0, or below it (a network that memorises shuffled labels
         // answers with their spread, not their mean: about -1 for answers independent of the
         // truth). Never the learnt regressor's 0.9.
-        assert!(r2.iter().all(|r| *r < 0.2), "component {c}: R² with shuffled labels {r2:?}");
+        assert!(r2.len() == 1 && r2[0] < 0.2, "component {c}: R² with shuffled labels {r2:?}");
     }
 }
 
@@ -90,8 +92,10 @@ fn the_small_scale_table_covers_three_sensors_three_sets_and_three_seeds() {
     assert_eq!(filled.matches("synthesised 62 poses").count(), 3, "{filled}");
 
     let (md, js) = (tmp.path().join("table.md"), tmp.path().join("table.json"));
+    // The table's shape, not its figures (the test above judges learning): two epochs a
+    // regressor instead of fifteen keep the 27 regressors to a fraction of the time.
     let mut c = rig();
-    c.args(["eval", "--downstream"]).arg(&data).arg("--markdown").arg(&md).arg("--json").arg(&js);
+    c.args(["eval", "--downstream"]).arg(&data).args(["--epochs", "2"]).arg("--markdown").arg(&md).arg("--json").arg(&js);
     let printed = ok(c);
     let table = std::fs::read_to_string(&md).expect("markdown");
     assert!(printed.contains(table.trim()), "stdout carries the table written to --markdown");
