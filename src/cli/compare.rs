@@ -38,7 +38,7 @@ use crate::eval::compare_real::{
     fit_parameters,
 };
 use crate::sensor::SensorKind;
-use crate::sim::sensor::{Scene, SkinModel, Stage};
+use crate::sim::sensor::{SKIN_PARAMETERS, Scene, SkinModel, SkinParameter, Stage};
 
 #[derive(Debug, ClapArgs)]
 pub struct Args {
@@ -67,12 +67,48 @@ pub struct Args {
     /// leave-one-out cross-validation).
     #[arg(long)]
     pub fit_skin: bool,
+    /// Sets a parameter of each compared sensor's skin, `NAME=VALUE` (repeatable; a name of
+    /// `sim::sensor::SKIN_PARAMETERS`, within its range), e.g. `--skin membrane_mm=10`.
+    /// With `--fit-skin` the value is held where the fit does not search it.
+    #[arg(long = "skin", value_name = "NAME=VALUE", value_parser = parse_skin_setting)]
+    pub skin: Vec<SkinSetting>,
     /// Image indices to use, `A-B` or `A` (default: every frame; `--fit-skin`: 1-5).
     #[arg(long, value_parser = parse_frames)]
     pub frames: Option<(usize, usize)>,
     /// Only these sensors (repeatable; default: all three).
     #[arg(long = "sensor")]
     pub sensors: Vec<SensorKind>,
+}
+
+/// One `--skin NAME=VALUE`: a parameter of the skin model and the value it takes.
+#[derive(Debug, Clone, Copy)]
+pub struct SkinSetting {
+    pub parameter: SkinParameter,
+    pub value: f32,
+}
+
+/// `NAME=VALUE` for a parameter of [`SKIN_PARAMETERS`], the value finite and within its range.
+fn parse_skin_setting(text: &str) -> Result<SkinSetting, String> {
+    let names = || SKIN_PARAMETERS.iter().map(|p| p.name).collect::<Vec<_>>().join(", ");
+    let (name, value) = text.split_once('=').ok_or_else(|| format!("{text:?} is not NAME=VALUE (names: {})", names()))?;
+    let parameter = SKIN_PARAMETERS
+        .into_iter()
+        .find(|p| p.name == name.trim())
+        .ok_or_else(|| format!("{:?} is not a skin parameter (names: {})", name.trim(), names()))?;
+    let value = value.trim().parse::<f32>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{value:?} is not a number"))?;
+    if !(parameter.min..=parameter.max).contains(&value) {
+        return Err(format!("{} = {value} is outside its range {}..{}", parameter.name, parameter.min, parameter.max));
+    }
+    Ok(SkinSetting { parameter, value })
+}
+
+/// `kind`'s committed skin with `settings` applied.
+fn skin_with(kind: SensorKind, settings: &[SkinSetting]) -> SkinModel {
+    let mut skin = SkinModel::of(kind);
+    for s in settings {
+        s.parameter.set(&mut skin, s.value);
+    }
+    skin
 }
 
 /// `A-B` or `A` as an inclusive range of image indices.
@@ -142,7 +178,13 @@ fn fit_all(sample: &RealSample, calibration_dir: &Path) -> anyhow::Result<()> {
 /// committed skin; prints the fitted values, each frame's contact-region SSIM and residual
 /// beside the baseline's, then a leave-one-out cross-validation (fit on the other frames,
 /// score the one left out).
-fn fit_skins(sample: &RealSample, calibrations: &[(SensorKind, Calibration)], scene: &Scene, measured: bool) -> anyhow::Result<()> {
+fn fit_skins(
+    sample: &RealSample,
+    calibrations: &[(SensorKind, Calibration)],
+    scene: &Scene,
+    measured: bool,
+    settings: &[SkinSetting],
+) -> anyhow::Result<()> {
     let frames = |sensor| sample.frames_of(sensor).iter().map(|(i, _)| i.to_string()).collect::<Vec<_>>().join(", ");
     for (sensor, calib) in calibrations {
         let sensor = *sensor;
@@ -151,7 +193,7 @@ fn fit_skins(sample: &RealSample, calibrations: &[(SensorKind, Calibration)], sc
             continue;
         }
         let prepared = PreparedSensor::new(sample, sensor, calib, measured)?;
-        let committed = SkinModel::of(sensor);
+        let committed = skin_with(sensor, settings);
         let params = SkinModel::fitted_parameters(sensor);
         let skin_of = |values: &[f64]| {
             let mut skin = committed;
@@ -243,7 +285,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     if args.fit_skin {
         let sample = load(&ids[0])?;
-        return fit_skins(&sample, &calibrations, &scene, !args.procedural);
+        return fit_skins(&sample, &calibrations, &scene, !args.procedural, &args.skin);
     }
     println!("SSIM against the real frames (mean over frames; contact = pixels differing from the no-contact look)");
     println!(
@@ -264,8 +306,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 skipped.push(format!("object {id} {}: {frames} frame(s), need two", sensor.label()));
                 continue;
             }
+            let skin = skin_with(sensor, &args.skin);
             let render = |depth: &_, calib: &_, seed, reference: Option<&_>| {
-                render_tactile_with(sensor, depth, calib, seed, &scene, reference, None).ok()
+                render_tactile_with(sensor, depth, calib, seed, &scene, reference, Some(&skin)).ok()
             };
             let scores = compare_sensor(&sample, sensor, calib, &render, &options)?;
             compared += scores.len();

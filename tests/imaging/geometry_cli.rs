@@ -130,6 +130,39 @@ fn compare_real_prints_baseline_per_sensor() {
     assert!(dir.path().join("1_vitac_0.png").is_file());
 }
 
+/// The simulator's mean contact SSIM for `sensor` in a `rig compare-real` table.
+fn sim_contact_mean(text: &str, sensor: &str) -> f64 {
+    let line = text
+        .lines()
+        .find(|l| l.split_whitespace().nth(1) == Some(sensor) && l.contains("mean"))
+        .unwrap_or_else(|| panic!("no mean line for {sensor}: {text}"));
+    let sim: Option<f64> = line.split_whitespace().nth_back(1).and_then(|w| w.parse().ok());
+    sim.unwrap_or_else(|| panic!("no simulator contact SSIM in {line}"))
+}
+
+/// `--skin NAME=VALUE` sets a skin parameter for the comparison (a tight and a wide elastic
+/// spread score differently from the committed one), and a name or value it does not
+/// know is refused with exit 2 before anything is rendered.
+#[test]
+fn compare_real_sets_skin_parameters_and_refuses_unknown_ones() {
+    let sample = shared().join("real-sample/multidiffsense-example");
+    let compare = |extra: &[&str]| {
+        let (ok, text) = run(rig().args(["compare-real", "--sensor", "vitac", "--sample"]).arg(&sample).args(extra));
+        assert!(ok, "{text}");
+        sim_contact_mean(&text, "ViTac")
+    };
+    let committed = compare(&[]);
+    let tight = compare(&["--skin", "spread_mm=0.5"]);
+    let flat = compare(&["--skin", "spread_mm=6", "--skin", "clear_mm=2"]);
+    assert!(tight != committed && flat != committed && tight != flat, "{committed} {tight} {flat}");
+    for bad in ["nope=1", "spread_mm=0.1", "spread_mm=NaN", "spread_mm"] {
+        let out = rig().args(["compare-real", "--sensor", "vitac", "--skin", bad]).output().unwrap();
+        let text = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{bad}: {text}");
+        assert!(text.contains("--skin"), "{bad}: {text}");
+    }
+}
+
 /// The frame indices of the `rig compare-real` lines of `object` and `sensor`, and whether a
 /// mean line follows them.
 fn compared_frames(text: &str, object: &str, sensor: &str) -> (Vec<usize>, bool) {

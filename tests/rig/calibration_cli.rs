@@ -166,6 +166,44 @@ fn collect_uses_the_saved_calibration() {
     assert!(manifest.contains("calibration/tactip.toml"), "{manifest}");
 }
 
+/// `examples/sim-real-scale.toml` renders the simulated TacTip through the calibration fitted on
+/// the real MultiDiffSense frames: the manifest names it, and the same pose gives another frame
+/// than the default calibration's (the pin field at about twice the scale).
+#[test]
+fn the_real_scale_example_collects_through_the_real_calibration() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("calibration")).unwrap();
+    for kind in ["tactip", "vitac", "vitactip"] {
+        let name = format!("calibration/mds-example-{kind}.toml");
+        std::fs::copy(root.join(&name), dir.path().join(&name)).unwrap();
+    }
+    let config = root.join("examples/sim-real-scale.toml");
+    let collect = |extra: &[&str], out: &str| {
+        let mut args = vec!["collect", "--object", "edge", "--sensor", "tactip", "--poses", "1", "--seed", "3", "--out", out];
+        args.extend_from_slice(extra);
+        let o = rig(dir.path(), &args);
+        assert!(o.status.success(), "{}", text(&o));
+        dir.path().join(out).join("edge/tactip")
+    };
+    let real_scale = collect(&["--config", config.to_str().unwrap()], "real");
+    let default = collect(&[], "default");
+    let manifest = std::fs::read_to_string(real_scale.join("manifest.toml")).unwrap();
+    assert!(manifest.contains("calibration/mds-example-tactip.toml"), "{manifest}");
+    // One pose, the same in both (same plan and seed): the one image of each collection.
+    let frame = |ds: &Path| {
+        let mut images: Vec<PathBuf> = std::fs::read_dir(ds.join("images")).unwrap().map(|e| e.unwrap().path()).collect();
+        assert_eq!(images.len(), 1, "{images:?}");
+        image::open(images.remove(0)).unwrap().to_rgb8()
+    };
+    let pose_ids = |ds: &Path| std::fs::read_to_string(ds.join("order.csv")).unwrap();
+    assert_eq!(pose_ids(&real_scale), pose_ids(&default));
+    let (a, b) = (frame(&real_scale), frame(&default));
+    assert_eq!(a.dimensions(), b.dimensions());
+    let differing = a.pixels().zip(b.pixels()).filter(|(p, q)| p != q).count();
+    assert!(differing > a.len() / 30, "{differing} of {} pixels differ", a.len() / 3);
+}
+
 /// Ctrl-C (SIGINT) mid-pattern: the current press finishes, the arm retracts, nothing is
 /// saved, exit code 4 (cancelled), as `rig collect` does.
 #[test]
