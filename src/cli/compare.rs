@@ -68,7 +68,7 @@ pub struct Args {
     #[arg(long)]
     pub fit_skin: bool,
     /// Sets a parameter of each compared sensor's skin, `NAME=VALUE` (repeatable; a name of
-    /// `sim::sensor::SKIN_PARAMETERS`, within its range), e.g. `--skin membrane_mm=10`.
+    /// `sim::sensor::SKIN_PARAMETERS`, within its range), e.g. `--skin lateral_mm=1.5`.
     /// With `--fit-skin` the value is held where the fit does not search it.
     #[arg(long = "skin", value_name = "NAME=VALUE", value_parser = parse_skin_setting)]
     pub skin: Vec<SkinSetting>,
