@@ -64,13 +64,18 @@ fn sandbox() -> &'static Sandbox {
 }
 
 /// Every path the request names, with whether the job reads it.
-fn paths(request: &JobRequest) -> Vec<(&Path, bool)> {
+fn paths<'a>(request: &'a JobRequest) -> Vec<(&'a Path, bool)> {
     let mut out = Vec::new();
+    let collect = |r: &'a request::CollectRequest, out: &mut Vec<(&'a Path, bool)>| {
+        out.extend(r.stl.as_deref().map(|p| (p, true)));
+        out.extend(r.plan.as_deref().map(|p| (p, true)));
+        out.push((r.out.as_path(), false));
+    };
     match request {
-        JobRequest::Collect(r) => {
-            out.extend(r.stl.as_deref().map(|p| (p, true)));
-            out.extend(r.plan.as_deref().map(|p| (p, true)));
-            out.push((r.out.as_path(), false));
+        JobRequest::Collect(r) => collect(r, &mut out),
+        JobRequest::Adaptive(r) => {
+            collect(&r.collect, &mut out);
+            out.extend(r.model.as_deref().map(|p| (p, true)));
         }
         JobRequest::Synth(r) => {
             if r.poses_of.is_none() {

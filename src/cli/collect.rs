@@ -84,16 +84,35 @@ impl CollectArgs {
             resume: self.resume,
         }
     }
+
+    /// The adaptive collection these options ask for, of `collect`.
+    pub fn adaptive_request(&self, collect: CollectRequest) -> crate::jobs::AdaptiveRequest {
+        crate::jobs::AdaptiveRequest {
+            collect,
+            budget: self.budget.unwrap_or(0),
+            rounds: self.rounds,
+            seeds_per_pose: self.seeds_per_pose,
+            model: self.model.clone(),
+            steps: self.steps,
+        }
+    }
 }
 
 /// Runs `rig collect`.
 pub fn run(args: CollectArgs) -> anyhow::Result<()> {
-    if let Some(daemon) = args.rig.daemon("the job", &[("--record", args.record.is_some()), ("--adaptive", args.adaptive)])? {
+    if let Some(daemon) = args.rig.daemon("the job", &[("--record", args.record.is_some())])? {
         let mut request = args.request();
         request.stl = request.stl.as_deref().map(absolute);
         request.plan = request.plan.as_deref().map(absolute);
         request.out = absolute(&request.out);
-        return crate::cli::daemon::submit_and_follow(daemon, JobRequest::Collect(request));
+        let job = if args.adaptive {
+            let mut adaptive = args.adaptive_request(request);
+            adaptive.model = adaptive.model.as_deref().map(absolute);
+            JobRequest::Adaptive(adaptive)
+        } else {
+            JobRequest::Collect(request)
+        };
+        return crate::cli::daemon::submit_and_follow(daemon, job);
     }
     let config = args.rig.rig_config()?;
     println!("{}", config.describe());
@@ -199,18 +218,11 @@ async fn run_adaptive(args: CollectArgs, config: RigConfig) -> anyhow::Result<()
     if args.record.is_some() {
         bail!(crate::cli::usage("--record keeps one collection's bytes; an adaptive collection runs several: leave out --record"));
     }
-    let request = crate::jobs::adaptive::AdaptiveRequest {
-        collect: args.request(),
-        budget: args.budget.unwrap_or(0),
-        rounds: args.rounds,
-        seeds_per_pose: args.seeds_per_pose,
-        model: args.model.clone(),
-        steps: args.steps,
-    };
+    let request = args.adaptive_request(args.request());
     // The numbers against the plan first: a refusal needs no model.
     let prepared = request.collect.prepare(&config)?;
     println!("{}", prepared.plan_line());
-    request.check(prepared.plan.poses.len())?;
+    request.check_plan(prepared.plan.poses.len())?;
     if args.rig.dry_run {
         let setup = &prepared.setup;
         let outputs: Vec<String> = prepared.sensors.0.iter().map(|&k| setup.dataset_dir(k).display().to_string()).collect();
@@ -225,16 +237,17 @@ async fn run_adaptive(args: CollectArgs, config: RigConfig) -> anyhow::Result<()
         .with_context(|| format!("loading model package {}", model.display()))?;
     let mut run = request.prepare(&config, &pipeline)?;
     let clock = crate::rigs::clock_for(&config);
-    // One listener for the whole run: an interrupt while the model chooses stops before the
-    // next round, one while pressing stops as a plain collection does.
+    // One listener for the whole run: an interrupt while the model chooses stops after its
+    // current call (the round is chosen again on resume), one while pressing stops as a plain
+    // collection does.
     let cancel = super::shared::cancel_on_interrupt(
-        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm; an adaptive collection stops before its next round",
+        "finishing the current pose (waiting at most 1 s for it), then retracting and disabling the arm; an adaptive collection choosing a round stops after the model's current call",
     )?;
     let interrupted = || {
         println!("interrupted: continue with --resume (the rounds recorded are pressed as recorded)");
         crate::cli::ExitStatus(4)
     };
-    while let Some(round) = run.next_round(&mut pipeline)? {
+    while let Some(round) = run.next_round(&mut pipeline, &|| *cancel.borrow())? {
         println!("{}", round.line(run.record.settings.rounds));
         if *cancel.borrow() {
             bail!(interrupted());
@@ -245,6 +258,10 @@ async fn run_adaptive(args: CollectArgs, config: RigConfig) -> anyhow::Result<()
         if outcome.summary.interrupted || *cancel.borrow() {
             bail!(interrupted());
         }
+    }
+    if *cancel.borrow() {
+        // Stopped while the model chose a round: nothing of it was recorded.
+        bail!(interrupted());
     }
     let progress = super::shared::progress()?;
     let observer = Observer { progress: progress.bar().clone(), cancel };

@@ -5,6 +5,10 @@
 //! may only use the sensors the daemon opened, and the last model package loaded is kept for
 //! the next synth job.
 
+// A job's error is returned once per job, unboxed, as in `crate::jobs`: the exit-code table
+// finds the library errors by type in the chain.
+#![allow(clippy::result_large_err)]
+
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -17,7 +21,8 @@ use crate::config::RigConfig;
 use crate::geometry::objects::ObjectChoice;
 use crate::jobs::calibrate::CalibrateOutcome;
 use crate::jobs::collect::SensorFeed;
-use crate::jobs::{AuditRequest, CalibrateRequest, CollectRequest, FillRequest};
+use crate::jobs::adaptive::AdaptiveRun;
+use crate::jobs::{AdaptiveRequest, AuditRequest, CalibrateRequest, CollectRequest, FillRequest};
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::plan::PlannedPose;
 use crate::rigs::{Rig, RigCamera, RigError};
@@ -72,6 +77,7 @@ pub async fn run_job(request: &JobRequest, ctx: RigContext<'_>) -> Result<JobEnd
         JobRequest::Synth(r) => run_synth(r, ctx).await,
         JobRequest::Calibrate(r) => run_calibrate(r, ctx).await,
         JobRequest::Audit(r) => run_audit(r, ctx).await,
+        JobRequest::Adaptive(r) => run_adaptive(r, ctx).await,
     }
 }
 
@@ -152,6 +158,157 @@ async fn run_audit(request: &AuditRequest, ctx: RigContext<'_>) -> Result<JobEnd
     Ok(JobEnd { message, cancelled: false, done })
 }
 
+/// The ONNX Runtime of the daemon's synth and adaptive jobs, or why there is none.
+fn runtime_options(ort_lib: Option<PathBuf>, job: &'static str) -> Result<RuntimeOptions, JobError> {
+    crate::features::Feature::Synth.require(job).map_err(|e| JobError::Settings(e.into()))?;
+    let Some(ort_lib) = ort_lib else {
+        return Err(JobError::bad_option(
+            "synth",
+            "the daemon found no ONNX Runtime library when it started: restart it with --ort-lib PATH",
+        ));
+    };
+    Ok(RuntimeOptions { ort_lib: Some(ort_lib), ..RuntimeOptions::default() })
+}
+
+/// Runs `work` with the model on a blocking thread and gives the model back with its result
+/// (`None`: the thread panicked and the model is dropped; the next job loads it again).
+async fn with_model<T: Send + 'static>(
+    model: Pipeline,
+    work: impl FnOnce(&mut Pipeline) -> T + Send + 'static,
+) -> (Option<Pipeline>, Result<T, JobError>) {
+    let task = tokio::task::spawn_blocking(move || {
+        let mut model = model;
+        let out = work(&mut model);
+        (model, out)
+    });
+    match task.await {
+        Ok((model, out)) => (Some(model), Ok(out)),
+        Err(e) => (None, Err(JobError::Worker { reason: e.to_string() })),
+    }
+}
+
+/// An adaptive collection on the open rig (`rig collect --adaptive`'s job): every round chosen
+/// with the model on a blocking thread (a cancel stops it after the model's current call),
+/// recorded, then pressed like a collection job, then the rest filled with the same model,
+/// which stays loaded for the next job.
+async fn run_adaptive(request: &AdaptiveRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
+    let observer = ctx.observer();
+    let RigContext { rig, config, clock, state, job_id, pipeline, ort_lib, cancel, .. } = ctx;
+    let runtime = runtime_options(ort_lib, "the daemon's adaptive jobs")?;
+    // The numbers against the plan, and the sensors against the open rig, before any model loads.
+    let prepared = request.collect.prepare(config)?;
+    request.check_plan(prepared.plan.poses.len())?;
+    let opened = sensor_names(rig);
+    if let Some(sensor) = prepared.sensors.iter().find(|&k| !rig.cameras.iter().any(|c| c.kind() == k)) {
+        return Err(JobError::SensorNotOpen { sensor, opened }.into());
+    }
+    let model = request.model_dir();
+    crate::synth::fill::check_model_dir(&model).map_err(JobError::Settings)?;
+    let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib).map(|(_, _, p)| p);
+    let loaded = match cached {
+        Some(p) => p,
+        None => {
+            let (m, r) = (model.clone(), runtime.clone());
+            tokio::task::spawn_blocking(move || Pipeline::load(&m, &r))
+                .await
+                .map_err(|e| JobError::Worker { reason: e.to_string() })?
+                .map_err(|source| JobError::Model { model: model.clone(), source })?
+        }
+    };
+    let mut slot = Some(loaded);
+    let end = adaptive_rounds(request, &mut slot, rig, config, clock, state, job_id, observer, cancel).await;
+    *pipeline = slot.map(|p| (model, runtime, p));
+    end
+}
+
+/// The rounds and the fill of [`run_adaptive`]; the model lives in `slot` between its calls.
+#[allow(clippy::too_many_arguments)]
+async fn adaptive_rounds(
+    request: &AdaptiveRequest,
+    slot: &mut Option<Pipeline>,
+    rig: &mut Rig,
+    config: &RigConfig,
+    clock: Arc<dyn Clock>,
+    state: Arc<DaemonState>,
+    job_id: u64,
+    observer: Observer,
+    cancel: watch::Receiver<bool>,
+) -> Result<JobEnd, DaemonJobError> {
+    let lost = || JobError::Worker { reason: "the model was lost with a panicked thread".to_string() };
+    let model = slot.take().ok_or_else(lost)?;
+    let (model, run) = {
+        let (request, config) = (request.clone(), config.clone());
+        with_model(model, move |p| request.prepare(&config, p)).await
+    };
+    *slot = model;
+    let mut run: AdaptiveRun = run??;
+    rig.set_object(config, &run.prepared.object)?;
+    let cancelled = |stage: &str, done: usize| JobEnd {
+        message: format!("cancelled {stage} ({done} poses pressed; the rounds recorded are pressed as recorded on resume)"),
+        cancelled: true,
+        done: Some(done as u64),
+    };
+    let (mut calls, mut choose_s) = (0, 0.0);
+    loop {
+        let model = slot.take().ok_or_else(lost)?;
+        let flag = cancel.clone();
+        let (model, chosen) = with_model(model, move |p| {
+            let round = run.next_round(p, &|| *flag.borrow());
+            (run, round)
+        })
+        .await;
+        *slot = model;
+        let (back, round) = chosen?;
+        run = back;
+        let pressed = run.record.choices.len();
+        let Some(round) = round? else {
+            if *cancel.borrow() {
+                return Ok(cancelled("while choosing a round", pressed));
+            }
+            break;
+        };
+        tracing::info!(job = job_id, "{}", round.line(run.record.settings.rounds));
+        calls += round.model_calls;
+        choose_s += round.choose_s;
+        let Rig { arm, cameras, peripherals, .. } = &mut *rig;
+        let feeds = live_feeds(cameras, &state, |kind| run.prepared.sensors.contains(kind));
+        let setup = &round.setup;
+        let mut live_arm = LiveArm::new(arm, Arc::clone(&state), &setup.poses, &setup.work_frame);
+        let outcome =
+            crate::jobs::collect::run(setup, &mut live_arm, feeds, peripherals, Arc::clone(&clock), observer.clone(), None).await?;
+        if outcome.summary.interrupted || *cancel.borrow() {
+            return Ok(cancelled("while pressing", pressed));
+        }
+    }
+    let fills = run.fill_requests();
+    let mut lines = vec![format!(
+        "{} poses pressed in {} rounds (choosing them took {calls} model calls in {choose_s:.1} s), the rest filled with {}",
+        run.record.choices.len(),
+        run.record.settings.rounds,
+        run.record.settings.model
+    )];
+    for fill in fills {
+        let targets = fill.targets()?;
+        let model = slot.take().ok_or_else(lost)?;
+        let (observer, state) = (observer.clone(), Arc::clone(&state));
+        let (model, filled) = with_model(model, move |p| {
+            let mut on_pose = |filled: &crate::synth::fill::FilledPose<'_>| {
+                state.set_synth(job_id, filled.pose_id, png_bytes(filled.control), png_bytes(filled.image));
+            };
+            crate::jobs::fill::run(&fill, &targets, p, &observer, &mut on_pose, &mut |_| {})
+        })
+        .await;
+        *slot = model;
+        let outcome = filled??;
+        lines.extend(outcome.reports.iter().flat_map(|r| std::iter::once(r.line()).chain(r.warning())));
+        if outcome.cancelled {
+            let pressed = run.record.choices.len();
+            return Ok(JobEnd { message: format!("cancelled while filling; {}", lines.join("; ")), cancelled: true, done: Some(pressed as u64) });
+        }
+    }
+    Ok(JobEnd { message: lines.join("; "), cancelled: false, done: None })
+}
+
 async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
     let observer = ctx.observer();
     let RigContext { state, job_id, pipeline, ort_lib, .. } = ctx;
@@ -162,14 +319,7 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
     crate::features::Feature::Synth.require("the daemon's synth jobs").map_err(|e| JobError::Settings(e.into()))?;
     let targets = request.targets()?;
     let model = request.model_dir();
-    let Some(ort_lib) = ort_lib else {
-        return Err(JobError::bad_option(
-            "synth",
-            "the daemon found no ONNX Runtime library when it started: restart it with --ort-lib PATH",
-        )
-        .into());
-    };
-    let runtime = RuntimeOptions { ort_lib: Some(ort_lib), ..RuntimeOptions::default() };
+    let runtime = runtime_options(ort_lib, "the daemon's synth jobs")?;
     // The model runs on a blocking thread; the loaded package comes back for the next job.
     let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
     let request = request.clone();

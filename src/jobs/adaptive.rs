@@ -24,12 +24,12 @@ use std::time::Instant;
 use image::RgbImage;
 
 use super::collect::{CollectSetup, PreparedCollect};
-use super::{CollectRequest, FillRequest, JobError};
+use super::AdaptiveRequest;
+use super::{FillRequest, JobError};
 use crate::config::RigConfig;
 use crate::plan::PlannedPose;
 use crate::plan::adaptive::{
-    self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, MAX_BUDGET, MAX_ROUNDS, MAX_SEEDS_PER_POSE, Scored,
-};
+self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, Scored};
 use crate::sensor::SensorKind;
 use crate::synth::fill::{ControlRenderer, FillOptions, read_dataset_image, read_reference, resized_to};
 use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};
@@ -39,28 +39,15 @@ use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};
 const MASK_THRESHOLD: f64 = 10.0;
 const MASK_DILATE_PX: u32 = 1;
 
-/// What `rig collect --adaptive` is asked.
-#[derive(Debug, Clone)]
-pub struct AdaptiveRequest {
-    pub collect: CollectRequest,
-    /// Real presses in all (at most the plan's poses).
-    pub budget: usize,
-    pub rounds: usize,
-    pub seeds_per_pose: usize,
-    /// Model package directory (default as `rig synth`'s).
-    pub model: Option<PathBuf>,
-    /// Sampling steps (default: the package's, else rig's).
-    pub steps: Option<usize>,
-}
-
 impl AdaptiveRequest {
     /// The model package this request uses.
     pub fn model_dir(&self) -> PathBuf {
         self.model.clone().unwrap_or_else(crate::synth::fill::default_model)
     }
 
-    /// Checks the numbers against the plan of `plan_poses` poses, before any model loads.
-    pub fn check(&self, plan_poses: usize) -> Result<(), JobError> {
+    /// Checks the plan (two poses or more, to choose among) and the budget against its
+    /// `plan_poses` poses, then the numbers ([`AdaptiveRequest::check`]), before any model loads.
+    pub fn check_plan(&self, plan_poses: usize) -> Result<(), JobError> {
         let bad = JobError::bad_option;
         if plan_poses < 2 {
             return Err(bad(
@@ -68,25 +55,10 @@ impl AdaptiveRequest {
                 format!("an adaptive collection chooses among the plan's poses: a plan of {plan_poses} pose leaves no choice"),
             ));
         }
-        if self.budget == 0 || self.budget > plan_poses {
-            return Err(bad("budget", format!("--budget {} must be from 1 to the plan's {plan_poses} poses", self.budget)));
+        if self.budget > plan_poses {
+            return Err(bad("budget", format!("--budget {} is more than the plan's {plan_poses} poses", self.budget)));
         }
-        if self.budget > MAX_BUDGET {
-            return Err(bad("budget", format!("--budget {} is more than {MAX_BUDGET} presses, the most a manifest records", self.budget)));
-        }
-        if self.rounds == 0 || self.rounds > MAX_ROUNDS.min(self.budget) {
-            return Err(bad(
-                "rounds",
-                format!("--rounds {} must be from 1 to {} (at most one round per press)", self.rounds, MAX_ROUNDS.min(self.budget)),
-            ));
-        }
-        if !(2..=MAX_SEEDS_PER_POSE).contains(&self.seeds_per_pose) {
-            return Err(bad(
-                "seeds-per-pose",
-                format!("--seeds-per-pose {} must be from 2 to {MAX_SEEDS_PER_POSE} (a spread needs two images)", self.seeds_per_pose),
-            ));
-        }
-        Ok(())
+        Ok(self.check()?)
     }
 
     /// The synthesis settings of the model's images (the fill's, so a pressed pose's error is
@@ -99,7 +71,7 @@ impl AdaptiveRequest {
     /// the record a resumed collection has; nothing moves.
     pub fn prepare(&self, config: &RigConfig, pipeline: &Pipeline) -> Result<AdaptiveRun, JobError> {
         let prepared = self.collect.prepare(config)?;
-        self.check(prepared.plan.poses.len())?;
+        self.check_plan(prepared.plan.poses.len())?;
         check_model(pipeline, &self.collect.sensor.0, &self.model_dir())?;
         let options = self.fill_request(PathBuf::new()).options(pipeline);
         let package = pipeline.package();
@@ -196,7 +168,14 @@ pub struct AdaptiveRun {
 impl AdaptiveRun {
     /// The next round to press, chosen now or replayed from the record (and recorded in every
     /// dataset before it is returned); `None` after the last.
-    pub fn next_round(&mut self, pipeline: &mut Pipeline) -> Result<Option<Round>, JobError> {
+    ///
+    /// `cancelled` is asked before choosing and between the model's calls: when it says yes,
+    /// nothing of the round is recorded and `None` comes back (a resume chooses the round
+    /// again, the same way); the caller tells the two `None`s apart by its own flag.
+    pub fn next_round(&mut self, pipeline: &mut Pipeline, cancelled: &dyn Fn() -> bool) -> Result<Option<Round>, JobError> {
+        if cancelled() {
+            return Ok(None);
+        }
         self.round += 1;
         let number = self.round;
         let settings = self.record.settings.clone();
@@ -223,7 +202,10 @@ impl AdaptiveRun {
                     })
                     .collect()
             } else {
-                let (scored, calls) = self.evidence(pipeline, &pressed, count)?;
+                let Some((scored, calls)) = self.evidence(pipeline, &pressed, count, cancelled)? else {
+                    self.round -= 1;
+                    return Ok(None);
+                };
                 model_calls = calls;
                 adaptive::acquisition_batch(&self.points, &self.ids, &pressed, &scored, count, number)
             };
@@ -262,8 +244,15 @@ impl AdaptiveRun {
     /// The evidence of a later round: the error measured at every pressed pose (synthesised
     /// with the fill's seed, compared with its frame in the contact region), regressed over the
     /// plan, and the spread over seeds at the scored candidates; each averaged over the
-    /// sensors. Returns the scored candidates and the model calls made.
-    fn evidence(&mut self, pipeline: &mut Pipeline, pressed: &[usize], count: usize) -> Result<(Vec<Scored>, usize), JobError> {
+    /// sensors. Returns the scored candidates and the model calls made; `None` when
+    /// `cancelled` said yes between two calls (the errors measured so far are kept).
+    fn evidence(
+        &mut self,
+        pipeline: &mut Pipeline,
+        pressed: &[usize],
+        count: usize,
+        cancelled: &dyn Fn() -> bool,
+    ) -> Result<Option<(Vec<Scored>, usize)>, JobError> {
         let free = self.points.len() - pressed.len();
         let candidates = adaptive::candidates_to_score(&self.points, &self.ids, pressed, adaptive::scored_count(count, free));
         let sensors: Vec<SensorKind> = self.request.collect.sensor.iter().collect();
@@ -277,6 +266,7 @@ impl AdaptiveRun {
                 let id = self.ids[i];
                 let error = match self.errors.get(&(sensor, id)) {
                     Some(&e) => e,
+                    None if cancelled() => return Ok(None),
                     None => {
                         let pose = self.prepared.plan.poses[i];
                         let image = source.generate(pipeline, &self.options, &[(pose, pose_seed(seed, id))])?.remove(0);
@@ -289,6 +279,9 @@ impl AdaptiveRun {
                 measured[k].1 += error / sensors.len() as f64;
             }
             for (k, &i) in candidates.iter().enumerate() {
+                if cancelled() {
+                    return Ok(None);
+                }
                 let pose = self.prepared.plan.poses[i];
                 let seeds: Vec<(PlannedPose, u64)> = (0..self.record.settings.seeds_per_pose as u64)
                     .map(|s| (pose, pose_seed(seed.wrapping_add(s + 1), pose.pose_id)))
@@ -307,7 +300,7 @@ impl AdaptiveRun {
                 error: adaptive::regressed_error(&self.points[index], &measured).unwrap_or(0.0),
             })
             .collect();
-        Ok((scored, calls))
+        Ok(Some((scored, calls)))
     }
 }
 
@@ -399,24 +392,24 @@ mod tests {
     use super::*;
 
     fn request(budget: usize, rounds: usize, seeds_per_pose: usize) -> AdaptiveRequest {
-        AdaptiveRequest { collect: CollectRequest::default(), budget, rounds, seeds_per_pose, model: None, steps: None }
+        AdaptiveRequest { budget, rounds, seeds_per_pose, ..AdaptiveRequest::default() }
     }
 
     #[test]
     fn numbers_are_checked_against_the_plan() {
-        assert!(request(10, 3, 2).check(100).is_ok());
-        assert!(request(100, 3, 2).check(100).is_ok(), "the whole plan may be pressed");
+        assert!(request(10, 3, 2).check_plan(100).is_ok());
+        assert!(request(100, 3, 2).check_plan(100).is_ok(), "the whole plan may be pressed");
         let refused = |r: AdaptiveRequest, poses: usize, field: &str| {
-            let e = r.check(poses).expect_err("refused");
+            let e = r.check_plan(poses).expect_err("refused");
             assert!(matches!(&e, JobError::Request(crate::jobs::RequestError::BadOption { field: f, .. }) if *f == field), "{e}");
         };
         refused(request(101, 3, 2), 100, "budget");
         refused(request(0, 1, 2), 100, "budget");
-        refused(request(MAX_BUDGET + 1, 3, 2), MAX_BUDGET + 10, "budget");
+        refused(request(crate::jobs::request::MAX_BUDGET + 1, 3, 2), crate::jobs::request::MAX_BUDGET + 10, "budget");
         refused(request(1, 1, 2), 1, "plan");
         refused(request(3, 4, 2), 100, "rounds");
         refused(request(3, 0, 2), 100, "rounds");
-        refused(request(3, 1, 1), 100, "seeds-per-pose");
-        refused(request(3, 1, MAX_SEEDS_PER_POSE + 1), 100, "seeds-per-pose");
+        refused(request(3, 1, 1), 100, "seeds_per_pose");
+        refused(request(3, 1, crate::jobs::request::MAX_SEEDS_PER_POSE + 1), 100, "seeds_per_pose");
     }
 }

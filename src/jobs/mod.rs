@@ -35,7 +35,7 @@ use std::path::PathBuf;
 use tokio::sync::watch;
 
 pub use request::{
-    AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name,
+    AdaptiveRequest, AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name,
 };
 
 impl JobError {

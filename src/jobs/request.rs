@@ -45,16 +45,19 @@ pub enum JobRequest {
     Calibrate(CalibrateRequest),
     /// `rig audit`.
     Audit(AuditRequest),
+    /// `rig collect --adaptive`.
+    Adaptive(AdaptiveRequest),
 }
 
 impl JobRequest {
-    /// `collect`, `synth`, `calibrate` or `audit`.
+    /// `collect`, `synth`, `calibrate`, `audit` or `adaptive`.
     pub fn kind(&self) -> &'static str {
         match self {
             JobRequest::Collect(_) => "collect",
             JobRequest::Synth(_) => "synth",
             JobRequest::Calibrate(_) => "calibrate",
             JobRequest::Audit(_) => "audit",
+            JobRequest::Adaptive(_) => "adaptive",
         }
     }
 
@@ -67,6 +70,7 @@ impl JobRequest {
             JobRequest::Synth(r) => r.check(),
             JobRequest::Calibrate(r) => r.check(),
             JobRequest::Audit(r) => r.check(),
+            JobRequest::Adaptive(r) => r.check(),
         }
     }
 
@@ -83,6 +87,7 @@ impl JobRequest {
             JobRequest::Synth(r) => r.confine(&read),
             JobRequest::Calibrate(r) => r.confine(roots),
             JobRequest::Audit(r) => r.confine(&read),
+            JobRequest::Adaptive(r) => r.confine(&read),
         }
     }
 }
@@ -423,5 +428,75 @@ impl AuditRequest {
         self.dataset = read.input("dataset", &self.dataset)?;
         confine_opt(&mut self.stl, |p| read.input("stl", p))?;
         Ok(())
+    }
+}
+
+/// Most presses an adaptive collection may ask for: every choice is a few lines of the
+/// manifest, which readers bound to 1 MiB (`crate::untrusted::MAX_CONFIG_BYTES`); 4000
+/// choices take about 0.7 MiB.
+pub const MAX_BUDGET: usize = 4000;
+/// Most rounds an adaptive collection may ask for.
+pub const MAX_ROUNDS: usize = 100;
+/// Most seeds per scored pose.
+pub const MAX_SEEDS_PER_POSE: usize = 16;
+
+/// An adaptive collection: the options of `rig collect --adaptive` (see its `--help`), the body
+/// of a daemon `adaptive` job. `collect` is the collection itself, as a `collect` job's body
+/// (`{"kind": "adaptive", "collect": {"object": "edge"}, "budget": 30}`); fields left out take
+/// these defaults, and `budget` must be given.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AdaptiveRequest {
+    pub collect: CollectRequest,
+    /// Real presses in all (1 to the plan's poses, at most [`MAX_BUDGET`]).
+    pub budget: usize,
+    /// Rounds the presses are split over.
+    pub rounds: usize,
+    /// Model images per scored pose, each with its own seed (the spread over seeds).
+    pub seeds_per_pose: usize,
+    /// Model package directory (default: `models/default`, else the tiny test package).
+    pub model: Option<PathBuf>,
+    /// Sampling steps of the model's images (default: the package's, else rig's).
+    pub steps: Option<usize>,
+}
+
+impl Default for AdaptiveRequest {
+    fn default() -> Self {
+        Self { collect: CollectRequest::default(), budget: 0, rounds: 4, seeds_per_pose: 4, model: None, steps: None }
+    }
+}
+
+impl AdaptiveRequest {
+    /// Checks what needs no plan: the collection's own check, a budget of 1 to [`MAX_BUDGET`]
+    /// presses, 1 to [`MAX_ROUNDS`] rounds and at most one per press, 2 to
+    /// [`MAX_SEEDS_PER_POSE`] seeds, the sampling steps within their bounds. The budget against
+    /// the plan's poses is checked when the plan is read (`AdaptiveRequest::check_plan`).
+    pub fn check(&self) -> Result<(), RequestError> {
+        let bad = |field, reason: String| Err(RequestError::BadOption { field, reason });
+        self.collect.check()?;
+        if self.budget == 0 {
+            return bad("budget", "0 presses: give the real presses in all (1 to the plan's poses)".to_string());
+        }
+        if self.budget > MAX_BUDGET {
+            return bad("budget", format!("{} presses: at most {MAX_BUDGET}, the most a manifest records", self.budget));
+        }
+        if self.rounds == 0 || self.rounds > MAX_ROUNDS.min(self.budget) {
+            return bad("rounds", format!("{}: must be from 1 to {} (at most one round per press)", self.rounds, MAX_ROUNDS.min(self.budget)));
+        }
+        if !(2..=MAX_SEEDS_PER_POSE).contains(&self.seeds_per_pose) {
+            return bad(
+                "seeds_per_pose",
+                format!("{}: must be from 2 to {MAX_SEEDS_PER_POSE} (a spread needs two images)", self.seeds_per_pose),
+            );
+        }
+        crate::synth::limits::check_steps(self.steps)?;
+        check_paths([("model", self.model.as_deref())])
+    }
+
+    /// Resolves the collection's paths as a `collect` job's and `model` (read) inside `roots`.
+    /// The default model (`model` left out) is rig's own package, not a path of the request.
+    pub fn confine(&mut self, read: &Reader<'_>) -> Result<(), RequestError> {
+        self.collect.confine(read)?;
+        confine_opt(&mut self.model, |p| read.input("model", p))
     }
 }

@@ -25,14 +25,6 @@ pub const MIN_SCORED: usize = 16;
 pub const SCORED_PER_PICK: usize = 4;
 /// Pressed poses the error regression averages over.
 pub const ERROR_NEIGHBOURS: usize = 4;
-/// Most presses an adaptive collection may ask for: every choice is a few lines of the
-/// manifest, which readers bound to 1 MiB ([`crate::untrusted::MAX_CONFIG_BYTES`]); 4000
-/// choices take about 0.7 MiB.
-pub const MAX_BUDGET: usize = 4000;
-/// Most rounds an adaptive collection may ask for.
-pub const MAX_ROUNDS: usize = 100;
-/// Most seeds per scored pose.
-pub const MAX_SEEDS_PER_POSE: usize = 16;
 
 /// What an adaptive collection was asked for; the same on every resume.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

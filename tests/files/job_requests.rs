@@ -73,6 +73,10 @@ fn paths(request: &JobRequest) -> Vec<PathBuf> {
         }
         JobRequest::Calibrate(r) => r.out.clone().into_iter().collect(),
         JobRequest::Audit(r) => [Some(r.dataset.clone()), r.stl.clone()].into_iter().flatten().collect(),
+        JobRequest::Adaptive(r) => {
+            let c = &r.collect;
+            [c.stl.clone(), c.plan.clone(), Some(c.out.clone()), r.model.clone()].into_iter().flatten().collect()
+        }
     }
 }
 
@@ -115,12 +119,13 @@ fn run(fixture: &Fixture, json: &[u8]) -> u8 {
 }
 
 /// Valid jobs of each kind, the starting points of the mutations.
-const SEEDS: [&str; 5] = [
+const SEEDS: [&str; 6] = [
     r#"{"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 3, "seed": 1, "out": "ds", "resume": true}"#,
     r#"{"kind": "synth", "dataset": "ds/edge/tactip", "shard": "1/2", "out": "new", "steps": 4, "guidance": 1.5, "eta": 0.2, "sampler": "ddim", "image_range": "minmax", "batch": 2, "limit": 3}"#,
     r#"{"kind": "calibrate", "sensor": "vitac", "out": "cal/vitac.toml", "grid": 3, "span_mm": 2.0, "depths_mm": [-0.5, 0.5]}"#,
     r#"{"kind": "synth", "poses_of": "ds", "out": "twins", "twin_size": "model"}"#,
     r#"{"kind": "audit", "dataset": "ds/edge/tactip", "fraction": 0.2, "seed": 3, "min_ssim": 0.5, "size_px": 64}"#,
+    r#"{"kind": "adaptive", "collect": {"object": "edge", "sensor": "tactip", "out": "ds", "resume": true}, "budget": 6, "rounds": 3, "seeds_per_pose": 2, "model": "ds/edge", "steps": 2}"#,
 ];
 
 proptest! {
@@ -133,7 +138,7 @@ proptest! {
     }
 
     #[test]
-    fn mutated_jobs_never_panic(which in 0usize..5, edits in prop::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..6)) {
+    fn mutated_jobs_never_panic(which in 0usize..6, edits in prop::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..6)) {
         let fixture = Fixture::new();
         run(&fixture, &mutate(SEEDS[which].as_bytes(), &edits));
     }
@@ -142,7 +147,7 @@ proptest! {
     /// one: whatever is accepted stays inside the root.
     #[test]
     fn confined_paths_stay_inside_the_root(
-        kind in 0u8..3,
+        kind in 0u8..4,
         a in prop::collection::vec(any::<u8>(), 1..5),
         b in prop::collection::vec(any::<u8>(), 1..5),
     ) {
@@ -151,6 +156,7 @@ proptest! {
         let job = match kind {
             0 => serde_json::json!({"kind": "collect", "plan": pa, "out": pb}),
             1 => serde_json::json!({"kind": "synth", "dataset": pa, "model": pa, "out": pb}),
+            2 => serde_json::json!({"kind": "adaptive", "collect": {"plan": pa, "out": pb}, "budget": 4, "model": pa}),
             _ => serde_json::json!({"kind": "calibrate", "out": pb}),
         };
         run(&fixture, job.to_string().as_bytes());

@@ -211,3 +211,57 @@ fn copy_dir(from: &Path, to: &Path) {
         }
     }
 }
+
+/// The daemon's `adaptive` job (`rig collect --adaptive --daemon URL`) presses the rounds the
+/// standalone command chooses, records them, fills the rest, and exits as the command does; a
+/// budget larger than the plan fails the job with exit 2 before any model loads, and the queue
+/// goes on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_job_presses_the_rounds_the_command_chooses() {
+    use super::daemon_api::{final_state, poll_until, rig_cli, start};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let full = plan(tmp.path(), true);
+    let alone = tmp.path().join("alone");
+    let o = rig().args(adaptive_args(&alone, &full, &tiny(), 6, "tactip")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let (daemon, client) = start(None, &[tmp.path(), &data]).await;
+    let url = format!("http://{}", daemon.addr());
+    let with_daemon = |out: &Path, budget: usize| {
+        let mut args = adaptive_args(out, &full, &tiny(), budget, "tactip");
+        args.splice(1..1, ["--daemon".to_string(), url.clone()]);
+        args
+    };
+    let served = tmp.path().join("served");
+    let (code, said) = rig_cli(with_daemon(&served, 6)).await;
+    assert_eq!(code, 0, "{said}");
+    assert!(said.contains("submitted adaptive job 1") && said.contains("6 poses pressed in 3 rounds"), "{said}");
+    let dataset = served.join("sphere/tactip");
+    let expected = choices(&alone.join("sphere/tactip"));
+    assert_eq!(choices(&dataset), expected, "the daemon chose otherwise than the command");
+    let rows = rows(&dataset);
+    assert_eq!(rows.len(), 18, "{rows:?}");
+    assert_eq!(pressed(&rows), sorted_unique(expected.iter().map(|c| c.0)));
+
+    let refused = tmp.path().join("refused");
+    let (code, said) = rig_cli(with_daemon(&refused, 19)).await;
+    assert_eq!(code, 2, "{said}");
+    assert!(said.contains("--budget 19"), "{said}");
+    assert!(!refused.exists(), "nothing may be collected");
+    let next = rig_cli(vec![
+        "collect".into(),
+        "--daemon".into(),
+        url.clone(),
+        "--sensor".into(),
+        "vitac".into(),
+        "--poses".into(),
+        "2".into(),
+        "--out".into(),
+        tmp.path().join("after").display().to_string(),
+    ])
+    .await;
+    assert_eq!(next.0, 0, "the queue went on: {}", next.1);
+    let last = poll_until(&client, 3, final_state).await.pop().expect("view");
+    assert!(last.state.is_final(), "{last:?}");
+    daemon.shutdown().await.expect("clean shutdown");
+}

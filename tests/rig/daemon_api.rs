@@ -12,7 +12,7 @@ use serde_json::json;
 
 /// A daemon on the built-in simulated rig whose jobs may touch `roots` only (the first is the
 /// base of relative paths).
-async fn start(token: Option<&str>, roots: &[&Path]) -> (Daemon, DaemonClient) {
+pub(crate) async fn start(token: Option<&str>, roots: &[&Path]) -> (Daemon, DaemonClient) {
     start_on(RigConfig::builtin_sim(), token, roots).await
 }
 
@@ -41,7 +41,7 @@ async fn job(client: &DaemonClient, id: u64) -> JobView {
 
 /// Polls the job until `done` holds, returning every view seen. Gives up after a generous
 /// number of polls (a hung job fails the test instead of hanging it).
-async fn poll_until(client: &DaemonClient, id: u64, done: impl Fn(&JobView) -> bool) -> Vec<JobView> {
+pub(crate) async fn poll_until(client: &DaemonClient, id: u64, done: impl Fn(&JobView) -> bool) -> Vec<JobView> {
     let mut seen = Vec::new();
     for _ in 0..6000 {
         let j = job(client, id).await;
@@ -55,7 +55,7 @@ async fn poll_until(client: &DaemonClient, id: u64, done: impl Fn(&JobView) -> b
     panic!("job {id} never reached the awaited state; last: {:?}", seen.last());
 }
 
-fn final_state(j: &JobView) -> bool {
+pub(crate) fn final_state(j: &JobView) -> bool {
     j.state.is_final()
 }
 
@@ -308,7 +308,7 @@ async fn a_synth_job_on_a_daemon_without_the_synth_feature_fails_saying_so() {
 }
 
 /// `rig collect --daemon URL` (the binary) against an in-process daemon.
-async fn rig_cli(args: Vec<String>) -> (i32, String) {
+pub(crate) async fn rig_cli(args: Vec<String>) -> (i32, String) {
     let out = tokio::process::Command::new(env!("CARGO_BIN_EXE_rig"))
         .args(&args)
         .env_remove("RIG_CONFIG")
@@ -452,6 +452,11 @@ async fn paths_outside_the_data_roots_are_refused_at_submission() {
         (json!({"kind": "synth", "dataset": ".", "model": outside.path()}), "outside the data roots"),
         (json!({"kind": "calibrate", "sensor": "tactip", "out": sentinel}), "outside the data roots"),
         (json!({"kind": "calibrate", "sensor": "tactip", "grid": 100000}), "grid"),
+        (json!({"kind": "adaptive", "collect": {"out": outside.path()}, "budget": 4}), "outside the data roots"),
+        (json!({"kind": "adaptive", "collect": {"out": "ds"}, "budget": 4, "model": outside.path()}), "outside the data roots"),
+        (json!({"kind": "adaptive", "collect": {"out": "ds"}, "budget": 0}), "budget"),
+        (json!({"kind": "adaptive", "collect": {"out": "ds"}, "budget": 4, "seeds_per_pose": 1000}), "seeds_per_pose"),
+        (json!({"kind": "adaptive", "out": "ds", "budget": 4}), "unknown field"),
     ];
     for (job, expect) in cases {
         let r = client.request("POST", "/api/jobs", Some(job.to_string().as_bytes())).await.expect("POST");
