@@ -1,17 +1,19 @@
 #!/usr/bin/env bash
-# The test command: installs what the tests need, checks the guide's links, runs the platform
-# checks (the build without optional features, the macOS type-check), checks the dependencies'
-# licences and sources (deny.toml: scripts/check-licences.py, and cargo deny where installed), runs the whole suite,
-# runs the SLURM example on a private single-node SLURM (tests/slurm/run.sh, as root;
-# RIG_SKIP_SLURM=1 skips it), checks the LeRobot export with pyarrow (tests/lerobot/run.sh;
-# RIG_SKIP_LEROBOT=1 skips it), checks model-package rewrites (tests/export/run.sh;
-# RIG_SKIP_EXPORT=1 skips it), checks that the API docs build without warnings, then smoke-runs
-# every fuzz target for a few seconds (FUZZ_SECONDS, default 5; FUZZ_SECONDS=0 skips it).
-# RIG_DOCS_TOUR=1 also runs the demo and then the README tour as written after the test build.
+# The test command: installs what the tests need, checks the guide's links, checks the
+# dependencies' licences and sources (deny.toml: scripts/check-licences.py, and cargo deny where
+# installed), runs the platform checks (macOS type-checks with and without the optional
+# features), builds the tests, then runs the whole suite (the `synth` test binary beside the
+# others) while, in the background, the SLURM example runs on a private single-node SLURM
+# (tests/slurm/run.sh, as root; RIG_SKIP_SLURM=1 skips it), the LeRobot export is checked with
+# pyarrow (tests/lerobot/run.sh; RIG_SKIP_LEROBOT=1 skips it) and model-package rewrites are
+# checked (tests/export/run.sh; RIG_SKIP_EXPORT=1 skips it); then checks that the API docs build
+# without warnings, and smoke-runs every fuzz target for a few seconds (FUZZ_SECONDS, default 5;
+# FUZZ_SECONDS=0 skips it). RIG_DOCS_TOUR=1 also runs the demo and then the README tour as
+# written after the tests.
 #
 # The fuzz smoke run installs cargo-fuzz on first use (`cargo install cargo-fuzz --locked`;
-# not timed here, it was preinstalled) and builds the fuzz crate with sanitizer instrumentation
-# (about a minute cold on a quiet 2-core machine, seconds once fuzz/target is warm).
+# not timed here, it was preinstalled) and builds the fuzz targets once, unoptimised with
+# AddressSanitizer (scripts/fuzz-smoke.sh has the times).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
@@ -49,46 +51,79 @@ fi
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 free_kib=$(df -Pk . | awk 'NR==2 {print $4}')
 echo "test: $((free_kib / 1024)) MiB free on the build disk (a fresh build needs about 3 GiB)"
-# The platform checks (docs/src/getting-started.md#features-and-platforms), before the tests:
-# - every target of the build without the optional features (no ONNX Runtime, tokenizer, arrow
-#   or parquet) type-checked (a type-check, not a build: building it compiled about 57 crates
-#   and rig a second time, with other features than the test build's, for the link step alone);
-# - macOS, type-checked from here for x86_64-apple-darwin (rustup adds the target when missing).
-#   Not with the `nokhwa` feature: nokhwa's AVFoundation bindings compile an Objective-C file
-#   (objc_exception) that needs Apple's compiler and SDK, which a Linux machine lacks; so this
-#   checks everything of the macOS build but nokhwa's backend (camera/nokhwa_backend.rs).
-# Added time with target/ warm from an earlier test run: seconds. On a fresh clone on a quiet
-# 2-core machine: the type-check 3 min 7 s (building first, as this once did, took 6 min 43 s and
-# the type-check after it 1 min 2 s), the macOS check 3 min 50 s.
-cargo check --no-default-features --all-targets --locked
+# The platform checks (docs/src/getting-started.md#features-and-platforms), before the tests,
+# both type-checks for macOS (x86_64-apple-darwin; rustup adds the target when missing):
+# - with the optional features a Mac builds: not `nokhwa`, whose AVFoundation bindings compile
+#   an Objective-C file (objc_exception) that needs Apple's compiler and SDK, which a Linux
+#   machine lacks; so this checks everything of the macOS build but nokhwa's backend
+#   (camera/nokhwa_backend.rs);
+# - without any optional feature (no ONNX Runtime, tokenizer, arrow, parquet or candle), every
+#   target: the build without optional features. Checked for macOS rather than for Linux, it
+#   reuses the first check's dependencies; what it does not see is Linux-only code (V4L2) built
+#   without the features, which the test build below compiles with them.
+# On a fresh clone on a 2-core machine: the first 3 min 48 s, the second 1 min 43 s after it (a
+# check without the features for Linux took 3 min 7 s on its own, as nothing is shared with
+# the test build).
 if ! rustup target list --installed | grep -qx x86_64-apple-darwin; then
   rustup target add x86_64-apple-darwin
 fi
 cargo check --target x86_64-apple-darwin --no-default-features --features synth,lerobot,downstream --all-targets --locked
-cargo test --all-targets --locked
+cargo check --target x86_64-apple-darwin --no-default-features --all-targets --locked
+cargo test --all-targets --locked --no-run
+# The checks that run the rig binary just built (SLURM, the LeRobot export, package rewrites)
+# start now, in the background, one after the other: they mostly wait on apt and pip and on
+# simulated hardware, and run beside the tests. Each one's output is printed after the tests.
+side_logs=$(mktemp -d)
+side=()
+start_side() {
+  local name=$1
+  shift
+  ("$@") > "$side_logs/$name.log" 2>&1
+  echo $? > "$side_logs/$name.rc"
+}
+rig_bin="${CARGO_TARGET_DIR:-target}/debug/rig"
+(
+  set +e
+  # examples/slurm end to end on a single-node SLURM it starts and stops (installs slurm-wlm and
+  # munge with apt when missing).
+  [ "${RIG_SKIP_SLURM:-0}" != 1 ] && start_side slurm env RIG_BIN="$rig_bin" tests/slurm/run.sh
+  # The LeRobot export read back by pyarrow and Pillow (a venv in .rig/pycheck), frame by frame
+  # against the datasets it came from; RIG_LEROBOT_PYTHON=<python with lerobot> adds LeRobotDataset.
+  [ "${RIG_SKIP_LEROBOT:-0}" != 1 ] && start_side lerobot env RIG_BIN="$rig_bin" tests/lerobot/run.sh
+  # Package rewrites (tools/repack_package.py: one model.onnx.data per model, float16) checked
+  # with rig (a venv in .rig/exportcheck); RIG_EXPORT_PYTHON=<python with tools/requirements.txt>
+  # adds the kit checkpoint's export.
+  [ "${RIG_SKIP_EXPORT:-0}" != 1 ] && start_side export env RIG_BIN="$rig_bin" tests/export/run.sh
+  true
+) &
+side_pid=$!
+trap 'kill "$side_pid" 2>/dev/null || true' EXIT
+# The test binaries, the `synth` one on a lane of its own beside the others
+# (scripts/lib/run_tests.py; it prints each binary's output when it ends).
+python3 scripts/lib/run_tests.py --self-test
+tests_rc=0
+python3 scripts/lib/run_tests.py --own-lane synth -- --all-targets --locked || tests_rc=$?
+wait "$side_pid" || true
+trap - EXIT
+side_failed=()
+for name in slurm lerobot export; do
+  [ -f "$side_logs/$name.log" ] || continue
+  echo "--- test: $name check (run beside the tests)"
+  cat "$side_logs/$name.log"
+  [ "$(cat "$side_logs/$name.rc" 2>/dev/null || echo 1)" = 0 ] || side_failed+=("$name")
+done
+rm -rf "$side_logs"
+if [ "$tests_rc" != 0 ] || [ "${#side_failed[@]}" != 0 ]; then
+  echo "test: failed: ${side_failed[*]:-} $([ "$tests_rc" != 0 ] && echo "test binaries (exit $tests_rc)")" >&2
+  exit 1
+fi
 # The README tour, run as written with the binary just built (scripts/check-docs.py --tour): every
 # step's exit status and key output lines, after scripts/demo.sh has run in the same folder, as
 # a new user runs them. It collects and synthesises for minutes (the tour alone took 11 min 44 s
 # on a busy 2-core machine; the demo before it adds its own collection and fill), so it runs
 # only with RIG_DOCS_TOUR=1.
 if [ "${RIG_DOCS_TOUR:-0}" = 1 ]; then
-  python3 scripts/check-docs.py --tour "${CARGO_TARGET_DIR:-target}/debug/rig" --after-demo
-fi
-# examples/slurm end to end on a single-node SLURM it starts and stops (installs slurm-wlm and
-# munge with apt when missing), with the rig binary the tests above just built.
-if [ "${RIG_SKIP_SLURM:-0}" != 1 ]; then
-  RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/slurm/run.sh
-fi
-# The LeRobot export read back by pyarrow and Pillow (a venv in .rig/pycheck), frame by frame
-# against the datasets it came from; RIG_LEROBOT_PYTHON=<python with lerobot> adds LeRobotDataset.
-if [ "${RIG_SKIP_LEROBOT:-0}" != 1 ]; then
-  RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/lerobot/run.sh
-fi
-# Package rewrites (tools/repack_package.py: one model.onnx.data per model, float16) checked with
-# rig (a venv in .rig/exportcheck); RIG_EXPORT_PYTHON=<python with tools/requirements.txt> adds the
-# kit checkpoint's export. RIG_SKIP_EXPORT=1 skips it.
-if [ "${RIG_SKIP_EXPORT:-0}" != 1 ]; then
-  RIG_BIN="${CARGO_TARGET_DIR:-target}/debug/rig" tests/export/run.sh
+  python3 scripts/check-docs.py --tour "$rig_bin" --after-demo
 fi
 # The API docs must build without warnings (broken intra-doc links, bad HTML in comments), in
 # the smallest build too (links to items it leaves out stay text there: src/lib.rs); the
