@@ -11,7 +11,7 @@
 #   scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]
 #
 # The simulated sensor renders 128 px frames (OUT/rig.toml), the size of models/default.
-# Environment: RIG (default target/release/rig, else target/debug/rig), SENSOR (tactip),
+# Environment: RIG (default target/release/rig, else target/debug/rig), OBJECT (sphere), SENSOR (tactip),
 # STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2).
 set -euo pipefail
 out=${1:?usage: scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]}
@@ -20,6 +20,7 @@ shift $(( $# >= 2 ? 2 : 1 ))
 seeds=${*:-1 2 3}
 rig=${RIG:-$( [ -x target/release/rig ] && echo target/release/rig || echo target/debug/rig )}
 sensor=${SENSOR:-tactip}
+object=${OBJECT:-sphere}
 steps=${STEPS:-5}
 budget=${BUDGET:-30}
 rounds=${ROUNDS:-3}
@@ -37,11 +38,11 @@ plan() { # plan SEED SAMPLING-LINES > file: x, y in [-4, 4] mm by 2, z 0, yaw -9
 for seed in $seeds; do
     plan "$seed" 'sampling = "full"' > "$out/full-$seed.toml"
     plan "$seed" "$(printf 'sampling = "lhs"\nn_poses = %s' "$budget")" > "$out/lhs-$seed.toml"
-    [ -f "$out/truth-$seed/sphere/$sensor/poses.csv" ] && r=--resume || r=
-    "$rig" collect --plan "$out/full-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/truth-$seed" $r
-    "$rig" collect --adaptive --budget "$budget" --rounds "$rounds" --seeds-per-pose "$k" --steps "$steps" \
+    [ -f "$out/truth-$seed/$object/$sensor/poses.csv" ] && r=--resume || r=
+    "$rig" collect --object "$object" --plan "$out/full-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/truth-$seed" $r
+    "$rig" collect --object "$object" --adaptive --budget "$budget" --rounds "$rounds" --seeds-per-pose "$k" --steps "$steps" \
         --model "$model" --plan "$out/full-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/adaptive-$seed" --resume
-    "$rig" collect --plan "$out/lhs-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/lhs-$seed" --resume
+    "$rig" collect --object "$object" --plan "$out/lhs-$seed.toml" --sensor "$sensor" --config "$out/rig.toml" --out "$out/lhs-$seed" --resume
     "$rig" synth --fill-missing --dataset "$out/lhs-$seed" --model "$model" --steps "$steps"
     for method in adaptive lhs; do
         "$rig" eval --real "$out/truth-$seed" --synthetic "$out/$method-$seed" --pairs "$out/pairs-$method-$seed.csv" > "$out/eval-$method-$seed.md"

@@ -64,9 +64,10 @@ def lanes_of(binaries, own_lane):
 
 
 class Runner:
-    def __init__(self):
+    def __init__(self, out=None):
         self.lock = threading.Lock()
         self.failed = []
+        self.out = out or sys.stdout
 
     def run_lane(self, lane):
         for kind, name, src, exe, folder in lane:
@@ -79,9 +80,9 @@ class Runner:
             took = time.monotonic() - start
             label = "unittests " + os.path.relpath(src, folder) if kind in ("lib", "bin") else os.path.relpath(src, folder)
             with self.lock:
-                print(f"     Running {label} ({os.path.relpath(exe, folder)}), {took:.1f} s", flush=True)
-                sys.stdout.write(text)
-                sys.stdout.flush()
+                self.out.write(f"     Running {label} ({os.path.relpath(exe, folder)}), {took:.1f} s\n")
+                self.out.write(text)
+                self.out.flush()
                 if rc != 0:
                     self.failed.append(f"{label} (exit {rc})")
 
@@ -100,7 +101,10 @@ def self_test():
     lanes = lanes_of(binaries, {"rig"})
     assert [[b[0] for b in lane] for lane in lanes] == [["bench", "test", "lib"], ["test"]], lanes
     assert lanes_of([], {"synth"}) == []
-    runner = Runner()
+    import io
+
+    printed = io.StringIO()
+    runner = Runner(printed)
     with tempfile.TemporaryDirectory() as tmp:
         ok, bad = os.path.join(tmp, "ok"), os.path.join(tmp, "bad")
         for path, status in ((ok, 0), (bad, 3)):
@@ -114,6 +118,10 @@ def self_test():
         for t in threads:
             t.join()
     assert runner.failed == ["b.rs (exit 3)"], runner.failed
+    # Each binary's output whole, under its line, run from its package's folder.
+    for name in ("a.rs (ok)", "b.rs (bad)"):
+        assert f"     Running {name}, " in printed.getvalue(), printed.getvalue()
+    assert printed.getvalue().count(f"ran in {os.path.realpath(tmp)}\n") == 2, printed.getvalue()
     print("run_tests: self-test ok")
 
 
