@@ -19,9 +19,9 @@ use super::state::DaemonState;
 use crate::clock::Clock;
 use crate::config::RigConfig;
 use crate::geometry::objects::ObjectChoice;
+use crate::jobs::adaptive::AdaptiveRun;
 use crate::jobs::calibrate::CalibrateOutcome;
 use crate::jobs::collect::SensorFeed;
-use crate::jobs::adaptive::AdaptiveRun;
 use crate::jobs::{AdaptiveRequest, AuditRequest, CalibrateRequest, CollectRequest, FillRequest};
 use crate::jobs::{JobError, JobRequest, Observer};
 use crate::plan::PlannedPose;
@@ -303,7 +303,11 @@ async fn adaptive_rounds(
         lines.extend(outcome.reports.iter().flat_map(|r| std::iter::once(r.line()).chain(r.warning())));
         if outcome.cancelled {
             let pressed = run.record.choices.len();
-            return Ok(JobEnd { message: format!("cancelled while filling; {}", lines.join("; ")), cancelled: true, done: Some(pressed as u64) });
+            return Ok(JobEnd {
+                message: format!("cancelled while filling; {}", lines.join("; ")),
+                cancelled: true,
+                done: Some(pressed as u64),
+            });
         }
     }
     Ok(JobEnd { message: lines.join("; "), cancelled: false, done: None })

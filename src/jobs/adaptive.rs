@@ -23,13 +23,12 @@ use std::time::Instant;
 
 use image::RgbImage;
 
-use super::collect::{CollectSetup, PreparedCollect};
 use super::AdaptiveRequest;
+use super::collect::{CollectSetup, PreparedCollect};
 use super::{FillRequest, JobError};
 use crate::config::RigConfig;
 use crate::plan::PlannedPose;
-use crate::plan::adaptive::{
-self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, Scored};
+use crate::plan::adaptive::{self, AdaptiveChoice, AdaptiveRecord, AdaptiveSettings, ChoiceReason, Scored};
 use crate::sensor::SensorKind;
 use crate::synth::fill::{ControlRenderer, FillOptions, read_dataset_image, read_reference, resized_to};
 use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};

@@ -35,7 +35,8 @@ use std::path::PathBuf;
 use tokio::sync::watch;
 
 pub use request::{
-    AdaptiveRequest, AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError, check_plain_name,
+    AdaptiveRequest, AuditRequest, CalibrateRequest, CollectRequest, Confine, FillRequest, JobRequest, Reader, RequestError,
+    check_plain_name,
 };
 
 impl JobError {

@@ -481,7 +481,10 @@ impl AdaptiveRequest {
             return bad("budget", format!("{} presses: at most {MAX_BUDGET}, the most a manifest records", self.budget));
         }
         if self.rounds == 0 || self.rounds > MAX_ROUNDS.min(self.budget) {
-            return bad("rounds", format!("{}: must be from 1 to {} (at most one round per press)", self.rounds, MAX_ROUNDS.min(self.budget)));
+            return bad(
+                "rounds",
+                format!("{}: must be from 1 to {} (at most one round per press)", self.rounds, MAX_ROUNDS.min(self.budget)),
+            );
         }
         if !(2..=MAX_SEEDS_PER_POSE).contains(&self.seeds_per_pose) {
             return bad(

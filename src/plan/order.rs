@@ -665,7 +665,8 @@ mod tests {
     fn route_within_2_percent_of_the_reference_at_1000_poses() {
         let cost = profile_cost();
         let trapezoid = trapezoid_cost();
-        let cases: [(&str, PlanSpec, &dyn Fn(&Pose, &Pose) -> f64); 3] = [
+        type Cost<'a> = &'a dyn Fn(&Pose, &Pose) -> f64;
+        let cases: [(&str, PlanSpec, Cost); 3] = [
             ("profile, default grid, seed 0", PlanSpec { n_poses: Some(1000), order: Order::AsSampled, ..PlanSpec::default() }, &cost),
             (
                 "profile, default grid, seed 1",

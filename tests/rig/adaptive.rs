@@ -20,7 +20,7 @@ fn tiny() -> PathBuf {
 }
 
 /// A plan of the full 3 x 3 x 1 x 2 = 18-pose grid (seed 3), or of its first `n` poses.
-fn plan(dir: &Path, full: bool) -> PathBuf {
+pub(crate) fn plan(dir: &Path, full: bool) -> PathBuf {
     let path = dir.join(if full { "plan.toml" } else { "one.toml" });
     let sampling = if full { "sampling = \"full\"" } else { "sampling = \"random\"\nn_poses = 1" };
     let text = format!(
@@ -62,7 +62,7 @@ fn text(o: &Output) -> String {
 }
 
 /// The adaptive record of a dataset's manifest: (pose_id, round, reason) per choice.
-fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
+pub(crate) fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
     let manifest: toml::Value = toml::from_str(&std::fs::read_to_string(dataset.join("manifest.toml")).expect("manifest")).expect("toml");
     let list = manifest["adaptive"]["choices"].as_array().expect("adaptive.choices");
     list.iter()
@@ -77,7 +77,7 @@ fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
 }
 
 /// `poses.csv` as (pose_id, source) per row.
-fn rows(dataset: &Path) -> Vec<(u32, String)> {
+pub(crate) fn rows(dataset: &Path) -> Vec<(u32, String)> {
     let csv = std::fs::read_to_string(dataset.join("poses.csv")).expect("poses.csv");
     let mut lines = csv.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
@@ -148,11 +148,7 @@ fn rounds_are_in_the_manifest_and_the_rest_is_filled() {
 #[test]
 fn a_killed_adaptive_collection_resumes_with_the_same_choices() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let full = plan(tmp.path(), true);
-    let clean = tmp.path().join("clean");
-    let o = rig().args(adaptive_args(&clean, &full, &tiny(), 6, "tactip")).output().expect("rig collect --adaptive");
-    assert!(o.status.success(), "{}", text(&o));
-    let expected = choices(&clean.join("sphere/tactip"));
+    let (full, expected) = uninterrupted(tmp.path());
     let mut rng = rand::rngs::StdRng::seed_from_u64(0xada9_7173);
     let mut killed_mid_run = 0;
     for run in 0..4 {
@@ -184,6 +180,16 @@ fn a_killed_adaptive_collection_resumes_with_the_same_choices() {
         assert_eq!(pressed(&rows), sorted_unique(expected.iter().map(|c| c.0)), "run {run}: pressed poses");
     }
     assert!(killed_mid_run > 0, "no kill landed before a run ended");
+}
+
+/// The full 18-pose plan, written into `dir`, and the choices an uninterrupted `rig collect
+/// --adaptive` (budget 6 over 3 rounds, TacTip) makes on it into `dir/clean`.
+fn uninterrupted(dir: &Path) -> (PathBuf, Vec<(u32, usize, String)>) {
+    let full = plan(dir, true);
+    let clean = dir.join("clean");
+    let o = rig().args(adaptive_args(&clean, &full, &tiny(), 6, "tactip")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+    (full, choices(&clean.join("sphere/tactip")))
 }
 
 /// `ids` sorted, each once.
@@ -220,10 +226,7 @@ fn copy_dir(from: &Path, to: &Path) {
 async fn the_daemon_job_presses_the_rounds_the_command_chooses() {
     use super::daemon_api::{final_state, poll_until, rig_cli, start};
     let tmp = tempfile::tempdir().expect("tempdir");
-    let full = plan(tmp.path(), true);
-    let alone = tmp.path().join("alone");
-    let o = rig().args(adaptive_args(&alone, &full, &tiny(), 6, "tactip")).output().expect("rig collect --adaptive");
-    assert!(o.status.success(), "{}", text(&o));
+    let (full, expected) = uninterrupted(tmp.path());
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
     let (daemon, client) = start(None, &[tmp.path(), &data]).await;
     let url = format!("http://{}", daemon.addr());
@@ -237,7 +240,6 @@ async fn the_daemon_job_presses_the_rounds_the_command_chooses() {
     assert_eq!(code, 0, "{said}");
     assert!(said.contains("submitted adaptive job 1") && said.contains("6 poses pressed in 3 rounds"), "{said}");
     let dataset = served.join("sphere/tactip");
-    let expected = choices(&alone.join("sphere/tactip"));
     assert_eq!(choices(&dataset), expected, "the daemon chose otherwise than the command");
     let rows = rows(&dataset);
     assert_eq!(rows.len(), 18, "{rows:?}");
@@ -264,4 +266,92 @@ async fn the_daemon_job_presses_the_rounds_the_command_chooses() {
     let last = poll_until(&client, 3, final_state).await.pop().expect("view");
     assert!(last.state.is_final(), "{last:?}");
     daemon.shutdown().await.expect("clean shutdown");
+}
+
+/// Presses `round` on a freshly opened simulated rig of `config`, as `rig collect --adaptive`
+/// does between its rounds.
+async fn press_round(config: &rig::config::RigConfig, run: &rig::jobs::adaptive::AdaptiveRun, round: &rig::jobs::adaptive::Round) {
+    use rig::jobs::collect::SensorFeed;
+    let clock = rig::rigs::clock_for(config);
+    let setup = &round.setup;
+    let mut opened =
+        rig::rigs::Rig::open_with(config, &run.prepared.object, &run.prepared.sensors, setup.plan_spec.seed, clock.clone(), None)
+            .await
+            .expect("opening the simulated rig");
+    let feeds: Vec<_> = opened
+        .cameras
+        .drain(..)
+        .map(|camera| SensorFeed { sensor: camera.kind(), calibration: camera.calibration_name(), capture: camera.capture_part(), camera })
+        .collect();
+    let peripherals = std::mem::take(&mut opened.peripherals);
+    let outcome = rig::jobs::collect::run(setup, &mut opened.arm, feeds, peripherals, clock, rig::jobs::Observer::hidden(), None)
+        .await
+        .expect("pressing the round");
+    assert!(!outcome.summary.interrupted, "{outcome:?}");
+    opened.shutdown().await;
+}
+
+/// A cancel that lands while a round is chosen (between two of the model's calls) stops at once:
+/// nothing of the round is recorded or pressed, and both the same run asked again and a
+/// `--resume` of the command choose the round the uninterrupted command chose.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancel_while_a_round_is_chosen_records_nothing_and_the_round_is_chosen_again() {
+    use std::cell::Cell;
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (full, expected) = uninterrupted(tmp.path());
+    let round = |r: usize| -> Vec<(u32, usize, String)> { expected.iter().filter(|c| c.1 == r).cloned().collect() };
+
+    let config = rig::config::RigConfig::builtin_sim();
+    let runtime = rig::synth::RuntimeOptions::default();
+    let mut pipeline = rig::synth::Pipeline::load(&tiny(), &runtime).expect("the tiny package");
+    // Cancelled at the k-th question: 1 asks before choosing; 2 and 3 before measuring the
+    // error at round 1's two pressed poses; 4 and later before each scored pose's images.
+    for cancel_at in [1, 3, 4, 6] {
+        let out = tmp.path().join(format!("cut{cancel_at}"));
+        let request = rig::jobs::AdaptiveRequest {
+            collect: rig::jobs::CollectRequest {
+                sensor: "tactip".parse().expect("sensor"),
+                plan: Some(full.clone()),
+                out: out.clone(),
+                ..Default::default()
+            },
+            budget: 6,
+            rounds: 3,
+            seeds_per_pose: 2,
+            model: Some(tiny()),
+            steps: Some(1),
+        };
+        let mut run = request.prepare(&config, &pipeline).expect("prepared");
+        let first = run.next_round(&mut pipeline, &|| false).expect("round 1").expect("a round 1");
+        press_round(&config, &run, &first).await;
+        let dataset = out.join("sphere/tactip");
+        assert_eq!(choices(&dataset), round(1), "round 1 as the command chose it");
+
+        let asked = Cell::new(0);
+        let cancelled = || {
+            asked.set(asked.get() + 1);
+            asked.get() >= cancel_at
+        };
+        let stopped = run.next_round(&mut pipeline, &cancelled).expect("no error");
+        assert!(stopped.is_none(), "cancelled at question {cancel_at}, a round came back");
+        assert_eq!(asked.get(), cancel_at, "the choice went on after the cancel");
+        assert_eq!(choices(&dataset), round(1), "cancelled at question {cancel_at}: something of round 2 was recorded");
+        assert_eq!(pressed(&rows(&dataset)), sorted_unique(round(1).iter().map(|c| c.0)), "only round 1 is pressed");
+
+        if cancel_at % 2 == 0 {
+            // Asked again, the same run chooses round 2 as the command did.
+            let second = run.next_round(&mut pipeline, &|| false).expect("round 2").expect("a round 2");
+            let ids: Vec<u32> = second.choices.iter().map(|c| c.pose_id).collect();
+            assert_eq!(ids, round(2).iter().map(|c| c.0).collect::<Vec<_>>(), "cancelled at question {cancel_at}");
+        } else {
+            // A new process resumes: the same rounds, every pose once.
+            drop(run);
+            let o = rig().args(adaptive_args(&out, &full, &tiny(), 6, "tactip")).arg("--resume").output().expect("resuming");
+            assert!(o.status.success(), "{}", text(&o));
+            assert_eq!(choices(&dataset), expected, "cancelled at question {cancel_at}, resumed");
+            let rows = rows(&dataset);
+            assert_eq!((rows.len(), sorted_unique(rows.iter().map(|r| r.0)).len()), (18, 18), "{rows:?}");
+        }
+    }
 }

@@ -469,6 +469,25 @@ async fn job_when(client: &DaemonClient, id: u64, what: &str, done: impl Fn(&Job
     panic!("job {id} was not {what} within {} s: {last:?}", PAGE_WAIT.as_secs());
 }
 
+/// A token-less daemon on the simulated rig with `tmp` its data root, its worker kept busy by a
+/// long collection (job 1, running) so that the page's jobs wait in the queue, and its page open
+/// in headless Chromium with job 1 shown.
+async fn busy_daemon_with_page(chromium: &std::path::Path, tmp: &std::path::Path) -> (Daemon, DaemonClient, DevTools, Tab) {
+    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
+    options.roots = Some(rig::roots::DataRoots::new(&[tmp.to_path_buf()], tmp).expect("data roots"));
+    options.idle_refresh = None;
+    let daemon = Daemon::start(options).await.expect("daemon starts");
+    let client = DaemonClient::new(&format!("http://{}", daemon.addr()), None).expect("client");
+    let blocker = json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 4000, "out": tmp.join("blocker")});
+    let r = client.request("POST", "/api/jobs", Some(blocker.to_string().as_bytes())).await.expect("submit");
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    job_when(&client, 1, "running", |j| j.state == JobState::Running).await;
+    let mut browser = DevTools::launch(chromium);
+    let tab = browser.open(&format!("http://{}/", daemon.addr())).await;
+    browser.wait_for(&tab, "job 1 in its jobs table", "document.getElementById('job-1') !== null").await;
+    (daemon, client, browser, tab)
+}
+
 /// The page's job controls, clicked in a real browser against a token-less daemon (so the
 /// page's requests pass the CSRF rule only with the `X-Rig-Client` header): a refused audit
 /// shows the API's reason; the collect form queues the job it describes; Cancel cancels it;
@@ -482,21 +501,7 @@ async fn the_page_submits_cancels_and_resumes_jobs() {
 
     let Some(chromium) = chromium_or_skip() else { return };
     let tmp = tempfile::tempdir().expect("tempdir");
-    let mut options = DaemonOptions::local(RigConfig::builtin_sim());
-    options.roots = Some(rig::roots::DataRoots::new(&[tmp.path().to_path_buf()], tmp.path()).expect("data roots"));
-    options.idle_refresh = None;
-    let daemon = Daemon::start(options).await.expect("daemon starts");
-    let client = DaemonClient::new(&format!("http://{}", daemon.addr()), None).expect("client");
-
-    // A long collection keeps the worker busy, so the page's job waits in the queue.
-    let blocker = json!({"kind": "collect", "object": "edge", "sensor": "tactip", "poses": 4000, "out": tmp.path().join("blocker")});
-    let r = client.request("POST", "/api/jobs", Some(blocker.to_string().as_bytes())).await.expect("submit");
-    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
-    job_when(&client, 1, "running", |j| j.state == JobState::Running).await;
-
-    let mut browser = DevTools::launch(&chromium);
-    let tab = browser.open(&format!("http://{}/", daemon.addr())).await;
-    browser.wait_for(&tab, "job 1 in its jobs table", "document.getElementById('job-1') !== null").await;
+    let (daemon, client, mut browser, tab) = busy_daemon_with_page(&chromium, tmp.path()).await;
 
     // A job the API refuses: the page shows its reason, and nothing is queued.
     let dataset = tmp.path().join("blocker/edge/tactip");
@@ -578,22 +583,79 @@ async fn fill_and_audit_from_the_page(
     // The fill form: two of the plan's missing poses synthesised into that collection with the
     // tiny package (copied inside the data roots), one sampling step.
     let pkg = crate::copy_package(&tmp.join("pkg"));
-    browser.submit_form(&tab, "form-synth", json!({"dataset": collected, "model": pkg, "steps": 1, "limit": 2})).await;
-    let fill = job_when(&client, 4, "filled", |j| j.state.is_final()).await;
+    browser.submit_form(tab, "form-synth", json!({"dataset": collected, "model": pkg, "steps": 1, "limit": 2})).await;
+    let fill = job_when(client, 4, "filled", |j| j.state.is_final()).await;
     assert_eq!((fill.state, fill.exit_code), (JobState::Done, Some(0)), "{fill:?}");
     let JobRequest::Synth(fill_spec) = &fill.spec else { panic!("job 4 is not a fill: {fill:?}") };
     assert_eq!((fill_spec.steps, fill_spec.limit), (Some(1), Some(2)), "{fill_spec:?}");
-    browser.wait_for(&tab, "the fill's id", "document.getElementById('msg-synth').textContent === 'queued synth job 4'").await;
-    let rows = rig::dataset::read_rows(&collected).expect("rows");
+    browser.wait_for(tab, "the fill's id", "document.getElementById('msg-synth').textContent === 'queued synth job 4'").await;
+    let rows = rig::dataset::read_rows(collected).expect("rows");
     assert_eq!((rows.len(), rows.iter().filter(|r| !r.source.is_captured()).count()), (5, 2), "{rows:?}");
 
     // The audit form: both synthesised poses pressed again on the simulated rig and measured;
     // the dataset's manifest records the audit.
-    browser.submit_form(&tab, "form-audit", json!({"dataset": collected, "fraction": 1, "seed": 3})).await;
-    let audit = job_when(&client, 5, "audited", |j| j.state.is_final()).await;
+    browser.submit_form(tab, "form-audit", json!({"dataset": collected, "fraction": 1, "seed": 3})).await;
+    let audit = job_when(client, 5, "audited", |j| j.state.is_final()).await;
     assert_eq!((audit.state, audit.exit_code), (JobState::Done, Some(0)), "{audit:?}");
     let JobRequest::Audit(audit_spec) = &audit.spec else { panic!("job 5 is not an audit: {audit:?}") };
     assert_eq!((audit_spec.fraction, audit_spec.seed), (1.0, 3), "{audit_spec:?}");
-    let manifest = rig::dataset::Manifest::load(&collected).expect("manifest");
+    let manifest = rig::dataset::Manifest::load(collected).expect("manifest");
     assert_eq!(manifest.audit.as_ref().map(|a| a.audited_poses), Some(2), "{:?}", manifest.audit);
+}
+
+/// The page's adaptive form queues the `adaptive` job its fields describe (the collection's
+/// fields nested in `collect`, fields left empty left out); Cancel stops it while it waits;
+/// Resume queues the same request with `resume: true` in its collection, which then presses the
+/// budget over the rounds and fills the rest of the plan.
+#[cfg(feature = "synth")]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_submits_and_resumes_an_adaptive_collection() {
+    use rig::jobs::JobRequest;
+
+    let Some(chromium) = chromium_or_skip() else { return };
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (daemon, client, mut browser, tab) = busy_daemon_with_page(&chromium, tmp.path()).await;
+
+    // The 18-pose grid of the adaptive command's tests, and the tiny package, in the data root.
+    let plan = crate::adaptive::plan(tmp.path(), true);
+    let pkg = crate::copy_package(&tmp.path().join("pkg"));
+    let out = tmp.path().join("adaptive");
+    let fields = json!({
+        "collect.object": "sphere", "collect.sensor": "tactip", "collect.plan": plan, "collect.out": out,
+        "budget": 6, "rounds": 3, "seeds_per_pose": 2, "model": pkg, "steps": 1,
+    });
+    browser.submit_form(&tab, "form-adaptive", fields).await;
+    let submitted = job_when(&client, 2, "queued", |_| true).await;
+    let JobRequest::Adaptive(spec) = &submitted.spec else { panic!("job 2 is not an adaptive collection: {submitted:?}") };
+    assert_eq!(
+        (spec.budget, spec.rounds, spec.seeds_per_pose, spec.steps, spec.collect.object.as_str(), spec.collect.sensor.to_string().as_str()),
+        (6, 3, 2, Some(1), "sphere", "tactip"),
+        "job 2 is not what the form said: {spec:?}"
+    );
+    assert_eq!((spec.collect.stl.as_ref(), spec.collect.poses, spec.collect.resume), (None, None, false), "{spec:?}");
+    assert!(spec.collect.plan.as_ref().is_some_and(|p| p.ends_with("plan.toml")), "{spec:?}");
+    browser.wait_for(&tab, "the queued job's id", "document.getElementById('msg-adaptive').textContent === 'queued adaptive job 2'").await;
+
+    browser.click_job_button(&tab, 2, "cancel").await;
+    let cancelled = job_when(&client, 2, "cancelled", |j| j.state.is_final()).await;
+    assert_eq!(cancelled.state, JobState::Cancelled, "{cancelled:?}");
+    browser.click_job_button(&tab, 2, "resume").await;
+    let resumed = job_when(&client, 3, "queued", |_| true).await;
+    let JobRequest::Adaptive(mut expected) = submitted.spec.clone() else { unreachable!("checked above") };
+    expected.collect.resume = true;
+    assert_eq!(resumed.spec, JobRequest::Adaptive(expected), "the resumed job is not job 2's request with collect.resume: true");
+
+    browser.click_job_button(&tab, 1, "cancel").await;
+    job_when(&client, 1, "stopped", |j| j.state.is_final()).await;
+    let finished = job_when(&client, 3, "finished", |j| j.state.is_final()).await;
+    assert_eq!((finished.state, finished.exit_code), (JobState::Done, Some(0)), "{finished:?}");
+    let dataset = out.join("sphere/tactip");
+    let chosen = crate::adaptive::choices(&dataset);
+    let per_round: Vec<usize> = (1..=3).map(|r| chosen.iter().filter(|c| c.1 == r).count()).collect();
+    assert_eq!(per_round, vec![2, 2, 2], "{chosen:?}");
+    let rows = crate::adaptive::rows(&dataset);
+    assert_eq!((rows.len(), rows.iter().filter(|r| r.1 == "synthetic").count()), (18, 12), "{rows:?}");
+
+    drop(browser);
+    daemon.shutdown().await.expect("clean shutdown");
 }
