@@ -12,8 +12,14 @@
 #   scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]
 #
 # The simulated sensor renders 128 px frames (OUT/rig.toml), the size of models/default.
+# With DOWNSTREAM=1, each filled dataset is also judged by what it teaches: `rig eval --downstream`
+# on the seed's truth with the method's synthesised rows as the synthetic pool (`--synthetic`,
+# `--sets synthetic`), so both methods' regressors are tested on the same held-out truth rows
+# (20 of the 100, drawn once from --seed 1), trained on the same number of rows (TRAIN_SIZE, 50),
+# 3 regressor seeds each; the table pools X and yaw R² and MAE over seeds (z is 0 on this grid).
 # Environment: RIG (default target/release/rig, else target/debug/rig), OBJECT (sphere), SENSOR (tactip),
-# STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2).
+# STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2),
+# DOWNSTREAM (0), TRAIN_SIZE (50), SIZE (regressor input px, 64).
 set -euo pipefail
 out=${1:?usage: scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]}
 model=${2:-models/default}
@@ -47,6 +53,10 @@ for seed in $seeds; do
     "$rig" synth --fill-missing --dataset "$out/lhs-$seed" --model "$model" --steps "$steps"
     for method in adaptive lhs; do
         "$rig" eval --real "$out/truth-$seed" --synthetic "$out/$method-$seed" --pairs "$out/pairs-$method-$seed.csv" > "$out/eval-$method-$seed.md"
+        if [ "${DOWNSTREAM:-0}" = 1 ]; then
+            "$rig" eval --downstream "$out/truth-$seed" --synthetic "$out/$method-$seed" --sets synthetic --seeds 3 --seed 1 \
+                --train-size "${TRAIN_SIZE:-50}" --size "${SIZE:-64}" --json "$out/downstream-$method-$seed.json" > "$out/downstream-$method-$seed.md"
+        fi
     done
 done
 
@@ -95,4 +105,26 @@ for sensor in sorted({s for s, _ in rows}):
         vals = sorted(at.values())
         best = sum(vals[-k:]) / k if k and len(vals) >= k else float("nan")
         print(f"| {sensor} | {seed} | {len(vals)} | {sum(vals) / len(vals):.4f} | {best:.4f} | {n['adaptive'][1]:.4f} | {n['lhs'][1]:.4f} |")
+PY
+
+[ "${DOWNSTREAM:-0}" = 1 ] || exit 0
+python3 - "$out" $seeds <<'PY'
+import json, statistics, sys
+out, seeds = sys.argv[1], sys.argv[2:]
+print()
+print("| sensor | method | regressors | X R² | X MAE (mm) | yaw R² | yaw MAE (deg) |")
+print("|---|---|---:|---:|---:|---:|---:|")
+for method in ("adaptive", "lhs"):
+    got = {}
+    for seed in seeds:
+        with open(f"{out}/downstream-{method}-{seed}.json") as f:
+            report = json.load(f)
+        for s in report["sensors"]:
+            for t in s["sets"]:
+                for r in t["seeds"]:
+                    x, _, yaw = r["scores"]
+                    got.setdefault(s["sensor"], []).append((x["r2"], x["mae"], yaw["r2"], yaw["mae"]))
+    for sensor, v in sorted(got.items()):
+        cell = lambda k: f"{statistics.mean(r[k] for r in v):.3f} ± {statistics.stdev(r[k] for r in v):.3f}"
+        print(f"| {sensor} | {method} | {len(v)} | {cell(0)} | {cell(1)} | {cell(2)} | {cell(3)} |")
 PY

@@ -9,7 +9,7 @@
 // finds the library errors by type in the chain.
 #![allow(clippy::result_large_err)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use tokio::sync::watch;
@@ -187,6 +187,23 @@ async fn with_model<T: Send + 'static>(
     }
 }
 
+/// The package `model` run by `runtime`: the daemon's loaded one when it is that (taken out of
+/// `cached`), else loaded on a blocking thread (the one cached is dropped).
+async fn cached_or_load(
+    cached: &mut Option<(PathBuf, RuntimeOptions, Pipeline)>,
+    model: &Path,
+    runtime: &RuntimeOptions,
+) -> Result<Pipeline, JobError> {
+    if let Some((_, _, p)) = cached.take().filter(|(m, r, _)| m == model && r.ort_lib == runtime.ort_lib) {
+        return Ok(p);
+    }
+    let (m, r) = (model.to_path_buf(), runtime.clone());
+    tokio::task::spawn_blocking(move || Pipeline::load(&m, &r))
+        .await
+        .map_err(|e| JobError::Worker { reason: e.to_string() })?
+        .map_err(|source| JobError::Model { model: model.to_path_buf(), source })
+}
+
 /// An adaptive collection on the open rig (`rig collect --adaptive`'s job): every round chosen
 /// with the model on a blocking thread (a cancel stops it after the model's current call),
 /// recorded, then pressed like a collection job, then the rest filled with the same model,
@@ -204,18 +221,7 @@ async fn run_adaptive(request: &AdaptiveRequest, ctx: RigContext<'_>) -> Result<
     }
     let model = request.model_dir();
     crate::synth::fill::check_model_dir(&model).map_err(JobError::Settings)?;
-    let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib).map(|(_, _, p)| p);
-    let loaded = match cached {
-        Some(p) => p,
-        None => {
-            let (m, r) = (model.clone(), runtime.clone());
-            tokio::task::spawn_blocking(move || Pipeline::load(&m, &r))
-                .await
-                .map_err(|e| JobError::Worker { reason: e.to_string() })?
-                .map_err(|source| JobError::Model { model: model.clone(), source })?
-        }
-    };
-    let mut slot = Some(loaded);
+    let mut slot = Some(cached_or_load(pipeline, &model, &runtime).await?);
     let end = adaptive_rounds(request, &mut slot, rig, config, clock, state, job_id, observer, cancel).await;
     *pipeline = slot.map(|p| (model, runtime, p));
     end
@@ -325,21 +331,14 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
     let model = request.model_dir();
     let runtime = runtime_options(ort_lib, "the daemon's synth jobs")?;
     // The model runs on a blocking thread; the loaded package comes back for the next job.
-    let cached = pipeline.take().filter(|(m, r, _)| *m == model && r.ort_lib == runtime.ort_lib);
+    let loaded = cached_or_load(pipeline, &model, &runtime).await?;
     let request = request.clone();
-    let task = tokio::task::spawn_blocking(move || {
-        let mut loaded = match cached {
-            Some((_, _, p)) => p,
-            None => match Pipeline::load(&model, &runtime) {
-                Ok(p) => p,
-                Err(source) => return (None, Err(JobError::Model { model, source })),
-            },
-        };
+    let (back, end) = with_model(loaded, move |p| {
         let mut on_pose = |filled: &crate::synth::fill::FilledPose<'_>| {
             state.set_synth(job_id, filled.pose_id, png_bytes(filled.control), png_bytes(filled.image));
         };
-        let result = crate::jobs::fill::run(&request, &targets, &mut loaded, &observer, &mut on_pose, &mut |_| {});
-        let end = result.map(|o| {
+        let result = crate::jobs::fill::run(&request, &targets, p, &observer, &mut on_pose, &mut |_| {});
+        result.map(|o| {
             let lines: Vec<String> = o.reports.iter().flat_map(|r| std::iter::once(r.line()).chain(r.warning())).collect();
             let message = match (o.cancelled, lines.is_empty()) {
                 (true, true) => "cancelled (what was written stays and resumes)".to_string(),
@@ -347,16 +346,11 @@ async fn run_synth(request: &FillRequest, ctx: RigContext<'_>) -> Result<JobEnd,
                 (false, _) => lines.join("; "),
             };
             JobEnd { message, cancelled: o.cancelled, done: None }
-        });
-        (Some((model, runtime, loaded)), end)
-    });
-    match task.await {
-        Ok((loaded, result)) => {
-            *pipeline = loaded;
-            Ok(result?)
-        }
-        Err(e) => Err(JobError::Worker { reason: e.to_string() }.into()),
-    }
+        })
+    })
+    .await;
+    *pipeline = back.map(|p| (model, runtime, p));
+    Ok(end??)
 }
 
 async fn run_calibrate(request: &CalibrateRequest, ctx: RigContext<'_>) -> Result<JobEnd, DaemonJobError> {
