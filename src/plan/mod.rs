@@ -48,6 +48,7 @@ use crate::pose::Pose;
 pub mod adaptive;
 mod kdtree;
 mod order;
+#[allow(unused_imports, reason = "the fuzz targets compile this module into a binary, where the library's re-export has no user")]
 pub use order::{MAX_EXAMINATIONS_PER_SITE, MAX_REVERSAL};
 
 /// Largest grid rig enumerates. Filling a dataset and sampling a plan hold a list of grid
