@@ -17,6 +17,7 @@ usage: run_tests.py [--own-lane NAME]... [--self-test] -- CARGO_TEST_ARGS...
 """
 
 import argparse
+import io
 import json
 import os
 import subprocess
@@ -101,8 +102,6 @@ def self_test():
     lanes = lanes_of(binaries, {"rig"})
     assert [[b[0] for b in lane] for lane in lanes] == [["bench", "test", "lib"], ["test"]], lanes
     assert lanes_of([], {"synth"}) == []
-    import io
-
     printed = io.StringIO()
     runner = Runner(printed)
     with tempfile.TemporaryDirectory() as tmp:
