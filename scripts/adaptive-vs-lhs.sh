@@ -19,7 +19,8 @@
 # 3 regressor seeds each; the table pools X and yaw R² and MAE over seeds (z is 0 on this grid).
 # Environment: RIG (default target/release/rig, else target/debug/rig), OBJECT (sphere), SENSOR (tactip),
 # STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2),
-# DOWNSTREAM (0), TRAIN_SIZE (50), SIZE (regressor input px, 64).
+# DOWNSTREAM (0), TRAIN_SIZE (50), SIZE (regressor input px, 64), Z_MIN, Z_MAX, Z_STEP (the plan's
+# depth axis in mm, 0, 0, 1: one depth; z -1 to 1 by 1 makes the grid 300 poses, then set BUDGET 90).
 set -euo pipefail
 out=${1:?usage: scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]}
 model=${2:-models/default}
@@ -36,10 +37,11 @@ mkdir -p "$out"
 # The simulated sensor's frames at the model's 128 px (models/default): no upscaled fill.
 printf '[sensors.%s]\nwidth = 128\nheight = 128\n' "$sensor" > "$out/rig.toml"
 
-plan() { # plan SEED SAMPLING-LINES > file: x, y in [-4, 4] mm by 2, z 0, yaw -90..45 by 45: 100 poses
+z_min=${Z_MIN:-0.0} z_max=${Z_MAX:-0.0} z_step=${Z_STEP:-1.0}
+plan() { # plan SEED SAMPLING-LINES > file: x, y in [-4, 4] mm by 2, z as set (0), yaw -90..45 by 45: 100 poses a depth
     printf '%s\nseed = %s\norder = "optimised"\n' "$2" "$1"
     printf '[x_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n[y_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n'
-    printf '[z_mm]\nmin = 0.0\nmax = 0.0\nstep = 1.0\n[yaw_deg]\nmin = -90.0\nmax = 45.0\nstep = 45.0\n'
+    printf '[z_mm]\nmin = %s\nmax = %s\nstep = %s\n[yaw_deg]\nmin = -90.0\nmax = 45.0\nstep = 45.0\n' "$z_min" "$z_max" "$z_step"
 }
 
 for seed in $seeds; do

@@ -274,6 +274,8 @@ impl Classify for crate::dataset::DatasetError {
             | D::BadImage { .. }
             | D::BadOrder { .. }
             | D::OrderMismatch { .. }
+            | D::BadChoices { .. }
+            | D::ChoicesMismatch { .. }
             | D::WrongImageSize { .. } => Exit::BadInput,
             D::Io { .. }
             | D::DiskFull { .. }

@@ -166,7 +166,7 @@ fn axis_of(name: &str) -> Option<(AxisValue, &'static str)> {
 /// one line per choice with the terms that chose it, and optionally the picture.
 fn show_rounds(dataset: &std::path::Path, svg: Option<&std::path::Path>, axes: &str) -> anyhow::Result<()> {
     let manifest = crate::dataset::Manifest::load(dataset)?;
-    let Some(record) = manifest.adaptive else {
+    let Some(settings) = manifest.adaptive else {
         anyhow::bail!(crate::cli::usage(&format!(
             "{} is not an adaptive collection (its manifest has no [adaptive]); `rig collect --adaptive` makes one",
             dataset.display()
@@ -175,6 +175,8 @@ fn show_rounds(dataset: &std::path::Path, svg: Option<&std::path::Path>, axes: &
     let Some(spec) = manifest.plan else {
         anyhow::bail!(crate::cli::usage(&format!("{}: its manifest has no plan", dataset.display())));
     };
+    let choices = crate::dataset::choices::read_choices(dataset)?.unwrap_or_default();
+    let record = crate::plan::adaptive::AdaptiveRecord { settings, choices };
     let s = &record.settings;
     println!(
         "adaptive collection: budget {}, {} rounds, {} seeds per pose, model {}, steps {}; {} poses chosen of a {}-pose grid",

@@ -98,6 +98,15 @@ pub enum DatasetError {
     /// `order.csv` does not parse: wrong header, a line that is not a pose id, a pose twice.
     #[error("{path} line {line}: {reason} (the kept order is `pose_id`, then one pose id per line, each once)")]
     BadOrder { path: PathBuf, line: u64, reason: String },
+    /// `adaptive.csv` does not parse: wrong header, a malformed line, a pose twice, rounds out
+    /// of order.
+    #[error(
+        "{path} line {line}: {reason} (an adaptive collection's choices: `pose_id,round,reason,distance,spread,error,score`, round by round)"
+    )]
+    BadChoices { path: PathBuf, line: u64, reason: String },
+    /// `adaptive.csv` parses but is not this collection's record.
+    #[error("{path} is not the record of this adaptive collection: {reason} (a collection's recorded rounds are pressed as recorded)")]
+    ChoicesMismatch { path: PathBuf, reason: String },
     /// `order.csv` parses but is not an order of the poses it is read for.
     #[error(
         "{path} is not an order of the poses this run visits (the plan's, or the audit's draw): {mismatch} (move the file \

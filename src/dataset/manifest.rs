@@ -331,10 +331,10 @@ pub struct Manifest {
     /// manifests that predate the field and in datasets never synthesised into.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthesis: Option<SynthesisInfo>,
-    /// An adaptive collection's settings and every pose it chose, round by round
-    /// (`rig collect --adaptive`); `None` for every other dataset.
+    /// An adaptive collection's settings (`rig collect --adaptive`); the poses it chose are
+    /// in the dataset's `adaptive.csv` ([`super::choices`]). `None` for every other dataset.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adaptive: Option<crate::plan::adaptive::AdaptiveRecord>,
+    pub adaptive: Option<crate::plan::adaptive::AdaptiveSettings>,
 }
 
 /// What `rig synth` wrote into a dataset's manifest (`[synthesis]`): which model made its
@@ -544,7 +544,7 @@ impl Manifest {
         }
         // An adaptive collection resumes only as the same adaptive collection (its choices are
         // replayed), and a plain one never turns adaptive.
-        let settings = |m: &Manifest| m.adaptive.as_ref().map(|a| a.settings.clone());
+        let settings = |m: &Manifest| m.adaptive.clone();
         if settings(self) != settings(requested) {
             let show = |s: Option<crate::plan::adaptive::AdaptiveSettings>| match s {
                 Some(s) => format!(

@@ -11,6 +11,8 @@
 //! reference.png          the no-contact frame
 //! order.csv              the poses a collection visits, in its order, kept before its first
 //!                        pose (see [`order`]); absent in datasets no collection wrote
+//! adaptive.csv           an adaptive collection's choices, round by round (see [`choices`]),
+//!                        in place of order.csv; absent in every other dataset
 //! ```
 //!
 //! Durability ([`DatasetWriter`]): an image is written to a temporary name in `images/`,
@@ -22,6 +24,7 @@
 //! anything; [`export`] writes the MultiDiffSense (MDS) and tactile-bench CSV dialects and
 //! reads the MDS one; [`lerobot`] writes a LeRobot v3 dataset (parquet); [`merge()`] joins shards written by `rig synth --fill-missing --shard`.
 
+pub mod choices;
 pub mod durable;
 mod error;
 pub mod export;
@@ -45,7 +48,7 @@ pub use error::{DatasetError, RowProblem};
 pub use manifest::{AuditFigure, AuditSummary, CaptureChain, CapturePart, Manifest, ObjectInfo, SynthesisInfo};
 pub use merge::{MergeOptions, MergeReport, merge};
 pub use verify::{CaptureNote, DatasetImages, VerifyIssue, VerifyReport, verify};
-pub use writer::{DatasetWriter, update_manifest_of};
+pub use writer::DatasetWriter;
 
 /// The default bound on a LeRobot export's parquet files, MB of 10^6 bytes (LeRobot's default
 /// `data_files_size_in_mb`), and the largest accepted; here so that the command line offers them

@@ -15,6 +15,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use super::choices::CHOICES_FILE;
 use super::durable::{Kind, MAX_IMAGE_BYTES, MAX_POSES_CSV_BYTES, decode_image, entry_exists, read_below};
 use super::order::{MAX_ORDER_BYTES, ORDER_FILE, parse_order};
 use super::writer::{image_file_pose_id, is_temp_name};
@@ -56,6 +57,11 @@ pub enum VerifyIssue {
     /// Captured rows (real or simulated) whose poses the kept order does not list: the order
     /// is not the collection's.
     UnorderedRows { rows: usize, first_pose_id: u32 },
+    /// An adaptive collection's `adaptive.csv` does not parse, is missing where rows were
+    /// captured, lists a pose outside the plan grid, or does not keep the manifest's budget.
+    BadChoices { reason: String },
+    /// Captured rows whose poses the adaptive collection's choices do not list.
+    UnchosenRows { rows: usize, first_pose_id: u32 },
 }
 
 /// A dataset's images as verify reads them, for any reader: each read through the opener (no
@@ -149,6 +155,11 @@ impl fmt::Display for VerifyIssue {
                 write!(f, "past the press limit: pose_id {pose_id} on line {line} presses {depth_mm:.3} mm into the skin, beyond {limit}")
             }
             VerifyIssue::BadOrder { reason } => write!(f, "kept order {ORDER_FILE}: {reason}"),
+            VerifyIssue::BadChoices { reason } => write!(f, "adaptive choices {CHOICES_FILE}: {reason}"),
+            VerifyIssue::UnchosenRows { rows, first_pose_id } => write!(
+                f,
+                "adaptive choices {CHOICES_FILE}: {rows} captured rows are not among them (first: pose_id {first_pose_id}); they are not this collection's choices"
+            ),
             VerifyIssue::UnorderedRows { rows, first_pose_id } => write!(
                 f,
                 "kept order {ORDER_FILE}: {rows} captured rows are not in it (first: pose_id {first_pose_id}); it is not this collection's order"
@@ -293,12 +304,14 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
     let mut grid_len = None;
     // The frame size the manifest gives the camera, if it gives one.
     let mut camera = None;
+    let mut adaptive = None;
     match entry_exists(&dir.join(MANIFEST_FILE), Kind::File) {
         Ok(false) => report.issues.push(VerifyIssue::BadManifest { reason: format!("{MANIFEST_FILE} is missing") }),
         Ok(true) => match Manifest::load(dir) {
             Ok(m) => {
                 grid_len = m.plan.as_ref().map(|p| p.grid_len());
                 camera = camera_format(&m);
+                adaptive = m.adaptive;
                 report.capture = m.capture.map_or(CaptureNote::Absent, |c| CaptureNote::Recorded(Box::new(c)));
             }
             Err(e) => report.issues.push(VerifyIssue::BadManifest { reason: e.to_string() }),
@@ -399,7 +412,52 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, DatasetError> {
         }
     }
     check_order(dir, &parsed.lines, grid_len, &mut report);
+    check_choices(dir, adaptive, &parsed.lines, grid_len, &mut report);
     Ok(report)
+}
+
+/// An adaptive collection's choices (`adaptive.csv`): they parse, list only poses of the
+/// plan's grid, keep the manifest's budget round by round, and list every captured row's pose
+/// (each round is recorded before its first press). A dataset whose manifest has no
+/// `[adaptive]` must keep no choices.
+fn check_choices(
+    dir: &Path,
+    settings: Option<crate::plan::adaptive::AdaptiveSettings>,
+    lines: &[super::ParsedLine],
+    grid_len: Option<u64>,
+    report: &mut VerifyReport,
+) {
+    let path = dir.join(CHOICES_FILE);
+    let exists = match entry_exists(&path, Kind::File) {
+        Ok(exists) => exists,
+        Err(e) => return not_regular(report, &path, &e),
+    };
+    let mut captured = lines.iter().filter_map(|l| l.row.as_ref().ok()).filter(|r| r.source.is_captured()).map(|r| r.pose_id).peekable();
+    let Some(settings) = settings else {
+        if exists {
+            report.issues.push(VerifyIssue::BadChoices { reason: "present, but the manifest has no [adaptive]".to_string() });
+        }
+        return;
+    };
+    if !exists {
+        if captured.peek().is_some() {
+            report.issues.push(VerifyIssue::BadChoices { reason: "missing, and the adaptive collection has captured rows".to_string() });
+        }
+        return;
+    }
+    let choices = match super::choices::read_choices(dir) {
+        Ok(choices) => choices.unwrap_or_default(),
+        Err(e) => return report.issues.push(VerifyIssue::BadChoices { reason: e.to_string() }),
+    };
+    let record = crate::plan::adaptive::AdaptiveRecord { settings, choices };
+    if let Err(reason) = record.check_choices(|id| grid_len.is_none_or(|grid| u64::from(id) < grid)) {
+        report.issues.push(VerifyIssue::BadChoices { reason: reason.replace("a pose of the plan", "a pose of the plan's grid") });
+    }
+    let chosen: std::collections::HashSet<u32> = record.choices.iter().map(|c| c.pose_id).collect();
+    let unchosen: Vec<u32> = captured.filter(|id| !chosen.contains(id)).collect();
+    if let Some(&first_pose_id) = unchosen.first() {
+        report.issues.push(VerifyIssue::UnchosenRows { rows: unchosen.len(), first_pose_id });
+    }
 }
 
 /// The kept order, when the dataset has one: it parses, lists only poses of the plan's grid,

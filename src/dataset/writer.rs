@@ -309,16 +309,6 @@ impl DatasetWriter {
     }
 }
 
-/// Changes the manifest of the existing dataset at `dir` and writes it atomically, holding
-/// the writer's lock meanwhile (so no writer runs beside it): what an adaptive collection does
-/// between rounds to record its next round before pressing it.
-pub fn update_manifest_of(dir: &Path, change: impl FnOnce(&mut Manifest)) -> Result<(), DatasetError> {
-    let root = lock_dir(dir, false)?;
-    let mut manifest = Manifest::load(dir)?;
-    change(&mut manifest);
-    manifest.store_in(&root)
-}
-
 /// Rewrites a `poses.csv` from before the `modbus` column with the current header and an
 /// empty `modbus` field on every row, so that appended rows match the header. `legacy` is the
 /// file's complete lines (a torn tail already cut). Crash-safe like every other write (temp

@@ -83,22 +83,29 @@ impl AdaptiveRequest {
             steps: options.steps,
         };
         let mut record = AdaptiveRecord { settings, choices: Vec::new() };
+        let ids: Vec<u32> = prepared.plan.poses.iter().map(|p| p.pose_id).collect();
         if self.collect.resume {
+            let in_plan: std::collections::HashSet<u32> = ids.iter().copied().collect();
             // The longest record of this collection among its datasets (a kill between two
-            // manifests' updates leaves one a round ahead); another collection's is left to
+            // datasets' records leaves one a round ahead); another collection's is left to
             // the writer, which refuses it by name.
             for sensor in self.collect.sensor.iter() {
                 let dir = prepared.setup.dataset_dir(sensor);
-                if let Ok(m) = crate::dataset::Manifest::load(&dir)
-                    && let Some(kept) = m.adaptive
-                    && kept.settings == record.settings
-                    && kept.choices.len() > record.choices.len()
-                {
+                let same = crate::dataset::Manifest::load(&dir).is_ok_and(|m| m.adaptive.as_ref() == Some(&record.settings));
+                if !same {
+                    continue;
+                }
+                let dataset = |source| JobError::Dataset { dir: dir.clone(), source };
+                let choices = crate::dataset::choices::read_choices(&dir).map_err(dataset)?.unwrap_or_default();
+                let kept = AdaptiveRecord { settings: record.settings.clone(), choices };
+                kept.check_choices(|id| in_plan.contains(&id)).map_err(|reason| {
+                    dataset(crate::dataset::DatasetError::ChoicesMismatch { path: dir.join(crate::dataset::choices::CHOICES_FILE), reason })
+                })?;
+                if kept.choices.len() > record.choices.len() {
                     record = kept;
                 }
             }
         }
-        let ids: Vec<u32> = prepared.plan.poses.iter().map(|p| p.pose_id).collect();
         let points = adaptive::normalised(&prepared.setup.plan_spec, &prepared.plan.poses);
         Ok(AdaptiveRun { request: self.clone(), prepared, record, ids, points, options, errors: HashMap::new(), round: 0 })
     }
@@ -208,16 +215,9 @@ impl AdaptiveRun {
                 model_calls = calls;
                 adaptive::acquisition_batch(&self.points, &self.ids, &pressed, &scored, count, number)
             };
+            // Recorded in every dataset by the round's collection, before its first press
+            // (`adaptive.csv`), so a resume presses these.
             self.record.choices.extend(choices);
-            if number > 1 {
-                // Recorded before the first press of the round, so a resume presses these.
-                for sensor in self.request.collect.sensor.iter() {
-                    let dir = self.prepared.setup.dataset_dir(sensor);
-                    let record = self.record.clone();
-                    crate::dataset::update_manifest_of(&dir, |m| m.adaptive = Some(record))
-                        .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
-                }
-            }
         }
         let chosen: Vec<AdaptiveChoice> = self.record.choices.iter().filter(|c| c.round == number).cloned().collect();
         let ids: std::collections::HashSet<u32> = chosen.iter().map(|c| c.pose_id).collect();

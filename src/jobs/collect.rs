@@ -21,7 +21,7 @@ use crate::camera::Camera;
 use crate::clock::Clock;
 use crate::collect::{CollectJob, CollectSummary, SensorStream};
 use crate::config::{ArmBackend, CollectConfig, RigConfig};
-use crate::dataset::{CaptureChain, CapturePart, DatasetError, DatasetWriter, Manifest, ObjectInfo, Source, order};
+use crate::dataset::{CaptureChain, CapturePart, DatasetError, DatasetWriter, Manifest, ObjectInfo, Source, choices, order};
 use crate::fence::{Envelope, Fence, PoseSource};
 use crate::geometry::objects::ObjectChoice;
 use crate::io::modbus::{ModbusTransport, Peripherals};
@@ -198,8 +198,9 @@ pub struct CollectSetup {
     /// The workspace and press limit every pose keeps to, checked again by [`run`] before the
     /// arm moves.
     pub fence: Fence,
-    /// An adaptive collection's record, written into each new dataset's manifest (its rounds
-    /// are the visiting order, so no `order.csv` is kept); `None` for a plain collection.
+    /// An adaptive collection's record: its settings go into each dataset's manifest, its
+    /// choices into `adaptive.csv` (its rounds are the visiting order, so no `order.csv` is
+    /// kept); `None` for a plain collection.
     pub adaptive: Option<crate::plan::adaptive::AdaptiveRecord>,
 }
 
@@ -222,7 +223,7 @@ impl CollectSetup {
         manifest.firmware_profile = Some(self.profile_name.clone());
         manifest.work_frame = Some(self.work_frame);
         manifest.capture = Some(CaptureChain { arm: arm.clone(), sensors: sensors.to_vec(), modbus: self.modbus.clone() });
-        manifest.adaptive = self.adaptive.clone();
+        manifest.adaptive = self.adaptive.as_ref().map(|a| a.settings.clone());
         manifest
     }
 }
@@ -358,10 +359,13 @@ pub async fn run<A: Arm, C: Camera, P: Peripherals>(
             .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?
             .with_byte_budget(setup.disk_budget_bytes);
         // The order, kept before the first pose (under the writer's lock); a dataset that
-        // keeps one already keeps it. An adaptive collection's order is its recorded rounds.
-        if setup.adaptive.is_none() {
-            order::keep_order(&dir, &order_ids).map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
+        // keeps one already keeps it. An adaptive collection's order is its rounds, recorded
+        // here up to this one (`adaptive.csv`) before the round's first press.
+        match &setup.adaptive {
+            None => order::keep_order(&dir, &order_ids).map(drop),
+            Some(record) => choices::keep_choices(&dir, &record.choices).map(drop),
         }
+        .map_err(|source| JobError::Dataset { dir: dir.clone(), source })?;
         let source = Source::captured(feed.capture.simulated);
         sensors.push(SensorStream { camera: feed.camera, writer, source });
         datasets.push(dir);

@@ -431,10 +431,9 @@ impl AuditRequest {
     }
 }
 
-/// Most presses an adaptive collection may ask for: every choice is a few lines of the
-/// manifest, which readers bound to 1 MiB (`crate::untrusted::MAX_CONFIG_BYTES`); 4000
-/// choices take about 0.7 MiB.
-pub const MAX_BUDGET: usize = 4000;
+/// Most presses an adaptive collection may ask for: the most poses a plan can have (its
+/// choices are one line each of the dataset's `adaptive.csv`, read up to that many).
+pub const MAX_BUDGET: usize = crate::plan::MAX_GRID_POINTS as usize;
 /// Most rounds an adaptive collection may ask for.
 pub const MAX_ROUNDS: usize = 100;
 /// Most seeds per scored pose.
@@ -478,7 +477,7 @@ impl AdaptiveRequest {
             return bad("budget", "0 presses: give the real presses in all (1 to the plan's poses)".to_string());
         }
         if self.budget > MAX_BUDGET {
-            return bad("budget", format!("{} presses: at most {MAX_BUDGET}, the most a manifest records", self.budget));
+            return bad("budget", format!("{} presses: at most {MAX_BUDGET}, the most poses a plan can have", self.budget));
         }
         if self.rounds == 0 || self.rounds > MAX_ROUNDS.min(self.budget) {
             return bad(

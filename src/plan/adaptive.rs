@@ -16,6 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::kdtree::KdTree;
 use super::{PlanSpec, PlannedPose};
 
 /// How many unpressed poses a round scores with the model, at least: with fewer, a round's
@@ -52,7 +53,8 @@ pub enum ChoiceReason {
     Acquisition,
 }
 
-/// One chosen pose, as the manifest records it (`[[adaptive.choices]]`).
+/// One chosen pose, as the dataset records it (a line of `adaptive.csv`,
+/// [`crate::dataset::choices`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AdaptiveChoice {
     pub pose_id: u32,
@@ -71,11 +73,11 @@ pub struct AdaptiveChoice {
     pub score: Option<f64>,
 }
 
-/// An adaptive collection's settings and every choice made so far, in order.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// An adaptive collection's settings (the manifest's `[adaptive]`) and every choice made so
+/// far, in order (the dataset's `adaptive.csv`).
+#[derive(Debug, Clone, PartialEq)]
 pub struct AdaptiveRecord {
     pub settings: AdaptiveSettings,
-    #[serde(default)]
     pub choices: Vec<AdaptiveChoice>,
 }
 
@@ -88,6 +90,23 @@ impl AdaptiveRecord {
     /// Rounds with at least one choice recorded.
     pub fn rounds_recorded(&self) -> usize {
         self.choices.iter().map(|c| c.round).max().unwrap_or(0)
+    }
+
+    /// Whether the choices can be this collection's: every pose is one of the plan's
+    /// (`in_plan`), and every round recorded is one of the settings' rounds with the number of
+    /// presses the budget gives it. What is wrong otherwise.
+    pub fn check_choices(&self, in_plan: impl Fn(u32) -> bool) -> Result<(), String> {
+        if let Some(c) = self.choices.iter().find(|c| !in_plan(c.pose_id)) {
+            return Err(format!("pose {} (round {}) is not a pose of the plan", c.pose_id, c.round));
+        }
+        let s = &self.settings;
+        for round in 1..=self.rounds_recorded() {
+            let (got, want) = (self.choices.iter().filter(|c| c.round == round).count(), round_size(s.budget, s.rounds, round));
+            if got != want {
+                return Err(format!("round {round} records {got} poses; a budget of {} over {} rounds presses {want}", s.budget, s.rounds));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -124,9 +143,16 @@ pub fn distance(a: &[f64; 4], b: &[f64; 4]) -> f64 {
 }
 
 /// For every point, the distance to the nearest of `pressed` (indices into `points`);
-/// infinite when none is pressed. O(points x pressed).
+/// infinite when none is pressed. O(points x log pressed): one k-d tree query each.
 pub fn nearest_pressed(points: &[[f64; 4]], pressed: &[usize]) -> Vec<f64> {
-    points.iter().map(|p| pressed.iter().map(|&q| distance(p, &points[q])).fold(f64::INFINITY, f64::min)).collect()
+    let tree = KdTree::new(pressed.iter().map(|&q| points[q]).collect());
+    points.iter().map(|p| nearest_in(&tree, p)).collect()
+}
+
+/// The distance from `p` to the nearest point of `tree`; infinite when it has none. The same
+/// number as [`distance`] to that point (the tree sums the same squares in the same order).
+fn nearest_in(tree: &KdTree, p: &[f64; 4]) -> f64 {
+    tree.nearest(p, 1, false).first().map_or(f64::INFINITY, |&(d2, _)| d2.sqrt())
 }
 
 /// The index of the largest finite-or-infinite value among `eligible`, ties to the lower pose
@@ -192,18 +218,23 @@ pub fn scored_count(batch: usize, free: usize) -> usize {
 
 /// The audit-error model: the error at `point` regressed from the errors measured at pressed
 /// poses (`measured`: point, error), as the inverse-distance-weighted mean of the
-/// [`ERROR_NEIGHBOURS`] nearest. `None` when nothing was measured.
+/// [`ERROR_NEIGHBOURS`] nearest (ties to the pose measured first). `None` when nothing was
+/// measured. O(measured): the nearest are selected, not sorted.
 pub fn regressed_error(point: &[f64; 4], measured: &[([f64; 4], f64)]) -> Option<f64> {
-    let mut near: Vec<(f64, f64)> = measured.iter().map(|(p, e)| (distance(point, p), *e)).collect();
-    near.sort_by(|a, b| a.0.total_cmp(&b.0));
-    near.truncate(ERROR_NEIGHBOURS);
+    let mut near: Vec<(f64, usize)> = measured.iter().enumerate().map(|(i, (p, _))| (distance(point, p), i)).collect();
+    let nearer = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    if near.len() > ERROR_NEIGHBOURS {
+        near.select_nth_unstable_by(ERROR_NEIGHBOURS - 1, nearer);
+        near.truncate(ERROR_NEIGHBOURS);
+    }
+    near.sort_by(nearer);
     if near.is_empty() {
         return None;
     }
     // A small floor keeps a measured pose's own error from an infinite weight.
-    let (sum_w, sum_we) = near.iter().fold((0.0, 0.0), |(w, we), (d, e)| {
+    let (sum_w, sum_we) = near.iter().fold((0.0, 0.0), |(w, we), &(d, i)| {
         let weight = 1.0 / (d + 1e-3);
-        (w + weight, we + weight * e)
+        (w + weight, we + weight * measured[i].1)
     });
     Some(sum_we / sum_w)
 }
@@ -229,8 +260,8 @@ pub fn acquisition_batch(
     count: usize,
     round: usize,
 ) -> Vec<AdaptiveChoice> {
-    let mut nearest: Vec<f64> =
-        scored.iter().map(|s| pressed.iter().map(|&q| distance(&points[s.index], &points[q])).fold(f64::INFINITY, f64::min)).collect();
+    let tree = KdTree::new(pressed.iter().map(|&q| points[q]).collect());
+    let mut nearest: Vec<f64> = scored.iter().map(|s| nearest_in(&tree, &points[s.index])).collect();
     let max_of = |v: &mut dyn Iterator<Item = f64>| v.filter(|x| x.is_finite()).fold(0.0, f64::max);
     let spread_max = max_of(&mut scored.iter().map(|s| s.spread));
     let error_max = max_of(&mut scored.iter().map(|s| s.error));
@@ -246,12 +277,12 @@ pub fn acquisition_batch(
     };
     let mut taken = vec![false; scored.len()];
     let mut choices = Vec::new();
+    let scored_ids: Vec<u32> = scored.iter().map(|s| ids[s.index]).collect();
     while choices.len() < count {
         let score = |k: usize| {
             let s = &scored[k];
             (part(s.spread, spread_max) + part(nearest[k], distance_max) + part(s.error, error_max)) / 3.0
         };
-        let scored_ids: Vec<u32> = scored.iter().map(|s| ids[s.index]).collect();
         let Some(k) = best((0..scored.len()).filter(|&k| !taken[k]), score, &scored_ids) else { break };
         let s = scored[k];
         choices.push(AdaptiveChoice {
@@ -331,12 +362,74 @@ mod tests {
         assert_eq!(regressed_error(&[0.5, 0.0, 0.0, 0.0], &[]), None);
     }
 
+    /// The k-d tree answers what a scan over every pressed pose answers, bit for bit, and the
+    /// selected neighbours of the error what a stable sort of every measured pose by distance
+    /// gives (ties, everywhere on a grid, to the pose measured first).
+    #[test]
+    fn tree_queries_match_the_scans_over_every_pressed_pose() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        // A 4-D grid of 5 x 5 x 3 x 4 steps: many equal distances.
+        let points: Vec<[f64; 4]> =
+            (0..300).map(|i| [(i % 5) as f64 / 4.0, (i / 5 % 5) as f64 / 4.0, (i / 25 % 3) as f64 / 2.0, (i / 75) as f64 / 3.0]).collect();
+        for pressed_count in [0, 1, 7, 40, 150] {
+            let mut pressed: Vec<usize> = (0..points.len()).collect();
+            for i in (1..pressed.len()).rev() {
+                pressed.swap(i, rng.random_range(0..=i));
+            }
+            pressed.truncate(pressed_count);
+            let scan: Vec<f64> =
+                points.iter().map(|p| pressed.iter().map(|&q| distance(p, &points[q])).fold(f64::INFINITY, f64::min)).collect();
+            assert_eq!(nearest_pressed(&points, &pressed), scan, "{pressed_count} pressed");
+            let measured: Vec<([f64; 4], f64)> = pressed.iter().map(|&q| (points[q], rng.random_range(0.0..1.0))).collect();
+            for p in &points {
+                let mut near: Vec<(f64, f64)> = measured.iter().map(|(m, e)| (distance(p, m), *e)).collect();
+                near.sort_by(|a, b| a.0.total_cmp(&b.0));
+                near.truncate(ERROR_NEIGHBOURS);
+                let want = (!near.is_empty()).then(|| {
+                    let (w, we) = near.iter().fold((0.0, 0.0), |(w, we), (d, e)| {
+                        let weight = 1.0 / (d + 1e-3);
+                        (w + weight, we + weight * e)
+                    });
+                    we / w
+                });
+                assert_eq!(regressed_error(p, &measured), want, "{pressed_count} pressed, at {p:?}");
+            }
+        }
+    }
+
     #[test]
     fn candidates_are_the_farthest_from_the_presses() {
         let (points, ids) = line(11);
         assert_eq!(candidates_to_score(&points, &ids, &[0, 10], 3), vec![5, 4, 6]);
         assert_eq!(scored_count(2, 9), 9);
         assert_eq!(scored_count(10, 100), 40);
+    }
+
+    #[test]
+    fn choices_are_checked_against_the_plan_and_the_settings() {
+        let settings = AdaptiveSettings { budget: 5, rounds: 2, seeds_per_pose: 2, model: "m".into(), model_sha256: "h".into(), steps: 1 };
+        let pick = |pose_id: u32, round: usize| AdaptiveChoice {
+            pose_id,
+            round,
+            reason: if round == 1 { ChoiceReason::SpaceFilling } else { ChoiceReason::Acquisition },
+            distance: 1.0,
+            spread: None,
+            error: None,
+            score: None,
+        };
+        let plan = |id: u32| id < 10;
+        let record = |choices: Vec<AdaptiveChoice>| AdaptiveRecord { settings: settings.clone(), choices };
+        assert_eq!(record(vec![]).check_choices(plan), Ok(()));
+        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1)]).check_choices(plan), Ok(()));
+        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1), pick(4, 2), pick(5, 2)]).check_choices(plan), Ok(()));
+        let refused = |choices: Vec<AdaptiveChoice>, says: &str| {
+            let e = record(choices).check_choices(plan).expect_err("refused");
+            assert!(e.contains(says), "{e}");
+        };
+        refused(vec![pick(1, 1), pick(12, 1), pick(3, 1)], "pose 12 (round 1) is not a pose of the plan");
+        refused(vec![pick(1, 1), pick(2, 1)], "round 1 records 2 poses; a budget of 5 over 2 rounds presses 3");
+        refused(vec![pick(1, 1), pick(2, 1), pick(3, 1), pick(4, 2), pick(5, 2), pick(6, 3)], "round 3 records 1 poses");
     }
 
     #[test]

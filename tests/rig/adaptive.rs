@@ -1,5 +1,5 @@
 //! `rig collect --adaptive` on the built-in simulated rig with the tiny test package: the
-//! refusals (exit 2, nothing collected), the rounds in the manifest, and a collection SIGKILLed
+//! refusals (exit 2, nothing collected), the rounds recorded (`adaptive.csv`), and a collection SIGKILLed
 //! at random moments resuming with the same choices and no lost or duplicated row.
 
 use std::path::{Path, PathBuf};
@@ -61,17 +61,18 @@ fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
-/// The adaptive record of a dataset's manifest: (pose_id, round, reason) per choice.
+/// The choices a dataset records (its `adaptive.csv`): (pose_id, round, reason) per choice,
+/// after checking that its manifest names it an adaptive collection.
 pub(crate) fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
     let manifest: toml::Value = toml::from_str(&std::fs::read_to_string(dataset.join("manifest.toml")).expect("manifest")).expect("toml");
-    let list = manifest["adaptive"]["choices"].as_array().expect("adaptive.choices");
-    list.iter()
-        .map(|c| {
-            (
-                c["pose_id"].as_integer().expect("pose_id") as u32,
-                c["round"].as_integer().expect("round") as usize,
-                c["reason"].as_str().expect("reason").to_string(),
-            )
+    assert!(manifest["adaptive"]["budget"].as_integer().is_some(), "the manifest's [adaptive] holds the settings");
+    let text = std::fs::read_to_string(dataset.join("adaptive.csv")).expect("adaptive.csv");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("pose_id,round,reason,distance,spread,error,score"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].parse().expect("pose_id"), f[1].parse().expect("round"), f[2].to_string())
         })
         .collect()
 }
@@ -122,7 +123,7 @@ fn refusals_exit_2_and_collect_nothing() {
 }
 
 #[test]
-fn rounds_are_in_the_manifest_and_the_rest_is_filled() {
+fn rounds_are_recorded_and_the_rest_is_filled() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let full = plan(tmp.path(), true);
     let out = tmp.path().join("out");
@@ -180,6 +181,67 @@ fn a_killed_adaptive_collection_resumes_with_the_same_choices() {
         assert_eq!(pressed(&rows), sorted_unique(expected.iter().map(|c| c.0)), "run {run}: pressed poses");
     }
     assert!(killed_mid_run > 0, "no kill landed before a run ended");
+}
+
+/// A collection's choices (`adaptive.csv`) that cannot be its own are refused by a resume
+/// with exit 2, naming the file, before anything moves (its rows stay as they were); `rig
+/// dataset verify` reports them and the captured rows they do not list.
+#[test]
+fn a_resume_refuses_choices_that_are_not_the_collections_and_verify_reports_them() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (full, expected) = uninterrupted(tmp.path());
+    let clean = tmp.path().join("clean");
+    let verify = |dataset: &Path| rig().args(["dataset", "verify"]).arg(dataset).output().expect("rig dataset verify");
+    let o = verify(&clean.join("sphere/tactip"));
+    assert!(o.status.success() && text(&o).contains("clean"), "{}", text(&o));
+    let original = std::fs::read_to_string(clean.join("sphere/tactip/adaptive.csv")).expect("adaptive.csv");
+    let lines: Vec<&str> = original.lines().collect();
+    let first = expected[0].0;
+    // A pose of the plan that no round chose (a synthetic row).
+    let unchosen = (0..18).find(|id| !expected.iter().any(|c| c.0 == *id)).expect("an unchosen pose");
+    let swap_first = |to: u32| original.replacen(&format!("\n{first},1,"), &format!("\n{to},1,"), 1);
+    let cases: Vec<(&str, Option<String>, &str, &str)> = vec![
+        ("a pose outside the plan", Some(swap_first(999)), "pose 999 (round 1) is not a pose of the plan", "outside"),
+        (
+            "a round cut short",
+            Some(format!("{}\n", lines[..lines.len() - 1].join("\n"))),
+            "round 3 records 1 poses",
+            "round 3 records 1 poses",
+        ),
+        ("a malformed line", Some(original.replacen(&format!("\n{first},1,"), "\nfirst,1,", 1)), "line 2: pose_id `first`", "line 2"),
+        ("a symlink", None, "symlink", "symlink"),
+    ];
+    for (what, body, resume_says, verify_says) in cases {
+        let out = tmp.path().join(what.replace(' ', "-"));
+        copy_dir(&clean, &out);
+        let dataset = out.join("sphere/tactip");
+        let file = dataset.join("adaptive.csv");
+        match body {
+            Some(body) => std::fs::write(&file, body).expect("tampering"),
+            None => {
+                let elsewhere = tmp.path().join(format!("{}.csv", what.replace(' ', "-")));
+                std::fs::rename(&file, &elsewhere).expect("moving");
+                std::os::unix::fs::symlink(&elsewhere, &file).expect("symlink");
+            }
+        }
+        let before = std::fs::read(dataset.join("poses.csv")).expect("poses.csv");
+        let o = rig().args(adaptive_args(&out, &full, &tiny(), 6, "tactip")).arg("--resume").output().expect("resuming");
+        assert_eq!(o.status.code(), Some(2), "{what}: {}", text(&o));
+        assert!(text(&o).contains("adaptive.csv") && text(&o).contains(resume_says), "{what}: {}", text(&o));
+        assert_eq!(std::fs::read(dataset.join("poses.csv")).expect("poses.csv"), before, "{what}: the rows changed");
+        let o = verify(&dataset);
+        assert_eq!(o.status.code(), Some(1), "{what}: {}", text(&o));
+        assert!(text(&o).contains("NOT clean") && text(&o).contains(verify_says), "{what}: {}", text(&o));
+    }
+    // Choices of the plan in the right numbers, but not the poses pressed: a resume presses
+    // nothing new, and verify names the pressed row the choices do not list.
+    let out = tmp.path().join("swapped");
+    copy_dir(&clean, &out);
+    let dataset = out.join("sphere/tactip");
+    std::fs::write(dataset.join("adaptive.csv"), swap_first(unchosen)).expect("tampering");
+    let o = verify(&dataset);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(text(&o).contains(&format!("1 captured rows are not among them (first: pose_id {first})")), "{}", text(&o));
 }
 
 /// The full 18-pose plan, written into `dir`, and the choices an uninterrupted `rig collect
