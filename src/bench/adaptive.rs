@@ -6,9 +6,13 @@
 //! 50-pose grid with a budget of 15 presses in 3 rounds, and reads the line each round prints
 //! (`round 2/3: 5 poses (by acquisition, N model calls in T s): ...`). Round 1 is
 //! space-filling and costs no model call; it is left out of the table.
+//!
+//! The `adaptive-scale` knob ([`measure_scale`]) times the rest of choosing, the arithmetic
+//! over the plan's poses, at the scale knob's three plan sizes.
 
 use std::ffi::OsString;
 use std::path::Path;
+use std::time::Instant;
 
 use super::error::BenchError;
 use super::knob::{BenchConfig, Knob};
@@ -106,8 +110,120 @@ pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, Benc
     })
 }
 
+/// Share of the plan an arithmetic run presses, and its rounds.
+const SCALE_SHARE: f64 = 0.3;
+const SCALE_ROUNDS: usize = 4;
+
+/// The seconds each round's arithmetic takes on a plan of `n` poses (the scale knob's lab
+/// grid, Latin hypercube): round 1 by farthest points, each later round the candidates
+/// farthest from the presses, the error regressed from every press to each candidate and the
+/// batch picked, with the model's evidence (a spread per candidate, an error per press) drawn
+/// from a seeded generator in place of model calls. Returns the presses a round and the
+/// seconds of each round.
+pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
+    use crate::plan::adaptive::{self, Scored};
+    use rand::{RngExt, SeedableRng};
+    let spec = super::scale::lab_scale_plan(n);
+    let poses = spec.sample()?;
+    let points = adaptive::normalised(&spec, &poses);
+    let ids: Vec<u32> = poses.iter().map(|p| p.pose_id).collect();
+    let budget = ((n as f64 * SCALE_SHARE).round() as usize).max(SCALE_ROUNDS);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let mut pressed: Vec<usize> = Vec::new();
+    let mut seconds = Vec::new();
+    for round in 1..=SCALE_ROUNDS {
+        let count = adaptive::round_size(budget, SCALE_ROUNDS, round);
+        let t = Instant::now();
+        let picks: Vec<usize> = if round == 1 {
+            adaptive::farthest_points(&points, &ids, &pressed, count, spec.seed).into_iter().map(|p| p.0).collect()
+        } else {
+            let measured: Vec<([f64; 4], f64)> = pressed.iter().map(|&i| (points[i], rng.random_range(0.0..0.3))).collect();
+            let free = points.len() - pressed.len();
+            let candidates = adaptive::candidates_to_score(&points, &ids, &pressed, adaptive::scored_count(count, free));
+            let scored: Vec<Scored> = candidates
+                .iter()
+                .map(|&index| Scored {
+                    index,
+                    spread: rng.random_range(0.0..10.0),
+                    error: adaptive::regressed_error(&points[index], &measured).unwrap_or(0.0),
+                })
+                .collect();
+            let at: std::collections::HashMap<u32, usize> = ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
+            adaptive::acquisition_batch(&points, &ids, &pressed, &scored, count, round)
+                .iter()
+                .filter_map(|c| at.get(&c.pose_id).copied())
+                .collect()
+        };
+        seconds.push(t.elapsed().as_secs_f64());
+        pressed.extend(picks);
+    }
+    Ok((adaptive::round_size(budget, SCALE_ROUNDS, 1), seconds))
+}
+
+/// The `adaptive-scale` knob: [`choosing_arithmetic`] at the scale knob's three plan sizes,
+/// with the growth exponent of each cost.
+pub fn measure_scale(config: &BenchConfig) -> Result<KnobReport, BenchError> {
+    let mut rows = Vec::new();
+    let mut first = Series { name: "round 1 (space-filling)".into(), ..Series::default() };
+    let mut later = Series { name: "slowest later round (acquisition)".into(), ..Series::default() };
+    for &n in &config.scale_plan_poses {
+        let (per_round, seconds) = choosing_arithmetic(n)?;
+        let slowest = seconds[1..].iter().copied().fold(0.0, f64::max);
+        rows.push(Row { label: format!("{n} poses"), values: vec![n as f64, per_round as f64, seconds[0], slowest, seconds.iter().sum()] });
+        first.points.push([n as f64, seconds[0]]);
+        later.points.push([n as f64, slowest]);
+    }
+    if rows.is_empty() {
+        return Err(BenchError::Empty { knob: Knob::AdaptiveScale, reason: "no plan size to measure" });
+    }
+    let exponent = |s: &Series| super::scale::growth_exponent(&s.points.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>());
+    let (e1, e2) = (exponent(&first), exponent(&later));
+    Ok(KnobReport {
+        knob: Knob::AdaptiveScale,
+        title: "Adaptive collection: the arithmetic of choosing as the plan grows".into(),
+        label_column: "plan".into(),
+        columns: vec![
+            Column::new("plan poses", 0),
+            Column::new("presses a round", 0),
+            Column::new("round 1 [s]", 3),
+            Column::new("slowest later round [s]", 3),
+            Column::new("all rounds [s]", 3),
+        ],
+        rows,
+        notes: vec![
+            format!(
+                "The choices of `rig collect --adaptive --budget B --rounds {SCALE_ROUNDS}` with B = {:.0} % of a plan of N poses of the \
+                 lab-scale grid (`plans/lab-scale.toml`, Latin hypercube, seed 0), in process, without the model: its evidence \
+                 (the spread at each scored candidate, the error at each press) is drawn from a seeded generator. The model's \
+                 calls are the `adaptive` knob's; this is what choosing costs besides them.",
+                SCALE_SHARE * 100.0
+            ),
+            format!(
+                "Growth exponent (slope of ln s against ln N; 1 linear, 2 quadratic): round 1 {e1:.2}, the slowest later round {e2:.2}. \
+                 Round 1 is greedy farthest-point sampling, O(N x presses); a later round finds every pose's nearest press in a \
+                 k-d tree (O(N log presses)), regresses the error at 4 x presses candidates from every press (O(candidates x \
+                 presses)) and picks its batch (O(candidates x presses a round)): quadratic in N at a fixed share."
+            ),
+        ],
+        plot: Plot {
+            title: "Adaptive collection: choosing arithmetic against plan size".into(),
+            x_label: "plan poses".into(),
+            y_label: "seconds".into(),
+            series: vec![first, later],
+            lines: true,
+        },
+    })
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_arithmetic_presses_the_budget_over_its_rounds() {
+        let (per_round, seconds) = super::choosing_arithmetic(200).expect("arithmetic");
+        assert_eq!((per_round, seconds.len()), (15, super::SCALE_ROUNDS));
+        assert!(seconds.iter().all(|s| s.is_finite() && *s >= 0.0), "{seconds:?}");
+    }
+
     #[test]
     fn round_lines_are_read() {
         let log = "round 1/3: 5 poses (space-filling): 1 2\nround 2/3: 5 poses (by acquisition, 90 model calls in 1.5 s): 3\n\

@@ -18,11 +18,12 @@ pub enum Knob {
     Loops,
     Scale,
     Adaptive,
+    AdaptiveScale,
 }
 
 impl Knob {
     /// Every knob, in report order.
-    pub const ALL: [Knob; 9] = [
+    pub const ALL: [Knob; 10] = [
         Knob::Synthesis,
         Knob::Control,
         Knob::Collection,
@@ -32,6 +33,7 @@ impl Knob {
         Knob::Loops,
         Knob::Scale,
         Knob::Adaptive,
+        Knob::AdaptiveScale,
     ];
 
     /// The name used on the command line and for the plot file (`<name>.svg`).
@@ -46,6 +48,7 @@ impl Knob {
             Knob::Loops => "loops",
             Knob::Scale => "scale",
             Knob::Adaptive => "adaptive",
+            Knob::AdaptiveScale => "adaptive-scale",
         }
     }
 }
@@ -58,7 +61,9 @@ impl fmt::Display for Knob {
 
 /// A knob name that is not one of [`Knob::ALL`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops, scale, adaptive)")]
+#[error(
+    "unknown knob {given:?} (known: synthesis, control, collection, calibration, plan-order, sensor, loops, scale, adaptive, adaptive-scale)"
+)]
 pub struct KnobParseError {
     pub given: String,
 }
@@ -119,7 +124,8 @@ pub struct BenchConfig {
     /// The Python that runs the inner loops' peers (scikit-image for SSIM); `None` leaves the
     /// peers out.
     pub peer_python: Option<PathBuf>,
-    /// Scale: the three plan sizes the ordering is measured at, poses.
+    /// Scale: the three plan sizes the ordering (and the adaptive choosing arithmetic) is
+    /// measured at, poses.
     pub scale_plan_poses: Vec<usize>,
     /// Scale: the three sizes of the frame stages (collection, verify, merge, export, replay).
     pub scale_frames: Vec<usize>,

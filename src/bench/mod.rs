@@ -14,6 +14,7 @@
 //! | sensor-simulator stages | [`sensor`] | SSIM to the full scene | ms per frame |
 //! | inner loops against the code they replaced and their peers | [`loops`] | difference from rig's value | ms per call, ratios |
 //! | adaptive collection: seeds per pose | [`adaptive`] | (none: the cost of choosing) | model calls and s per round |
+//! | adaptive collection: the choosing arithmetic at three plan sizes | [`adaptive`] | (none: what choosing costs as the plan grows) | s per round, growth exponents |
 //! | scale: ordering, collection, verify, merge, LeRobot export, replay at three sizes | [`scale`] | (none: what the work costs as it grows) | wall s and peak memory, growth exponents |
 //!
 //! Data flow: [`BenchConfig`] (sizes, counts, which knobs) -> one `measure` function per knob
@@ -81,6 +82,7 @@ pub async fn run(config: &BenchConfig, work_dir: &Path, mut progress: impl FnMut
             Knob::Loops => loops::measure(config, &work_dir.join("loops")),
             Knob::Scale => scale::measure(config, &work_dir.join("scale")),
             Knob::Adaptive => adaptive::measure(config, &work_dir.join("adaptive")),
+            Knob::AdaptiveScale => adaptive::measure_scale(config),
         };
         match result {
             Ok(report) => {

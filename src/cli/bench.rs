@@ -26,7 +26,7 @@ pub struct Args {
     #[arg(long, default_value = "out/bench")]
     pub out: PathBuf,
     /// Measure only these knobs (comma-separated): synthesis, control, collection, adaptive,
-    /// calibration, plan-order, sensor, loops, scale.
+    /// adaptive-scale, calibration, plan-order, sensor, loops, scale.
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<Knob>,
     /// Model package for the synthesis and adaptive knobs (default: models/default if present, else the tiny

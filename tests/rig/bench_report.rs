@@ -72,6 +72,8 @@ fn tiny_bench_writes_the_report_with_every_table_and_plot() {
         (Knob::Scale, Stage::ALL.iter().filter(|s| s.built()).count()),
         // Rounds 2 and 3 of the one setting.
         (Knob::Adaptive, 2),
+        // The choosing arithmetic at the three plan sizes.
+        (Knob::AdaptiveScale, 3),
     ];
     assert_eq!(report.knobs.iter().map(|k| k.knob).collect::<Vec<_>>(), expected.map(|(k, _)| k).to_vec());
     for (knob, (want_knob, rows)) in report.knobs.iter().zip(expected) {
