@@ -337,58 +337,96 @@ impl SensorSource {
         Ok(pipeline.generate_batch(&requests).map_err(model)?.into_iter().map(|o| o.to_rgb8(options.image_range)).collect())
     }
 
-    /// The contact region of `image`: where it differs from the reference; the whole frame when
-    /// the dataset has no reference or nothing differs.
-    fn mask(&self, image: &RgbImage) -> Vec<bool> {
-        let mask = match &self.reference {
-            Some(r) => crate::eval::contact_mask(image, r, MASK_THRESHOLD, MASK_DILATE_PX),
-            None => Vec::new(),
-        };
-        if mask.iter().any(|&m| m) { mask } else { vec![true; (image.width() * image.height()) as usize] }
-    }
-
-    /// 1 - contact SSIM of the model's `image` against the frame pressed at `pose`, both at the
-    /// model's size, in the pressed frame's contact region.
+    /// 1 - contact SSIM of the model's `image` against the frame pressed at `pose`
+    /// ([`error_of`]), both at the model's size.
     fn error_at(&self, pose: &PlannedPose, image: &RgbImage) -> Result<f64, JobError> {
         let real =
             read_dataset_image(&self.dir, &crate::dataset::image_rel_path(pose.pose_id)).map_err(JobError::fill("reading", &self.dir))?;
-        let real = resized_to(real, Some(self.size));
-        let mask = self.mask(&real);
-        Ok(crate::metrics::ssim_masked(&real, image, &mask).map(|s| (1.0 - s).clamp(0.0, 2.0)).unwrap_or(1.0))
+        Ok(error_of(&resized_to(real, Some(self.size)), image, self.reference.as_ref()))
     }
 
-    /// The spread of `images` (one pose, several seeds): the per-pixel standard deviation over
-    /// the seeds, averaged over the channels and the contact region of their mean, in [0, 1].
+    /// The spread of the model's `images` of one pose ([`spread_of`]).
     fn spread(&self, images: &[RgbImage]) -> f64 {
-        let Some(first) = images.first() else { return 0.0 };
-        let n = images.len() as f64;
-        let len = first.as_raw().len();
-        let mut mean = vec![0.0f64; len];
-        let mut sq = vec![0.0f64; len];
-        for image in images.iter().filter(|i| i.as_raw().len() == len) {
-            for (k, &v) in image.as_raw().iter().enumerate() {
-                mean[k] += v as f64 / n;
-                sq[k] += (v as f64) * (v as f64) / n;
-            }
-        }
-        let mean_image =
-            RgbImage::from_raw(first.width(), first.height(), mean.iter().map(|&m| m.round().clamp(0.0, 255.0) as u8).collect());
-        let mask = mean_image.as_ref().map(|m| self.mask(m)).unwrap_or_default();
-        let (mut sum, mut count) = (0.0, 0usize);
-        for (px, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
-            for c in 0..3 {
-                let k = px * 3 + c;
-                sum += (sq[k] - mean[k] * mean[k]).max(0.0).sqrt();
-                count += 1;
-            }
-        }
-        if count == 0 { 0.0 } else { sum / count as f64 / 255.0 }
+        spread_of(images, self.reference.as_ref())
     }
 }
 
+/// The contact region of `image`: where it differs from `reference`, as `rig eval` finds it;
+/// `None` when nothing does (no contact: `rig eval` and `rig audit` give such a pose no contact
+/// figure). The whole frame when the dataset has no reference frame.
+fn contact_region(image: &RgbImage, reference: Option<&RgbImage>) -> Option<Vec<bool>> {
+    let Some(reference) = reference else { return Some(vec![true; (image.width() * image.height()) as usize]) };
+    let mask = crate::eval::contact_mask(image, reference, MASK_THRESHOLD, MASK_DILATE_PX);
+    mask.iter().any(|&m| m).then_some(mask)
+}
+
+/// 1 - contact SSIM of the model's `image` against the `real` frame in the real frame's
+/// contact region: the figure `rig audit` reports. 0 when the real frame shows no contact (the
+/// figure judges nothing there, so there is nothing the model got wrong).
+fn error_of(real: &RgbImage, image: &RgbImage, reference: Option<&RgbImage>) -> f64 {
+    let Some(mask) = contact_region(real, reference) else { return 0.0 };
+    crate::metrics::ssim_masked(real, image, &mask).map(|s| (1.0 - s).clamp(0.0, 2.0)).unwrap_or(1.0)
+}
+
+/// The spread of `images` (one pose, several seeds): the per-pixel standard deviation over the
+/// seeds, averaged over the channels and the contact region of their mean, in [0, 1]; 0 when
+/// their mean shows no contact (no contact for the model to be unsure about).
+fn spread_of(images: &[RgbImage], reference: Option<&RgbImage>) -> f64 {
+    let Some(first) = images.first() else { return 0.0 };
+    let n = images.len() as f64;
+    let len = first.as_raw().len();
+    let mut mean = vec![0.0f64; len];
+    let mut sq = vec![0.0f64; len];
+    for image in images.iter().filter(|i| i.as_raw().len() == len) {
+        for (k, &v) in image.as_raw().iter().enumerate() {
+            mean[k] += v as f64 / n;
+            sq[k] += (v as f64) * (v as f64) / n;
+        }
+    }
+    let mean_image = RgbImage::from_raw(first.width(), first.height(), mean.iter().map(|&m| m.round().clamp(0.0, 255.0) as u8).collect());
+    let Some(mask) = mean_image.as_ref().and_then(|m| contact_region(m, reference)) else { return 0.0 };
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (px, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        for c in 0..3 {
+            let k = px * 3 + c;
+            sum += (sq[k] - mean[k] * mean[k]).max(0.0).sqrt();
+            count += 1;
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 / 255.0 }
+}
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 32 x 32 grey frame with, when `blob` is given, a 10 x 10 square of that level: a press.
+    fn frame(blob: Option<u8>) -> RgbImage {
+        RgbImage::from_fn(32, 32, |x, y| {
+            let inside = (10..20).contains(&x) && (10..20).contains(&y);
+            image::Rgb([blob.filter(|_| inside).unwrap_or(100); 3])
+        })
+    }
+
+    #[test]
+    fn spread_and_error_are_judged_in_the_contact_region_and_are_0_without_contact() {
+        let reference = frame(None);
+        let r = Some(&reference);
+        // Seeds that agree on no contact (noise under the contact threshold): nothing to judge.
+        let quiet: Vec<RgbImage> = [100u8, 103, 97].iter().map(|&v| RgbImage::from_pixel(32, 32, image::Rgb([v; 3]))).collect();
+        assert_eq!(spread_of(&quiet, r), 0.0);
+        assert_eq!(error_of(&reference, &quiet[1], r), 0.0, "a real frame without contact: nothing to get wrong");
+        // Seeds that disagree about the press, and a model image unlike the pressed frame.
+        let unsure = [frame(Some(200)), frame(Some(160))];
+        let spread = spread_of(&unsure, r);
+        assert!(spread > 0.02, "{spread}");
+        assert!(spread_of(&[frame(Some(200)), frame(Some(200))], r) == 0.0, "seeds that agree");
+        let wrong = error_of(&frame(Some(200)), &frame(Some(130)), r);
+        assert!(wrong > 0.0, "{wrong}");
+        assert_eq!(error_of(&frame(Some(200)), &frame(Some(200)), r), 0.0);
+        // Without a reference frame the whole frame is judged.
+        assert!(spread_of(&quiet, None) > 0.0);
+        assert!(error_of(&reference, &quiet[1], None) > 0.0);
+    }
 
     fn request(budget: usize, rounds: usize, seeds_per_pose: usize) -> AdaptiveRequest {
         AdaptiveRequest { budget, rounds, seeds_per_pose, ..AdaptiveRequest::default() }
