@@ -20,7 +20,7 @@
 //! new one, never part of a round. It is read through the dataset opener (no symlink, a
 //! regular file, at most [`MAX_CHOICES_BYTES`]) and parsed without panicking on any bytes;
 //! whether its poses are the plan's and its rounds the settings' is checked by who resumes
-//! ([`crate::plan::adaptive::check_choices`]).
+//! ([`crate::plan::adaptive::AdaptiveRecord::check_choices`]).
 
 use std::path::Path;
 
