@@ -16,7 +16,8 @@
 # on the seed's truth with the method's synthesised rows as the synthetic pool (`--synthetic`,
 # `--sets synthetic`), so both methods' regressors are tested on the same held-out truth rows
 # (20 of the 100, drawn once from --seed 1), trained on the same number of rows (TRAIN_SIZE, 50),
-# 3 regressor seeds each; the table pools X and yaw R² and MAE over seeds (z is 0 on this grid).
+# 3 regressor seeds each; the table pools X and yaw R² and MAE over seeds, and Z's where the plan
+# has depth.
 # Environment: RIG (default target/release/rig, else target/debug/rig), OBJECT (sphere), SENSOR (tactip),
 # STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2),
 # DOWNSTREAM (0), TRAIN_SIZE (50), SIZE (regressor input px, 64), Z_MIN, Z_MAX, Z_STEP (the plan's
@@ -113,20 +114,23 @@ PY
 python3 - "$out" $seeds <<'PY'
 import json, statistics, sys
 out, seeds = sys.argv[1], sys.argv[2:]
-print()
-print("| sensor | method | regressors | X R² | X MAE (mm) | yaw R² | yaw MAE (deg) |")
-print("|---|---|---:|---:|---:|---:|---:|")
+rows = {}
 for method in ("adaptive", "lhs"):
-    got = {}
     for seed in seeds:
         with open(f"{out}/downstream-{method}-{seed}.json") as f:
             report = json.load(f)
         for s in report["sensors"]:
             for t in s["sets"]:
                 for r in t["seeds"]:
-                    x, _, yaw = r["scores"]
-                    got.setdefault(s["sensor"], []).append((x["r2"], x["mae"], yaw["r2"], yaw["mae"]))
-    for sensor, v in sorted(got.items()):
-        cell = lambda k: f"{statistics.mean(r[k] for r in v):.3f} ± {statistics.stdev(r[k] for r in v):.3f}"
-        print(f"| {sensor} | {method} | {len(v)} | {cell(0)} | {cell(1)} | {cell(2)} | {cell(3)} |")
+                    x, z, yaw = r["scores"]
+                    rows.setdefault((s["sensor"], method), []).append((x["r2"], x["mae"], yaw["r2"], yaw["mae"], z["r2"], z["mae"]))
+# Z is scored only where the plan has depth (its R² is null on one depth).
+depth = all(r[4] is not None for v in rows.values() for r in v)
+print()
+print("| sensor | method | regressors | X R² | X MAE (mm) | yaw R² | yaw MAE (deg) |" + (" Z R² | Z MAE (mm) |" if depth else ""))
+print("|---|---|---:|---:|---:|---:|---:|" + ("---:|---:|" if depth else ""))
+for (sensor, method), v in sorted(rows.items()):
+    cell = lambda k: f"{statistics.mean(r[k] for r in v):.3f} ± {statistics.stdev(r[k] for r in v):.3f}"
+    cells = [cell(k) for k in range(6 if depth else 4)]
+    print(f"| {sensor} | {method} | {len(v)} | " + " | ".join(cells) + " |")
 PY
