@@ -36,6 +36,8 @@ use crate::synth::{GenerateRequest, Pipeline, pose_seed, prompt::mds_prompt};
 /// The contact region of an image: where it differs from the reference by more than this
 /// (levels, 3 x 3 box mean), dilated by [`MASK_DILATE_PX`]; `rig eval`'s default.
 const MASK_THRESHOLD: f64 = 10.0;
+// A budget is at most the most poses a plan can have.
+const _: () = assert!(super::request::MAX_BUDGET as u64 == crate::plan::MAX_GRID_POINTS);
 const MASK_DILATE_PX: u32 = 1;
 
 impl AdaptiveRequest {

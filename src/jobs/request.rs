@@ -431,9 +431,11 @@ impl AuditRequest {
     }
 }
 
-/// Most presses an adaptive collection may ask for: the most poses a plan can have (its
-/// choices are one line each of the dataset's `adaptive.csv`, read up to that many).
-pub const MAX_BUDGET: usize = crate::plan::MAX_GRID_POINTS as usize;
+/// Most presses an adaptive collection may ask for: the most poses a plan can have
+/// (`crate::plan::MAX_GRID_POINTS`, held equal where both are compiled: `jobs::adaptive`); its
+/// choices are one line each of the dataset's `adaptive.csv`, read up to that many. A number
+/// here, as the fuzz target that compiles this file has no plan module.
+pub const MAX_BUDGET: usize = 1_000_000;
 /// Most rounds an adaptive collection may ask for.
 pub const MAX_ROUNDS: usize = 100;
 /// Most seeds per scored pose.
