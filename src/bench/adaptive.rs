@@ -127,6 +127,7 @@ pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
     let poses = spec.sample()?;
     let points = adaptive::normalised(&spec, &poses);
     let ids: Vec<u32> = poses.iter().map(|p| p.pose_id).collect();
+    let at: std::collections::HashMap<u32, usize> = ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
     let budget = ((n as f64 * SCALE_SHARE).round() as usize).max(SCALE_ROUNDS);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut pressed: Vec<usize> = Vec::new();
@@ -148,7 +149,6 @@ pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
                     error: adaptive::regressed_error(&points[index], &measured).unwrap_or(0.0),
                 })
                 .collect();
-            let at: std::collections::HashMap<u32, usize> = ids.iter().enumerate().map(|(i, &id)| (id, i)).collect();
             adaptive::acquisition_batch(&points, &ids, &pressed, &scored, count, round)
                 .iter()
                 .filter_map(|c| at.get(&c.pose_id).copied())

@@ -450,8 +450,8 @@ fn check_choices(
         Err(e) => return report.issues.push(VerifyIssue::BadChoices { reason: e.to_string() }),
     };
     let record = crate::plan::adaptive::AdaptiveRecord { settings, choices };
-    if let Err(reason) = record.check_choices(|id| grid_len.is_none_or(|grid| u64::from(id) < grid)) {
-        report.issues.push(VerifyIssue::BadChoices { reason: reason.replace("a pose of the plan", "a pose of the plan's grid") });
+    if let Err(reason) = record.check_choices("the plan's grid", |id| grid_len.is_none_or(|grid| u64::from(id) < grid)) {
+        report.issues.push(VerifyIssue::BadChoices { reason });
     }
     let chosen: std::collections::HashSet<u32> = record.choices.iter().map(|c| c.pose_id).collect();
     let unchosen: Vec<u32> = captured.filter(|id| !chosen.contains(id)).collect();

@@ -100,7 +100,7 @@ impl AdaptiveRequest {
                 let dataset = |source| JobError::Dataset { dir: dir.clone(), source };
                 let choices = crate::dataset::choices::read_choices(&dir).map_err(dataset)?.unwrap_or_default();
                 let kept = AdaptiveRecord { settings: record.settings.clone(), choices };
-                kept.check_choices(|id| in_plan.contains(&id)).map_err(|reason| {
+                kept.check_choices("the plan", |id| in_plan.contains(&id)).map_err(|reason| {
                     dataset(crate::dataset::DatasetError::ChoicesMismatch { path: dir.join(crate::dataset::choices::CHOICES_FILE), reason })
                 })?;
                 if kept.choices.len() > record.choices.len() {

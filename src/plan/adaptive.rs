@@ -92,12 +92,13 @@ impl AdaptiveRecord {
         self.choices.iter().map(|c| c.round).max().unwrap_or(0)
     }
 
-    /// Whether the choices can be this collection's: every pose is one of the plan's
-    /// (`in_plan`), and every round recorded is one of the settings' rounds with the number of
-    /// presses the budget gives it. What is wrong otherwise.
-    pub fn check_choices(&self, in_plan: impl Fn(u32) -> bool) -> Result<(), String> {
+    /// Whether the choices can be this collection's: every pose is one of `plan`'s (`in_plan`;
+    /// `plan` names what it tests, "the plan" on a resume, "the plan's grid" in verify), and
+    /// every round recorded is one of the settings' rounds with the number of presses the budget
+    /// gives it. What is wrong otherwise.
+    pub fn check_choices(&self, plan: &str, in_plan: impl Fn(u32) -> bool) -> Result<(), String> {
         if let Some(c) = self.choices.iter().find(|c| !in_plan(c.pose_id)) {
-            return Err(format!("pose {} (round {}) is not a pose of the plan", c.pose_id, c.round));
+            return Err(format!("pose {} (round {}) is not a pose of {plan}", c.pose_id, c.round));
         }
         let s = &self.settings;
         for round in 1..=self.rounds_recorded() {
@@ -420,11 +421,11 @@ mod tests {
         };
         let plan = |id: u32| id < 10;
         let record = |choices: Vec<AdaptiveChoice>| AdaptiveRecord { settings: settings.clone(), choices };
-        assert_eq!(record(vec![]).check_choices(plan), Ok(()));
-        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1)]).check_choices(plan), Ok(()));
-        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1), pick(4, 2), pick(5, 2)]).check_choices(plan), Ok(()));
+        assert_eq!(record(vec![]).check_choices("the plan", plan), Ok(()));
+        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1)]).check_choices("the plan", plan), Ok(()));
+        assert_eq!(record(vec![pick(1, 1), pick(2, 1), pick(3, 1), pick(4, 2), pick(5, 2)]).check_choices("the plan", plan), Ok(()));
         let refused = |choices: Vec<AdaptiveChoice>, says: &str| {
-            let e = record(choices).check_choices(plan).expect_err("refused");
+            let e = record(choices).check_choices("the plan", plan).expect_err("refused");
             assert!(e.contains(says), "{e}");
         };
         refused(vec![pick(1, 1), pick(12, 1), pick(3, 1)], "pose 12 (round 1) is not a pose of the plan");
