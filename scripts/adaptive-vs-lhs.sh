@@ -21,7 +21,12 @@
 # Environment: RIG (default target/release/rig, else target/debug/rig), OBJECT (sphere), SENSOR (tactip),
 # STEPS (model sampling steps, 5), BUDGET (30 of the 100-pose grid), ROUNDS (3), SEEDS_PER_POSE (2),
 # DOWNSTREAM (0), TRAIN_SIZE (50), SIZE (regressor input px, 64), Z_MIN, Z_MAX, Z_STEP (the plan's
-# depth axis in mm, 0, 0, 1: one depth; z -1 to 1 by 1 makes the grid 300 poses, then set BUDGET 90).
+# depth axis in mm, 0, 0, 1: one depth; z -1 to 1 by 1 makes the grid 300 poses, then set BUDGET 90),
+# X_MIN, X_MAX, X_STEP and Y_MIN, Y_MAX, Y_STEP (the plan's x and y axes in mm, -4, 4, 2 each: the
+# range models/default was trained on; x -8 to 8 by 4 reaches 4 mm past it with as many poses),
+# PRESS_LIMIT_MM (unset: the sensor's default press limit; set, the simulated sensor's
+# max_indentation_mm in OUT/rig.toml, e.g. 4.5 to let a ViTac plan reach z 3 on the simulator,
+# whose skin takes any press: a real ViTac's default limit is 2.5 mm, z 1).
 set -euo pipefail
 out=${1:?usage: scripts/adaptive-vs-lhs.sh OUT [MODEL] [SEED...]}
 model=${2:-models/default}
@@ -37,11 +42,14 @@ k=${SEEDS_PER_POSE:-2}
 mkdir -p "$out"
 # The simulated sensor's frames at the model's 128 px (models/default): no upscaled fill.
 printf '[sensors.%s]\nwidth = 128\nheight = 128\n' "$sensor" > "$out/rig.toml"
+if [ -n "${PRESS_LIMIT_MM:-}" ]; then printf 'max_indentation_mm = %s\n' "$PRESS_LIMIT_MM" >> "$out/rig.toml"; fi
 
 z_min=${Z_MIN:-0.0} z_max=${Z_MAX:-0.0} z_step=${Z_STEP:-1.0}
-plan() { # plan SEED SAMPLING-LINES > file: x, y in [-4, 4] mm by 2, z as set (0), yaw -90..45 by 45: 100 poses a depth
+x_min=${X_MIN:--4.0} x_max=${X_MAX:-4.0} x_step=${X_STEP:-2.0}
+y_min=${Y_MIN:--4.0} y_max=${Y_MAX:-4.0} y_step=${Y_STEP:-2.0}
+plan() { # plan SEED SAMPLING-LINES > file: x, y as set ([-4, 4] mm by 2), z as set (0), yaw -90..45 by 45: 100 poses a depth
     printf '%s\nseed = %s\norder = "optimised"\n' "$2" "$1"
-    printf '[x_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n[y_mm]\nmin = -4.0\nmax = 4.0\nstep = 2.0\n'
+    printf '[x_mm]\nmin = %s\nmax = %s\nstep = %s\n[y_mm]\nmin = %s\nmax = %s\nstep = %s\n' "$x_min" "$x_max" "$x_step" "$y_min" "$y_max" "$y_step"
     printf '[z_mm]\nmin = %s\nmax = %s\nstep = %s\n[yaw_deg]\nmin = -90.0\nmax = 45.0\nstep = 45.0\n' "$z_min" "$z_max" "$z_step"
 }
 

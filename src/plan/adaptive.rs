@@ -6,7 +6,8 @@
 //! ```text
 //! round 1:  greedy farthest point in the normalised pose space (seeded start)
 //! round r:  the M unpressed poses farthest from every pressed one are scored:
-//!           a(p) = (spread(p)/max + distance(p)/max + error(p)/max) / 3
+//!           a(p) = (s(spread) + s(distance) + s(error)) / 3, s(v) = (v - min) / (max - min)
+//!           over the round's scored poses
 //!           error(p): inverse-distance regression of the errors measured at the k nearest
 //!           pressed poses; pick the best, update every distance, pick again ...
 //! ```
@@ -63,8 +64,8 @@ pub struct AdaptiveChoice {
     pub reason: ChoiceReason,
     /// Normalised distance to the nearest pose pressed or chosen before it.
     pub distance: f64,
-    /// The acquisition's terms, each divided by its largest value over the round's scored
-    /// poses, and their mean (`score`); absent in round 1.
+    /// The acquisition's terms, each scaled to [0, 1] over the round's scored poses (the least
+    /// 0, the most 1), and their mean (`score`); absent in round 1.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub spread: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -250,9 +251,16 @@ pub struct Scored {
     pub error: f64,
 }
 
-/// A later round: `count` of the `scored` poses, greedily by the acquisition (each term divided
-/// by its largest value over `scored`, then averaged), the distance term updated after each
-/// pick so that a round spreads. `pressed`: indices pressed before this round.
+/// A later round: `count` of the `scored` poses, greedily by the acquisition (each term scaled
+/// to [0, 1] over `scored`, the least 0 and the most 1, then averaged), the distance term
+/// updated after each pick so that a round spreads. `pressed`: indices pressed before this
+/// round.
+///
+/// Scaled by the range, not divided by the largest: an error of 0.50 against 0.55 is a tenth
+/// apart divided by the largest, while the distances of the same poses may be twice apart, so
+/// the distance would decide every round, and a term that is the same everywhere would add
+/// the same to every pose without saying so. Scaled by its range, each term ranks the poses
+/// as strongly as the others; a term equal at every pose counts 0.
 pub fn acquisition_batch(
     points: &[[f64; 4]],
     ids: &[u32],
@@ -263,15 +271,17 @@ pub fn acquisition_batch(
 ) -> Vec<AdaptiveChoice> {
     let tree = KdTree::new(pressed.iter().map(|&q| points[q]).collect());
     let mut nearest: Vec<f64> = scored.iter().map(|s| nearest_in(&tree, &points[s.index])).collect();
-    let max_of = |v: &mut dyn Iterator<Item = f64>| v.filter(|x| x.is_finite()).fold(0.0, f64::max);
-    let spread_max = max_of(&mut scored.iter().map(|s| s.spread));
-    let error_max = max_of(&mut scored.iter().map(|s| s.error));
-    let distance_max = max_of(&mut nearest.iter().copied());
-    let part = |v: f64, max: f64| {
-        if max > 0.0 && v.is_finite() {
-            (v / max).min(1.0)
-        } else if v.is_infinite() {
+    let range_of = |v: &mut dyn Iterator<Item = f64>| {
+        v.filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)))
+    };
+    let spread_range = range_of(&mut scored.iter().map(|s| s.spread));
+    let error_range = range_of(&mut scored.iter().map(|s| s.error));
+    let distance_range = range_of(&mut nearest.iter().copied());
+    let part = |v: f64, (lo, hi): (f64, f64)| {
+        if v == f64::INFINITY {
             1.0
+        } else if hi > lo && v.is_finite() {
+            ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
         } else {
             0.0
         }
@@ -282,7 +292,7 @@ pub fn acquisition_batch(
     while choices.len() < count {
         let score = |k: usize| {
             let s = &scored[k];
-            (part(s.spread, spread_max) + part(nearest[k], distance_max) + part(s.error, error_max)) / 3.0
+            (part(s.spread, spread_range) + part(nearest[k], distance_range) + part(s.error, error_range)) / 3.0
         };
         let Some(k) = best((0..scored.len()).filter(|&k| !taken[k]), score, &scored_ids) else { break };
         let s = scored[k];
@@ -291,8 +301,8 @@ pub fn acquisition_batch(
             round,
             reason: ChoiceReason::Acquisition,
             distance: nearest[k],
-            spread: Some(part(s.spread, spread_max)),
-            error: Some(part(s.error, error_max)),
+            spread: Some(part(s.spread, spread_range)),
+            error: Some(part(s.error, error_range)),
             score: Some(score(k)),
         });
         taken[k] = true;
@@ -352,6 +362,26 @@ mod tests {
         assert_eq!(batch[1].pose_id, 4, "{batch:?}");
         assert!(batch.iter().all(|c| c.round == 2 && c.reason == ChoiceReason::Acquisition));
         assert!(batch[0].score > batch[1].score);
+    }
+
+    /// Each term ranks by its range over the scored poses: two terms ahead by little (spread
+    /// 0.52 against 0.50, error 0.55 against 0.50) outweigh one ahead by more (distance 0.5
+    /// against 0.4). Divided by their largest, the two would count a few hundredths and the
+    /// distance a fifth, and pose 5 would be picked.
+    #[test]
+    fn each_term_ranks_by_its_range_over_the_scored_poses() {
+        let (points, ids) = line(11);
+        let pressed = [0, 10];
+        let scored = [Scored { index: 5, spread: 0.50, error: 0.50 }, Scored { index: 4, spread: 0.52, error: 0.55 }];
+        let batch = acquisition_batch(&points, &ids, &pressed, &scored, 2, 2);
+        assert_eq!(batch[0].pose_id, 4, "{batch:?}");
+        assert_eq!((batch[0].spread, batch[0].error), (Some(1.0), Some(1.0)), "{batch:?}");
+        assert!((batch[0].distance - 0.4).abs() < 1e-12, "{batch:?}");
+        assert_eq!((batch[1].spread, batch[1].error), (Some(0.0), Some(0.0)), "{batch:?}");
+        // A term the same at every scored pose counts 0 everywhere.
+        let same = [Scored { index: 5, spread: 0.3, error: 0.2 }, Scored { index: 4, spread: 0.3, error: 0.2 }];
+        let batch = acquisition_batch(&points, &ids, &pressed, &same, 1, 2);
+        assert_eq!((batch[0].pose_id, batch[0].spread, batch[0].error, batch[0].score), (5, Some(0.0), Some(0.0), Some(1.0 / 3.0)));
     }
 
     #[test]
