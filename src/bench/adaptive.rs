@@ -95,9 +95,11 @@ pub fn measure(config: &BenchConfig, work_dir: &Path) -> Result<KnobReport, Benc
                 config.adaptive_steps,
                 config.synth_model.display()
             ),
-            "Model calls of a round: M x K for the spread (M = max(4 x the round's presses, 16) candidates scored) plus one \
-             for each pose pressed in the round before (its measured error). *choosing* is the round's wall time before \
-             its first press; *per call* divides it by the calls."
+            "Model calls of a round: one for each pose pressed in the round before (its measured error); from 8 pressed \
+             poses on, K for each pressed pose whose spread is not yet measured (the evidence the terms' weights are \
+             judged by); and M x K for the candidates' spread (M = max(4 x the round's presses, 16)) where the spread's \
+             weight is above 0. *choosing* is the round's wall time before its first press; *per call* divides it by \
+             the calls."
                 .into(),
         ],
         plot: Plot {
@@ -115,13 +117,14 @@ const SCALE_SHARE: f64 = 0.3;
 const SCALE_ROUNDS: usize = 4;
 
 /// The seconds each round's arithmetic takes on a plan of `n` poses (the scale knob's lab
-/// grid, Latin hypercube): round 1 by farthest points, each later round the candidates
-/// farthest from the presses, the error regressed from every press to each candidate and the
-/// batch picked, with the model's evidence (a spread per candidate, an error per press) drawn
-/// from a seeded generator in place of model calls. Returns the presses a round and the
+/// grid, Latin hypercube): round 1 by farthest points, each later round the terms' weights
+/// (each press's nearest other press and its error regressed from the others), the candidates by distance and the error
+/// regressed at every unpressed pose, and the batch picked, with the model's evidence (a
+/// spread per candidate and per press, an error per press) drawn from a seeded generator in
+/// place of model calls. Returns the presses a round and the
 /// seconds of each round.
 pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
-    use crate::plan::adaptive::{self, Scored};
+    use crate::plan::adaptive::{self, Scored, Weights};
     use rand::{RngExt, SeedableRng};
     let spec = super::scale::lab_scale_plan(n);
     let poses = spec.sample()?;
@@ -139,17 +142,28 @@ pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
             adaptive::farthest_points(&points, &ids, &pressed, count, spec.seed).into_iter().map(|p| p.0).collect()
         } else {
             let measured: Vec<([f64; 4], f64)> = pressed.iter().map(|&i| (points[i], rng.random_range(0.0..0.3))).collect();
+            let pressed_spread: Vec<f64> = pressed.iter().map(|_| rng.random_range(0.0..10.0)).collect();
+            let errors = adaptive::ErrorModel::new(&measured);
+            let errors_measured: Vec<f64> = measured.iter().map(|m| m.1).collect();
+            // The weights as measured (drawn evidence predicts nothing, so they come out near
+            // 0); the candidates chosen with the error's weight at least 0.5 and the spread
+            // drawn whatever its weight, so that the arithmetic of every term is timed: the
+            // error regressed at every unpressed pose, and the spread's scaling.
+            let weights =
+                Weights::measured(errors.distance_weight(), adaptive::term_weight(&pressed_spread, &errors_measured), errors.weight());
             let free = points.len() - pressed.len();
-            let candidates = adaptive::candidates_to_score(&points, &ids, &pressed, adaptive::scored_count(count, free));
+            let candidates = adaptive::candidates_to_score(
+                &points,
+                &ids,
+                &pressed,
+                Some((&errors, Weights { error: weights.error.max(0.5), ..weights })),
+                adaptive::scored_count(count, free),
+            );
             let scored: Vec<Scored> = candidates
                 .iter()
-                .map(|&index| Scored {
-                    index,
-                    spread: rng.random_range(0.0..10.0),
-                    error: adaptive::regressed_error(&points[index], &measured).unwrap_or(0.0),
-                })
+                .map(|&index| Scored { index, spread: Some(rng.random_range(0.0..10.0)), error: errors.at(&points[index]).unwrap_or(0.0) })
                 .collect();
-            adaptive::acquisition_batch(&points, &ids, &pressed, &scored, count, round)
+            adaptive::acquisition_batch(&points, &ids, &pressed, &scored, weights, count, round)
                 .iter()
                 .filter_map(|c| at.get(&c.pose_id).copied())
                 .collect()

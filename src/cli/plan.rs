@@ -189,21 +189,27 @@ fn show_rounds(dataset: &std::path::Path, svg: Option<&std::path::Path>, axes: &
         spec.grid_len()
     );
     let term = |v: Option<f64>| v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into());
-    println!("{:>5} {:>8} {:>14} {:>8} {:>8} {:>8} {:>8}", "round", "pose_id", "reason", "distance", "spread", "error", "score");
+    println!(
+        "{:>5} {:>8} {:>14} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "round", "pose_id", "reason", "distance", "spread", "error", "score", "w dist", "w spread", "w error"
+    );
     for c in &record.choices {
         let reason = match c.reason {
             crate::plan::adaptive::ChoiceReason::SpaceFilling => "space-filling",
             crate::plan::adaptive::ChoiceReason::Acquisition => "acquisition",
         };
         println!(
-            "{:>5} {:>8} {:>14} {:>8.3} {:>8} {:>8} {:>8}",
+            "{:>5} {:>8} {:>14} {:>8.3} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
             c.round,
             c.pose_id,
             reason,
             c.distance,
             term(c.spread),
             term(c.error),
-            term(c.score)
+            term(c.score),
+            term(c.distance_weight),
+            term(c.spread_weight),
+            term(c.error_weight)
         );
     }
     let Some(svg) = svg else { return Ok(()) };

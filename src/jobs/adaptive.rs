@@ -109,7 +109,17 @@ impl AdaptiveRequest {
             }
         }
         let points = adaptive::normalised(&prepared.setup.plan_spec, &prepared.plan.poses);
-        Ok(AdaptiveRun { request: self.clone(), prepared, record, ids, points, options, errors: HashMap::new(), round: 0 })
+        Ok(AdaptiveRun {
+            request: self.clone(),
+            prepared,
+            record,
+            ids,
+            points,
+            options,
+            errors: HashMap::new(),
+            spreads: HashMap::new(),
+            round: 0,
+        })
     }
 }
 
@@ -170,6 +180,8 @@ pub struct AdaptiveRun {
     points: Vec<[f64; 4]>,
     options: FillOptions,
     errors: HashMap<(SensorKind, u32), f64>,
+    /// The spread over seeds measured at pressed poses, per sensor and pose.
+    spreads: HashMap<(SensorKind, u32), f64>,
     round: usize,
 }
 
@@ -207,15 +219,18 @@ impl AdaptiveRun {
                         spread: None,
                         error: None,
                         score: None,
+                        distance_weight: None,
+                        spread_weight: None,
+                        error_weight: None,
                     })
                     .collect()
             } else {
-                let Some((scored, calls)) = self.evidence(pipeline, &pressed, count, cancelled)? else {
+                let Some((scored, weights, calls)) = self.evidence(pipeline, &pressed, count, cancelled)? else {
                     self.round -= 1;
                     return Ok(None);
                 };
                 model_calls = calls;
-                adaptive::acquisition_batch(&self.points, &self.ids, &pressed, &scored, count, number)
+                adaptive::acquisition_batch(&self.points, &self.ids, &pressed, &scored, weights, count, number)
             };
             // Recorded in every dataset by the round's collection, before its first press
             // (`adaptive.csv`), so a resume presses these.
@@ -242,34 +257,43 @@ impl AdaptiveRun {
         self.record.choices.iter().filter(|c| keep(c)).filter_map(|c| at.get(&c.pose_id).copied()).collect()
     }
 
-    /// The evidence of a later round: the error measured at every pressed pose (synthesised
-    /// with the fill's seed, compared with its frame in the contact region), regressed over the
-    /// plan, and the spread over seeds at the scored candidates; each averaged over the
-    /// sensors. Returns the scored candidates and the model calls made; `None` when
-    /// `cancelled` said yes between two calls (the errors measured so far are kept).
+    /// The evidence of a later round, each figure averaged over the sensors:
+    ///
+    /// 1. the error measured at every pressed pose (synthesised with the fill's seed, compared
+    ///    with its frame in the contact region), and, from [`adaptive::MIN_EVIDENCE`] presses
+    ///    on, the spread over seeds there too;
+    /// 2. the weights: how well the distance to the nearest other pressed pose, the regressed
+    ///    error (each pressed pose left out) and the spread predicted those errors
+    ///    ([`adaptive::Weights::PRIOR`] with fewer presses);
+    /// 3. the candidates, the unpressed poses best by the weighted distance and regressed
+    ///    error, and the spread at each where its weight is above 0 (none measured otherwise).
+    ///
+    /// Returns the scored candidates, the weights and the model calls made; `None` when
+    /// `cancelled` said yes between two calls (what was measured so far is kept).
     fn evidence(
         &mut self,
         pipeline: &mut Pipeline,
         pressed: &[usize],
         count: usize,
         cancelled: &dyn Fn() -> bool,
-    ) -> Result<Option<(Vec<Scored>, usize)>, JobError> {
-        let free = self.points.len() - pressed.len();
-        let candidates = adaptive::candidates_to_score(&self.points, &self.ids, pressed, adaptive::scored_count(count, free));
+    ) -> Result<Option<(Vec<Scored>, adaptive::Weights, usize)>, JobError> {
         let sensors: Vec<SensorKind> = self.request.collect.sensor.iter().collect();
+        let seed = self.prepared.setup.plan_spec.seed;
+        let k = self.record.settings.seeds_per_pose as u64;
+        let weigh = pressed.len() >= adaptive::MIN_EVIDENCE;
         let mut calls = 0;
-        let mut spread = vec![0.0; candidates.len()];
+        let mut sources = Vec::with_capacity(sensors.len());
         let mut measured: Vec<([f64; 4], f64)> = pressed.iter().map(|&i| (self.points[i], 0.0)).collect();
+        let mut pressed_spread = vec![0.0; pressed.len()];
         for &sensor in &sensors {
             let source = SensorSource::open(&self.prepared.setup.dataset_dir(sensor), sensor, pipeline, &self.options)?;
-            let seed = self.prepared.setup.plan_spec.seed;
-            for (k, &i) in pressed.iter().enumerate() {
+            for (j, &i) in pressed.iter().enumerate() {
                 let id = self.ids[i];
+                let pose = self.prepared.plan.poses[i];
                 let error = match self.errors.get(&(sensor, id)) {
                     Some(&e) => e,
                     None if cancelled() => return Ok(None),
                     None => {
-                        let pose = self.prepared.plan.poses[i];
                         let image = source.generate(pipeline, &self.options, &[(pose, pose_seed(seed, id))])?.remove(0);
                         calls += 1;
                         let e = source.error_at(&pose, &image)?;
@@ -277,32 +301,62 @@ impl AdaptiveRun {
                         e
                     }
                 };
-                measured[k].1 += error / sensors.len() as f64;
-            }
-            for (k, &i) in candidates.iter().enumerate() {
-                if cancelled() {
-                    return Ok(None);
+                measured[j].1 += error / sensors.len() as f64;
+                if weigh {
+                    let spread = match self.spreads.get(&(sensor, id)) {
+                        Some(&s) => s,
+                        None if cancelled() => return Ok(None),
+                        None => {
+                            let images = source.generate(pipeline, &self.options, &spread_seeds(pose, seed, k))?;
+                            calls += images.len();
+                            let s = source.spread(&images);
+                            self.spreads.insert((sensor, id), s);
+                            s
+                        }
+                    };
+                    pressed_spread[j] += spread / sensors.len() as f64;
                 }
-                let pose = self.prepared.plan.poses[i];
-                let seeds: Vec<(PlannedPose, u64)> = (0..self.record.settings.seeds_per_pose as u64)
-                    .map(|s| (pose, pose_seed(seed.wrapping_add(s + 1), pose.pose_id)))
-                    .collect();
-                let images = source.generate(pipeline, &self.options, &seeds)?;
-                calls += images.len();
-                spread[k] += source.spread(&images) / sensors.len() as f64;
+            }
+            sources.push(source);
+        }
+        let errors = adaptive::ErrorModel::new(&measured);
+        let weights = if weigh {
+            let measured_errors: Vec<f64> = measured.iter().map(|m| m.1).collect();
+            adaptive::Weights::measured(errors.distance_weight(), adaptive::term_weight(&pressed_spread, &measured_errors), errors.weight())
+        } else {
+            adaptive::Weights::PRIOR
+        };
+        let free = self.points.len() - pressed.len();
+        let candidates =
+            adaptive::candidates_to_score(&self.points, &self.ids, pressed, Some((&errors, weights)), adaptive::scored_count(count, free));
+        let mut spread = vec![(weights.spread > 0.0).then_some(0.0); candidates.len()];
+        if weights.spread > 0.0 {
+            for source in &sources {
+                for (j, &i) in candidates.iter().enumerate() {
+                    if cancelled() {
+                        return Ok(None);
+                    }
+                    let images = source.generate(pipeline, &self.options, &spread_seeds(self.prepared.plan.poses[i], seed, k))?;
+                    calls += images.len();
+                    if let Some(s) = spread[j].as_mut() {
+                        *s += source.spread(&images) / sensors.len() as f64;
+                    }
+                }
             }
         }
         let scored = candidates
             .iter()
             .zip(spread)
-            .map(|(&index, spread)| Scored {
-                index,
-                spread,
-                error: adaptive::regressed_error(&self.points[index], &measured).unwrap_or(0.0),
-            })
+            .map(|(&index, spread)| Scored { index, spread, error: errors.at(&self.points[index]).unwrap_or(0.0) })
             .collect();
-        Ok(Some((scored, calls)))
+        Ok(Some((scored, weights, calls)))
     }
+}
+
+/// The `k` seeds of a pose's spread, other than its fill's: `pose_seed(plan seed + s, pose_id)`,
+/// s = 1..=k.
+fn spread_seeds(pose: PlannedPose, seed: u64, k: u64) -> Vec<(PlannedPose, u64)> {
+    (0..k).map(|s| (pose, pose_seed(seed.wrapping_add(s + 1), pose.pose_id))).collect()
 }
 
 /// One sensor's dataset as the evidence needs it: its control renderer and its reference

@@ -68,7 +68,7 @@ pub(crate) fn choices(dataset: &Path) -> Vec<(u32, usize, String)> {
     assert!(manifest["adaptive"]["budget"].as_integer().is_some(), "the manifest's [adaptive] holds the settings");
     let text = std::fs::read_to_string(dataset.join("adaptive.csv")).expect("adaptive.csv");
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("pose_id,round,reason,distance,spread,error,score"));
+    assert_eq!(lines.next(), Some("pose_id,round,reason,distance,spread,error,score,distance_weight,spread_weight,error_weight"));
     lines
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
@@ -144,6 +144,43 @@ fn rounds_are_recorded_and_the_rest_is_filled() {
     assert_eq!(pressed(&rows), ids, "{rows:?}");
     assert_eq!(rows.iter().filter(|r| r.1 == "synthetic").count(), 11);
     assert!(text(&o).contains("round 2/3: 2 poses (by acquisition,"), "{}", text(&o));
+}
+
+/// Once enough poses are pressed (8), a round weighs the distance, the spread and the error by
+/// how well each predicted the errors measured at the pressed poses: round 2 (6 pressed) counts every term 1,
+/// round 3 (12 pressed) records the weights it measured, measures the spread at the pressed
+/// poses (2 seeds each), and at the candidates only where the spread's weight is above 0. The
+/// model calls it prints are those.
+#[test]
+fn later_rounds_weigh_each_term_by_what_it_predicted() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let full = plan(tmp.path(), true);
+    let out = tmp.path().join("out");
+    // 17 of 18 poses over 3 rounds: 6, 6, 5.
+    let o = rig().args(adaptive_args(&out, &full, &tiny(), 17, "tactip")).output().expect("rig collect --adaptive");
+    assert!(o.status.success(), "{}", text(&o));
+    let csv = std::fs::read_to_string(out.join("sphere/tactip/adaptive.csv")).expect("adaptive.csv");
+    let rows: Vec<Vec<String>> = csv.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
+    let number = |v: &str| -> Option<f64> { (!v.is_empty()).then(|| v.parse().expect("a number")) };
+    let weights = |r: &Vec<String>| [number(&r[7]), number(&r[8]), number(&r[9])];
+    for r in rows.iter().filter(|r| r[1] == "2") {
+        assert_eq!(weights(r), [Some(1.0); 3], "round 2 weighs every term 1: {r:?}");
+        assert!(number(&r[4]).is_some(), "round 2 measured the spread: {r:?}");
+    }
+    let third: Vec<&Vec<String>> = rows.iter().filter(|r| r[1] == "3").collect();
+    assert_eq!(third.len(), 5, "{csv}");
+    let w = weights(third[0]).map(|v| v.expect("a weight"));
+    assert!(w.iter().all(|v| (0.0..=1.0).contains(v)) && w.iter().sum::<f64>() > 0.0, "{csv}");
+    assert!(w != [1.0; 3], "round 3's weights are measured, not the prior: {csv}");
+    let ws = w[1];
+    for r in &third {
+        assert_eq!(weights(r), w.map(Some), "one set of weights a round: {csv}");
+        assert_eq!(number(&r[4]).is_some(), ws > 0.0, "the spread is measured where it counts: {csv}");
+    }
+    // Round 3: the errors at round 2's 6 presses (round 1's were measured for round 2), the
+    // spread at all 12 pressed poses with 2 seeds, and, where it counts, at the 6 candidates left.
+    let calls = 6 + 12 * 2 + if ws > 0.0 { 6 * 2 } else { 0 };
+    assert!(text(&o).contains(&format!("round 3/3: 5 poses (by acquisition, {calls} model calls in")), "{}", text(&o));
 }
 
 #[test]
