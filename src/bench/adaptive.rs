@@ -208,15 +208,16 @@ pub fn measure_scale(config: &BenchConfig) -> Result<KnobReport, BenchError> {
             format!(
                 "The choices of `rig collect --adaptive --budget B --rounds {SCALE_ROUNDS}` with B = {:.0} % of a plan of N poses of the \
                  lab-scale grid (`plans/lab-scale.toml`, Latin hypercube, seed 0), in process, without the model: its evidence \
-                 (the spread at each scored candidate, the error at each press) is drawn from a seeded generator. The model's \
+                 (the spread at each press and each scored candidate, the error at each press) is drawn from a seeded generator. The model's \
                  calls are the `adaptive` knob's; this is what choosing costs besides them.",
                 SCALE_SHARE * 100.0
             ),
             format!(
                 "Growth exponent (slope of ln s against ln N; 1 linear, 2 quadratic): round 1 {e1:.2}, the slowest later round {e2:.2}. \
-                 Round 1 is greedy farthest-point sampling, O(N x presses); a later round finds every pose's nearest press in a \
-                 k-d tree (O(N log presses)), regresses the error at 4 x presses candidates from every press (O(candidates x \
-                 presses)) and picks its batch (O(candidates x presses a round)): quadratic in N at a fixed share."
+                 Round 1 is greedy farthest-point sampling, O(N x presses); a later round weighs its terms at the presses, \
+                 finds every pose's nearest press and regresses the error at every unpressed pose in k-d trees \
+                 (O(N log presses)), and picks its batch from 4 x presses candidates, updating each one's distance after each \
+                 pick (O(candidates x presses a round)): quadratic in N at a fixed share."
             ),
         ],
         plot: Plot {
