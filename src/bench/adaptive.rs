@@ -118,11 +118,11 @@ const SCALE_ROUNDS: usize = 4;
 
 /// The seconds each round's arithmetic takes on a plan of `n` poses (the scale knob's lab
 /// grid, Latin hypercube): round 1 by farthest points, each later round the terms' weights
-/// (each press's nearest other press and its error regressed from the others), the candidates by distance and the error
-/// regressed at every unpressed pose, and the batch picked, with the model's evidence (a
-/// spread per candidate and per press, an error per press) drawn from a seeded generator in
-/// place of model calls. Returns the presses a round and the
-/// seconds of each round.
+/// (each press's nearest other press and its error regressed from the others), the
+/// candidates by distance and the error regressed at every unpressed pose, and the batch
+/// picked, with the model's evidence (a spread per candidate and per press, an error per
+/// press) drawn from a seeded generator in place of model calls. Returns the presses a round
+/// and the seconds of each round.
 pub fn choosing_arithmetic(n: usize) -> Result<(usize, Vec<f64>), BenchError> {
     use crate::plan::adaptive::{self, Scored, Weights};
     use rand::{RngExt, SeedableRng};

@@ -329,25 +329,26 @@ impl AdaptiveRun {
         let free = self.points.len() - pressed.len();
         let candidates =
             adaptive::candidates_to_score(&self.points, &self.ids, pressed, Some((&errors, weights)), adaptive::scored_count(count, free));
-        let mut spread = vec![(weights.spread > 0.0).then_some(0.0); candidates.len()];
-        if weights.spread > 0.0 {
-            for source in &sources {
-                for (j, &i) in candidates.iter().enumerate() {
-                    if cancelled() {
-                        return Ok(None);
-                    }
-                    let images = source.generate(pipeline, &self.options, &spread_seeds(self.prepared.plan.poses[i], seed, k))?;
-                    calls += images.len();
-                    if let Some(s) = spread[j].as_mut() {
-                        *s += source.spread(&images) / sensors.len() as f64;
-                    }
+        let measure_spread = weights.spread > 0.0;
+        let mut spread = vec![0.0; candidates.len()];
+        for source in sources.iter().filter(|_| measure_spread) {
+            for (j, &i) in candidates.iter().enumerate() {
+                if cancelled() {
+                    return Ok(None);
                 }
+                let images = source.generate(pipeline, &self.options, &spread_seeds(self.prepared.plan.poses[i], seed, k))?;
+                calls += images.len();
+                spread[j] += source.spread(&images) / sensors.len() as f64;
             }
         }
         let scored = candidates
             .iter()
             .zip(spread)
-            .map(|(&index, spread)| Scored { index, spread, error: errors.at(&self.points[index]).unwrap_or(0.0) })
+            .map(|(&index, spread)| Scored {
+                index,
+                spread: measure_spread.then_some(spread),
+                error: errors.at(&self.points[index]).unwrap_or(0.0),
+            })
             .collect();
         Ok(Some((scored, weights, calls)))
     }
